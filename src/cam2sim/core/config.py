@@ -1,0 +1,336 @@
+"""The recording config (``WS/config.yaml``): YAML validated with pydantic.
+
+The config says which topics hold what, in which conventions, and how to cut and synchronise the
+recording. ``cam2sim init`` writes a starter file guessed from the bag; the user edits it. Errors
+name the key, the value found and the fix.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from enum import StrEnum
+from pathlib import Path
+from typing import Literal, Self
+
+import pydantic
+import yaml
+
+from cam2sim.core.errors import ConfigError
+from cam2sim.core.files import write_text_atomic
+
+__all__ = [
+    "AXIS_CONVENTION_YAW_OFFSET",
+    "AxisConvention",
+    "CameraConfig",
+    "Config",
+    "FramesConfig",
+    "IntrinsicsConfig",
+    "LidarConfig",
+    "MountConfig",
+    "PoseConfig",
+    "RecordingConfig",
+    "SignalConfig",
+    "SyncConfig",
+    "TfLink",
+    "TopicsConfig",
+    "config_to_yaml",
+    "load_config",
+    "save_config",
+]
+
+CONFIG_SCHEMA_VERSION = 1
+
+
+class AxisConvention(StrEnum):
+    """Which way the pose frame's x axis points on the vehicle.
+
+    The vehicle's forward axis is the pose frame's x axis turned about its z axis by
+    :data:`AXIS_CONVENTION_YAW_OFFSET`. The reference car's odometry has x to the left, so its
+    heading is yaw - 90 degrees.
+    """
+
+    X_FORWARD = "x_forward"
+    X_LEFT = "x_left"
+    X_RIGHT = "x_right"
+    X_BACKWARD = "x_backward"
+
+
+AXIS_CONVENTION_YAW_OFFSET: dict[AxisConvention, float] = {
+    AxisConvention.X_FORWARD: 0.0,
+    AxisConvention.X_LEFT: -math.pi / 2,
+    AxisConvention.X_RIGHT: math.pi / 2,
+    AxisConvention.X_BACKWARD: math.pi,
+}
+
+
+class _Model(pydantic.BaseModel):
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+
+class RecordingConfig(_Model):
+    """Where the recording is and which clock to trust."""
+
+    bags: list[str] = pydantic.Field(
+        default_factory=list,
+        description="Bag files or folders (ROS1 .bag, ROS2 folder, .mcap), relative to the "
+        "workspace or absolute. Several files are read as one recording.",
+    )
+    time_base: Literal["header", "receive"] = pydantic.Field(
+        "header",
+        description="header: message header.stamp (the sensor's time). receive: the bag's record "
+        "time (arrives in bursts; use only when headers are unset).",
+    )
+
+
+class SignalConfig(_Model):
+    """A scalar signal: any numeric field of any message type."""
+
+    topic: str
+    field: str = pydantic.Field("data", description="Dotted field path, e.g. data or drive.speed")
+
+
+class TopicsConfig(_Model):
+    """Which topic holds what."""
+
+    camera: str | None = None
+    camera_info: str | None = None
+    pose: str | None = None
+    lidar: str | None = None
+    signals: dict[str, SignalConfig] = pydantic.Field(default_factory=dict)
+
+
+class TfLink(_Model):
+    """Two frames of the /tf tree: the transform maps child coordinates into parent ones."""
+
+    parent: str
+    child: str
+
+
+class PoseConfig(_Model):
+    """How ego poses are read and which conventions they use."""
+
+    source: Literal["message", "tf"] = pydantic.Field(
+        "message",
+        description="message: the topics.pose topic (Odometry, PoseStamped, "
+        "PoseWithCovarianceStamped, NavSatFix). tf: the chain tf.parent -> tf.child in /tf.",
+    )
+    crs: str | None = pydantic.Field(
+        None,
+        description="CRS of the pose positions, e.g. EPSG:32632 when odometry is UTM 32N. "
+        "null: a local metric frame without geo-reference. NavSatFix is always WGS84.",
+    )
+    axis_convention: AxisConvention = AxisConvention.X_FORWARD
+    tf: TfLink | None = None
+    heading: Literal["orientation", "motion"] = pydantic.Field(
+        "orientation",
+        description="orientation: from the message's quaternion (or orientation_topic for "
+        "NavSatFix). motion: from the direction of travel.",
+    )
+    orientation_topic: str | None = pydantic.Field(
+        None, description="For NavSatFix: a topic with an ENU orientation (Imu, Odometry, Pose)."
+    )
+    on_invalid: Literal["error", "drop"] = pydantic.Field(
+        "error", description="What to do with NaN/inf poses or NavSatFix without a fix."
+    )
+    body_frame: str | None = pydantic.Field(
+        None,
+        description="tf frame of the vehicle reference point (for mounts from /tf_static); "
+        "defaults to the odometry child_frame_id or tf.child.",
+    )
+
+
+class SyncConfig(_Model):
+    """How sensor samples are matched to poses."""
+
+    max_pose_gap_s: float = pydantic.Field(
+        0.5, gt=0, description="Drop frames inside a pose gap longer than this."
+    )
+    speed_window_s: float = pydantic.Field(
+        0.2, gt=0, description="Speed = distance travelled over this window / window."
+    )
+    min_motion_speed_mps: float = pydantic.Field(
+        0.5, ge=0, description="Heading from motion is held below this speed."
+    )
+
+
+class IntrinsicsConfig(_Model):
+    """Pinhole intrinsics and lens distortion (OpenCV plumb-bob order k1, k2, p1, p2, k3)."""
+
+    fx: float = pydantic.Field(gt=0)
+    fy: float = pydantic.Field(gt=0)
+    cx: float
+    cy: float
+    width: int = pydantic.Field(gt=0)
+    height: int = pydantic.Field(gt=0)
+    distortion: list[float] = pydantic.Field(default_factory=list)
+    model: Literal["plumb_bob", "equidistant"] = "plumb_bob"
+
+
+class MountConfig(_Model):
+    """Where a sensor sits relative to the vehicle reference point (the pose's origin).
+
+    Either ``xyz`` (metres) and ``rpy_deg`` in the vehicle frame (x forward, y left, z up), or
+    ``tf_frame``: read from /tf_static between the body frame and this frame. ``axes`` says
+    whether the sensor frame is a link frame (x forward, y left, z up) or an optical camera frame
+    (x right, y down, z forward).
+    """
+
+    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    tf_frame: str | None = None
+    axes: Literal["link", "optical"] = "link"
+
+
+class CameraConfig(_Model):
+    """Camera calibration: intrinsics (or topics.camera_info) and mount."""
+
+    intrinsics: IntrinsicsConfig | None = None
+    mount: MountConfig = MountConfig()
+
+
+class LidarConfig(_Model):
+    """LiDAR mount and decoding options."""
+
+    mount: MountConfig = MountConfig()
+    drop_invalid_points: bool = True
+
+
+class FramesConfig(_Model):
+    """How camera frames are written."""
+
+    format: Literal["png", "jpeg"] = "png"
+    jpeg_quality: int = pydantic.Field(95, ge=1, le=100)
+    every: int = pydantic.Field(1, ge=1, description="Keep every n-th camera frame.")
+
+
+class Config(_Model):
+    """The whole recording config of a workspace."""
+
+    schema_version: int = CONFIG_SCHEMA_VERSION
+    recording: RecordingConfig = RecordingConfig()
+    topics: TopicsConfig = TopicsConfig()
+    pose: PoseConfig = PoseConfig()
+    sync: SyncConfig = SyncConfig()
+    camera: CameraConfig = CameraConfig()
+    lidar: LidarConfig = LidarConfig()
+    frames: FramesConfig = FramesConfig()
+
+    @pydantic.model_validator(mode="after")
+    def _check_consistency(self) -> Self:
+        if self.pose.source == "tf" and self.pose.tf is None:
+            msg = (
+                "pose.source is 'tf' but pose.tf is not set; add pose.tf: {parent: ..., child: ...}"
+            )
+            raise ValueError(msg)
+        return self
+
+    def section_dict(self, *names: str) -> dict[str, object]:
+        """Return the named top-level sections as plain data (for input hashing)."""
+        data = self.model_dump(mode="json")
+        return {name: data[name] for name in names}
+
+
+def _fields_at(loc: tuple[int | str, ...]) -> set[str]:
+    """Return the field names of the config section at ``loc`` (for spelling suggestions)."""
+    model: type[pydantic.BaseModel] = Config
+    for part in loc:
+        field = model.model_fields.get(str(part))
+        annotation = field.annotation if field else None
+        candidates = [a for a in getattr(annotation, "__args__", (annotation,)) if a]
+        nested = [
+            c for c in candidates if isinstance(c, type) and issubclass(c, pydantic.BaseModel)
+        ]
+        if not nested:
+            return set()
+        model = nested[0]
+    return set(model.model_fields)
+
+
+def _error_message(err: pydantic.ValidationError, source: str) -> str:
+    parts = []
+    for item in err.errors():
+        loc = ".".join(str(p) for p in item["loc"])
+        text = f"{loc or '<root>'}: {item['msg']}"
+        if item["type"] == "extra_forbidden":
+            last = str(item["loc"][-1])
+            candidates = _fields_at(item["loc"][:-1])
+            close = difflib.get_close_matches(last, candidates, n=1)
+            text = f"{loc}: unknown key" + (f" (did you mean {close[0]!r}?)" if close else "")
+            text += "; remove it or fix its spelling"
+        elif "input" in item and item["type"] != "missing":
+            text += f" (found {item['input']!r})"
+        parts.append(text)
+    return f"{source}: invalid config: " + "; ".join(parts)
+
+
+def load_config(path: Path) -> Config:
+    """Read and validate a ``config.yaml``.
+
+    Raises:
+        ConfigError: The file is missing, not YAML, or a key is invalid; the message names the
+            key and the fix.
+    """
+    path = Path(path)
+    try:
+        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        msg = f"{path} does not exist; create the workspace with `cam2sim init WS --bag BAG`"
+        raise ConfigError(msg) from None
+    except yaml.YAMLError as err:
+        msg = f"{path}: not valid YAML ({err}); fix the syntax at the line shown"
+        raise ConfigError(msg) from None
+    if raw is None:
+        raw = {}
+    if not isinstance(raw, dict):
+        msg = f"{path}: expected a mapping of sections at the top level, found {type(raw).__name__}"
+        raise ConfigError(msg)
+    version = raw.get("schema_version", CONFIG_SCHEMA_VERSION)
+    if isinstance(version, int) and version > CONFIG_SCHEMA_VERSION:
+        msg = (
+            f"{path}: schema_version {version} is newer than this cam2sim understands "
+            f"({CONFIG_SCHEMA_VERSION}); upgrade cam2sim"
+        )
+        raise ConfigError(msg)
+    try:
+        return Config.model_validate(raw)
+    except pydantic.ValidationError as err:
+        raise ConfigError(_error_message(err, str(path))) from None
+
+
+_HEADER = """\
+# cam2sim recording config. Edit it, then run `cam2sim extract WS`.
+# Paths are relative to this workspace folder. Units: metres, seconds, degrees where the key
+# says _deg. Conventions:
+#   pose.crs: CRS of the pose positions (EPSG:32632 for UTM 32N odometry); null = local frame.
+#   pose.axis_convention: where the pose frame's x axis points on the car (x_forward, x_left,
+#     x_right, x_backward). The reference car's odometry has x to the left: x_left.
+#   camera.mount / lidar.mount: sensor position (xyz, m) and rpy_deg relative to the pose's
+#     reference point, in the vehicle frame (x forward, y left, z up); or tf_frame to read it
+#     from /tf_static.
+"""
+
+
+class _ConfigDumper(yaml.SafeDumper):
+    """Block style for sections, flow style for short lists such as ``xyz: [0, 0, 1.5]``."""
+
+
+def _represent_list(dumper: yaml.SafeDumper, data: list[object]) -> yaml.Node:
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=True)
+
+
+_ConfigDumper.add_representer(list, _represent_list)
+
+
+def config_to_yaml(config: Config, *, comment: str = "") -> str:
+    """Render a config as commented YAML (the format ``cam2sim init`` writes)."""
+    body = yaml.dump(
+        config.model_dump(mode="json"), Dumper=_ConfigDumper, sort_keys=False, width=100
+    )
+    extra = "".join(f"# {line}\n" for line in comment.splitlines())
+    return _HEADER + extra + body
+
+
+def save_config(config: Config, path: Path, *, comment: str = "") -> None:
+    """Write a config atomically as commented YAML."""
+    write_text_atomic(Path(path), config_to_yaml(config, comment=comment))

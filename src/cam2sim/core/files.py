@@ -1,0 +1,112 @@
+"""Atomic file and folder writes.
+
+A reader never sees a half-written artifact: files are written to a temporary sibling and renamed
+into place, and whole output folders are built beside the old one and swapped in at the end.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+
+__all__ = [
+    "atomic_folder",
+    "file_fingerprint",
+    "write_bytes_atomic",
+    "write_text_atomic",
+]
+
+_FINGERPRINT_BLOCK = 1 << 20
+
+
+def write_bytes_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` so that readers see the old or the new file, never a part.
+
+    Args:
+        path: Destination file. Its folder is created when missing.
+        data: The complete new content.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        Path(tmp_name).replace(path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            Path(tmp_name).unlink()
+        raise
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write UTF-8 ``text`` to ``path`` atomically (see :func:`write_bytes_atomic`)."""
+    write_bytes_atomic(path, text.encode("utf-8"))
+
+
+@contextlib.contextmanager
+def atomic_folder(path: Path) -> Iterator[Path]:
+    """Build a folder beside ``path`` and swap it into place when the block succeeds.
+
+    The block receives an empty temporary folder to fill. On success the previous ``path`` (if
+    any) is replaced as a whole; on any exception, including ``KeyboardInterrupt``, the temporary
+    folder is removed and ``path`` is left exactly as it was.
+
+    Args:
+        path: The folder to (re)create.
+
+    Yields:
+        The temporary folder to write into.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    old = path.parent / f".{path.name}.old-{os.getpid()}"
+    if path.exists():
+        path.replace(old)
+    try:
+        tmp.replace(path)
+    except BaseException:
+        if old.exists():
+            old.replace(path)
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def file_fingerprint(path: Path) -> str:
+    """Return a fast content fingerprint of a (possibly multi-GB) file.
+
+    The SHA-256 of the file size, its first and its last MiB. It changes whenever a recording is
+    replaced, truncated or appended to, without reading gigabytes on every run.
+
+    Args:
+        path: The file.
+
+    Returns:
+        ``"fp256:<hex>"``.
+    """
+    path = Path(path)
+    size = path.stat().st_size
+    digest = hashlib.sha256(str(size).encode())
+    with path.open("rb") as handle:
+        digest.update(handle.read(_FINGERPRINT_BLOCK))
+        if size > _FINGERPRINT_BLOCK:
+            handle.seek(max(size - _FINGERPRINT_BLOCK, _FINGERPRINT_BLOCK))
+            digest.update(handle.read(_FINGERPRINT_BLOCK))
+    return f"fp256:{digest.hexdigest()}"

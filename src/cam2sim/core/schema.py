@@ -1,0 +1,71 @@
+"""Schema-versioned JSON artifacts, validated with pydantic on load.
+
+Every JSON artifact cam2sim writes is a subclass of :class:`Artifact`. It carries
+``schema_version``; loading rejects a newer version with a message naming both versions, and a
+malformed file with a message naming the file and the offending element.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import ClassVar, Self
+
+import pydantic
+
+from cam2sim.core.errors import SchemaVersionError, WorkspaceError
+from cam2sim.core.files import write_text_atomic
+
+__all__ = ["Artifact", "format_validation_error"]
+
+
+def format_validation_error(err: pydantic.ValidationError, *, source: str) -> str:
+    """Return a one-paragraph message listing every invalid element of ``source``."""
+    parts = []
+    for item in err.errors():
+        where = ".".join(str(p) for p in item["loc"]) or "<root>"
+        parts.append(f"{where}: {item['msg']}")
+    return f"{source}: " + "; ".join(parts)
+
+
+class Artifact(pydantic.BaseModel):
+    """Base of every schema-versioned JSON artifact."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+    SCHEMA_VERSION: ClassVar[int] = 1
+    schema_version: int = 1
+
+    def save(self, path: Path) -> None:
+        """Write the artifact to ``path`` atomically as indented JSON."""
+        write_text_atomic(Path(path), self.model_dump_json(indent=2) + "\n")
+
+    @classmethod
+    def load(cls, path: Path) -> Self:
+        """Read and validate an artifact.
+
+        Raises:
+            WorkspaceError: The file is missing, not JSON, or does not match the schema.
+            SchemaVersionError: The file was written by a newer schema version.
+        """
+        path = Path(path)
+        try:
+            raw = json.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            msg = f"{path} does not exist; run the stage that writes it first"
+            raise WorkspaceError(msg) from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as err:
+            msg = f"{path} is not valid JSON ({err}); delete it and re-run the stage that writes it"
+            raise WorkspaceError(msg) from None
+        version = raw.get("schema_version") if isinstance(raw, dict) else None
+        if isinstance(version, int) and version > cls.SCHEMA_VERSION:
+            msg = (
+                f"{path} has schema_version {version}, but this cam2sim reads {cls.__name__} up "
+                f"to version {cls.SCHEMA_VERSION}; upgrade cam2sim (pip install -U cam2sim)"
+            )
+            raise SchemaVersionError(msg)
+        try:
+            return cls.model_validate(raw)
+        except pydantic.ValidationError as err:
+            msg = format_validation_error(err, source=str(path))
+            raise WorkspaceError(msg) from None

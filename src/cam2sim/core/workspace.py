@@ -1,0 +1,324 @@
+"""The workspace contract: every artifact path, the manifest, and per-stage state.
+
+This module is the only place that knows where things live inside a workspace folder. Stages ask
+a :class:`Workspace` for paths and never build file names of another stage themselves.
+
+Layout::
+
+    WS/
+      workspace.json     manifest: tool version, config snapshot, world frame, stage states
+      config.yaml        the user's recording config
+      dataset/           stage extract / import
+      detections/ map/ scenario/ splat/ ads/ runs/ report/
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import hashlib
+import json
+from pathlib import Path
+from typing import Literal
+
+import pydantic
+
+from cam2sim import __version__
+from cam2sim.core.config import Config, load_config, save_config
+from cam2sim.core.errors import WorkspaceError
+from cam2sim.core.schema import Artifact
+
+__all__ = [
+    "Manifest",
+    "StageRecord",
+    "Workspace",
+    "WorldFrameRecord",
+    "hash_inputs",
+]
+
+StageState = Literal["done", "failed"]
+
+
+def _now() -> dt.datetime:
+    return dt.datetime.now(dt.UTC)
+
+
+def hash_inputs(data: object) -> str:
+    """Return a stable SHA-256 of JSON-serialisable ``data`` (a stage's inputs)."""
+    text = json.dumps(data, sort_keys=True, separators=(",", ":"), default=str)
+    return "sha256:" + hashlib.sha256(text.encode()).hexdigest()
+
+
+class StageRecord(pydantic.BaseModel):
+    """The outcome of a stage's last run."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+    state: StageState
+    inputs_hash: str | None = None
+    started: dt.datetime
+    finished: dt.datetime
+    message: str | None = None
+    tool_version: str = __version__
+
+
+class WorldFrameRecord(pydantic.BaseModel):
+    """The workspace's world frame, fixed once and never changed."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+    proj_string: str | None = pydantic.Field(
+        description="pyproj string of the world frame; null for a local frame without geo-reference"
+    )
+    origin_lat_deg: float | None = None
+    origin_lon_deg: float | None = None
+    origin_alt_m: float = 0.0
+    source_crs: str | None = pydantic.Field(
+        None, description="CRS the recording's positions were given in"
+    )
+
+    @property
+    def georeferenced(self) -> bool:
+        """Whether world coordinates can be mapped to the Earth."""
+        return self.proj_string is not None
+
+
+class Manifest(Artifact):
+    """``workspace.json``."""
+
+    tool_version: str = __version__
+    created: dt.datetime = pydantic.Field(default_factory=_now)
+    config: dict[str, object] | None = pydantic.Field(
+        None, description="Snapshot of config.yaml at the last stage run"
+    )
+    world: WorldFrameRecord | None = None
+    stages: dict[str, StageRecord] = pydantic.Field(default_factory=dict)
+
+
+class Workspace:
+    """A cam2sim workspace folder and the paths of all its artifacts."""
+
+    MANIFEST = "workspace.json"
+    CONFIG = "config.yaml"
+
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root).absolute()
+
+    def __repr__(self) -> str:
+        return f"Workspace({str(self.root)!r})"
+
+    # -- creation and opening -------------------------------------------------------------
+    @classmethod
+    def create(
+        cls, root: Path, config: Config, *, comment: str = "", force: bool = False
+    ) -> Workspace:
+        """Create a new workspace with a config and an empty manifest.
+
+        Raises:
+            WorkspaceError: ``root`` already holds a workspace and ``force`` is false.
+        """
+        ws = cls(root)
+        if ws.manifest_path.exists() and not force:
+            msg = (
+                f"{ws.root} already holds a cam2sim workspace; edit its config.yaml, or pass "
+                "--force to overwrite the config"
+            )
+            raise WorkspaceError(msg)
+        ws.root.mkdir(parents=True, exist_ok=True)
+        save_config(config, ws.config_path, comment=comment)
+        manifest = ws.read_manifest() if ws.manifest_path.exists() else Manifest()
+        ws.write_manifest(manifest)
+        return ws
+
+    @classmethod
+    def open(cls, root: Path) -> Workspace:
+        """Open an existing workspace.
+
+        Raises:
+            WorkspaceError: ``root`` is not a workspace.
+        """
+        ws = cls(root)
+        if not ws.manifest_path.is_file():
+            msg = (
+                f"{ws.root} is not a cam2sim workspace (no {cls.MANIFEST}); create one with "
+                f"`cam2sim init {root} --bag BAG` or `cam2sim import {root} --images DIR`"
+            )
+            raise WorkspaceError(msg)
+        return ws
+
+    # -- manifest and config ----------------------------------------------------------------
+    @property
+    def manifest_path(self) -> Path:
+        """``workspace.json``."""
+        return self.root / self.MANIFEST
+
+    @property
+    def config_path(self) -> Path:
+        """``config.yaml``."""
+        return self.root / self.CONFIG
+
+    def read_manifest(self) -> Manifest:
+        """Load and validate ``workspace.json``."""
+        return Manifest.load(self.manifest_path)
+
+    def write_manifest(self, manifest: Manifest) -> None:
+        """Write ``workspace.json`` atomically."""
+        manifest.save(self.manifest_path)
+
+    def load_config(self) -> Config:
+        """Load and validate ``config.yaml``."""
+        return load_config(self.config_path)
+
+    def resolve(self, path: str | Path) -> Path:
+        """Resolve a path from the config: relative paths are relative to the workspace."""
+        path = Path(path).expanduser()
+        return path if path.is_absolute() else (self.root / path)
+
+    def stage_record(self, stage: str) -> StageRecord | None:
+        """Return the last recorded outcome of ``stage``, if any."""
+        return self.read_manifest().stages.get(stage)
+
+    def is_up_to_date(self, stage: str, inputs_hash: str) -> bool:
+        """Whether ``stage`` last succeeded with exactly these inputs."""
+        record = self.stage_record(stage)
+        return record is not None and record.state == "done" and record.inputs_hash == inputs_hash
+
+    def record_stage(
+        self,
+        stage: str,
+        *,
+        state: StageState,
+        started: dt.datetime,
+        inputs_hash: str | None = None,
+        message: str | None = None,
+        config: Config | None = None,
+        world: WorldFrameRecord | None = None,
+    ) -> None:
+        """Record a stage outcome in the manifest (atomically)."""
+        manifest = self.read_manifest()
+        stages = dict(manifest.stages)
+        stages[stage] = StageRecord(
+            state=state,
+            inputs_hash=inputs_hash,
+            started=started,
+            finished=_now(),
+            message=message,
+        )
+        update: dict[str, object] = {"stages": stages, "tool_version": __version__}
+        if config is not None:
+            update["config"] = config.model_dump(mode="json")
+        if world is not None:
+            update["world"] = world
+        self.write_manifest(manifest.model_copy(update=update))
+
+    def world_frame(self) -> WorldFrameRecord | None:
+        """The workspace's world frame, once a stage has fixed it."""
+        return self.read_manifest().world
+
+    # -- stage folders and artifacts ----------------------------------------------------------
+    @property
+    def dataset_dir(self) -> Path:
+        """Stage extract/import output folder."""
+        return self.root / "dataset"
+
+    @property
+    def detections_dir(self) -> Path:
+        """Stage detect output folder."""
+        return self.root / "detections"
+
+    @property
+    def map_dir(self) -> Path:
+        """Stage map output folder."""
+        return self.root / "map"
+
+    @property
+    def scenario_dir(self) -> Path:
+        """Stage scenario output folder."""
+        return self.root / "scenario"
+
+    @property
+    def splat_dir(self) -> Path:
+        """Stage splat output folder."""
+        return self.root / "splat"
+
+    @property
+    def ads_dir(self) -> Path:
+        """Steering model weights and training logs."""
+        return self.root / "ads"
+
+    @property
+    def runs_dir(self) -> Path:
+        """Replay and closed-loop runs, one folder each."""
+        return self.root / "runs"
+
+    @property
+    def report_dir(self) -> Path:
+        """Metrics and the HTML report."""
+        return self.root / "report"
+
+
+def dataset_paths(dataset_dir: Path) -> DatasetPaths:
+    """Return the artifact paths inside a dataset folder (also a temporary one being built)."""
+    return DatasetPaths(Path(dataset_dir))
+
+
+class DatasetPaths:
+    """Paths of the dataset artifacts, relative to a dataset folder."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+
+    @property
+    def frames_dir(self) -> Path:
+        """Camera frames, ``NNNNNN.png`` or ``.jpg``."""
+        return self.root / "frames"
+
+    def frame_file(self, index: int, fmt: str) -> Path:
+        """The image file of frame ``index``."""
+        suffix = "jpg" if fmt == "jpeg" else fmt
+        return self.frames_dir / f"{index:06d}.{suffix}"
+
+    @property
+    def poses_csv(self) -> Path:
+        """The ego pose at every kept camera frame."""
+        return self.root / "poses.csv"
+
+    @property
+    def trajectory_csv(self) -> Path:
+        """Every ego pose sample of the recording, in the world frame."""
+        return self.root / "trajectory.csv"
+
+    @property
+    def lidar_dir(self) -> Path:
+        """LiDAR scans, ``NNNNNN.npy`` structured arrays in the sensor frame."""
+        return self.root / "lidar"
+
+    def lidar_file(self, index: int) -> Path:
+        """The point file of scan ``index``."""
+        return self.lidar_dir / f"{index:06d}.npy"
+
+    @property
+    def lidar_csv(self) -> Path:
+        """One row per LiDAR scan: time, sensor pose in the world, point count."""
+        return self.root / "lidar.csv"
+
+    @property
+    def signals_dir(self) -> Path:
+        """Scalar signal tables, ``<name>.csv``."""
+        return self.root / "signals"
+
+    def signal_file(self, name: str) -> Path:
+        """The table of signal ``name``."""
+        return self.signals_dir / f"{name}.csv"
+
+    @property
+    def calibration_json(self) -> Path:
+        """Camera intrinsics, distortion, size and sensor mounts."""
+        return self.root / "calibration.json"
+
+    @property
+    def dataset_json(self) -> Path:
+        """Counts, time span, dropped frames and why, source fingerprints."""
+        return self.root / "dataset.json"
+
+
+__all__ += ["DatasetPaths", "dataset_paths"]
