@@ -1,0 +1,122 @@
+"""The dataset format every later stage reads (``WS/dataset/``).
+
+``dataset.json`` and ``calibration.json`` are schema-versioned artifacts; the tables
+(``poses.csv``, ``trajectory.csv``, ``lidar.csv``, ``signals/<name>.csv``) are CSV with the
+columns listed here. All positions are in the workspace world frame (metres, x east, y north,
+z up), orientations are (x, y, z, w) quaternions of the vehicle body frame (x forward, y left,
+z up) at the recording's pose reference point, heading is radians CCW from +x.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import pydantic
+
+from cam2sim.core.schema import Artifact
+from cam2sim.core.workspace import WorldFrameRecord
+
+__all__ = [
+    "LIDAR_COLUMNS",
+    "POSE_COLUMNS",
+    "POSE_PRECISION",
+    "SIGNAL_COLUMNS",
+    "TRAJECTORY_COLUMNS",
+    "Calibration",
+    "CameraIntrinsics",
+    "DatasetCounts",
+    "DatasetInfo",
+    "MountRecord",
+    "SourceRecord",
+]
+
+POSE_COLUMNS = ("frame", "stamp_ns", "t", "x", "y", "z", "qx", "qy", "qz", "qw", "heading", "speed")
+TRAJECTORY_COLUMNS = POSE_COLUMNS[1:]
+LIDAR_COLUMNS = ("scan", "stamp_ns", "t", "x", "y", "z", "qx", "qy", "qz", "qw", "points")
+SIGNAL_COLUMNS = ("stamp_ns", "t", "value")
+POSE_PRECISION = {
+    "t": 6,
+    "x": 6,
+    "y": 6,
+    "z": 6,
+    "qx": 9,
+    "qy": 9,
+    "qz": 9,
+    "qw": 9,
+    "heading": 9,
+    "speed": 4,
+    "value": 9,
+}
+
+
+class _Record(pydantic.BaseModel):
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+
+class CameraIntrinsics(_Record):
+    """Pinhole intrinsics of the recorded images (pixels) and lens distortion."""
+
+    width: int
+    height: int
+    K: tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
+    distortion: tuple[float, ...] = ()
+    distortion_model: Literal["plumb_bob", "equidistant"] = "plumb_bob"
+    source: str = pydantic.Field(description="config, camera_info topic, or file")
+
+
+class MountRecord(_Record):
+    """A sensor's pose in the vehicle body frame: ``T_body_sensor``.
+
+    The sensor frame is a camera optical frame (x right, y down, z forward) for cameras and a
+    link frame (x forward, y left, z up) for LiDARs.
+    """
+
+    translation_m: tuple[float, float, float]
+    quat_xyzw: tuple[float, float, float, float]
+    axes: Literal["optical", "link"]
+    source: str = pydantic.Field(description="config or tf_static")
+
+
+class Calibration(Artifact):
+    """``calibration.json``: camera intrinsics and sensor mounts."""
+
+    camera: CameraIntrinsics | None = None
+    camera_mount: MountRecord
+    lidar_mount: MountRecord | None = None
+
+
+class SourceRecord(_Record):
+    """One input file and its fingerprint."""
+
+    path: str
+    fingerprint: str
+
+
+class DatasetCounts(_Record):
+    """How many samples the dataset holds."""
+
+    frames: int
+    pose_samples: int
+    lidar_scans: int = 0
+    signals: dict[str, int] = pydantic.Field(default_factory=dict)
+
+
+class DatasetInfo(Artifact):
+    """``dataset.json``: what the dataset holds, where it came from, and what was dropped."""
+
+    kind: Literal["bag", "images"]
+    pose_less: bool = False
+    sources: tuple[SourceRecord, ...]
+    time_base: Literal["header", "receive", "file"]
+    topics: dict[str, str] = pydantic.Field(
+        default_factory=dict, description="role (camera, pose, lidar, signal:<name>) -> topic"
+    )
+    counts: DatasetCounts
+    start_ns: int
+    end_ns: int
+    duration_s: float
+    dropped: dict[str, dict[str, int]] = pydantic.Field(
+        default_factory=dict, description="sensor -> reason -> count"
+    )
+    frame_format: Literal["png", "jpeg"]
+    world: WorldFrameRecord

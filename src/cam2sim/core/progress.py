@@ -1,0 +1,23 @@
+"""Progress reporting from stages to whoever shows it (the CLI's rich bars, or nobody)."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+__all__ = ["ProgressCallback", "no_progress"]
+
+
+class ProgressCallback(Protocol):
+    """Called by long-running stages: ``progress(task, completed, total)``.
+
+    ``task`` names the work ("frames", "lidar scans"), ``completed`` counts units done so far and
+    ``total`` is the expected count, or None when unknown.
+    """
+
+    def __call__(self, task: str, completed: int, total: int | None) -> None:
+        """Report progress on ``task``."""
+
+
+def no_progress(task: str, completed: int, total: int | None) -> None:
+    """Report nothing."""
+    del task, completed, total

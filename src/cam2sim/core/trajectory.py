@@ -1,0 +1,157 @@
+"""An ego trajectory in the world frame, and sampling it at sensor times.
+
+:class:`Trajectory` holds time-stamped body poses (position of the reference point and body
+orientation, x forward, y left, z up). :meth:`Trajectory.sample` interpolates it at arbitrary
+times (linear positions, slerp orientations) and says which times could not be served and why:
+outside the pose coverage, or inside a gap longer than the allowed maximum.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from cam2sim.core import frames
+
+__all__ = ["DropReason", "Trajectory", "TrajectorySample", "heading_from_motion"]
+
+
+class DropReason:
+    """Why a sensor sample got no pose (names used in ``dataset.json``)."""
+
+    OUTSIDE = "outside_pose_coverage"
+    GAP = "pose_gap"
+
+
+@dataclass(frozen=True)
+class TrajectorySample:
+    """Poses interpolated at query times.
+
+    Attributes:
+        valid: ``(M,)`` bool, whether the query time got a pose.
+        reason: ``(M,)`` str, empty for valid queries, else a :class:`DropReason` value.
+        position: ``(K, 3)`` world metres for the K valid queries.
+        quat: ``(K, 4)`` body orientation (x, y, z, w) in the world frame.
+        heading: ``(K,)`` radians CCW from +x (east).
+        speed: ``(K,)`` m/s.
+    """
+
+    valid: npt.NDArray[np.bool_]
+    reason: npt.NDArray[np.str_]
+    position: npt.NDArray[np.float64]
+    quat: npt.NDArray[np.float64]
+    heading: npt.NDArray[np.float64]
+    speed: npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Time-stamped body poses in the world frame.
+
+    Attributes:
+        stamp_ns: ``(N,)`` int64, strictly increasing, N >= 2.
+        position: ``(N, 3)`` float64 world metres of the vehicle reference point.
+        quat: ``(N, 4)`` float64 (x, y, z, w) body orientation (x forward, y left, z up).
+    """
+
+    stamp_ns: npt.NDArray[np.int64]
+    position: npt.NDArray[np.float64]
+    quat: npt.NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        n = self.stamp_ns.shape[0]
+        if n < 2 or self.position.shape != (n, 3) or self.quat.shape != (n, 4):
+            msg = (
+                f"trajectory needs N >= 2 samples with positions (N, 3) and quats (N, 4); got "
+                f"{self.stamp_ns.shape}, {self.position.shape}, {self.quat.shape}"
+            )
+            raise ValueError(msg)
+
+    @property
+    def heading(self) -> npt.NDArray[np.float64]:
+        """``(N,)`` heading of every sample, radians."""
+        return frames.yaw_from_quat(self.quat)
+
+    def speed_at(
+        self, query_ns: npt.NDArray[np.int64], *, window_s: float
+    ) -> npt.NDArray[np.float64]:
+        """Speed (m/s) at query times: distance over a centred window, clipped to the coverage."""
+        half = int(window_s * 5e8)
+        t0 = np.clip(query_ns - half, self.stamp_ns[0], self.stamp_ns[-1])
+        t1 = np.clip(query_ns + half, self.stamp_ns[0], self.stamp_ns[-1])
+        rel = (self.stamp_ns - self.stamp_ns[0]).astype(np.float64)
+        a = np.stack([np.interp(t0 - self.stamp_ns[0], rel, c) for c in self.position.T], -1)
+        b = np.stack([np.interp(t1 - self.stamp_ns[0], rel, c) for c in self.position.T], -1)
+        dt = (t1 - t0).astype(np.float64) / 1e9
+        dist = np.linalg.norm((b - a)[:, :2], axis=1)
+        return np.divide(dist, dt, out=np.zeros_like(dist), where=dt > 0)
+
+    def sample(
+        self, query_ns: npt.NDArray[np.int64], *, max_gap_s: float, speed_window_s: float = 0.2
+    ) -> TrajectorySample:
+        """Interpolate the trajectory at ``query_ns`` (int64 nanoseconds).
+
+        Queries outside ``[stamp_ns[0], stamp_ns[-1]]`` or between two samples further apart than
+        ``max_gap_s`` are marked invalid with their reason.
+        """
+        query_ns = np.asarray(query_ns, dtype=np.int64)
+        reason = np.full(query_ns.shape[0], "", dtype=object)
+        outside = (query_ns < self.stamp_ns[0]) | (query_ns > self.stamp_ns[-1])
+        reason[outside] = DropReason.OUTSIDE
+        idx = np.clip(np.searchsorted(self.stamp_ns, query_ns, side="right"), 1, len(self) - 1)
+        max_gap_ns = int(max_gap_s * 1e9) if np.isfinite(max_gap_s) else np.iinfo(np.int64).max
+        gap = (self.stamp_ns[idx] - self.stamp_ns[idx - 1]) > max_gap_ns
+        exact = np.isin(query_ns, self.stamp_ns)
+        gap &= ~outside & ~exact
+        reason[gap] = DropReason.GAP
+        valid = ~outside & ~gap
+        q = query_ns[valid]
+        if q.size:
+            s = frames.interpolate_poses(self.stamp_ns, self.position, self.quat, q)
+            pos, quat = s.positions, s.quats
+        else:
+            pos, quat = np.zeros((0, 3)), np.zeros((0, 4))
+        return TrajectorySample(
+            valid=valid,
+            reason=reason.astype(str),
+            position=pos,
+            quat=quat,
+            heading=frames.yaw_from_quat(quat) if q.size else np.zeros(0),
+            speed=self.speed_at(q, window_s=speed_window_s),
+        )
+
+    def __len__(self) -> int:
+        return int(self.stamp_ns.shape[0])
+
+
+def heading_from_motion(
+    stamp_ns: npt.NDArray[np.int64],
+    position: npt.NDArray[np.float64],
+    *,
+    window_s: float,
+    min_speed_mps: float,
+) -> npt.NDArray[np.float64]:
+    """Heading (radians) from the direction of travel over a centred time window.
+
+    Below ``min_speed_mps`` the heading of the nearest moving sample is held (forward, then
+    backward fill). If the vehicle never moves, the heading is 0 everywhere.
+    """
+    traj = Trajectory(stamp_ns, position, np.tile([0.0, 0.0, 0.0, 1.0], (len(stamp_ns), 1)))
+    half = int(window_s * 5e8)
+    t0 = np.clip(stamp_ns - half, stamp_ns[0], stamp_ns[-1])
+    t1 = np.clip(stamp_ns + half, stamp_ns[0], stamp_ns[-1])
+    rel = (stamp_ns - stamp_ns[0]).astype(np.float64)
+    a = np.stack([np.interp(t0 - stamp_ns[0], rel, c) for c in position[:, :2].T], -1)
+    b = np.stack([np.interp(t1 - stamp_ns[0], rel, c) for c in position[:, :2].T], -1)
+    d = b - a
+    heading = np.arctan2(d[:, 1], d[:, 0])
+    moving = traj.speed_at(stamp_ns, window_s=window_s) >= max(min_speed_mps, 1e-6)
+    if not moving.any():
+        return np.zeros(len(stamp_ns))
+    idx = np.where(moving, np.arange(len(stamp_ns)), -1)
+    idx = np.maximum.accumulate(idx)
+    first = int(np.flatnonzero(moving)[0])
+    idx[idx < 0] = first
+    return frames.unwrap_angles(heading[idx])

@@ -1,0 +1,1 @@
+"""cam2sim.recording."""

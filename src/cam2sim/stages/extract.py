@@ -1,0 +1,745 @@
+"""Stage extract: a recording (bags) into ``WS/dataset/``.
+
+Two streaming passes over the recording. The first gathers the small streams (poses, /tf,
+signals, camera_info) and fixes the ego trajectory in the world frame; the second streams camera
+frames and LiDAR scans, gives each the interpolated pose at its time, and writes them out. Memory
+stays bounded by a few frames whatever the bag length. The whole dataset folder is built beside
+the old one and swapped in at the end, so an interrupted or failed run leaves the workspace as it
+was.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import warnings
+from collections import Counter
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path  # noqa: TC003 - used at run time by dataclasses
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from cam2sim.core import frames
+from cam2sim.core.config import AXIS_CONVENTION_YAW_OFFSET, Config, MountConfig
+from cam2sim.core.dataset import (
+    POSE_PRECISION,
+    Calibration,
+    CameraIntrinsics,
+    DatasetCounts,
+    DatasetInfo,
+    MountRecord,
+    SourceRecord,
+)
+from cam2sim.core.errors import ConfigError, RecordingError
+from cam2sim.core.files import atomic_folder, file_fingerprint, write_bytes_atomic
+from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.table import write_table
+from cam2sim.core.trajectory import Trajectory, heading_from_motion
+from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
+from cam2sim.recording.bag import BagMessage, Recording
+from cam2sim.recording.pose import (
+    ORIENTATION_MSGTYPES,
+    POSE_MSGTYPES,
+    PoseTrack,
+    orientation_track_from_messages,
+    pose_track_from_messages,
+    yaw_offset_quat,
+)
+from cam2sim.recording.signal import SignalSeries, signal_from_messages
+from cam2sim.recording.tf import TF_MSGTYPE, TfTree
+from cam2sim.stages._runner import stage_run
+
+__all__ = ["ExtractResult", "extract", "world_trajectory_from_track"]
+
+logger = logging.getLogger(__name__)
+
+STAGE = "extract"
+IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED = "sensor_msgs/msg/CompressedImage"
+CAMERA_MSGTYPES = (IMAGE, COMPRESSED)
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
+TF_TOPICS = ("/tf", "/tf_static")
+# Rotation from a camera optical frame (x right, y down, z forward) to a link frame
+# (x forward, y left, z up): columns are the optical axes in link coordinates.
+R_LINK_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+_PENDING_FRAMES = 8
+
+
+@dataclass(frozen=True)
+class ExtractResult:
+    """What :func:`extract` did."""
+
+    dataset_dir: Path
+    info: DatasetInfo
+    skipped: bool
+
+
+# -- inputs ------------------------------------------------------------------------------------
+def _bag_paths(ws: Workspace, config: Config) -> list[Path]:
+    if not config.recording.bags:
+        msg = f"{ws.config_path}: recording.bags is empty; list the bag files of the recording"
+        raise ConfigError(msg)
+    return [ws.resolve(b) for b in config.recording.bags]
+
+
+def _fingerprints(paths: list[Path]) -> list[SourceRecord]:
+    out = []
+    for path in paths:
+        files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+        out.extend(SourceRecord(path=str(f), fingerprint=file_fingerprint(f)) for f in files)
+    return out
+
+
+def _inputs_hash(config: Config, sources: list[SourceRecord]) -> str:
+    return hash_inputs(
+        {
+            "config": config.model_dump(mode="json"),
+            "sources": [s.fingerprint for s in sources],
+        }
+    )
+
+
+# -- pass 1: poses, tf, signals, camera_info ----------------------------------------------------
+@dataclass
+class _SmallStreams:
+    pose_messages: list[BagMessage]
+    orientation_messages: list[BagMessage]
+    tf: TfTree
+    signals: dict[str, SignalSeries]
+    camera_info: Any
+
+
+def _needs_tf(config: Config) -> bool:
+    return (
+        config.pose.source == "tf"
+        or config.camera.mount.tf_frame is not None
+        or (config.topics.lidar is not None and config.lidar.mount.tf_frame is not None)
+    )
+
+
+def _wanted_topics(rec: Recording, config: Config) -> dict[str, str]:
+    """Check the small-stream topics exist; return topic -> role."""
+    topics = config.topics
+    wanted: dict[str, str] = {}
+    if config.pose.source == "message":
+        if topics.pose is None:
+            msg = "topics.pose is not set; name the pose topic (cam2sim inspect lists them)"
+            raise ConfigError(msg)
+        rec.require_topic(topics.pose, key="topics.pose", msgtypes=POSE_MSGTYPES)
+        wanted[topics.pose] = "pose"
+    if config.pose.orientation_topic:
+        rec.require_topic(
+            config.pose.orientation_topic,
+            key="pose.orientation_topic",
+            msgtypes=ORIENTATION_MSGTYPES,
+        )
+        wanted[config.pose.orientation_topic] = "orientation"
+    present = rec.topics()
+    if _needs_tf(config):
+        tf_topics = [t for t in TF_TOPICS if t in present]
+        if not tf_topics:
+            msg = "config needs /tf or /tf_static (pose.source: tf or a mount tf_frame), "
+            msg += "but the recording has neither; give the mount as xyz/rpy_deg instead"
+            raise RecordingError(msg)
+        for t in tf_topics:
+            rec.require_topic(t, key="tf", msgtypes=(TF_MSGTYPE,))
+            wanted[t] = "tf"
+    for name, sig in topics.signals.items():
+        rec.require_topic(sig.topic, key=f"topics.signals.{name}.topic")
+    if topics.camera_info:
+        rec.require_topic(topics.camera_info, key="topics.camera_info", msgtypes=(CAMERA_INFO,))
+        wanted[topics.camera_info] = "camera_info"
+    return wanted
+
+
+def _read_small_streams(rec: Recording, config: Config) -> _SmallStreams:
+    topics = config.topics
+    wanted = _wanted_topics(rec, config)
+    signal_topics = {s.topic for s in topics.signals.values()}
+
+    streams = _SmallStreams([], [], TfTree(), {}, None)
+    by_topic: dict[str, list[BagMessage]] = {t: [] for t in signal_topics}
+    tf_messages: list[BagMessage] = []
+    for m in rec.messages(set(wanted) | signal_topics, time_base=config.recording.time_base):
+        role = wanted.get(m.topic)
+        if role == "pose":
+            streams.pose_messages.append(m)
+        elif role == "orientation":
+            streams.orientation_messages.append(m)
+        elif role == "tf":
+            tf_messages.append(m)
+        elif role == "camera_info" and streams.camera_info is None:
+            streams.camera_info = m.msg
+        if m.topic in by_topic:
+            by_topic[m.topic].append(m)
+    streams.tf.add_messages(tf_messages, static_topics={"/tf_static"})
+    for name, sig in topics.signals.items():
+        streams.signals[name] = signal_from_messages(by_topic[sig.topic], field=sig.field)
+    return streams
+
+
+# -- the trajectory in the world frame -----------------------------------------------------------
+def _world_record(
+    track: PoseTrack, config: Config, existing: WorldFrameRecord | None
+) -> WorldFrameRecord:
+    crs = "EPSG:4326" if track.geographic else config.pose.crs
+    if existing is not None and existing.source_crs == crs:
+        return existing
+    if existing is not None:
+        logger.warning("pose CRS changed (%s -> %s); the world frame is redefined", existing, crs)
+    if crs is None:
+        return WorldFrameRecord(proj_string=None, source_crs=None)
+    first = track.position[0]
+    if track.geographic:
+        wf = frames.WorldFrame(float(first[0]), float(first[1]), float(first[2]))
+    else:
+        wf = frames.WorldFrame.at_crs_point(crs, float(first[0]), float(first[1]), float(first[2]))
+    return WorldFrameRecord(
+        proj_string=wf.proj_string,
+        origin_lat_deg=wf.origin_lat_deg,
+        origin_lon_deg=wf.origin_lon_deg,
+        origin_alt_m=wf.origin_alt_m,
+        source_crs=crs,
+    )
+
+
+def _world_frame(record: WorldFrameRecord) -> frames.WorldFrame | None:
+    if record.origin_lat_deg is None or record.origin_lon_deg is None:
+        return None
+    return frames.WorldFrame(record.origin_lat_deg, record.origin_lon_deg, record.origin_alt_m)
+
+
+def world_trajectory_from_track(
+    track: PoseTrack,
+    config: Config,
+    world: WorldFrameRecord,
+    *,
+    orientation: PoseTrack | None = None,
+) -> Trajectory:
+    """Convert a pose track into the world frame with the body axis convention applied.
+
+    Args:
+        track: Poses in the recording's coordinates.
+        config: The recording config (pose conventions, sync windows).
+        world: The workspace world frame.
+        orientation: Separate orientation samples (ENU) for NavSatFix tracks.
+    """
+    wf = _world_frame(world)
+    if wf is None:
+        position = track.position.copy()
+    elif track.geographic:
+        position = wf.from_wgs84(track.position[:, 0], track.position[:, 1], track.position[:, 2])
+    else:
+        assert world.source_crs is not None
+        position = wf.from_crs(world.source_crs, track.position)
+    pose_cfg = config.pose
+    if pose_cfg.heading == "motion" or (track.quat is None and orientation is None):
+        heading = heading_from_motion(
+            track.stamp_ns,
+            position,
+            window_s=config.sync.speed_window_s,
+            min_speed_mps=config.sync.min_motion_speed_mps,
+        )
+        quat = frames.quat_from_yaw(heading)
+    else:
+        if track.quat is not None:
+            quat = track.quat
+            if wf is not None and not track.geographic and world.source_crs is not None:
+                quat = wf.quats_from_crs(world.source_crs, track.position[:, :2], quat)
+        else:
+            assert orientation is not None
+            assert orientation.quat is not None
+            inside = (track.stamp_ns >= orientation.stamp_ns[0]) & (
+                track.stamp_ns <= orientation.stamp_ns[-1]
+            )
+            if inside.sum() < 2:
+                msg = "pose.orientation_topic does not overlap the pose topic in time"
+                raise RecordingError(msg)
+            track = PoseTrack(
+                track.stamp_ns[inside],
+                track.position[inside],
+                None,
+                track.geographic,
+                track.frame_id,
+                track.child_frame_id,
+                track.dropped,
+            )
+            position = position[inside]
+            quat = frames.interpolate_poses(
+                orientation.stamp_ns,
+                np.zeros((len(orientation), 3)),
+                orientation.quat,
+                track.stamp_ns,
+            ).quats
+        offset = AXIS_CONVENTION_YAW_OFFSET[pose_cfg.axis_convention]
+        quat = frames.quat_normalize(frames.quat_multiply(quat, yaw_offset_quat(offset)))
+    return Trajectory(stamp_ns=track.stamp_ns, position=position, quat=quat)
+
+
+def _read_trajectory(
+    streams: _SmallStreams, config: Config, existing: WorldFrameRecord | None
+) -> tuple[Trajectory, WorldFrameRecord, PoseTrack]:
+    on_invalid = config.pose.on_invalid
+    if config.pose.source == "tf":
+        assert config.pose.tf is not None
+        chain = streams.tf.chain(config.pose.tf.parent, config.pose.tf.child)
+        if chain.static:
+            msg = f"the tf chain {config.pose.tf.parent} -> {config.pose.tf.child} never changes"
+            raise RecordingError(msg + "; choose frames connected by a dynamic /tf edge")
+        track = PoseTrack(
+            stamp_ns=chain.stamp_ns,
+            position=chain.position,
+            quat=chain.quat,
+            geographic=False,
+            frame_id=config.pose.tf.parent,
+            child_frame_id=config.pose.tf.child,
+            dropped={},
+        )
+    else:
+        assert config.topics.pose is not None
+        track = pose_track_from_messages(
+            streams.pose_messages, topic=config.topics.pose, on_invalid=on_invalid
+        )
+    orientation = None
+    if streams.orientation_messages:
+        assert config.pose.orientation_topic is not None
+        orientation = orientation_track_from_messages(
+            streams.orientation_messages, topic=config.pose.orientation_topic, on_invalid=on_invalid
+        )
+    if track.quat is None and orientation is None and config.pose.heading == "orientation":
+        warnings.warn(
+            "the pose topic carries no orientation (NavSatFix) and pose.orientation_topic is "
+            "unset: heading is taken from motion; set pose.heading: motion to silence this",
+            stacklevel=3,
+        )
+    world = _world_record(track, config, existing)
+    traj = world_trajectory_from_track(track, config, world, orientation=orientation)
+    return traj, world, track
+
+
+# -- calibration ----------------------------------------------------------------------------------
+def _intrinsics(config: Config, camera_info: Any) -> CameraIntrinsics | None:
+    cfg = config.camera.intrinsics
+    if cfg is not None:
+        K = ((cfg.fx, 0.0, cfg.cx), (0.0, cfg.fy, cfg.cy), (0.0, 0.0, 1.0))
+        return CameraIntrinsics(
+            width=cfg.width,
+            height=cfg.height,
+            K=K,
+            distortion=tuple(cfg.distortion),
+            distortion_model=cfg.model,
+            source="config",
+        )
+    if camera_info is None:
+        return None
+    k = np.asarray(getattr(camera_info, "k", getattr(camera_info, "K", None)), dtype=float)
+    d = np.asarray(getattr(camera_info, "d", getattr(camera_info, "D", ())), dtype=float)
+    if k.size != 9 or not np.isfinite(k).all() or k[0] <= 0:
+        msg = "topics.camera_info has no valid K matrix; set camera.intrinsics in config.yaml"
+        raise RecordingError(msg)
+    model = "equidistant" if camera_info.distortion_model == "equidistant" else "plumb_bob"
+    K3 = k.reshape(3, 3)
+    return CameraIntrinsics(
+        width=int(camera_info.width),
+        height=int(camera_info.height),
+        K=(tuple(K3[0]), tuple(K3[1]), tuple(K3[2])),  # type: ignore[arg-type]
+        distortion=tuple(float(v) for v in d),
+        distortion_model=model,
+        source=f"camera_info topic {config.topics.camera_info}",
+    )
+
+
+def _mount(
+    cfg: MountConfig,
+    *,
+    want_axes: str,
+    tf: TfTree,
+    body_frame: str | None,
+    config: Config,
+    key: str,
+) -> MountRecord:
+    if cfg.tf_frame is not None:
+        if not body_frame:
+            msg = f"{key}.tf_frame is set but the body frame is unknown; set pose.body_frame"
+            raise ConfigError(msg)
+        T = tf.static_transform(body_frame, cfg.tf_frame)
+        # /tf mounts are relative to the pose frame; turn them into the body frame (x forward).
+        offset = AXIS_CONVENTION_YAW_OFFSET[config.pose.axis_convention]
+        q_off_inv = frames.quat_conjugate(yaw_offset_quat(offset))
+        translation = frames.quat_rotate(q_off_inv, T.position)
+        quat = frames.quat_multiply(q_off_inv, T.quat)
+        source = f"tf_static {body_frame} -> {cfg.tf_frame}"
+    else:
+        translation = np.asarray(cfg.xyz, dtype=float)
+        roll, pitch, yaw = (math.radians(v) for v in cfg.rpy_deg)
+        quat = frames.quat_from_euler(roll, pitch, yaw)
+        source = "config"
+    if cfg.axes == "link" and want_axes == "optical":
+        quat = frames.quat_multiply(quat, frames.quat_from_matrix(R_LINK_OPTICAL))
+    elif cfg.axes == "optical" and want_axes == "link":
+        quat = frames.quat_multiply(quat, frames.quat_from_matrix(R_LINK_OPTICAL.T))
+    quat = frames.quat_normalize(quat)
+    t3 = tuple(float(v) for v in np.ravel(translation))
+    q4 = tuple(float(v) for v in np.ravel(quat))
+    return MountRecord(
+        translation_m=(t3[0], t3[1], t3[2]),
+        quat_xyzw=(q4[0], q4[1], q4[2], q4[3]),
+        axes=want_axes,  # type: ignore[arg-type]
+        source=source,
+    )
+
+
+# -- pass 2: camera frames and LiDAR scans ----------------------------------------------------
+@dataclass
+class _SensorRows:
+    stamp_ns: list[int]
+    index: list[int]
+
+
+@dataclass(frozen=True)
+class _SensorOutput:
+    camera: _SensorRows
+    lidar: _SensorRows
+    dropped: dict[str, Counter[str]]
+    frame_size: tuple[int, int] | None
+
+
+class _FrameWriter:
+    """Decode, encode and write camera frames on worker threads (OpenCV releases the GIL)."""
+
+    def __init__(self, paths: DatasetPaths, config: Config) -> None:
+        self.paths = paths
+        self.fmt = config.frames.format
+        self.quality = config.frames.jpeg_quality
+        self.pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="cam2sim-frames")
+        self.pending: list[Future[tuple[int, int]]] = []
+        self.size: tuple[int, int] | None = None
+
+    def _work(self, index: int, msgtype: str, msg: Any) -> tuple[int, int]:
+        from cam2sim.recording.image import (  # noqa: PLC0415
+            decode_compressed_image,
+            decode_image,
+            encode_image_file,
+        )
+
+        image = decode_compressed_image(msg) if msgtype == COMPRESSED else decode_image(msg)
+        data = encode_image_file(image, self.fmt, jpeg_quality=self.quality)
+        write_bytes_atomic(self.paths.frame_file(index, self.fmt), data)
+        return int(image.shape[1]), int(image.shape[0])
+
+    def submit(self, index: int, msgtype: str, msg: Any) -> None:
+        self.pending.append(self.pool.submit(self._work, index, msgtype, msg))
+        if len(self.pending) >= _PENDING_FRAMES:
+            self._collect(self.pending.pop(0))
+
+    def _collect(self, fut: Future[tuple[int, int]]) -> None:
+        size = fut.result()
+        if self.size is None:
+            self.size = size
+        elif size != self.size:
+            msg = f"camera frame size changed from {self.size} to {size} within the recording"
+            raise RecordingError(msg)
+
+    def finish(self) -> None:
+        try:
+            for fut in self.pending:
+                self._collect(fut)
+        finally:
+            self.pending.clear()
+            self.pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _stream_sensors(
+    rec: Recording,
+    config: Config,
+    traj: Trajectory,
+    paths: DatasetPaths,
+    progress: ProgressCallback,
+) -> _SensorOutput:
+    from cam2sim.recording.pointcloud import decode_pointcloud  # noqa: PLC0415
+
+    topics = config.topics
+    assert topics.camera is not None
+    cam_info = rec.require_topic(topics.camera, key="topics.camera", msgtypes=CAMERA_MSGTYPES)
+    wanted = [topics.camera]
+    total = cam_info.count
+    if topics.lidar:
+        lidar_info = rec.require_topic(topics.lidar, key="topics.lidar", msgtypes=(POINTCLOUD2,))
+        wanted.append(topics.lidar)
+        total += lidar_info.count
+    dropped: dict[str, Counter[str]] = {"camera": Counter(), "lidar": Counter()}
+    cam_rows, lidar_rows = _SensorRows([], []), _SensorRows([], [])
+    writer = _FrameWriter(paths, config)
+    sync = config.sync
+    seen_camera = 0
+    done = 0
+    try:
+        for m in rec.messages(wanted, time_base=config.recording.time_base):
+            done += 1
+            if done % 16 == 0:
+                progress("frames and scans", done, total)
+            query = np.array([m.stamp_ns], dtype=np.int64)
+            if m.topic == topics.camera:
+                seen_camera += 1
+                if (seen_camera - 1) % config.frames.every:
+                    continue
+                s = traj.sample(query, max_gap_s=sync.max_pose_gap_s)
+                if not s.valid[0]:
+                    dropped["camera"][str(s.reason[0])] += 1
+                    continue
+                index = len(cam_rows.index)
+                writer.submit(index, m.msgtype, m.msg)
+                cam_rows.index.append(index)
+                cam_rows.stamp_ns.append(m.stamp_ns)
+            else:
+                s = traj.sample(query, max_gap_s=sync.max_pose_gap_s)
+                if not s.valid[0]:
+                    dropped["lidar"][str(s.reason[0])] += 1
+                    continue
+                points = decode_pointcloud(m.msg, drop_invalid=config.lidar.drop_invalid_points)
+                if points.shape[0] == 0:
+                    dropped["lidar"]["empty_scan"] += 1
+                    continue
+                index = len(lidar_rows.index)
+                _save_npy(paths.lidar_file(index), points)
+                lidar_rows.index.append(index)
+                lidar_rows.stamp_ns.append(m.stamp_ns)
+    finally:
+        writer.finish()
+    progress("frames and scans", done, total)
+    return _SensorOutput(cam_rows, lidar_rows, dropped, writer.size)
+
+
+def _save_npy(path: Path, array: npt.NDArray[Any]) -> None:
+    import io  # noqa: PLC0415
+
+    buffer = io.BytesIO()
+    np.save(buffer, array, allow_pickle=False)
+    write_bytes_atomic(path, buffer.getvalue())
+
+
+# -- tables -----------------------------------------------------------------------------------
+def _pose_columns(
+    traj: Trajectory, stamps: npt.NDArray[np.int64], config: Config
+) -> dict[str, npt.NDArray[Any]]:
+    s = traj.sample(stamps, max_gap_s=math.inf, speed_window_s=config.sync.speed_window_s)
+    return {
+        "stamp_ns": stamps,
+        "t": stamps / 1e9,
+        "x": s.position[:, 0],
+        "y": s.position[:, 1],
+        "z": s.position[:, 2],
+        "qx": s.quat[:, 0],
+        "qy": s.quat[:, 1],
+        "qz": s.quat[:, 2],
+        "qw": s.quat[:, 3],
+        "heading": s.heading,
+        "speed": s.speed,
+    }
+
+
+def _write_tables(
+    paths: DatasetPaths,
+    traj: Trajectory,
+    config: Config,
+    cam: _SensorRows,
+    lidar: _SensorRows,
+    lidar_mount: MountRecord | None,
+    signals: dict[str, SignalSeries],
+) -> None:
+    cam_stamps = np.asarray(cam.stamp_ns, dtype=np.int64)
+    cols = {"frame": np.asarray(cam.index, dtype=np.int64)}
+    cols.update(_pose_columns(traj, cam_stamps, config))
+    write_table(paths.poses_csv, cols, precision=POSE_PRECISION)
+    write_table(
+        paths.trajectory_csv, _pose_columns(traj, traj.stamp_ns, config), precision=POSE_PRECISION
+    )
+    if config.topics.lidar and lidar_mount is not None:
+        stamps = np.asarray(lidar.stamp_ns, dtype=np.int64)
+        body = _pose_columns(traj, stamps, config)
+        q_body = np.stack([body["qx"], body["qy"], body["qz"], body["qw"]], -1)
+        p_body = np.stack([body["x"], body["y"], body["z"]], -1)
+        mount_q = np.asarray(lidar_mount.quat_xyzw)
+        p = p_body + frames.quat_rotate(q_body, np.asarray(lidar_mount.translation_m))
+        q = frames.quat_multiply(q_body, mount_q) if len(stamps) else np.zeros((0, 4))
+        points = [int(np.load(paths.lidar_file(i), mmap_mode="r").shape[0]) for i in lidar.index]
+        write_table(
+            paths.lidar_csv,
+            {
+                "scan": np.asarray(lidar.index, dtype=np.int64),
+                "stamp_ns": stamps,
+                "t": stamps / 1e9,
+                "x": p[:, 0] if len(stamps) else np.zeros(0),
+                "y": p[:, 1] if len(stamps) else np.zeros(0),
+                "z": p[:, 2] if len(stamps) else np.zeros(0),
+                "qx": q[:, 0],
+                "qy": q[:, 1],
+                "qz": q[:, 2],
+                "qw": q[:, 3],
+                "points": np.asarray(points, dtype=np.int64),
+            },
+            precision=POSE_PRECISION,
+        )
+    for name, series in signals.items():
+        write_table(
+            paths.signal_file(name),
+            {"stamp_ns": series.stamp_ns, "t": series.stamp_ns / 1e9, "value": series.value},
+            precision=POSE_PRECISION,
+        )
+
+
+def _check_overlap(traj: Trajectory, cam: _SensorRows, dropped: Counter[str], topic: str) -> None:
+    if cam.index:
+        return
+    total = sum(dropped.values())
+    span = f"{traj.stamp_ns[0] / 1e9:.3f}-{traj.stamp_ns[-1] / 1e9:.3f} s"
+    if total == 0:
+        msg = f"camera topic {topic} has no messages; choose another camera topic"
+    else:
+        reasons = ", ".join(f"{n} {r}" for r, n in dropped.items())
+        msg = (
+            f"no camera frame of {topic} has a pose: {reasons} (poses cover {span}). The camera "
+            "and pose topics do not overlap in time: check the topics, or try "
+            "recording.time_base: receive if one sensor's header clock is off; raise "
+            "sync.max_pose_gap_s if poses have long gaps"
+        )
+    raise RecordingError(msg)
+
+
+def extract(
+    ws: Workspace, *, force: bool = False, progress: ProgressCallback | None = None
+) -> ExtractResult:
+    """Extract the configured topics of the workspace's recording into ``WS/dataset/``.
+
+    Args:
+        ws: The workspace (``config.yaml`` says which bags and topics).
+        force: Re-extract even when the inputs did not change.
+        progress: Optional progress callback.
+
+    Returns:
+        :class:`ExtractResult` with the dataset description.
+
+    Raises:
+        ConfigError: The config lacks a needed topic or is inconsistent.
+        RecordingError: The recording cannot be read as configured (missing topic, corrupt bag,
+            NaN poses, clock running backwards, no overlap between camera and poses).
+    """
+    progress = progress or no_progress
+    config = ws.load_config()
+    if config.topics.camera is None:
+        msg = "topics.camera is not set in config.yaml; name the camera topic (cam2sim inspect)"
+        raise ConfigError(msg)
+    bag_paths = _bag_paths(ws, config)
+    sources = _fingerprints([p for p in bag_paths if p.exists()])
+    inputs_hash = _inputs_hash(config, sources)
+    if not force and ws.is_up_to_date(STAGE, inputs_hash):
+        logger.info("extract: dataset is up to date; skipping (use force to redo)")
+        return ExtractResult(
+            ws.dataset_dir,
+            DatasetInfo.load(DatasetPaths(ws.dataset_dir).dataset_json),
+            skipped=True,
+        )
+    with (
+        stage_run(ws, STAGE, inputs_hash=inputs_hash, config=config) as run,
+        Recording(bag_paths) as rec,
+        atomic_folder(ws.dataset_dir) as tmp,
+    ):
+        paths = DatasetPaths(tmp)
+        progress("poses and signals", 0, None)
+        streams = _read_small_streams(rec, config)
+        traj, world, track = _read_trajectory(streams, config, ws.world_frame())
+        progress("poses and signals", len(traj), len(traj))
+        body_frame = config.pose.body_frame or (
+            config.pose.tf.child if config.pose.tf else track.child_frame_id
+        )
+        camera_mount = _mount(
+            config.camera.mount,
+            want_axes="optical",
+            tf=streams.tf,
+            body_frame=body_frame,
+            config=config,
+            key="camera.mount",
+        )
+        lidar_mount = (
+            _mount(
+                config.lidar.mount,
+                want_axes="link",
+                tf=streams.tf,
+                body_frame=body_frame,
+                config=config,
+                key="lidar.mount",
+            )
+            if config.topics.lidar
+            else None
+        )
+        out = _stream_sensors(rec, config, traj, paths, progress)
+        cam, lidar, dropped, size = out.camera, out.lidar, out.dropped, out.frame_size
+        _check_overlap(traj, cam, dropped["camera"], config.topics.camera)
+        _write_tables(paths, traj, config, cam, lidar, lidar_mount, streams.signals)
+        intrinsics = _intrinsics(config, streams.camera_info)
+        if intrinsics is None:
+            warnings.warn(
+                "no camera intrinsics: set camera.intrinsics or topics.camera_info in config.yaml "
+                "(the splat stage can estimate them, other stages need them)",
+                stacklevel=2,
+            )
+        elif size is not None and (intrinsics.width, intrinsics.height) != size:
+            warnings.warn(
+                f"camera intrinsics are for {intrinsics.width}x{intrinsics.height} but frames "
+                f"are {size[0]}x{size[1]}; fix camera.intrinsics",
+                stacklevel=2,
+            )
+        Calibration(camera=intrinsics, camera_mount=camera_mount, lidar_mount=lidar_mount).save(
+            paths.calibration_json
+        )
+        info = _dataset_info(config, sources, traj, out, track, streams, world)
+        info.save(paths.dataset_json)
+        run.world = world
+    logger.info(
+        "extract: %d frames, %d pose samples, %d LiDAR scans",
+        len(cam.index),
+        len(traj),
+        len(lidar.index),
+    )
+    return ExtractResult(ws.dataset_dir, info, skipped=False)
+
+
+def _dataset_info(
+    config: Config,
+    sources: list[SourceRecord],
+    traj: Trajectory,
+    out: _SensorOutput,
+    track: PoseTrack,
+    streams: _SmallStreams,
+    world: WorldFrameRecord,
+) -> DatasetInfo:
+    topics = config.topics
+    roles = {"camera": topics.camera, "pose": topics.pose, "lidar": topics.lidar}
+    roles.update({f"signal:{k}": v.topic for k, v in topics.signals.items()})
+    cam, lidar = out.camera, out.lidar
+    all_dropped = {k: dict(v) for k, v in out.dropped.items() if v}
+    if track.dropped:
+        all_dropped["pose"] = dict(track.dropped)
+    start, end = cam.stamp_ns[0], cam.stamp_ns[-1]
+    return DatasetInfo(
+        kind="bag",
+        sources=tuple(sources),
+        time_base=config.recording.time_base,
+        topics={k: v for k, v in roles.items() if v},
+        counts=DatasetCounts(
+            frames=len(cam.index),
+            pose_samples=len(traj),
+            lidar_scans=len(lidar.index),
+            signals={k: int(v.stamp_ns.shape[0]) for k, v in streams.signals.items()},
+        ),
+        start_ns=int(start),
+        end_ns=int(end),
+        duration_s=(end - start) / 1e9,
+        dropped=all_dropped,
+        frame_format=config.frames.format,
+        world=world,
+    )
