@@ -1,0 +1,177 @@
+"""Shared fixtures: paths to the real data in ../shared/data and bags written on the fly."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cam2sim.core import frames
+from cam2sim.recording.bagwriter import BagFormat, BagWriter
+from cam2sim.recording.image import image_message_fields
+
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+REFERENCE_DRIVES = SHARED_DATA / "reference-drives"
+
+
+@pytest.fixture
+def shared_data() -> Path:
+    """The real data folder; skips the test when it is absent."""
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"real data not found at {SHARED_DATA}")
+    return SHARED_DATA
+
+
+def stamps_ns_from_text(column: list[str]) -> np.ndarray:
+    """Parse decimal-second strings into exact int64 nanoseconds."""
+    out = []
+    for text in column:
+        sec, _, frac = text.strip().partition(".")
+        out.append(int(sec) * 1_000_000_000 + int((frac + "000000000")[:9]))
+    return np.asarray(out, dtype=np.int64)
+
+
+@dataclass(frozen=True)
+class ReferenceDrive:
+    """A real reference drive: exact ns stamps, UTM 32N positions, odometry-convention yaw."""
+
+    stamp_ns: np.ndarray
+    easting: np.ndarray
+    northing: np.ndarray
+    yaw_odom: np.ndarray
+
+
+def load_reference_drive(path: Path) -> ReferenceDrive:
+    lines = path.read_text().splitlines()[1:]
+    cols = list(zip(*(line.split(",") for line in lines), strict=True))
+    return ReferenceDrive(
+        stamp_ns=stamps_ns_from_text(list(cols[0])),
+        easting=np.asarray(cols[1], dtype=float),
+        northing=np.asarray(cols[2], dtype=float),
+        yaw_odom=np.asarray(cols[4], dtype=float),
+    )
+
+
+@pytest.fixture
+def reference_drive(shared_data: Path) -> ReferenceDrive:
+    return load_reference_drive(shared_data / "reference-drives" / "trajectory1.csv")
+
+
+@dataclass(frozen=True)
+class DriveBag:
+    """A bag written by :func:`write_drive_bag` and what went into it."""
+
+    path: Path
+    camera_ns: np.ndarray
+    images: list[np.ndarray]
+    lidar_ns: np.ndarray
+    steering_ns: np.ndarray
+    steering: np.ndarray
+
+
+def _image(i: int, width: int, height: int) -> np.ndarray:
+    rng = np.random.default_rng(i)
+    return rng.integers(0, 256, size=(height, width, 3), dtype=np.uint8)
+
+
+def _cloud(i: int, n: int = 64) -> np.ndarray:
+    rng = np.random.default_rng(1000 + i)
+    pts = np.zeros(n, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")])
+    for name in ("x", "y", "z", "intensity"):
+        pts[name] = rng.normal(size=n).astype(np.float32) * 10
+    return pts
+
+
+def write_drive_bag(
+    path: Path,
+    fmt: BagFormat,
+    drive: ReferenceDrive,
+    *,
+    seconds: float | None = None,
+    camera_hz: float = 30.0,
+    size: tuple[int, int] = (16, 12),
+    lidar_hz: float = 0.0,
+    encoding: str = "rgb8",
+    margin_s: float = 0.5,
+) -> DriveBag:
+    """Write a bag whose odometry carries a real drive's poses (UTM, x-left convention)."""
+    n = len(drive.stamp_ns)
+    if seconds is not None:
+        n = int(np.searchsorted(drive.stamp_ns, drive.stamp_ns[0] + int(seconds * 1e9)))
+    t0, t1 = int(drive.stamp_ns[0]), int(drive.stamp_ns[n - 1])
+    step = int(1e9 / camera_hz)
+    camera_ns = np.arange(t0 - int(margin_s * 1e9), t1 + int(margin_s * 1e9), step, dtype=np.int64)
+    lidar_ns = (
+        np.arange(t0, t1, int(1e9 / lidar_hz), dtype=np.int64)
+        if lidar_hz
+        else np.zeros(0, dtype=np.int64)
+    )
+    steering_ns = np.arange(t0, t1, 10_000_000, dtype=np.int64)
+    steering = np.sin(np.arange(len(steering_ns)) / 50.0)
+    quats = frames.quat_from_yaw(drive.yaw_odom[:n])
+    events: list[tuple[int, str, int]] = [
+        (int(s), "odom", i) for i, s in enumerate(drive.stamp_ns[:n])
+    ]
+    events += [(int(s), "cam", i) for i, s in enumerate(camera_ns)]
+    events += [(int(s), "lidar", i) for i, s in enumerate(lidar_ns)]
+    events += [(int(s), "steer", i) for i, s in enumerate(steering_ns)]
+    events.sort()
+    images = []
+    with BagWriter(path, fmt) as w:
+        for stamp, kind, i in events:
+            receive = stamp + 1_000_000
+            if kind == "odom":
+                q = quats[i]
+                w.write_fields(
+                    "/odom",
+                    "nav_msgs/msg/Odometry",
+                    {
+                        "header": {"stamp": stamp, "frame_id": "utm"},
+                        "child_frame_id": "base_link",
+                        "pose": {
+                            "pose": {
+                                "position": {"x": drive.easting[i], "y": drive.northing[i]},
+                                "orientation": dict(zip("xyzw", q.tolist(), strict=True)),
+                            }
+                        },
+                    },
+                    receive_ns=receive,
+                )
+            elif kind == "cam":
+                image = _image(i, *size)
+                images.append(image)
+                fields = dict(image_message_fields(image, encoding))
+                w.write_fields(
+                    "/camera/image_raw",
+                    "sensor_msgs/msg/Image",
+                    {"header": {"stamp": stamp, "frame_id": "camera"}, **fields},
+                    receive_ns=receive,
+                )
+            elif kind == "lidar":
+                from cam2sim.recording.pointcloud import pointcloud_message_fields
+
+                fields = dict(pointcloud_message_fields(_cloud(i)))
+                fields["fields"] = [
+                    w.message("sensor_msgs/msg/PointField", f) for f in fields["fields"]
+                ]
+                w.write_fields(
+                    "/velodyne_points",
+                    "sensor_msgs/msg/PointCloud2",
+                    {"header": {"stamp": stamp, "frame_id": "velodyne"}, **fields},
+                    receive_ns=receive,
+                )
+            else:
+                w.write_fields(
+                    "/vehicle/steering_pct",
+                    "std_msgs/msg/Float64",
+                    {"data": float(steering[i])},
+                    receive_ns=receive,
+                )
+    return DriveBag(path, camera_ns, images, lidar_ns, steering_ns, steering)
+
+
+@pytest.fixture
+def cloud_factory():
+    return _cloud
