@@ -283,6 +283,11 @@ class DatasetPaths:
         return self.root / "poses.csv"
 
     @property
+    def frames_csv(self) -> Path:
+        """Frame index and times of a pose-less dataset (images without poses)."""
+        return self.root / "frames.csv"
+
+    @property
     def trajectory_csv(self) -> Path:
         """Every ego pose sample of the recording, in the world frame."""
         return self.root / "trajectory.csv"

@@ -1,0 +1,5 @@
+"""``python -m cam2sim``."""
+
+from cam2sim.cli.main import main
+
+main()

@@ -1,0 +1,83 @@
+"""Terminal display for the CLI: rich progress bars, logging and warnings."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import warnings
+from typing import TYPE_CHECKING, TextIO
+
+from rich.console import Console
+from rich.logging import RichHandler
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    SpinnerColumn,
+    TaskID,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+
+__all__ = ["console", "error_console", "progress_bars", "setup_logging"]
+
+console = Console()
+error_console = Console(stderr=True)
+
+
+def setup_logging(*, verbose: int) -> None:
+    """Route cam2sim's log records and warnings to the terminal."""
+    level = logging.WARNING if verbose <= 0 else logging.INFO if verbose == 1 else logging.DEBUG
+    handler = RichHandler(console=error_console, show_path=False, show_time=verbose > 1)
+    logging.basicConfig(level=level, handlers=[handler], format="%(message)s", force=True)
+
+    def show(
+        message: Warning | str,
+        category: type[Warning],
+        filename: str,
+        lineno: int,
+        file: TextIO | None = None,
+        line: str | None = None,
+    ) -> None:
+        del category, filename, lineno, file, line
+        error_console.print(f"[yellow]warning:[/] {message}", highlight=False)
+
+    warnings.showwarning = show
+
+
+@contextlib.contextmanager
+def progress_bars(*, enabled: bool = True) -> Iterator[ProgressSink]:
+    """Yield a stage progress callback that draws one rich bar per task."""
+    bars = Progress(
+        SpinnerColumn(),
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=error_console,
+        transient=False,
+        disable=not enabled,
+    )
+    with bars:
+        yield ProgressSink(bars)
+
+
+class ProgressSink:
+    """A :class:`cam2sim.core.progress.ProgressCallback` backed by rich bars."""
+
+    def __init__(self, bars: Progress) -> None:
+        self._bars = bars
+        self._tasks: dict[str, TaskID] = {}
+
+    def __call__(self, task: str, completed: int, total: int | None) -> None:
+        """Update (or create) the bar of ``task``."""
+        tid = self._tasks.get(task)
+        if tid is None:
+            tid = self._bars.add_task(task, total=total)
+            self._tasks[task] = tid
+        self._bars.update(tid, completed=completed, total=total)

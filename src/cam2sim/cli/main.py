@@ -1,0 +1,196 @@
+"""The ``cam2sim`` command: thin wrappers that parse arguments and call one stage each."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
+from typing import Annotated
+
+import typer
+
+from cam2sim import __version__
+from cam2sim.cli.display import console, error_console, progress_bars, setup_logging
+from cam2sim.core.config import AxisConvention
+from cam2sim.core.errors import Cam2SimError
+
+__all__ = ["app", "main"]
+
+app = typer.Typer(
+    name="cam2sim",
+    help="Turn a real driving recording into a closed-loop simulation of the same street.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode="rich",
+)
+
+_state = {"verbose": 0, "progress": True}
+
+
+def _version(value: bool) -> None:
+    if value:
+        console.print(f"cam2sim {__version__}")
+        raise typer.Exit
+
+
+@app.callback()
+def _root(
+    verbose: Annotated[
+        int, typer.Option("--verbose", "-v", count=True, help="More log output (-vv for debug).")
+    ] = 0,
+    no_progress: Annotated[bool, typer.Option("--no-progress", help="Hide progress bars.")] = False,
+    version: Annotated[
+        bool,
+        typer.Option("--version", callback=_version, is_eager=True, help="Show the version."),
+    ] = False,
+) -> None:
+    del version
+    _state["verbose"] = verbose
+    _state["progress"] = not no_progress and sys.stderr.isatty()
+    setup_logging(verbose=verbose)
+
+
+def _fail(err: Cam2SimError) -> typer.Exit:
+    error_console.print(f"[bold red]error:[/] {err}", highlight=False)
+    return typer.Exit(code=1)
+
+
+@app.command()
+def inspect(
+    bags: Annotated[list[Path], typer.Argument(help="Bag files or folders of one recording.")],
+) -> None:
+    """Show the topics of a recording: types, counts, rates, time span and largest gaps.
+
+    Example: cam2sim inspect drive.bag
+    """
+    from rich.table import Table  # noqa: PLC0415
+
+    from cam2sim.recording.summary import summarize_recording  # noqa: PLC0415
+
+    try:
+        with progress_bars(enabled=bool(_state["progress"])) as sink:
+            summary = summarize_recording(bags, progress=sink)
+    except Cam2SimError as err:
+        raise _fail(err) from None
+    table = Table(title=f"{', '.join(summary.paths)}  ({summary.duration_s:.2f} s)")
+    for col, justify in (
+        ("topic", "left"),
+        ("type", "left"),
+        ("count", "right"),
+        ("rate Hz", "right"),
+        ("span s", "right"),
+        ("largest gap s", "right"),
+        ("gap at s", "right"),
+    ):
+        table.add_column(col, justify=justify)  # type: ignore[arg-type]
+    for t in summary.topics:
+        table.add_row(
+            t.name,
+            t.msgtype,
+            str(t.count),
+            f"{t.rate_hz:.2f}",
+            f"{(t.end_ns - t.start_ns) / 1e9:.2f}",
+            f"{t.max_gap_s:.3f}",
+            f"{t.max_gap_at_s:.2f}",
+        )
+    console.print(table)
+
+
+@app.command()
+def init(
+    workspace: Annotated[Path, typer.Argument(help="Workspace folder to create.")],
+    bag: Annotated[
+        list[Path], typer.Option("--bag", "-b", help="A bag file or folder (repeatable).")
+    ],
+    force: Annotated[bool, typer.Option(help="Overwrite an existing workspace's config.")] = False,
+) -> None:
+    """Create a workspace and a starter config.yaml guessed from the recording's topics.
+
+    Example: cam2sim init ws --bag drive.bag
+    """
+    from cam2sim.stages.init import init_workspace  # noqa: PLC0415
+
+    try:
+        result = init_workspace(workspace, bag, force=force)
+    except Cam2SimError as err:
+        raise _fail(err) from None
+    console.print(f"created workspace [bold]{result.workspace.root}[/]")
+    for note in result.notes:
+        console.print(f"  - {note}", highlight=False)
+    console.print(f"edit {result.workspace.config_path}, then run: cam2sim extract {workspace}")
+
+
+@app.command()
+def extract(
+    workspace: Annotated[Path, typer.Argument(help="The workspace folder.")],
+    force: Annotated[bool, typer.Option(help="Re-extract even if up to date.")] = False,
+) -> None:
+    """Extract frames, poses, LiDAR scans and signals into WS/dataset/.
+
+    Example: cam2sim extract ws
+    """
+    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
+    from cam2sim.stages.extract import extract as run_extract  # noqa: PLC0415
+
+    try:
+        ws = Workspace.open(workspace)
+        with progress_bars(enabled=bool(_state["progress"])) as sink:
+            result = run_extract(ws, force=force, progress=sink)
+    except Cam2SimError as err:
+        raise _fail(err) from None
+    info = result.info
+    if result.skipped:
+        console.print("dataset is up to date (use --force to re-extract)")
+    dropped = ", ".join(
+        f"{sensor} {reason}: {n}" for sensor, r in info.dropped.items() for reason, n in r.items()
+    )
+    console.print(
+        f"{result.dataset_dir}: {info.counts.frames} frames, {info.counts.pose_samples} poses, "
+        f"{info.counts.lidar_scans} LiDAR scans, {len(info.counts.signals)} signals over "
+        f"{info.duration_s:.1f} s" + (f"; dropped {dropped}" if dropped else ""),
+        highlight=False,
+    )
+
+
+@app.command("import")
+def import_(
+    workspace: Annotated[Path, typer.Argument(help="The workspace folder (created if new).")],
+    images: Annotated[Path, typer.Option(help="Folder of .png/.jpg frames.")],
+    poses: Annotated[
+        Path | None,
+        typer.Option(help="CSV: timestamp,x,y[,z] and qx,qy,qz,qw or yaw[, image]."),
+    ] = None,
+    calibration: Annotated[
+        Path | None,
+        typer.Option(help="JSON with K, distortion, width, height (or a Cam2Sim camera.json)."),
+    ] = None,
+    crs: Annotated[
+        str | None, typer.Option(help="CRS of the pose positions, e.g. EPSG:32632.")
+    ] = None,
+    axis_convention: Annotated[
+        AxisConvention, typer.Option(help="Where the pose frame's x axis points on the car.")
+    ] = AxisConvention.X_FORWARD,
+    fps: Annotated[float, typer.Option(help="Frame rate when file names carry no time.")] = 30.0,
+) -> None:
+    """Import images (and optional poses and calibration) as the workspace dataset.
+
+    Example: cam2sim import ws --images frames/ --poses poses.csv --crs EPSG:32632
+    """
+    from cam2sim.stages.image_import import ImportOptions, import_images  # noqa: PLC0415
+
+    opts = ImportOptions(
+        poses=poses, calibration=calibration, crs=crs, axis_convention=axis_convention, fps=fps
+    )
+    try:
+        with progress_bars(enabled=bool(_state["progress"])) as sink:
+            result = import_images(workspace, images, options=opts, progress=sink)
+    except Cam2SimError as err:
+        raise _fail(err) from None
+    info = result.info
+    kind = "pose-less " if info.pose_less else ""
+    console.print(f"{result.dataset_dir}: {kind}dataset of {info.counts.frames} frames")
+
+
+def main() -> None:
+    """Run the ``cam2sim`` command."""
+    app()

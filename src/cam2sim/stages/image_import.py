@@ -1,0 +1,463 @@
+"""``cam2sim import``: images (plus an optional pose table and calibration) into a dataset.
+
+The minimum input without a bag. Images are taken in natural name order; their times come from
+numeric file names (ns, us, ms or s by magnitude) or from the frame rate. A pose CSV gives
+``timestamp|t|stamp_ns, x, y[, z]`` and an orientation (``qx, qy, qz, qw`` or ``yaw``/``heading``
+in radians); optionally an ``image`` column naming the file each row belongs to. Without poses
+the dataset is marked pose-less (the splat stage estimates poses itself).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import math
+import re
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from cam2sim.core import frames
+from cam2sim.core.config import AXIS_CONVENTION_YAW_OFFSET, AxisConvention, Config, PoseConfig
+from cam2sim.core.dataset import (
+    POSE_PRECISION,
+    Calibration,
+    CameraIntrinsics,
+    DatasetCounts,
+    DatasetInfo,
+    MountRecord,
+    SourceRecord,
+)
+from cam2sim.core.errors import RecordingError
+from cam2sim.core.files import atomic_folder, file_fingerprint, write_bytes_atomic
+from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.table import write_table
+from cam2sim.core.trajectory import Trajectory
+from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
+from cam2sim.recording.pose import yaw_offset_quat
+from cam2sim.stages._runner import stage_run
+
+__all__ = ["ImportResult", "import_images", "intrinsics_from_file", "stamps_from_names"]
+
+logger = logging.getLogger(__name__)
+
+STAGE = "extract"
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+_IDENTITY_OPTICAL = (-0.5, 0.5, -0.5, 0.5)  # optical camera looking along the body's +x
+
+
+@dataclass(frozen=True)
+class ImportResult:
+    """What :func:`import_images` did."""
+
+    dataset_dir: Path
+    info: DatasetInfo
+
+
+def _natural_key(path: Path) -> list[object]:
+    return [int(p) if p.isdigit() else p for p in re.split(r"(\d+)", path.name)]
+
+
+def _list_images(images: Path) -> list[Path]:
+    if not images.is_dir():
+        msg = f"--images {images} is not a folder; pass the folder holding the frames"
+        raise RecordingError(msg)
+    files = sorted(
+        (p for p in images.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES), key=_natural_key
+    )
+    if not files:
+        msg = f"{images} holds no .png/.jpg images; pass the folder holding the frames"
+        raise RecordingError(msg)
+    return files
+
+
+def stamps_from_names(files: list[Path], *, fps: float) -> tuple[npt.NDArray[np.int64], str]:
+    """Times of image files: numeric stems by magnitude (ns/us/ms/s), else index / fps.
+
+    Returns:
+        ``(N,)`` int64 nanoseconds and a word saying where they came from.
+    """
+    stems = [p.stem for p in files]
+    if all(re.fullmatch(r"\d+(\.\d+)?", s) for s in stems):
+        values = np.array([float(s) for s in stems])
+        if all("." not in s for s in stems) and values.max() > 1e15:
+            stamps = np.array([int(s) for s in stems], dtype=np.int64)
+            return stamps, "file names (ns)"
+        for scale, unit in ((1e3, "us"), (1e6, "ms"), (1e9, "s")):
+            limit = {"us": 1e12, "ms": 1e9, "s": 1e6}[unit]
+            if values.max() > limit:
+                stamps = np.round(values * scale).astype(np.int64)
+                return stamps, f"file names ({unit})"
+    stamps = np.round(np.arange(len(files)) * (1e9 / fps)).astype(np.int64)
+    return stamps, f"frame index at {fps:g} fps"
+
+
+def _column(rows: list[dict[str, str]], *names: str) -> str | None:
+    for name in names:
+        if name in rows[0]:
+            return name
+    return None
+
+
+def _stamp_ns(text: str) -> int:
+    sec, _, frac = text.strip().partition(".")
+    if not frac and abs(int(sec)) > 10**15:
+        return int(sec)
+    return int(sec) * 1_000_000_000 + int((frac + "000000000")[:9]) * (
+        -1 if sec.startswith("-") else 1
+    )
+
+
+@dataclass(frozen=True)
+class _PoseTable:
+    stamp_ns: npt.NDArray[np.int64]
+    xyz: npt.NDArray[np.float64]
+    quat: npt.NDArray[np.float64]
+    images: list[str] | None
+
+
+def _read_pose_table(path: Path) -> _PoseTable:
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            lines = [ln for ln in handle if ln.strip()]
+    except FileNotFoundError:
+        msg = f"--poses {path} does not exist"
+        raise RecordingError(msg) from None
+    if lines and lines[0].startswith("#"):
+        lines[0] = lines[0].lstrip("#")
+    rows = [{k.strip(): (v or "").strip() for k, v in r.items()} for r in csv.DictReader(lines)]
+    if not rows:
+        msg = f"{path}: no pose rows; expected a header line and one row per pose"
+        raise RecordingError(msg)
+    tcol = _column(rows, "stamp_ns", "timestamp", "t", "time", "Timestamp_Sec")
+    missing = [c for c in ("x", "y") if c not in rows[0]]
+    if tcol is None or missing:
+        msg = (
+            f"{path}: needs columns timestamp (or t/stamp_ns), x, y[, z] and qx,qy,qz,qw or yaw; "
+            f"found {', '.join(rows[0])}"
+        )
+        raise RecordingError(msg)
+    try:
+        stamps = np.array([_stamp_ns(r[tcol]) for r in rows], dtype=np.int64)
+        if tcol == "stamp_ns":
+            stamps = np.array([int(r[tcol]) for r in rows], dtype=np.int64)
+        z = [float(r.get("z") or 0.0) for r in rows]
+        xyz = np.array([[float(r["x"]), float(r["y"]), zz] for r, zz in zip(rows, z, strict=True)])
+        if all(c in rows[0] for c in ("qx", "qy", "qz", "qw")):
+            quat = np.array([[float(r[c]) for c in ("qx", "qy", "qz", "qw")] for r in rows])
+        else:
+            ycol = _column(rows, "yaw", "heading")
+            yaw = np.array([float(r[ycol]) for r in rows]) if ycol else None
+            if yaw is None:
+                msg = f"{path}: no orientation; add qx,qy,qz,qw or yaw columns"
+                raise RecordingError(msg)
+            quat = frames.quat_from_yaw(yaw)
+    except ValueError as err:
+        msg = f"{path}: a value is not a number ({err}); fix that row"
+        raise RecordingError(msg) from None
+    if not (np.isfinite(xyz).all() and np.isfinite(quat).all()):
+        msg = f"{path}: NaN/inf in the poses; remove those rows"
+        raise RecordingError(msg)
+    icol = _column(rows, "image", "file", "ImageFile")
+    images = [Path(r[icol]).name for r in rows] if icol else None
+    if images is None:
+        order = np.argsort(stamps, kind="stable")
+        if (np.diff(stamps[order]) == 0).any():
+            msg = f"{path}: two poses share a timestamp; remove duplicates"
+            raise RecordingError(msg)
+        stamps, xyz, quat = stamps[order], xyz[order], quat[order]
+    return _PoseTable(stamps, xyz, frames.quat_normalize(quat), images)
+
+
+def intrinsics_from_file(path: Path) -> tuple[CameraIntrinsics, MountRecord | None]:
+    """Read camera intrinsics (and a mount, when the file has one).
+
+    Accepts our ``calibration.json``, a Cam2Sim ``camera.json``, or plain JSON
+    ``{K, distortion, width, height}``.
+    """
+    try:
+        raw: Any = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as err:
+        msg = f"--calibration {path}: cannot read JSON ({err})"
+        raise RecordingError(msg) from None
+    if isinstance(raw, dict) and "camera_mount" in raw:
+        calib = Calibration.model_validate(raw)
+        if calib.camera is None:
+            msg = f"{path}: calibration.json has no camera intrinsics"
+            raise RecordingError(msg)
+        return calib.camera, calib.camera_mount
+    mount = None
+    if isinstance(raw, dict) and isinstance(raw.get("camera"), dict):
+        cam = raw["camera"]
+        cal = cam.get("calibration", {})
+        size = cam.get("original_size", {})
+        raw = {"K": cal.get("K"), "distortion": cal.get("distortion", [])}
+        raw |= {"width": size.get("x"), "height": size.get("y")}
+        if isinstance(cam.get("position"), dict):
+            pos = cam["position"]
+            # Cam2Sim's camera.json uses CARLA's vehicle frame: x forward, y right, z up.
+            pitch = math.radians(float(cam.get("pitch", 0.0)))
+            q = frames.quat_multiply(
+                frames.quat_from_euler(0.0, -pitch, 0.0), np.asarray(_IDENTITY_OPTICAL)
+            )
+            mount = MountRecord(
+                translation_m=(float(pos["x"]), -float(pos["y"]), float(pos["z"])),
+                quat_xyzw=tuple(float(v) for v in q),  # type: ignore[arg-type]
+                axes="optical",
+                source=f"file {path}",
+            )
+    try:
+        K = np.asarray(raw["K"], dtype=float).reshape(3, 3)
+        intr = CameraIntrinsics(
+            width=int(raw["width"]),
+            height=int(raw["height"]),
+            K=tuple(tuple(float(v) for v in row) for row in K),  # type: ignore[arg-type]
+            distortion=tuple(float(v) for v in raw.get("distortion", [])),
+            source=f"file {path}",
+        )
+    except (KeyError, TypeError, ValueError) as err:
+        msg = f"{path}: expected K (3x3), width, height[, distortion]; {err!r}"
+        raise RecordingError(msg) from None
+    return intr, mount
+
+
+def _world(
+    table: _PoseTable, crs: str | None, existing: WorldFrameRecord | None
+) -> tuple[WorldFrameRecord, npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    if crs is None:
+        return WorldFrameRecord(proj_string=None), table.xyz, table.quat
+    if existing is not None and existing.source_crs == crs and existing.origin_lat_deg is not None:
+        wf = frames.WorldFrame(
+            existing.origin_lat_deg, existing.origin_lon_deg or 0.0, existing.origin_alt_m
+        )
+    else:
+        x, y, z = table.xyz[0]
+        wf = frames.WorldFrame.at_crs_point(crs, float(x), float(y), float(z))
+    record = WorldFrameRecord(
+        proj_string=wf.proj_string,
+        origin_lat_deg=wf.origin_lat_deg,
+        origin_lon_deg=wf.origin_lon_deg,
+        origin_alt_m=wf.origin_alt_m,
+        source_crs=crs,
+    )
+    xyz = wf.from_crs(crs, table.xyz)
+    quat = wf.quats_from_crs(crs, table.xyz[:, :2], table.quat)
+    return record, xyz, quat
+
+
+@dataclass(frozen=True)
+class _PosedImages:
+    world: WorldFrameRecord
+    keep: npt.NDArray[np.bool_]
+    stamps: npt.NDArray[np.int64]
+    columns: dict[str, npt.NDArray[Any]]
+    dropped: dict[str, int]
+
+
+def _poses_for_images(
+    table: _PoseTable,
+    files: list[Path],
+    stamps: npt.NDArray[np.int64],
+    opts: ImportOptions,
+    existing: WorldFrameRecord | None,
+    time_source: str,
+) -> _PosedImages:
+    """Give every image its pose: by the table's image column, else by time."""
+    dropped: dict[str, int] = {}
+    world, xyz, quat = _world(table, opts.crs, existing)
+    offset = AXIS_CONVENTION_YAW_OFFSET[opts.axis_convention]
+    quat = frames.quat_normalize(frames.quat_multiply(quat, yaw_offset_quat(offset)))
+    if table.images is not None:
+        index = {name: i for i, name in enumerate(table.images)}
+        rows = np.array([index.get(f.name, -1) for f in files])
+        keep = rows >= 0
+        if (~keep).any():
+            dropped["no_pose_row"] = int((~keep).sum())
+        stamps = np.where(keep, table.stamp_ns[np.maximum(rows, 0)], stamps)
+        sel = rows[keep]
+        traj_pos, traj_q = xyz[sel], quat[sel]
+        speed = np.zeros(int(keep.sum()))
+        if keep.sum() >= 2:
+            order = np.argsort(stamps[keep])
+            traj = Trajectory(stamps[keep][order], traj_pos[order], traj_q[order])
+            speed[order] = traj.speed_at(stamps[keep][order], window_s=0.2)
+    else:
+        traj = Trajectory(table.stamp_ns, xyz, quat)
+        s = traj.sample(stamps, max_gap_s=opts.max_pose_gap_s)
+        keep = s.valid
+        for reason in np.unique(s.reason[~s.valid]):
+            dropped[str(reason)] = int((s.reason == reason).sum())
+        traj_pos, traj_q, speed = s.position, s.quat, s.speed
+    if not keep.any():
+        msg = (
+            f"no image has a pose: images span {stamps.min() / 1e9:.3f}-"
+            f"{stamps.max() / 1e9:.3f} s ({time_source}), poses span "
+            f"{table.stamp_ns[0] / 1e9:.3f}-{table.stamp_ns[-1] / 1e9:.3f} s. Name the "
+            "images by timestamp or add an image column to the pose table"
+        )
+        raise RecordingError(msg)
+    pose_cols = {
+        "x": traj_pos[:, 0],
+        "y": traj_pos[:, 1],
+        "z": traj_pos[:, 2],
+        "qx": traj_q[:, 0],
+        "qy": traj_q[:, 1],
+        "qz": traj_q[:, 2],
+        "qw": traj_q[:, 3],
+        "heading": frames.yaw_from_quat(traj_q),
+        "speed": speed,
+    }
+    return _PosedImages(world, keep, stamps, pose_cols, dropped)
+
+
+@dataclass(frozen=True)
+class ImportOptions:
+    """Options of :func:`import_images`."""
+
+    poses: Path | None = None
+    calibration: Path | None = None
+    crs: str | None = None
+    axis_convention: AxisConvention = AxisConvention.X_FORWARD
+    fps: float = 30.0
+    max_pose_gap_s: float = 0.5
+
+
+def import_images(
+    root: Path,
+    images: Path,
+    *,
+    options: ImportOptions | None = None,
+    progress: ProgressCallback | None = None,
+) -> ImportResult:
+    """Import an image folder (and optional poses and calibration) as the workspace dataset.
+
+    Creates the workspace when it does not exist yet.
+
+    Raises:
+        RecordingError: No images, unreadable pose table or calibration, or no image with a pose.
+    """
+    opts = options or ImportOptions()
+    progress = progress or no_progress
+    files = _list_images(Path(images))
+    if (Path(root) / Workspace.MANIFEST).is_file():
+        ws = Workspace.open(root)
+        config = ws.load_config()
+    else:
+        config = Config(pose=PoseConfig(crs=opts.crs, axis_convention=opts.axis_convention))
+        ws = Workspace.create(root, config, comment="Created by cam2sim import.")
+    stamps, time_source = stamps_from_names(files, fps=opts.fps)
+    table = _read_pose_table(opts.poses) if opts.poses else None
+    intr, mount = intrinsics_from_file(opts.calibration) if opts.calibration else (None, None)
+    extra_inputs = [p for p in (opts.poses, opts.calibration) if p is not None]
+    sources = [SourceRecord(path=str(p), fingerprint=file_fingerprint(p)) for p in extra_inputs]
+    inputs_hash = hash_inputs({"files": [f.name for f in files], "opts": repr(opts)})
+    with (
+        stage_run(ws, STAGE, inputs_hash=inputs_hash, config=config) as run,
+        atomic_folder(ws.dataset_dir) as tmp,
+    ):
+        paths = DatasetPaths(tmp)
+        dropped: dict[str, int] = {}
+        world = WorldFrameRecord(proj_string=None)
+        keep = np.ones(len(files), dtype=bool)
+        pose_cols: dict[str, npt.NDArray[Any]] | None = None
+        if table is not None:
+            posed = _poses_for_images(table, files, stamps, opts, ws.world_frame(), time_source)
+            world, keep, stamps, pose_cols, dropped = (
+                posed.world,
+                posed.keep,
+                posed.stamps,
+                posed.columns,
+                posed.dropped,
+            )
+        kept = [f for f, k in zip(files, keep, strict=True) if k]
+        kept_stamps = stamps[keep]
+        fmt = config.frames.format
+        size = _write_frames(kept, paths, fmt, config.frames.jpeg_quality, progress)
+        base = {
+            "frame": np.arange(len(kept), dtype=np.int64),
+            "stamp_ns": kept_stamps,
+            "t": kept_stamps / 1e9,
+        }
+        if pose_cols is not None:
+            write_table(paths.poses_csv, base | pose_cols, precision=POSE_PRECISION)
+        else:
+            write_table(paths.frames_csv, base, precision=POSE_PRECISION)
+        if intr is not None and (intr.width, intr.height) != size:
+            msg = (
+                f"calibration is for {intr.width}x{intr.height} but images are {size[0]}x{size[1]}"
+            )
+            raise RecordingError(msg + "; pass the calibration of these images")
+        Calibration(
+            camera=intr,
+            camera_mount=mount
+            or MountRecord(
+                translation_m=(0.0, 0.0, 0.0),
+                quat_xyzw=_IDENTITY_OPTICAL,
+                axes="optical",
+                source="default",
+            ),
+        ).save(paths.calibration_json)
+        info = DatasetInfo(
+            kind="images",
+            pose_less=table is None,
+            sources=(
+                SourceRecord(path=str(images), fingerprint=hash_inputs([f.name for f in files])),
+                *sources,
+            ),
+            time_base="file",
+            counts=DatasetCounts(
+                frames=len(kept), pose_samples=0 if table is None else len(table.stamp_ns)
+            ),
+            start_ns=int(kept_stamps.min()),
+            end_ns=int(kept_stamps.max()),
+            duration_s=float(kept_stamps.max() - kept_stamps.min()) / 1e9,
+            dropped={"camera": dropped} if dropped else {},
+            frame_format=fmt,
+            world=world,
+        )
+        info.save(paths.dataset_json)
+        run.world = world
+    logger.info("import: %d frames (%s), pose-less: %s", len(kept), time_source, table is None)
+    return ImportResult(ws.dataset_dir, info)
+
+
+def _write_frames(
+    files: list[Path], paths: DatasetPaths, fmt: str, quality: int, progress: ProgressCallback
+) -> tuple[int, int]:
+    import cv2  # noqa: PLC0415
+
+    from cam2sim.recording.image import encode_image_file  # noqa: PLC0415
+
+    paths.frames_dir.mkdir(parents=True, exist_ok=True)
+    size: tuple[int, int] | None = None
+    want_suffix = (".jpg", ".jpeg") if fmt == "jpeg" else (".png",)
+    for i, f in enumerate(files):
+        image = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            msg = f"{f} cannot be read as an image; remove or replace it"
+            raise RecordingError(msg)
+        this = (int(image.shape[1]), int(image.shape[0]))
+        if size is None:
+            size = this
+        elif this != size:
+            msg = f"{f} is {this[0]}x{this[1]} but earlier images are {size[0]}x{size[1]}"
+            raise RecordingError(msg)
+        target = paths.frame_file(i, fmt)
+        if f.suffix.lower() in want_suffix:
+            shutil.copyfile(f, target)
+        else:
+            if image.ndim == 3:
+                image = cv2.cvtColor(
+                    image, cv2.COLOR_BGRA2RGB if image.shape[2] == 4 else cv2.COLOR_BGR2RGB
+                )
+            write_bytes_atomic(target, encode_image_file(image, fmt, jpeg_quality=quality))
+        if i % 16 == 0:
+            progress("images", i + 1, len(files))
+    progress("images", len(files), len(files))
+    assert size is not None
+    return size
