@@ -54,8 +54,7 @@ def write_table(
         raise ValueError(msg)
     precision = precision or {}
     fmts = [
-        "%d" if is_integer_column(n) else f"%.{precision.get(n, default_precision)}f"
-        for n in names
+        "%d" if is_integer_column(n) else f"%.{precision.get(n, default_precision)}f" for n in names
     ]
     buffer = io.StringIO()
     buffer.write(",".join(names) + "\n")

@@ -86,7 +86,8 @@ class Trajectory:
         b = np.stack([np.interp(t1 - self.stamp_ns[0], rel, c) for c in self.position.T], -1)
         dt = (t1 - t0).astype(np.float64) / 1e9
         dist = np.linalg.norm((b - a)[:, :2], axis=1)
-        return np.divide(dist, dt, out=np.zeros_like(dist), where=dt > 0)
+        speed: npt.NDArray[np.float64] = np.divide(dist, dt, out=np.zeros_like(dist), where=dt > 0)
+        return speed
 
     def sample(
         self, query_ns: npt.NDArray[np.int64], *, max_gap_s: float, speed_window_s: float = 0.2

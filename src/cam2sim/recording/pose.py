@@ -86,9 +86,7 @@ def _pose_of(msgtype: str, msg: Any) -> tuple[tuple[float, ...], tuple[float, ..
     return (p.x, p.y, p.z), (o.x, o.y, o.z, o.w), True
 
 
-def require_increasing(
-    stamp_ns: npt.NDArray[np.int64], *, topic: str
-) -> npt.NDArray[np.bool_]:
+def require_increasing(stamp_ns: npt.NDArray[np.int64], *, topic: str) -> npt.NDArray[np.bool_]:
     """Check that times never go backwards; return a mask keeping the first of equal stamps.
 
     Raises:
@@ -145,7 +143,7 @@ def _collect(
     if bad.any() or no_fix.any():
         if on_invalid == "error":
             first = int(np.flatnonzero(bad | no_fix)[0])
-            what = "NaN/inf or zero-quaternion" if bad[first] else "no-fix (status < 0)"
+            what = "NaN/inf or zero-quaternion" if bool(np.asarray(bad)[first]) else "no fix"
             msg = (
                 f"{kind} topic {topic} has {int(bad.sum())} NaN/inf poses and {int(no_fix.sum())}"
                 f" no-fix messages (first: message {first}, {what}). Set pose.on_invalid: drop "

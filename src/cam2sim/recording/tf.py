@@ -15,6 +15,7 @@ import numpy.typing as npt
 
 from cam2sim.core import frames
 from cam2sim.core.errors import RecordingError
+from cam2sim.core.frames import Pose
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
@@ -148,8 +149,9 @@ class TfTree:
             for name in reversed(names):
                 e = self._edge_samples(name)
                 if e.static:
-                    p_e, q_e = np.broadcast_to(e.position[0], (n, 3)), np.broadcast_to(
-                        e.quat[0], (n, 4)
+                    p_e, q_e = (
+                        np.broadcast_to(e.position[0], (n, 3)),
+                        np.broadcast_to(e.quat[0], (n, 4)),
                     )
                 else:
                     s = frames.interpolate_poses(e.stamp_ns, e.position, e.quat, stamps)
@@ -165,7 +167,7 @@ class TfTree:
         quat = frames.quat_normalize(frames.quat_multiply(q_pc_inv, q_cc))
         return TfChain(stamp_ns=stamps, position=position, quat=quat)
 
-    def static_transform(self, parent: str, child: str) -> frames.Pose:
+    def static_transform(self, parent: str, child: str) -> Pose:
         """Return a time-independent ``T_parent_child`` (the first sample of a dynamic chain)."""
         chain = self.chain(parent, child)
-        return frames.Pose(position=chain.position[0], quat=chain.quat[0])
+        return Pose(position=chain.position[0], quat=chain.quat[0])

@@ -87,7 +87,7 @@ def _bag_paths(ws: Workspace, config: Config) -> list[Path]:
 
 
 def _fingerprints(paths: list[Path]) -> list[SourceRecord]:
-    out = []
+    out: list[SourceRecord] = []
     for path in paths:
         files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
         out.extend(SourceRecord(path=str(f), fingerprint=file_fingerprint(f)) for f in files)
@@ -346,7 +346,7 @@ def _intrinsics(config: Config, camera_info: Any) -> CameraIntrinsics | None:
     return CameraIntrinsics(
         width=int(camera_info.width),
         height=int(camera_info.height),
-        K=(tuple(K3[0]), tuple(K3[1]), tuple(K3[2])),  # type: ignore[arg-type]
+        K=(tuple(K3[0]), tuple(K3[1]), tuple(K3[2])),
         distortion=tuple(float(v) for v in d),
         distortion_model=model,
         source=f"camera_info topic {config.topics.camera_info}",
@@ -388,7 +388,7 @@ def _mount(
     return MountRecord(
         translation_m=(t3[0], t3[1], t3[2]),
         quat_xyzw=(q4[0], q4[1], q4[2], q4[3]),
-        axes=want_axes,  # type: ignore[arg-type]
+        axes=want_axes,
         source=source,
     )
 

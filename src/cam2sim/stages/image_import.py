@@ -17,7 +17,7 @@ import re
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -207,7 +207,7 @@ def intrinsics_from_file(path: Path) -> tuple[CameraIntrinsics, MountRecord | No
             )
             mount = MountRecord(
                 translation_m=(float(pos["x"]), -float(pos["y"]), float(pos["z"])),
-                quat_xyzw=tuple(float(v) for v in q),  # type: ignore[arg-type]
+                quat_xyzw=tuple(float(v) for v in q),
                 axes="optical",
                 source=f"file {path}",
             )
@@ -216,7 +216,7 @@ def intrinsics_from_file(path: Path) -> tuple[CameraIntrinsics, MountRecord | No
         intr = CameraIntrinsics(
             width=int(raw["width"]),
             height=int(raw["height"]),
-            K=tuple(tuple(float(v) for v in row) for row in K),  # type: ignore[arg-type]
+            K=tuple(tuple(float(v) for v in row) for row in K),
             distortion=tuple(float(v) for v in raw.get("distortion", [])),
             source=f"file {path}",
         )
@@ -427,7 +427,11 @@ def import_images(
 
 
 def _write_frames(
-    files: list[Path], paths: DatasetPaths, fmt: str, quality: int, progress: ProgressCallback
+    files: list[Path],
+    paths: DatasetPaths,
+    fmt: Literal["png", "jpeg"],
+    quality: int,
+    progress: ProgressCallback,
 ) -> tuple[int, int]:
     import cv2  # noqa: PLC0415
 
@@ -437,7 +441,8 @@ def _write_frames(
     size: tuple[int, int] | None = None
     want_suffix = (".jpg", ".jpeg") if fmt == "jpeg" else (".png",)
     for i, f in enumerate(files):
-        image = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+        # cv2 returns a MatLike whose dtype is only known at run time.
+        image: Any = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
         if image is None:
             msg = f"{f} cannot be read as an image; remove or replace it"
             raise RecordingError(msg)
