@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, TextIO
 
 from rich.console import Console
 from rich.logging import RichHandler
+from rich.measure import Measurement
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
@@ -23,10 +24,26 @@ from rich.progress import (
 if TYPE_CHECKING:
     from collections.abc import Iterator
 
-__all__ = ["console", "error_console", "progress_bars", "setup_logging"]
+    from rich.table import Table
+
+__all__ = ["console", "error_console", "print_table", "progress_bars", "setup_logging"]
 
 console = Console()
 error_console = Console(stderr=True)
+
+
+def print_table(table: Table) -> None:
+    """Print a table; off a terminal (pipes, CI logs) at its natural width, never truncated."""
+    if console.is_terminal:
+        console.print(table)
+        return
+    natural = Measurement.get(console, console.options.update(width=10_000), table).maximum
+    old = console.width
+    console.width = max(natural, old)
+    try:
+        console.print(table)
+    finally:
+        console.width = old
 
 
 def setup_logging(*, verbose: int) -> None:
@@ -44,7 +61,7 @@ def setup_logging(*, verbose: int) -> None:
         line: str | None = None,
     ) -> None:
         del category, filename, lineno, file, line
-        error_console.print(f"[yellow]warning:[/] {message}", highlight=False)
+        error_console.print(f"[yellow]warning:[/] {message}", highlight=False, soft_wrap=True)
 
     warnings.showwarning = show
 

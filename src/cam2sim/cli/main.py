@@ -9,7 +9,13 @@ from typing import Annotated
 import typer
 
 from cam2sim import __version__
-from cam2sim.cli.display import console, error_console, progress_bars, setup_logging
+from cam2sim.cli.display import (
+    console,
+    error_console,
+    print_table,
+    progress_bars,
+    setup_logging,
+)
 from cam2sim.core.config import AxisConvention
 from cam2sim.core.errors import Cam2SimError
 
@@ -51,7 +57,7 @@ def _root(
 
 
 def _fail(err: Cam2SimError) -> typer.Exit:
-    error_console.print(f"[bold red]error:[/] {err}", highlight=False)
+    error_console.print(f"[bold red]error:[/] {err}", highlight=False, soft_wrap=True)
     return typer.Exit(code=1)
 
 
@@ -93,7 +99,7 @@ def inspect(
             f"{t.max_gap_s:.3f}",
             f"{t.max_gap_at_s:.2f}",
         )
-    console.print(table)
+    print_table(table)
 
 
 @app.command()

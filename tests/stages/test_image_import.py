@@ -1,0 +1,280 @@
+"""Stage import: a folder of images, optionally with a pose CSV and a calibration file."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from cam2sim.core import frames
+from cam2sim.core.config import AxisConvention, Config, FramesConfig
+from cam2sim.core.dataset import Calibration, DatasetInfo
+from cam2sim.core.errors import RecordingError
+from cam2sim.core.table import read_table
+from cam2sim.core.workspace import DatasetPaths, Workspace
+from cam2sim.stages.image_import import ImportOptions, import_images
+
+UTM32N = "EPSG:32632"
+POSE_T0 = 1_771_283_861_205_308_914  # like the reference drive's first stamp
+E0, N0 = 692932.1277, 5339068.3913
+SPEED = 5.0
+TURN = 0.2  # rad/s
+
+
+def _png(path: Path, image: np.ndarray) -> None:
+    assert cv2.imwrite(str(path), image)
+
+
+def _random_image(seed: int, size: tuple[int, int] = (16, 12)) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return rng.integers(0, 256, size=(size[1], size[0], 3), dtype=np.uint8)
+
+
+def _write_images(folder: Path, names: list[str], size: tuple[int, int] = (16, 12)) -> list[Path]:
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for i, name in enumerate(names):
+        _png(folder / name, _random_image(i, size))
+        paths.append(folder / name)
+    return paths
+
+
+def _stamp_text(stamp_ns: int) -> str:
+    return f"{stamp_ns // 1_000_000_000}.{stamp_ns % 1_000_000_000:09d}"
+
+
+class ReferencePoses:
+    """A 2 s curve at 5 m/s in UTM 32N, written in the reference format (x_left odometry)."""
+
+    def __init__(self) -> None:
+        self.stamp_ns = POSE_T0 + 100_000_000 * np.arange(21, dtype=np.int64)
+        t = (self.stamp_ns - POSE_T0) / 1e9
+        heading = 0.3 + TURN * t  # grid heading of the car's forward axis
+        k = SPEED / TURN
+        self.easting = np.round(E0 + k * (np.sin(heading) - math.sin(0.3)), 6)
+        self.northing = np.round(N0 - k * (np.cos(heading) - math.cos(0.3)), 6)
+        self.yaw = np.round(heading + math.pi / 2, 6)  # odometry x axis points left
+
+    def write(self, path: Path) -> Path:
+        lines = ["timestamp,x,y,z,yaw"]
+        lines += [
+            f"{_stamp_text(int(s))},{e:.6f},{n:.6f},0.000000,{y:.6f}"
+            for s, e, n, y in zip(self.stamp_ns, self.easting, self.northing, self.yaw, strict=True)
+        ]
+        path.write_text("\n".join(lines) + "\n")
+        return path
+
+    def at(self, stamp_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """UTM positions and yaw - 90 degrees, linearly interpolated at ``stamp_ns``."""
+        rel = (self.stamp_ns - POSE_T0).astype(float)
+        q = (stamp_ns - POSE_T0).astype(float)
+        xy = np.stack([np.interp(q, rel, self.easting), np.interp(q, rel, self.northing)], -1)
+        return xy, np.interp(q, rel, self.yaw) - math.pi / 2
+
+
+def _image_stamps() -> np.ndarray:
+    """15 Hz from 0.3 s before to 0.3 s after the poses."""
+    return POSE_T0 - 300_000_000 + 66_666_667 * np.arange(40, dtype=np.int64)
+
+
+def test_import_converts_reference_poses_to_the_world_frame(tmp_path: Path) -> None:
+    poses = ReferencePoses()
+    stamps = _image_stamps()
+    _write_images(tmp_path / "images", [f"{s}.png" for s in stamps])
+    opts = ImportOptions(
+        poses=poses.write(tmp_path / "poses.csv"),
+        crs=UTM32N,
+        axis_convention=AxisConvention.X_LEFT,
+    )
+    info = import_images(tmp_path / "ws", tmp_path / "images", options=opts).info
+    table = read_table(DatasetPaths(tmp_path / "ws" / "dataset").poses_csv)
+    inside = (stamps >= poses.stamp_ns[0]) & (stamps <= poses.stamp_ns[-1])
+    np.testing.assert_array_equal(table["stamp_ns"], stamps[inside])
+    world = info.world
+    assert world.source_crs == UTM32N
+    wf = frames.WorldFrame(world.origin_lat_deg, world.origin_lon_deg, world.origin_alt_m)  # type: ignore[arg-type]
+    xyz = np.stack([table["x"], table["y"], table["z"]], -1)
+    want_xy, want_heading = poses.at(table["stamp_ns"])
+    assert np.abs(wf.to_crs(UTM32N, xyz)[:, :2] - want_xy).max() < 1e-3
+    heading_utm = wf.heading_to_crs(UTM32N, xyz[:, :2], table["heading"])
+    assert np.degrees(np.abs(frames.angle_difference(heading_utm, want_heading))).max() < 0.1
+    # The world frame starts at the first pose.
+    assert np.abs(wf.from_crs(UTM32N, [[E0, N0, 0.0]])).max() < 1e-3
+
+
+def test_import_drops_and_counts_images_outside_the_pose_span(tmp_path: Path) -> None:
+    poses = ReferencePoses()
+    stamps = _image_stamps()
+    _write_images(tmp_path / "images", [f"{s}.png" for s in stamps])
+    opts = ImportOptions(poses=poses.write(tmp_path / "poses.csv"), crs=UTM32N)
+    info = import_images(tmp_path / "ws", tmp_path / "images", options=opts).info
+    outside = int(((stamps < poses.stamp_ns[0]) | (stamps > poses.stamp_ns[-1])).sum())
+    assert outside == 10  # 5 before and 5 after
+    assert info.dropped == {"camera": {"outside_pose_coverage": outside}}
+    assert info.counts.frames == len(stamps) - outside
+    assert info.counts.pose_samples == len(poses.stamp_ns)
+    frames_dir = DatasetPaths(tmp_path / "ws" / "dataset").frames_dir
+    assert len(list(frames_dir.iterdir())) == len(stamps) - outside
+
+
+def test_import_assigns_poses_by_the_image_column(tmp_path: Path) -> None:
+    _write_images(tmp_path / "images", ["frame_a.png", "frame_b.png", "frame_c.png", "extra.png"])
+    csv = tmp_path / "poses.csv"
+    csv.write_text(
+        "stamp_ns,x,y,yaw,image\n"
+        "3000000000,30.0,3.0,0.3,frame_c.png\n"
+        "1000000000,10.0,1.0,0.1,sub/frame_a.png\n"
+        "2000000000,20.0,2.0,0.2,frame_b.png\n"
+    )
+    opts = ImportOptions(poses=csv)
+    info = import_images(tmp_path / "ws", tmp_path / "images", options=opts).info
+    assert info.dropped == {"camera": {"no_pose_row": 1}}
+    table = read_table(DatasetPaths(tmp_path / "ws" / "dataset").poses_csv)
+    # Frames follow the natural file-name order: frame_a, frame_b, frame_c ("extra" has no row).
+    np.testing.assert_array_equal(table["stamp_ns"], [1e9, 2e9, 3e9])
+    np.testing.assert_allclose(table["x"], [10.0, 20.0, 30.0])
+    np.testing.assert_allclose(table["y"], [1.0, 2.0, 3.0])
+    np.testing.assert_allclose(table["heading"], [0.1, 0.2, 0.3], atol=1e-9)
+
+
+def test_import_copies_png_frames_pixel_identical(tmp_path: Path) -> None:
+    names = [f"{10**18 + i * 10**8}.png" for i in range(5)]
+    sources = _write_images(tmp_path / "images", names)
+    import_images(tmp_path / "ws", tmp_path / "images")
+    paths = DatasetPaths(tmp_path / "ws" / "dataset")
+    for i, src in enumerate(sources):
+        on_disk = cv2.imread(str(paths.frame_file(i, "png")), cv2.IMREAD_UNCHANGED)
+        np.testing.assert_array_equal(on_disk, cv2.imread(str(src), cv2.IMREAD_UNCHANGED))
+        np.testing.assert_array_equal(on_disk, _random_image(i))
+
+
+def test_import_without_poses_writes_a_pose_less_dataset(tmp_path: Path) -> None:
+    stamps = [10**18 + i * 33_333_333 for i in range(4)]
+    _write_images(tmp_path / "images", [f"{s}.png" for s in reversed(stamps)])
+    info = import_images(tmp_path / "ws", tmp_path / "images").info
+    assert info.pose_less
+    assert info.kind == "images"
+    assert info.time_base == "file"
+    assert info.counts.frames == 4
+    assert info.counts.pose_samples == 0
+    assert not info.world.georeferenced
+    paths = DatasetPaths(tmp_path / "ws" / "dataset")
+    assert not paths.poses_csv.exists()
+    table = read_table(paths.frames_csv)
+    np.testing.assert_array_equal(table["frame"], np.arange(4))
+    np.testing.assert_array_equal(table["stamp_ns"], stamps)
+    assert DatasetInfo.load(paths.dataset_json).pose_less
+
+
+def test_import_times_frames_by_fps_without_numeric_names(tmp_path: Path) -> None:
+    _write_images(tmp_path / "images", ["img2.png", "img10.png", "img1.png"])
+    opts = ImportOptions(fps=10.0)
+    import_images(tmp_path / "ws", tmp_path / "images", options=opts)
+    paths = DatasetPaths(tmp_path / "ws" / "dataset")
+    np.testing.assert_array_equal(read_table(paths.frames_csv)["stamp_ns"], [0, 10**8, 2 * 10**8])
+    # Natural order: img1, img2, img10.
+    np.testing.assert_array_equal(cv2.imread(str(paths.frame_file(2, "png"))), _random_image(1))
+
+
+def test_import_reads_a_cam2sim_camera_json(tmp_path: Path, shared_data: Path) -> None:
+    camera_json = shared_data / "reference-drives" / "camera.json"
+    raw = json.loads(camera_json.read_text())["camera"]
+    folder = tmp_path / "images"
+    folder.mkdir()
+    for i in range(2):
+        _png(folder / f"{10**18 + i * 10**8}.png", np.zeros((503, 800, 3), np.uint8))
+    opts = ImportOptions(calibration=camera_json)
+    import_images(tmp_path / "ws", folder, options=opts)
+    calib = Calibration.load(DatasetPaths(tmp_path / "ws" / "dataset").calibration_json)
+    assert calib.camera is not None
+    assert (calib.camera.width, calib.camera.height) == (800, 503)
+    np.testing.assert_array_equal(calib.camera.K, raw["calibration"]["K"])
+    np.testing.assert_array_equal(calib.camera.distortion, raw["calibration"]["distortion"])
+    mount = calib.camera_mount
+    assert mount.axes == "optical"
+    # CARLA's y points right; the body frame's y points left.
+    np.testing.assert_allclose(mount.translation_m, [0.762, 0.015, 1.21], atol=1e-12)
+    q = np.asarray(mount.quat_xyzw)
+    pitch = math.radians(0.6)
+    optical_axis = frames.quat_rotate(q, [0.0, 0.0, 1.0])
+    np.testing.assert_allclose(optical_axis, [math.cos(pitch), 0.0, math.sin(pitch)], atol=1e-12)
+    image_right = frames.quat_rotate(q, [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(image_right, [0.0, -1.0, 0.0], atol=1e-12)
+
+
+# -- errors ------------------------------------------------------------------------------------
+def test_import_rejects_a_folder_without_images(tmp_path: Path) -> None:
+    (tmp_path / "images").mkdir()
+    (tmp_path / "images" / "notes.txt").write_text("no images here")
+    with pytest.raises(RecordingError, match=r"holds no \.png/\.jpg images; pass the folder"):
+        import_images(tmp_path / "ws", tmp_path / "images")
+
+
+def test_import_rejects_images_of_different_sizes(tmp_path: Path) -> None:
+    _write_images(tmp_path / "images", ["1.png", "2.png"])
+    _png(tmp_path / "images" / "3.png", _random_image(3, (8, 6)))
+    with pytest.raises(RecordingError, match=r"3\.png is 8x6 but earlier images are 16x12"):
+        import_images(tmp_path / "ws", tmp_path / "images")
+
+
+def test_import_rejects_a_pose_csv_missing_columns(tmp_path: Path) -> None:
+    _write_images(tmp_path / "images", ["1.png", "2.png"])
+    csv = tmp_path / "poses.csv"
+    csv.write_text("timestamp,x,z,yaw\n1.0,0,0,0\n2.0,1,0,0\n")
+    with pytest.raises(
+        RecordingError, match=r"needs columns timestamp.*x, y.*found timestamp, x, z, yaw"
+    ):
+        import_images(tmp_path / "ws", tmp_path / "images", options=ImportOptions(poses=csv))
+
+
+def test_import_rejects_a_calibration_for_another_image_size(tmp_path: Path) -> None:
+    _write_images(tmp_path / "images", ["1.png", "2.png"])
+    calib = tmp_path / "calib.json"
+    K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
+    calib.write_text(json.dumps({"K": K, "distortion": [0.1], "width": 640, "height": 480}))
+    with pytest.raises(
+        RecordingError,
+        match=r"calibration is for 640x480 but images are 16x12; pass the calibration",
+    ):
+        import_images(
+            tmp_path / "ws", tmp_path / "images", options=ImportOptions(calibration=calib)
+        )
+
+
+def test_failed_import_keeps_the_earlier_dataset(tmp_path: Path) -> None:
+    _write_images(tmp_path / "good", [f"{i}.png" for i in range(1, 4)])
+    import_images(tmp_path / "ws", tmp_path / "good")
+    dataset = tmp_path / "ws" / "dataset"
+    before = {p.relative_to(dataset): p.read_bytes() for p in dataset.rglob("*") if p.is_file()}
+    _write_images(tmp_path / "bad", ["1.png"])
+    _png(tmp_path / "bad" / "2.png", _random_image(2, (8, 6)))
+    with pytest.raises(RecordingError, match="8x6"):
+        import_images(tmp_path / "ws", tmp_path / "bad")
+    after = {p.relative_to(dataset): p.read_bytes() for p in dataset.rglob("*") if p.is_file()}
+    assert after == before
+    record = Workspace.open(tmp_path / "ws").stage_record("extract")
+    assert record is not None
+    assert record.state == "failed"
+    assert [p.name for p in (tmp_path / "ws").iterdir() if p.name.startswith(".")] == []
+
+
+# -- real data ---------------------------------------------------------------------------------
+def test_import_udacity_frames_as_a_pose_less_dataset(tmp_path: Path, shared_data: Path) -> None:
+    folder = shared_data / "images" / "udacity-ch2"
+    names = sorted(p.stem for p in folder.glob("*.jpg"))
+    assert len(names) == 300
+    # Keep the JPEG files as they are (a PNG re-encode of 300 frames is slow and not the point).
+    Workspace.create(tmp_path / "ws", Config(frames=FramesConfig(format="jpeg")))
+    info = import_images(tmp_path / "ws", folder).info
+    assert info.pose_less
+    assert info.counts.frames == 300
+    paths = DatasetPaths(tmp_path / "ws" / "dataset")
+    stamps = read_table(paths.frames_csv)["stamp_ns"]
+    np.testing.assert_array_equal(stamps, sorted(int(n) for n in names))
+    assert info.start_ns == int(stamps[0])
+    assert info.end_ns == int(stamps[-1])
+    assert (folder / f"{names[0]}.jpg").read_bytes() == paths.frame_file(0, "jpeg").read_bytes()
