@@ -1,0 +1,140 @@
+"""Figures of a drive evaluation: trajectories in the corridor, lateral offset and steering."""
+
+from __future__ import annotations
+
+import io
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from cam2sim.core.files import write_bytes_atomic
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from cam2sim.metrics.drive_quality import DriveEvaluation
+
+__all__ = ["write_drive_figures"]
+
+_REAL_COLOUR = "0.55"
+
+
+def _pyplot() -> Any:
+    import matplotlib as mpl  # noqa: PLC0415
+
+    mpl.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    return plt
+
+
+def _save(fig: Any, path: Path) -> None:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=130, bbox_inches="tight")
+    write_bytes_atomic(path, buffer.getvalue())
+
+
+def _colours(ev: DriveEvaluation) -> dict[str, Any]:
+    plt = _pyplot()
+    methods = list(dict.fromkeys(r.method for r in ev.runs if not r.real))
+    cmap = plt.get_cmap("tab10")
+    return {m: cmap(i % 10) for i, m in enumerate(methods)}
+
+
+def _trajectories(ev: DriveEvaluation, path: Path) -> None:
+    plt = _pyplot()
+    colours = _colours(ev)
+    ok = np.isfinite(ev.corridor_min)
+    c = ev.corridor_s[ok]
+    centre = ev.reference.point_at(c)
+    normal = ev.reference.normal_at(c)
+    left = centre + normal * ev.corridor_max[ok, None]
+    right = centre + normal * ev.corridor_min[ok, None]
+    fig, ax = plt.subplots(figsize=(9, 7))
+    band = np.vstack([left, right[::-1]])
+    ax.fill(band[:, 0], band[:, 1], color="tab:green", alpha=0.25, lw=0, label="real corridor")
+    seen: set[str] = set()
+    for run in ev.runs:
+        colour = _REAL_COLOUR if run.real else colours[run.method]
+        label = "real" if run.real else run.method
+        ax.plot(
+            run.xy[:, 0],
+            run.xy[:, 1],
+            color=colour,
+            lw=0.8 if run.real else 1.2,
+            label=None if label in seen else label,
+        )
+        seen.add(label)
+    metrics = {r.name: r for r in ev.metrics.runs}
+    for run in ev.runs:
+        m = metrics.get(run.name)
+        if m is not None and m.failure and m.failure != "invalid":
+            ax.plot(*run.xy[-1], marker="x", color="red", ms=9, mew=2)
+    seg = ev.metrics.segment
+    ends = ev.reference.point_at(np.array([seg.start_m, seg.end_m]))
+    ax.plot(*ends[0], marker="o", color="green", ms=8, label="segment start")
+    ax.plot(*ends[1], marker="s", color="black", ms=8, label="segment end")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x east (m)")
+    ax.set_ylabel("y north (m)")
+    ax.set_title(f"Runs in the real-drive corridor (segment {seg.length_m:.1f} m)")
+    ax.legend(loc="best", fontsize=8)
+    _save(fig, path)
+    plt.close(fig)
+
+
+def _lateral(ev: DriveEvaluation, path: Path) -> None:
+    plt = _pyplot()
+    colours = _colours(ev)
+    fig, ax = plt.subplots(figsize=(10, 4))
+    s0 = ev.metrics.segment.start_m
+    ax.fill_between(
+        ev.corridor_s - s0,
+        ev.corridor_min,
+        ev.corridor_max,
+        color="tab:green",
+        alpha=0.25,
+        label="real corridor",
+    )
+    for run in ev.runs:
+        lat = ev.lateral.get(run.name)
+        if lat is None:
+            continue
+        colour = _REAL_COLOUR if run.real else colours[run.method]
+        ax.plot(ev.corridor_s - s0, lat, color=colour, lw=0.8, label=run.name)
+    ax.set_xlabel("progress along the segment (m)")
+    ax.set_ylabel("lateral offset, + left (m)")
+    ax.set_title("Lateral offset from the reference path")
+    ax.legend(fontsize=7, ncol=3)
+    _save(fig, path)
+    plt.close(fig)
+
+
+def _steering(ev: DriveEvaluation, path: Path) -> None:
+    plt = _pyplot()
+    colours = _colours(ev)
+    fig, ax = plt.subplots(figsize=(10, 4))
+    s0 = ev.metrics.segment.start_m
+    for run in ev.runs:
+        if run.steering_t.size == 0:
+            continue
+        s = np.interp(np.clip(run.steering_t, run.t[0], run.t[-1]), run.t, ev.progress[run.name])
+        colour = _REAL_COLOUR if run.real else colours[run.method]
+        ax.plot(s - s0, run.steering, color=colour, lw=0.8, label=run.name)
+    ax.set_xlim(0, ev.metrics.segment.length_m)
+    ax.set_xlabel("progress along the segment (m)")
+    ax.set_ylabel("steering command (model units)")
+    ax.set_title("Steering against progress")
+    ax.legend(fontsize=7, ncol=3)
+    _save(fig, path)
+    plt.close(fig)
+
+
+def write_drive_figures(ev: DriveEvaluation, out_dir: Path) -> list[Path]:
+    """Write ``trajectories.png``, ``lateral_offset.png`` and ``steering.png``; return paths."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = [out_dir / "trajectories.png", out_dir / "lateral_offset.png", out_dir / "steering.png"]
+    _trajectories(ev, paths[0])
+    _lateral(ev, paths[1])
+    _steering(ev, paths[2])
+    return paths
