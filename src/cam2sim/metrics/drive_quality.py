@@ -21,6 +21,7 @@ from cam2sim.core import frames
 from cam2sim.core.errors import StageError
 from cam2sim.core.schema import Artifact
 from cam2sim.metrics.drive_io import DriveRun, runs_in_frame
+from cam2sim.metrics.frechet import discrete_frechet
 from cam2sim.metrics.path import ReferencePath, arc_length, resample_by_arc_length, resample_indices
 
 if TYPE_CHECKING:
@@ -51,7 +52,7 @@ class DriveOptions:
     projection_spacing_m: float = 0.25
     max_lateral_m: float = 4.0
     success_threshold: float = 0.95
-    frechet_spacing_m: float = 0.25
+    frechet_spacing_m: float = 0.5
     frechet_points: int | None = None
     jitter_min_dt_s: float = 0.05
     jitter_max_dt_s: float = 0.25
@@ -227,8 +228,6 @@ def steering_jitter(
 
 
 def _frechet(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], opts: DriveOptions) -> float:
-    import shapely  # noqa: PLC0415
-
     def prep(xy: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         if opts.frechet_points:
             n = min(opts.frechet_points, xy.shape[0])
@@ -236,7 +235,7 @@ def _frechet(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], opts: Drive
             return picked
         return resample_by_arc_length(xy, opts.frechet_spacing_m)
 
-    return float(shapely.frechet_distance(shapely.LineString(prep(a)), shapely.LineString(prep(b))))
+    return discrete_frechet(prep(a), prep(b))
 
 
 def _segment_points(p: _Projected, start: float, end: float) -> npt.NDArray[np.float64]:
