@@ -297,6 +297,7 @@ def _run_metrics(
     seg: Segment,
     ref: ReferencePath,
     opts: DriveOptions,
+    cache: dict[tuple[str, str], float],
 ) -> RunMetrics:
     run = p.run
     completion = float(np.clip((p.max_progress - seg.start_m) / seg.length_m, 0.0, 1.0))
@@ -308,7 +309,10 @@ def _run_metrics(
         for o in others:
             theirs = _segment_points(o, seg.start_m, seg.end_m)
             if theirs.shape[0] >= 2:
-                d = _frechet(mine, theirs, opts)
+                key = (min(run.name, o.run.name), max(run.name, o.run.name))
+                if key not in cache:
+                    cache[key] = _frechet(mine, theirs, opts)
+                d = cache[key]
                 if best is None or d < best:
                     best, best_vs = d, o.run.name
     else:
@@ -489,11 +493,12 @@ def evaluate_drives(
     sim_p = [_project(r, ref, c, opts) for r in good_sim]
     corridor = _corridor([p.lateral_c for p in real_p], c)
     results: list[RunMetrics] = []
+    cache: dict[tuple[str, str], float] = {}
     for i, p in enumerate(real_p):
         others = [o for j, o in enumerate(real_p) if j != i]
         loo = _corridor([o.lateral_c for o in others], c) if others else corridor
-        results.append(_run_metrics(p, others, loo, segment, ref, opts))
-    results += [_run_metrics(p, real_p, corridor, segment, ref, opts) for p in sim_p]
+        results.append(_run_metrics(p, others, loo, segment, ref, opts, cache))
+    results += [_run_metrics(p, real_p, corridor, segment, ref, opts, cache) for p in sim_p]
     results += [
         RunMetrics(
             name=r.name,
