@@ -171,3 +171,42 @@ def test_semantic_bad_palette_and_missing_folder_are_errors(
     missing = _invoke("semantic", real, tmp_path / "nowhere", "-o", tmp_path / "x")
     assert missing.exit_code == 1
     assert "does not exist" in " ".join(missing.output.split())
+
+
+def test_evaluate_drive_scores_runs_and_writes_metrics_and_figures(tmp_path: Path) -> None:
+    folder = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "reference-drives"
+    if not folder.is_dir():
+        pytest.skip("real reference drives not available")
+    run = tmp_path / "runs" / "run-1"
+    run.mkdir(parents=True)
+    rows = folder.joinpath("trajectory2.csv").read_text().splitlines()[1:]
+    lines = ["t,x,y,z,heading,speed,steering,wheel_angle"]
+    for row in rows[::4]:
+        t, x, y, _, _ = row.split(",")
+        lines.append(f"{t},{x},{y},0,0,0,0,0")
+    (run / "trajectory.csv").write_text("\n".join(lines) + "\n")
+    (run / "run.json").write_text('{"method": "splat", "proj_string": "EPSG:32632"}')
+    (run / "events.json").write_text('{"events": []}')
+    out = tmp_path / "eval"
+    result = CliRunner().invoke(
+        evaluate_app,
+        ["drive", "--real", str(folder), "--sim", str(tmp_path / "runs"), "-o", str(out)],
+        env={"COLUMNS": "200"},
+    )
+    assert result.exit_code == 0, result.output
+    assert "segment 371." in result.stdout
+    assert "splat" in result.stdout
+    metrics = json.loads((out / "metrics.json").read_text())
+    splat = next(r for r in metrics["runs"] if r["method"] == "splat")
+    assert splat["success"]
+    assert splat["min_frechet_m"] < 0.3  # discretisation bound at 0.5 m spacing: 0.25 m
+    for name in ("trajectories.png", "lateral_offset.png", "steering.png", "segment.json"):
+        assert (out / name).is_file()
+
+
+def test_evaluate_drive_reports_missing_inputs_as_an_error(tmp_path: Path) -> None:
+    result = CliRunner().invoke(
+        evaluate_app, ["drive", "--real", str(tmp_path / "none")], env={"COLUMNS": "200"}
+    )
+    assert result.exit_code == 1
+    assert "error:" in result.stderr

@@ -11,7 +11,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from cam2sim.cli.display import console, error_console, progress_bars
+from cam2sim.cli.display import console, error_console, print_table, progress_bars
 from cam2sim.core.errors import Cam2SimError
 
 if TYPE_CHECKING:
@@ -197,3 +197,106 @@ def semantic(
     _unmatched_note(result.real_only, result.sim_only)
     where = f"{out / 'semantic.json'}" + (f" and {out / 'comparison'}/" if comparison else "")
     console.print(f"wrote {where}", highlight=False)
+
+
+def _fmt(value: float | None, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
+@evaluate_app.command()
+def drive(
+    real: Annotated[
+        list[Path],
+        typer.Option(help="Real drives: trajectory*.csv files or folders (with steering_*.txt)."),
+    ],
+    *,
+    sim: Annotated[
+        list[Path] | None,
+        typer.Option(help="Simulated runs: run folders, folders of them, or *_trajectory.json."),
+    ] = None,
+    segment: Annotated[
+        Path | None, typer.Option(help="A saved segment.json to score against (else computed).")
+    ] = None,
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="Output folder for metrics.json and figures.")
+    ] = Path("evaluation/drive"),
+    real_crs: Annotated[
+        str, typer.Option(help="CRS of the real drives' x, y (UTM 32N for the reference car).")
+    ] = "EPSG:32632",
+    xodr: Annotated[
+        Path | None,
+        typer.Option(help="map.xodr georeferencing published-tool runs in CARLA coordinates."),
+    ] = None,
+    frechet_points: Annotated[
+        int | None,
+        typer.Option(help="Downsample to N points by index like the published tool (else 0.5 m)."),
+    ] = None,
+) -> None:
+    """Score simulated drives against real ones: completion, Min-Frechet, corridor, jitter.
+
+    Example: cam2sim evaluate drive --real ../shared/data/reference-drives --sim ws/runs -o eval/
+    """
+    from cam2sim.metrics.drive_io import load_runs  # noqa: PLC0415
+    from cam2sim.metrics.drive_quality import DriveOptions, Segment, evaluate_drives  # noqa: PLC0415
+    from cam2sim.report.drive_figures import write_drive_figures  # noqa: PLC0415
+
+    try:
+        real_runs = load_runs(real, real=True, crs=real_crs)
+        sim_runs = load_runs(sim, real=False, xodr=xodr) if sim else []
+        seg = Segment.load(segment) if segment else None
+        ev = evaluate_drives(
+            real_runs, sim_runs, segment=seg, options=DriveOptions(frechet_points=frechet_points)
+        )
+        out.mkdir(parents=True, exist_ok=True)
+        ev.metrics.save(out / "metrics.json")
+        ev.metrics.segment.save(out / "segment.json")
+        figures = write_drive_figures(ev, out)
+    except Cam2SimError as err:
+        error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
+        raise typer.Exit(1) from None
+    m = ev.metrics
+    console.print(
+        f"segment {m.segment.length_m:.1f} m (from {m.segment.reference_run}); corridor mean "
+        f"width {m.corridor_mean_width_m:.2f} m",
+        highlight=False,
+    )
+    table = Table(title="Drive quality (averages over successful runs)")
+    for col in (
+        "method",
+        "runs",
+        "fail %",
+        "completion",
+        "Min-Frechet m",
+        "out of corridor %",
+        "mean excess m",
+        "excess when out m",
+        "jitter",
+        "max jitter",
+        "OR-CC-OS-US",
+    ):
+        table.add_column(col, justify="left" if col == "method" else "right")
+    for s in m.methods:
+        ft = s.failure_types
+        table.add_row(
+            s.method,
+            str(s.runs),
+            f"{100 * s.failure_rate:.0f}",
+            f"{s.completion_mean:.2f} ({s.completion_min:.2f}-{s.completion_max:.2f})",
+            _fmt(s.avg_min_frechet_m, ".2f"),
+            _fmt(s.avg_corridor_violation_pct, ".1f"),
+            _fmt(s.avg_mean_excess_m, ".3f"),
+            _fmt(s.avg_mean_excess_when_out_m, ".3f"),
+            _fmt(s.avg_jitter, ".3f"),
+            _fmt(s.max_jitter, ".3f"),
+            f"{ft['out_of_road']}-{ft['collision']}-{ft['oversteer']}-{ft['understeer']}",
+        )
+    print_table(table)
+    failed = [r for r in m.runs if r.failure]
+    for r in failed:
+        detail = f", {r.steering_error}" if r.steering_error else ""
+        notes = f" ({'; '.join(r.notes)})" if r.notes else ""
+        console.print(
+            f"  failed: {r.name}: {r.failure}{detail}, completion {r.completion:.2f}{notes}",
+            highlight=False,
+        )
+    console.print(f"wrote {out / 'metrics.json'} and {len(figures)} figures", highlight=False)

@@ -33,6 +33,15 @@ app = typer.Typer(
 _state = {"verbose": 0, "progress": True}
 
 
+def _register_subcommands() -> None:
+    from cam2sim.cli.evaluate import evaluate_app  # noqa: PLC0415
+
+    app.add_typer(evaluate_app, name="evaluate")
+
+
+_register_subcommands()
+
+
 def _version(value: bool) -> None:
     if value:
         console.print(f"cam2sim {__version__}")

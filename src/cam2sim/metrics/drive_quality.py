@@ -239,8 +239,25 @@ def _frechet(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], opts: Drive
 
 
 def _segment_points(p: _Projected, start: float, end: float) -> npt.NDArray[np.float64]:
-    inside = (p.s >= start) & (p.s <= end)
-    return p.run.xy[inside]
+    """The run's polyline between progress ``start`` and ``end``, cut at exactly those points.
+
+    Cutting at the interpolated crossing (not at the first sample inside) makes two runs'
+    resampled vertices line up along the route, so near-identical runs score near zero.
+    """
+    s, xy = p.s, p.run.xy
+    inside = np.flatnonzero((s >= start) & (s <= end))
+    if inside.size == 0:
+        return xy[:0]
+    pieces = []
+    first, last = int(inside[0]), int(inside[-1])
+    if first > 0 and s[first] > start > s[first - 1]:
+        f = (start - s[first - 1]) / (s[first] - s[first - 1])
+        pieces.append(xy[first - 1] + f * (xy[first] - xy[first - 1]))
+    pieces.extend(xy[first : last + 1])
+    if last + 1 < s.shape[0] and s[last] < end < s[last + 1]:
+        f = (end - s[last]) / (s[last + 1] - s[last])
+        pieces.append(xy[last] + f * (xy[last + 1] - xy[last]))
+    return np.asarray(pieces, dtype=np.float64).reshape(-1, 2)
 
 
 def _excess(
