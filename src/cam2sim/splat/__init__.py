@@ -1,0 +1,1 @@
+"""Stage splat: Gaussian-splatting models of the recorded street, in the workspace world frame."""
