@@ -1,0 +1,123 @@
+"""``cam2sim map``: build the workspace's OpenDRIVE road map from OpenStreetMap."""
+
+from __future__ import annotations
+
+import sys
+from enum import StrEnum
+from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
+from typing import Annotated
+
+import typer
+from rich.markup import escape
+
+from cam2sim.cli.display import console, error_console, progress_bars
+from cam2sim.core.errors import Cam2SimError
+from cam2sim.map.overpass import DEFAULT_URL
+
+__all__ = ["SidewalkChoice", "map_"]
+
+
+class SidewalkChoice(StrEnum):
+    """How OSM sidewalks appear in the map."""
+
+    KERB = "kerb"
+    PARKING = "parking"
+
+
+def _road_types(text: str | None) -> tuple[str, ...] | None:
+    if text is None:
+        return None
+    return tuple(t.strip() for t in text.split(",") if t.strip())
+
+
+def map_(
+    workspace: Annotated[Path, typer.Argument(help="The workspace folder.")],
+    *,
+    osm: Annotated[
+        Path | None,
+        typer.Option(
+            "--osm",
+            help="Local OSM file (.osm, .osm.bz2, .osm.pbf, Overpass .json); "
+            "without it the Overpass API is queried.",
+        ),
+    ] = None,
+    margin: Annotated[
+        float, typer.Option("--margin", min=0.0, help="Margin around the route's box, metres.")
+    ] = 100.0,
+    road_types: Annotated[
+        str | None,
+        typer.Option(
+            "--road-types",
+            help="Comma-separated OSM highway values to convert (default: CARLA's list, "
+            "motorway ... residential; add service,living_street for yards).",
+        ),
+    ] = None,
+    lane_width: Annotated[
+        float, typer.Option("--lane-width", help="Lane width where OSM gives none, metres.")
+    ] = 3.35,
+    sidewalks: Annotated[
+        SidewalkChoice,
+        typer.Option(help="Sidewalks as a raised kerb, or as flat parking lanes cars park on."),
+    ] = SidewalkChoice.KERB,
+    traffic_lights: Annotated[
+        bool, typer.Option("--traffic-lights/--no-traffic-lights", help="Generate signals.")
+    ] = False,
+    overpass_url: Annotated[
+        str, typer.Option("--overpass-url", help="Overpass API interpreter endpoint.")
+    ] = DEFAULT_URL,
+    overpass_timeout: Annotated[
+        float, typer.Option("--overpass-timeout", min=1.0, help="Seconds per Overpass request.")
+    ] = 60.0,
+    overpass_retries: Annotated[
+        int, typer.Option("--overpass-retries", min=0, help="Retries after a failed request.")
+    ] = 3,
+    refresh_osm: Annotated[
+        bool, typer.Option("--refresh-osm", help="Ignore the cached Overpass answer.")
+    ] = False,
+    force: Annotated[bool, typer.Option(help="Rebuild even if up to date.")] = False,
+) -> None:
+    """Build WS/map/ (map.xodr, map_report.json, map.png) around the whole recorded route.
+
+    Example: cam2sim map ws --osm area.osm.pbf --margin 150 --sidewalks parking
+    """
+    from cam2sim.core.workspace import Workspace  # noqa: PLC0415 - keep --help light
+    from cam2sim.map.convert import CARLA_ROAD_TYPES, ConvertOptions  # noqa: PLC0415
+    from cam2sim.map.overpass import OverpassOptions  # noqa: PLC0415
+    from cam2sim.stages.map import MapOptions, build_map  # noqa: PLC0415
+
+    try:
+        options = MapOptions(
+            osm=osm,
+            margin_m=margin,
+            convert=ConvertOptions(
+                road_types=_road_types(road_types) or CARLA_ROAD_TYPES,
+                lane_width_m=lane_width,
+                sidewalks=sidewalks.value,
+                traffic_lights=traffic_lights,
+            ),
+            overpass=OverpassOptions(
+                url=overpass_url,
+                timeout_s=overpass_timeout,
+                retries=overpass_retries,
+                refresh=refresh_osm,
+            ),
+        )
+        ws = Workspace.open(workspace)
+        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+            result = build_map(ws, options=options, force=force, progress=sink)
+    except Cam2SimError as err:
+        error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
+        raise typer.Exit(code=1) from None
+    report = result.report
+    if result.skipped:
+        console.print("map is up to date (use --force to rebuild)")
+    route = report.route
+    covered = "-" if route.covered_fraction is None else f"{route.covered_fraction:.1%}"
+    offset = route.lateral_offset
+    console.print(
+        f"{result.xodr_path}: {report.roads.roads} roads, {report.roads.junctions} junctions; "
+        f"route {route.length_m:.0f} m, {covered} on a driving lane, "
+        f"{route.off_map_stretch_count} stretches off the map; lateral offset mean "
+        f"{offset.mean_m or 0.0:.2f} m, p95 {offset.p95_m or 0.0:.2f} m",
+        highlight=False,
+    )

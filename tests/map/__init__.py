@@ -1,0 +1,1 @@
+"""Tests of cam2sim.map and the map stage."""
