@@ -1,0 +1,370 @@
+"""Stage splat, evaluation: image quality on held-out frames and the lateral validity envelope.
+
+Writes ``WS/splat/eval.json`` (:class:`SplatEval`). Everything is rendered through
+:class:`cam2sim.splat.render.SplatRenderer`, so chunk choice and blending are those the
+simulator sees.
+
+**Held-out frames** (``held_out`` in ``scene.json``, every 8th by default; never trained on):
+PSNR, SSIM and LPIPS of the render against the real frame over the pixels whose mask is 255
+(:func:`cam2sim.metrics.image_quality.psnr`/``ssim``, :mod:`cam2sim.metrics.lpips`), once with
+the appearance transform interpolated from the neighbouring training views and once without.
+Reported per frame and as mean, 10th and 90th percentile.
+
+**Lateral offsets** (the validity envelope). No real image exists from a camera shifted
+sideways, so quality there cannot be measured against ground truth. For each offset ``o`` (m,
+positive = to the camera's right, along its x axis) each held-out frame is rendered from the
+shifted pose and compared with the render from the original pose, on the lower part of the
+image (``lower_fraction``, default the bottom half: mostly road, which a lateral shift moves
+little) and inside the frame's mask:
+
+- ``lpips_vs_centre``: LPIPS between offset and original render;
+- ``psnr_vs_centre_db``: PSNR between them;
+- ``street_hole_fraction``: share of those pixels that street Gaussians cover less than half
+  (holes through which sky Gaussians or the background show), a no-reference defect measure;
+- ``coverage``: the renderer's coverage value (0 = on a training view, toward 1 = far away).
+
+Limits: the first two mix real parallax (the view does change when the camera moves) with
+render degradation, so they rise with ``|o|`` even for a perfect model and compare runs and
+models rather than state an absolute error; the lower image half is an approximation of "road"
+(no segmentation is used); holes are counted only where street Gaussians are missing, not where
+they are wrong (floaters, stretched textures).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+import pydantic
+
+from cam2sim.core.errors import StageError
+from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.schema import Artifact
+from cam2sim.splat.scene import FrameRecord, SceneRecord
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    from cam2sim.metrics.lpips import Lpips, LpipsNet
+    from cam2sim.splat.raster import RasterBackend
+    from cam2sim.splat.render import SplatRenderer
+
+__all__ = [
+    "DEFAULT_OFFSETS_M",
+    "EvalOptions",
+    "HeldOutFrame",
+    "MetricSummary",
+    "OffsetScore",
+    "SplatEval",
+    "evaluate_splat",
+    "summarise",
+]
+
+_log = logging.getLogger(__name__)
+
+_Column = Literal["psnr_db", "ssim", "lpips", "psnr_db_raw", "ssim_raw", "lpips_raw"]
+
+DEFAULT_OFFSETS_M = (-2.0, -1.0, -0.5, 0.5, 1.0, 2.0)
+"""Lateral offsets evaluated by default, metres (positive = camera right)."""
+
+
+class MetricSummary(pydantic.BaseModel):
+    """Mean, 10th and 90th percentile and count of one metric; None when ``n`` is 0."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+    mean: float | None
+    p10: float | None
+    p90: float | None
+    n: int
+
+
+def summarise(values: list[float | None]) -> MetricSummary:
+    """Summarise the values that are not None as a :class:`MetricSummary`."""
+    kept = np.array([v for v in values if v is not None], dtype=np.float64)
+    if kept.size == 0:
+        return MetricSummary(mean=None, p10=None, p90=None, n=0)
+    return MetricSummary(
+        mean=float(kept.mean()),
+        p10=float(np.percentile(kept, 10)),
+        p90=float(np.percentile(kept, 90)),
+        n=int(kept.size),
+    )
+
+
+class HeldOutFrame(pydantic.BaseModel):
+    """Scores of one held-out frame (``*_raw``: rendered without the appearance transform)."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+    index: int
+    psnr_db: float | None
+    ssim: float | None
+    lpips: float | None
+    psnr_db_raw: float | None = None
+    ssim_raw: float | None = None
+    lpips_raw: float | None = None
+    coverage: float
+    chunks: dict[int, float]
+
+
+class OffsetScore(pydantic.BaseModel):
+    """The validity envelope at one lateral offset (see the module doc)."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+    offset_m: float
+    lpips_vs_centre: MetricSummary
+    psnr_vs_centre_db: MetricSummary
+    street_hole_fraction: MetricSummary
+    coverage: MetricSummary
+
+
+class SplatEval(Artifact):
+    """``WS/splat/eval.json``."""
+
+    models_dir: str
+    n_held_out: int
+    psnr_db: MetricSummary
+    ssim: MetricSummary
+    lpips: MetricSummary
+    psnr_db_raw: MetricSummary | None = pydantic.Field(
+        None, description="Without the appearance transform"
+    )
+    ssim_raw: MetricSummary | None = None
+    lpips_raw: MetricSummary | None = None
+    lpips_net: str | None
+    lower_fraction: float
+    frames: list[HeldOutFrame]
+    offsets: list[OffsetScore]
+    notes: list[str] = pydantic.Field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class EvalOptions:
+    """How :func:`evaluate_splat` evaluates.
+
+    Attributes:
+        lpips: Compute LPIPS (needs the LPIPS weights, see :func:`cam2sim.metrics.lpips`).
+        lpips_net: LPIPS backbone.
+        lpips_download: Whether missing LPIPS weights may be downloaded.
+        compare_appearance: Also score renders without the appearance transform.
+        max_offset_frames: Held-out frames (spread evenly) used for the offsets; None = all.
+        lower_fraction: Bottom share of the image compared at the offsets.
+        device: torch device (``"auto"``: CUDA when available).
+        backend: Rasterizer.
+    """
+
+    lpips: bool = True
+    lpips_net: LpipsNet = "alex"
+    lpips_download: bool = True
+    compare_appearance: bool = True
+    max_offset_frames: int | None = None
+    lower_fraction: float = 0.5
+    device: str = "auto"
+    backend: RasterBackend = "auto"
+
+
+@dataclass(frozen=True)
+class _Scores:
+    psnr: float | None
+    ssim: float | None
+    lpips: float | None
+
+
+def _score(
+    real: npt.NDArray[np.uint8],
+    sim: npt.NDArray[np.uint8],
+    exclude: npt.NDArray[np.bool_] | None,
+    lpips: Lpips | None,
+) -> _Scores:
+    from cam2sim.metrics.image_quality import psnr, ssim  # noqa: PLC0415
+
+    lp = None
+    if lpips is not None:
+        batch_exclude = None if exclude is None else exclude[None]
+        lp = lpips.distance_from_images(real[None], sim[None], exclude=batch_exclude)[0]
+    return _Scores(psnr(real, sim, exclude=exclude), ssim(real, sim, exclude=exclude), lp)
+
+
+def _exclusion(prep_dir: Path, frame: FrameRecord) -> npt.NDArray[np.bool_] | None:
+    from cam2sim.metrics.image_quality import read_mask  # noqa: PLC0415
+
+    path = prep_dir / "masks" / f"{frame.index:06d}.png"
+    if not path.is_file():
+        return None
+    mask = read_mask(path, keep_nonzero=True)
+    if mask.shape != (frame.height, frame.width):
+        msg = f"{path} is not {frame.width}x{frame.height}; re-run splat preparation"
+        raise StageError(msg)
+    return mask
+
+
+def _offset_pose(frame: FrameRecord, offset_m: float) -> npt.NDArray[np.float64]:
+    pose = frame.T().copy()
+    pose[:3, 3] += offset_m * pose[:3, 0] / np.linalg.norm(pose[:3, 0])
+    return pose
+
+
+def _offset_scores(
+    renderer: SplatRenderer,
+    frames: list[tuple[FrameRecord, npt.NDArray[np.uint8], npt.NDArray[np.bool_] | None]],
+    offsets: tuple[float, ...],
+    lpips: Lpips | None,
+    lower_fraction: float,
+) -> list[OffsetScore]:
+    out = []
+    for offset in offsets:
+        lp, ps, holes, cov = [], [], [], []
+        for frame, centre, exclude in frames:
+            r = renderer.render(_offset_pose(frame, offset), frame.K(), frame.width, frame.height)
+            lower = np.ones((frame.height, frame.width), dtype=bool)
+            lower[round(frame.height * (1.0 - lower_fraction)) :] = False
+            if exclude is not None:
+                lower |= exclude
+            scores = _score(centre, r.rgb, lower, lpips)
+            kept = ~lower
+            lp.append(scores.lpips)
+            ps.append(scores.psnr)
+            street = r.street_alpha
+            holes.append(
+                float((street[kept] < 0.5).mean()) if street is not None and kept.any() else None
+            )
+            cov.append(r.coverage)
+        out.append(
+            OffsetScore(
+                offset_m=offset,
+                lpips_vs_centre=summarise(lp),
+                psnr_vs_centre_db=summarise(ps),
+                street_hole_fraction=summarise(holes),
+                coverage=summarise(list(cov)),
+            )
+        )
+    return out
+
+
+def evaluate_splat(
+    prep_dir: Path,
+    models_dir: Path,
+    *,
+    offsets: tuple[float, ...] = DEFAULT_OFFSETS_M,
+    lpips_weights: Path | None = None,
+    options: EvalOptions | None = None,
+    out_path: Path | None = None,
+    progress: ProgressCallback = no_progress,
+) -> SplatEval:
+    """Score the chunk models on the held-out frames and at lateral offsets; write the result.
+
+    Args:
+        prep_dir: ``WS/splat/prep``.
+        models_dir: ``WS/splat/models``.
+        offsets: Lateral offsets, metres (positive = camera right); empty to skip.
+        lpips_weights: LPIPS weights (see :func:`cam2sim.metrics.lpips.load_lpips`); None =
+            the cache (downloaded into it when ``options.lpips_download``).
+        options: Further options.
+        out_path: Where to write; default ``prep_dir/../eval.json`` (``WS/splat/eval.json``).
+        progress: Called with ``("splat eval frames", done, total)``.
+
+    Returns:
+        The evaluation (also written to ``out_path``).
+
+    Raises:
+        StageError: The scene has no held-out frame, or a mask does not fit its frame.
+        WorkspaceError: Missing models or images.
+    """
+    from cam2sim.metrics.image_quality import read_rgb  # noqa: PLC0415
+    from cam2sim.metrics.lpips import load_lpips  # noqa: PLC0415
+    from cam2sim.splat.render import RenderOptions, SplatRenderer  # noqa: PLC0415
+
+    opts = options or EvalOptions()
+    prep_dir, models_dir = Path(prep_dir), Path(models_dir)
+    out_path = prep_dir.parent / "eval.json" if out_path is None else Path(out_path)
+    scene = SceneRecord.load(prep_dir / "scene.json")
+    held = [f for f in scene.frames if f.held_out]
+    if not held:
+        msg = f"{prep_dir / 'scene.json'} marks no frame held_out; re-run splat preparation"
+        raise StageError(msg)
+    render_options = RenderOptions(device=opts.device, backend=opts.backend, street_alpha=True)
+    with SplatRenderer(models_dir, options=render_options) as renderer:
+        lpips = (
+            load_lpips(
+                opts.lpips_net,
+                weights=lpips_weights,
+                device=renderer.device,
+                download=opts.lpips_download,
+            )
+            if opts.lpips
+            else None
+        )
+        n_offset = len(held) if opts.max_offset_frames is None else opts.max_offset_frames
+        pick = {round(i * (len(held) - 1) / max(1, n_offset - 1)) for i in range(n_offset)}
+        rows: list[HeldOutFrame] = []
+        kept_for_offsets = []
+        total = len(held) * (1 + len(offsets))
+        for n, frame in enumerate(held):
+            real = read_rgb(prep_dir / "images" / f"{frame.index:06d}.png")
+            exclude = _exclusion(prep_dir, frame)
+            r = renderer.render(frame.T(), frame.K(), frame.width, frame.height)
+            s = _score(real, r.rgb, exclude, lpips)
+            raw = _Scores(None, None, None)
+            if opts.compare_appearance:
+                rr = renderer.render(
+                    frame.T(), frame.K(), frame.width, frame.height, appearance="none"
+                )
+                raw = _score(real, rr.rgb, exclude, lpips)
+            rows.append(
+                HeldOutFrame(
+                    index=frame.index,
+                    psnr_db=s.psnr,
+                    ssim=s.ssim,
+                    lpips=s.lpips,
+                    psnr_db_raw=raw.psnr,
+                    ssim_raw=raw.ssim,
+                    lpips_raw=raw.lpips,
+                    coverage=r.coverage,
+                    chunks=r.chunk_weights,
+                )
+            )
+            if n in pick:
+                kept_for_offsets.append((frame, r.rgb, exclude))
+            progress("splat eval frames", n + 1, total)
+        offset_rows = _offset_scores(
+            renderer, kept_for_offsets, tuple(offsets), lpips, opts.lower_fraction
+        )
+        progress("splat eval frames", total, total)
+
+    def column(name: _Column) -> MetricSummary:
+        return summarise([getattr(r, name) for r in rows])
+
+    result = SplatEval(
+        models_dir=str(models_dir),
+        n_held_out=len(held),
+        psnr_db=column("psnr_db"),
+        ssim=column("ssim"),
+        lpips=column("lpips"),
+        psnr_db_raw=column("psnr_db_raw") if opts.compare_appearance else None,
+        ssim_raw=column("ssim_raw") if opts.compare_appearance else None,
+        lpips_raw=column("lpips_raw") if opts.compare_appearance else None,
+        lpips_net=opts.lpips_net if opts.lpips else None,
+        lower_fraction=opts.lower_fraction,
+        frames=rows,
+        offsets=offset_rows,
+        notes=[] if opts.lpips else ["LPIPS not computed (lpips=False)"],
+    )
+    result.save(out_path)
+    _log.info(
+        "splat eval: %d held-out frames, PSNR %s dB, SSIM %s, LPIPS %s -> %s",
+        len(held),
+        _fmt(result.psnr_db.mean),
+        _fmt(result.ssim.mean),
+        _fmt(result.lpips.mean),
+        out_path,
+    )
+    return result
+
+
+def _fmt(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.3f}"

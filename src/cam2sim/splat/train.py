@@ -1,0 +1,799 @@
+"""Stage splat, training: one Gaussian-splat model per route chunk of a prepared scene.
+
+Reads ``WS/splat/prep/`` (:mod:`cam2sim.splat.scene`), writes ``WS/splat/models/chunk_XX.pt``
+(+ ``.json`` header, :mod:`cam2sim.splat.model`). Per chunk:
+
+- **Initialisation** (:func:`cam2sim.splat.model.seed_models`): one Gaussian per point of
+  ``points.npz`` that a training view sees, plus fixed-position sky Gaussians on a far sphere.
+- **Loss**, on pixels whose mask is 255: ``(1 - w) L1 + w (1 - SSIM)`` with ``w = ssim_weight``
+  (SSIM over an image where excluded pixels are copied from the target). With sky masks, the
+  share of each pixel drawn by sky Gaussians (a fourth rendered channel) is pulled to 1 on sky
+  pixels and to 0 elsewhere (``sky_weight``): street Gaussians cannot float in the sky, and sky
+  Gaussians cannot paint the street.
+- **Appearance**: a per-view affine colour transform (3x3 + bias, identity at first, own small
+  learning rate) applied to the render before the loss.
+- **Densification** (:class:`cam2sim.splat.model.Densifier`): gsplat's ``DefaultStrategy``
+  with the gsplat backend, a simple densifier of the same rules otherwise; opacities are reset
+  here every ``reset_every`` steps, as gsplat 1.5.3's strategy never does it.
+- **Stopping**: every ``val_every`` steps the PSNR of up to ``n_val_views`` training views
+  spread along the chunk (held-in validation) is measured; after ``min_steps``, training stops
+  when it has not improved by ``min_delta_db`` for ``patience`` checks, else at ``max_steps``.
+
+:func:`train_scene` trains all chunks in one loop, one step of each in turn (all chunks share
+one GPU; each stops on its own plateau). torch and gsplat are imported inside functions only.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+
+from cam2sim.core.errors import StageError
+from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.splat.scene import ChunkRecord, FrameRecord, SceneRecord, load_points
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+    import torch
+
+    from cam2sim.splat.raster import RasterBackend, RasterOutput
+
+__all__ = [
+    "DensifyOptions",
+    "LearningRates",
+    "SceneTrainResult",
+    "TrainOptions",
+    "TrainResult",
+    "train_chunk",
+    "train_scene",
+]
+
+_log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class LearningRates:
+    """Adam learning rates (gsplat ``simple_trainer`` defaults).
+
+    Attributes:
+        means: Times the scene scale; decays exponentially to 1 % at ``max_steps``.
+        scales: Log scales.
+        quats: Quaternions.
+        opacities: Opacity logits.
+        sh0: Degree-0 SH (base colour); the sky's colours use it too.
+        sh_rest: Higher SH bands (``shN``).
+        appearance: The per-view affine colour transforms.
+    """
+
+    means: float = 1.6e-4
+    scales: float = 5e-3
+    quats: float = 1e-3
+    opacities: float = 5e-2
+    sh0: float = 2.5e-3
+    sh_rest: float = 2.5e-3 / 20
+    appearance: float = 1e-3
+
+
+@dataclass(frozen=True)
+class DensifyOptions:
+    """Densification (3DGS rules; ``strategy="auto"``: gsplat's with gsplat, else ours).
+
+    Attributes:
+        enabled: Densify at all.
+        strategy: ``"gsplat"`` (DefaultStrategy), ``"simple"`` (ours) or ``"auto"``.
+        refine_start: First step that clones/splits/prunes.
+        refine_stop: No refinement from this step on.
+        refine_every: Steps between refinements.
+        reset_every: Steps between opacity resets (to twice ``prune_opacity``).
+        grow_grad2d: Mean 2-D gradient (normalised screen units) above which a Gaussian grows.
+        grow_scale3d: Largest scale (times scene scale) up to which growing clones, above splits.
+        prune_opacity: Gaussians below this opacity are removed.
+        prune_scale3d: Gaussians larger than this (times scene scale) are removed after the
+            first reset.
+        max_gaussians: No growth once the street model has this many Gaussians.
+    """
+
+    enabled: bool = True
+    strategy: Literal["auto", "gsplat", "simple"] = "auto"
+    refine_start: int = 500
+    refine_stop: int = 15_000
+    refine_every: int = 100
+    reset_every: int = 3000
+    grow_grad2d: float = 2e-4
+    grow_scale3d: float = 0.01
+    prune_opacity: float = 0.005
+    prune_scale3d: float = 0.1
+    max_gaussians: int = 6_000_000
+
+
+@dataclass(frozen=True)
+class TrainOptions:
+    """How to train chunk models (see the module doc for what each part does).
+
+    Attributes:
+        max_steps: Step cap per chunk.
+        min_steps: No plateau stop before this step.
+        val_every: Steps between held-in validations.
+        patience: Validations without improvement before stopping.
+        min_delta_db: Smallest PSNR gain that counts as improvement.
+        n_val_views: Training views used for validation (spread along the chunk).
+        ssim_weight: Weight ``w`` of ``1 - SSIM`` in the photometric loss.
+        sh_degree: Highest SH degree of the street model (0-3).
+        sh_degree_interval: Steps per SH degree added (degree 0 first).
+        appearance: Learn per-view colour transforms.
+        sky_points: Number of sky Gaussians (0 = none).
+        sky_radius_m: Sky sphere radius; None = automatic.
+        sky_weight: Weight of the sky-share loss (used when ``sky/`` masks exist).
+        init_opacity: Opacity of new street Gaussians.
+        max_init_points: Random subset of the chunk's points to start from; None = all.
+        background: RGB in ``[0, 1]`` behind everything.
+        downscale: Integer image downscale for training (1 = full size).
+        lr: Learning rates.
+        densify: Densification settings.
+        device: ``"auto"`` (CUDA when available), ``"cpu"``, ``"cuda"``, ``"cuda:1"``, ...
+        backend: Rasterizer, see :mod:`cam2sim.splat.raster`.
+        write_ply: Also write ``chunk_XX.ply`` (3DGS layout) beside each model.
+        seed: Seeds view order, subsets and splits.
+    """
+
+    max_steps: int = 30_000
+    min_steps: int = 7_000
+    val_every: int = 1_000
+    patience: int = 3
+    min_delta_db: float = 0.05
+    n_val_views: int = 8
+    ssim_weight: float = 0.2
+    sh_degree: int = 3
+    sh_degree_interval: int = 1_000
+    appearance: bool = True
+    sky_points: int = 10_000
+    sky_radius_m: float | None = None
+    sky_weight: float = 0.05
+    init_opacity: float = 0.1
+    max_init_points: int | None = None
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    downscale: int = 1
+    lr: LearningRates = field(default_factory=LearningRates)
+    densify: DensifyOptions = field(default_factory=DensifyOptions)
+    device: str = "auto"
+    backend: RasterBackend = "auto"
+    write_ply: bool = False
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        problems = []
+        if self.max_steps < 1:
+            problems.append(f"max_steps={self.max_steps} (need >= 1)")
+        if not 0 <= self.sh_degree <= 3:
+            problems.append(f"sh_degree={self.sh_degree} (need 0-3)")
+        if not 0.0 <= self.ssim_weight <= 1.0:
+            problems.append(f"ssim_weight={self.ssim_weight} (need 0-1)")
+        if self.downscale < 1:
+            problems.append(f"downscale={self.downscale} (need >= 1)")
+        if self.val_every < 1 or self.patience < 1 or self.n_val_views < 1:
+            problems.append("val_every, patience and n_val_views must be >= 1")
+        if problems:
+            msg = "invalid TrainOptions: " + "; ".join(problems)
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """Outcome of training one chunk.
+
+    Attributes:
+        chunk_id: The chunk.
+        model_path: The written ``chunk_XX.pt``.
+        steps: Steps run.
+        stopped: ``"plateau"`` or ``"max_steps"``.
+        n_gaussians: Street Gaussians at the end.
+        n_initial_gaussians: Street Gaussians at the start (one per visible point).
+        n_sky: Sky Gaussians.
+        n_train_views: Views trained on.
+        best_val_psnr_db: Best held-in validation PSNR, dB.
+        val_history: ``(step, psnr_db)`` of every validation.
+        train_seconds: Wall time spent in this chunk's steps and validations.
+        backend: Rasterizer that ran.
+        device: torch device.
+    """
+
+    chunk_id: int
+    model_path: Path
+    steps: int
+    stopped: Literal["plateau", "max_steps"]
+    n_gaussians: int
+    n_initial_gaussians: int
+    n_sky: int
+    n_train_views: int
+    best_val_psnr_db: float | None
+    val_history: tuple[tuple[int, float], ...]
+    train_seconds: float
+    backend: str
+    device: str
+
+
+@dataclass(frozen=True)
+class SceneTrainResult:
+    """Outcome of :func:`train_scene`.
+
+    Attributes:
+        chunks: One result per chunk, by chunk id.
+        seconds: Wall time of the whole run (loading included).
+        peak_memory_bytes: Peak CUDA memory allocated, or None on CPU.
+    """
+
+    chunks: tuple[TrainResult, ...]
+    seconds: float
+    peak_memory_bytes: int | None
+
+
+# ------------------------------------------------------------------------------ data loading
+
+
+@dataclass(frozen=True)
+class _Views:
+    """The training views of one chunk, on the training device."""
+
+    frames: tuple[FrameRecord, ...]
+    images: torch.Tensor  # [M, H, W, 3] uint8
+    masks: torch.Tensor  # [M, H, W] bool, True = use
+    sky: torch.Tensor | None  # [M, H, W] bool, True = sky
+    viewmats: torch.Tensor  # [M, 4, 4] world -> camera
+    Ks: torch.Tensor  # [M, 3, 3]
+    campos: torch.Tensor  # [M, 3]
+    width: int
+    height: int
+
+
+def _read_mask(path: Path, shape: tuple[int, int]) -> npt.NDArray[np.uint8] | None:
+    import cv2  # noqa: PLC0415
+
+    if not path.is_file():
+        return None
+    mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if mask is None or mask.shape != shape:
+        msg = f"mask {path} is unreadable or not {shape[1]}x{shape[0]}; re-run splat preparation"
+        raise StageError(msg)
+    return np.asarray(mask, dtype=np.uint8)
+
+
+def _load_views(prep_dir: Path, frames: list[FrameRecord], downscale: int, device: str) -> _Views:
+    import cv2  # noqa: PLC0415
+    import torch  # noqa: PLC0415
+
+    from cam2sim.metrics.image_quality import read_rgb  # noqa: PLC0415
+
+    sizes = {(f.width, f.height) for f in frames}
+    if len(sizes) != 1:
+        msg = f"training views of one chunk must share one image size, found {sorted(sizes)}"
+        raise StageError(msg)
+    (w0, h0) = sizes.pop()
+    w, h = max(1, w0 // downscale), max(1, h0 // downscale)
+    sx, sy = w / w0, h / h0
+    images, masks, skies, viewmats, ks = [], [], [], [], []
+    any_sky = False
+    for f in frames:
+        stem = f"{f.index:06d}.png"
+        rgb = read_rgb(prep_dir / "images" / stem)
+        if rgb.shape[:2] != (h0, w0):
+            msg = f"{prep_dir / 'images' / stem} is {rgb.shape[1]}x{rgb.shape[0]}, not {w0}x{h0}"
+            raise StageError(msg)
+        mask = _read_mask(prep_dir / "masks" / stem, (h0, w0))
+        sky = _read_mask(prep_dir / "sky" / stem, (h0, w0))
+        mask = np.full((h0, w0), 255, np.uint8) if mask is None else mask
+        any_sky = any_sky or sky is not None
+        sky = np.zeros((h0, w0), np.uint8) if sky is None else sky
+        if (w, h) != (w0, h0):
+            rgb = np.asarray(cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA), np.uint8)
+            mask = np.asarray(cv2.resize(mask, (w, h), interpolation=cv2.INTER_AREA), np.uint8)
+            sky = np.asarray(cv2.resize(sky, (w, h), interpolation=cv2.INTER_AREA), np.uint8)
+        images.append(rgb)
+        masks.append(mask > 254)
+        skies.append(sky > 127)
+        viewmats.append(np.linalg.inv(f.T()))
+        k = f.K()
+        k[0] *= sx
+        k[1] *= sy
+        ks.append(k)
+    viewmat_t = torch.tensor(np.stack(viewmats), dtype=torch.float32, device=device)
+    return _Views(
+        frames=tuple(frames),
+        images=torch.from_numpy(np.stack(images)).to(device),
+        masks=torch.from_numpy(np.stack(masks)).to(device),
+        sky=torch.from_numpy(np.stack(skies)).to(device) if any_sky else None,
+        viewmats=viewmat_t,
+        Ks=torch.tensor(np.stack(ks), dtype=torch.float32, device=device),
+        campos=torch.tensor(
+            np.stack([f.T()[:3, 3] for f in frames]), dtype=torch.float32, device=device
+        ),
+        width=w,
+        height=h,
+    )
+
+
+# ------------------------------------------------------------------------------- losses
+
+
+def _ssim(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """Mean SSIM of two ``[H, W, C]`` images in ``[0, 1]`` (11x11 Gaussian window, sigma 1.5)."""
+    import torch  # noqa: PLC0415
+    from torch.nn import functional as tnf  # noqa: PLC0415
+
+    c = x.shape[-1]
+    coords = torch.arange(11, dtype=x.dtype, device=x.device) - 5.0
+    g = torch.exp(-(coords**2) / (2 * 1.5**2))
+    g = g / g.sum()
+    window = (g[:, None] * g[None, :]).expand(c, 1, 11, 11).contiguous()
+    a = x.permute(2, 0, 1)[None]
+    b = y.permute(2, 0, 1)[None]
+
+    def blur(t: torch.Tensor) -> torch.Tensor:
+        return tnf.conv2d(t, window, groups=c)
+
+    mu_a, mu_b = blur(a), blur(b)
+    var_a = blur(a * a) - mu_a * mu_a
+    var_b = blur(b * b) - mu_b * mu_b
+    cov = blur(a * b) - mu_a * mu_b
+    c1, c2 = 0.01**2, 0.03**2
+    num = (2 * mu_a * mu_b + c1) * (2 * cov + c2)
+    den = (mu_a * mu_a + mu_b * mu_b + c1) * (var_a + var_b + c2)
+    return (num / den).mean()
+
+
+def _apply_affine(rgb: torch.Tensor, affine: torch.Tensor) -> torch.Tensor:
+    """Apply a ``[3, 4]`` colour transform to ``[..., 3]`` colours."""
+    return rgb @ affine[:, :3].T + affine[:, 3]
+
+
+def _masked_psnr(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> float:
+    err = ((pred.clamp(0.0, 1.0) - target) ** 2)[mask]
+    mse = float(err.mean()) if err.numel() else 0.0
+    return 100.0 if mse <= 1e-10 else -10.0 * math.log10(mse)
+
+
+# --------------------------------------------------------------------------------- trainer
+
+
+def _sky_colour(views: _Views) -> list[float]:
+    """Mean colour of sky pixels, or of the top tenth of the images without sky masks."""
+    if views.sky is not None and bool(views.sky.any()):
+        pixels = views.images[views.sky]
+    else:
+        top = max(1, views.height // 10)
+        pixels = views.images[:, :top].reshape(-1, 3)
+    return (pixels.float().mean(dim=0) / 255.0).tolist()
+
+
+class _ChunkTrainer:
+    """Training state of one chunk; :meth:`step` runs one optimisation step."""
+
+    def __init__(
+        self,
+        chunk: ChunkRecord,
+        scene: SceneRecord,
+        prep_dir: Path,
+        points: tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]],
+        options: TrainOptions,
+        device: str,
+        backend: Literal["gsplat", "torch"],
+    ) -> None:
+        import torch  # noqa: PLC0415
+
+        self.chunk = chunk
+        self.options = options
+        self.device = device
+        self.backend = backend
+        by_index = {f.index: f for f in scene.frames}
+        missing = [i for i in chunk.frames if i not in by_index]
+        if missing:
+            msg = f"chunk {chunk.id} lists frames {missing[:5]} that scene.json does not have"
+            raise StageError(msg)
+        frames = sorted(
+            (by_index[i] for i in chunk.frames if not by_index[i].held_out),
+            key=lambda f: (f.progress_m, f.index),
+        )
+        if not frames:
+            msg = f"chunk {chunk.id} has no training views (all held out?); re-run preparation"
+            raise StageError(msg)
+        self.views = _load_views(prep_dir, frames, options.downscale, device)
+        self.generator = torch.Generator(device=device).manual_seed(options.seed + chunk.id)
+        self.cpu_generator = torch.Generator().manual_seed(options.seed + chunk.id)
+        n_views = len(frames)
+        n_val = min(options.n_val_views, n_views)
+        spread = (n_views - 1) / max(1, n_val - 1)
+        self.val_views = sorted({round(i * spread) for i in range(n_val)})
+        self._order: list[int] = []
+        self._build_models(points)
+        self._build_optimizers()
+        from cam2sim.splat.model import Densifier  # noqa: PLC0415
+
+        self.densifier = (
+            Densifier(
+                options.densify,
+                self.scene_scale,
+                use_gsplat=options.densify.strategy == "gsplat"
+                or (options.densify.strategy == "auto" and backend == "gsplat"),
+            )
+            if options.densify.enabled
+            else None
+        )
+        self.background = torch.tensor(
+            [[*options.background, 0.0]], dtype=torch.float32, device=device
+        )
+        self.step_no = 0
+        self.history: list[tuple[int, float]] = []
+        self.best: float | None = None
+        self.since_best = 0
+        self.done = False
+        self.stopped: Literal["plateau", "max_steps"] = "max_steps"
+        self.seconds = 0.0
+
+    # -- set-up ------------------------------------------------------------------------------
+    def _build_models(self, points: tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]) -> None:
+        from cam2sim.splat.model import SeedOptions, seed_models  # noqa: PLC0415
+
+        opts = self.options
+        seeded = seed_models(
+            *points,
+            self.views.frames,
+            sky_rgb=_sky_colour(self.views),
+            options=SeedOptions(
+                sh_degree=opts.sh_degree,
+                opacity=opts.init_opacity,
+                sky_points=opts.sky_points,
+                sky_radius_m=opts.sky_radius_m,
+                max_points=opts.max_init_points,
+                seed=opts.seed + self.chunk.id,
+            ),
+            device=self.device,
+        )
+        if seeded is None:
+            msg = (
+                f"chunk {self.chunk.id}: none of the {len(points[0])} points of points.npz is "
+                "seen by its training views; check the poses or re-run splat preparation"
+            )
+            raise StageError(msg)
+        self.street, self.sky = seeded.street, seeded.sky
+        self.n_initial = len(self.street)
+        self.scene_scale, self.sky_radius = seeded.scene_scale, seeded.sky_radius_m
+        _log.info(
+            "chunk %d: %d training views (%dx%d), %d street Gaussians from points, %d sky "
+            "Gaussians at %.1f m, scene scale %.2f m",
+            self.chunk.id,
+            len(self.views.frames),
+            self.views.width,
+            self.views.height,
+            len(self.street),
+            opts.sky_points,
+            self.sky_radius,
+            self.scene_scale,
+        )
+
+    def _build_optimizers(self) -> None:
+        import torch  # noqa: PLC0415
+
+        lr = self.options.lr
+        rates = {
+            "means": lr.means * self.scene_scale,
+            "scales": lr.scales,
+            "quats": lr.quats,
+            "opacities": lr.opacities,
+            "sh0": lr.sh0,
+            "shN": lr.sh_rest,
+        }
+        fused = self.device.startswith("cuda")  # one kernel per step instead of about ten
+        self.optimizers: dict[str, torch.optim.Optimizer] = {
+            name: torch.optim.Adam([p], lr=rates[name], eps=1e-15, fused=fused)
+            for name, p in self.street.params.items()
+        }
+        self.sky_optimizers = [
+            torch.optim.Adam([p], lr=rates[name], eps=1e-15, fused=fused)
+            for name, p in self.sky.params.items()
+            if p.requires_grad
+        ]
+        eye = torch.eye(3, 4, device=self.device)
+        self.appearance = torch.nn.Parameter(eye.repeat(len(self.views.frames), 1, 1))
+        self.appearance.requires_grad = self.options.appearance
+        self.appearance_optimizer = torch.optim.Adam([self.appearance], lr=lr.appearance)
+        self.means_gamma = 0.01 ** (1.0 / self.options.max_steps)
+        self.means_lr = rates["means"]
+
+    # -- steps -------------------------------------------------------------------------------
+    def _render(self, view: int, degree: int) -> tuple[RasterOutput, torch.Tensor, torch.Tensor]:
+        """Render training view ``view``: (raster output, [H, W, 3] rgb, [H, W] sky share)."""
+        from cam2sim.splat.model import gather_splats  # noqa: PLC0415
+        from cam2sim.splat.raster import rasterize  # noqa: PLC0415
+
+        v = self.views
+        inputs = gather_splats(self.street, self.sky, v.campos[view : view + 1], degree)
+        out = rasterize(
+            inputs.means,
+            inputs.quats,
+            inputs.scales,
+            inputs.opacities,
+            inputs.colors,
+            v.viewmats[view : view + 1],
+            v.Ks[view : view + 1],
+            v.width,
+            v.height,
+            backgrounds=self.background,
+            backend=self.backend,
+        )
+        image = out.colors[0]
+        rgb = _apply_affine(image[..., :3], self.appearance[view])
+        return out, rgb, image[..., 3]
+
+    def _loss(self, view: int, rgb: torch.Tensor, sky_share: torch.Tensor) -> torch.Tensor:
+        import torch  # noqa: PLC0415
+
+        v, opts = self.views, self.options
+        target = v.images[view].float() / 255.0
+        mask = v.masks[view]
+        used = mask.sum().clamp_min(1)
+        l1 = (torch.abs(rgb - target).sum(dim=-1) * mask).sum() / (3 * used)
+        ssim = _ssim(torch.where(mask[..., None], rgb, target), target)
+        loss = (1.0 - opts.ssim_weight) * l1 + opts.ssim_weight * (1.0 - ssim)
+        if v.sky is not None and opts.sky_weight > 0 and opts.sky_points > 0:
+            # Masked means without boolean indexing: no host-device synchronisation.
+            sky = (v.sky[view] & mask).float()
+            ground = (~v.sky[view] & mask).float()
+            not_sky = ((1.0 - sky_share) * sky).sum() / sky.sum().clamp_min(1.0)
+            not_street = (sky_share * ground).sum() / ground.sum().clamp_min(1.0)
+            loss = loss + opts.sky_weight * (not_sky + not_street)
+        return loss
+
+    def _next_view(self) -> int:
+        import torch  # noqa: PLC0415
+
+        if not self._order:
+            n = len(self.views.frames)
+            self._order = torch.randperm(n, generator=self.cpu_generator).tolist()
+        return self._order.pop()
+
+    def step(self) -> None:
+        """Run one optimisation step (and a validation when one is due)."""
+        import torch  # noqa: PLC0415
+
+        start = time.perf_counter()
+        opts = self.options
+        view = self._next_view()
+        degree = min(opts.sh_degree, self.step_no // opts.sh_degree_interval)
+        out, rgb, sky_share = self._render(view, degree)
+        if self.densifier is not None and out.means2d.requires_grad:
+            out.means2d.retain_grad()
+        torch.autograd.backward(self._loss(view, rgb, sky_share))
+        for opt in (*self.optimizers.values(), *self.sky_optimizers, self.appearance_optimizer):
+            opt.step()
+            opt.zero_grad(set_to_none=True)
+        if self.densifier is not None:
+            self.densifier.post_backward(
+                self.step_no, self.street, self.optimizers, out, len(self.street), self.generator
+            )
+        self.step_no += 1
+        self.means_lr *= self.means_gamma
+        for group in self.optimizers["means"].param_groups:
+            group["lr"] = self.means_lr
+        if self.step_no % opts.val_every == 0 or self.step_no >= opts.max_steps:
+            self._validate()
+        self.seconds += time.perf_counter() - start
+
+    def _validate(self) -> None:
+        import torch  # noqa: PLC0415
+
+        opts = self.options
+        degree = min(opts.sh_degree, self.step_no // opts.sh_degree_interval)
+        with torch.no_grad():
+            values = []
+            for view in self.val_views:
+                _, rgb, _ = self._render(view, degree)
+                target = self.views.images[view].float() / 255.0
+                values.append(_masked_psnr(rgb, target, self.views.masks[view]))
+        psnr = float(np.mean(values))
+        self.history.append((self.step_no, psnr))
+        if self.best is None or psnr > self.best + opts.min_delta_db:
+            self.best = psnr
+            self.since_best = 0
+        else:
+            self.since_best += 1
+        _log.info(
+            "chunk %d step %d: held-in PSNR %.2f dB, %d Gaussians",
+            self.chunk.id,
+            self.step_no,
+            psnr,
+            len(self.street),
+        )
+        if self.step_no >= opts.min_steps and self.since_best >= opts.patience:
+            self.done, self.stopped = True, "plateau"
+        elif self.step_no >= opts.max_steps:
+            self.done, self.stopped = True, "max_steps"
+
+    # -- output ------------------------------------------------------------------------------
+    def save(self, models_dir: Path) -> TrainResult:
+        """Write the chunk model and return the result."""
+        from cam2sim.splat.model import (  # noqa: PLC0415
+            ChunkHeader,
+            ChunkModel,
+            ViewRecord,
+            chunk_model_path,
+            export_ply,
+            save_chunk_model,
+        )
+
+        views = [
+            ViewRecord(
+                index=f.index,
+                progress_m=f.progress_m,
+                position=f.T()[:3, 3].tolist(),
+                forward=f.T()[:3, 2].tolist(),
+            )
+            for f in self.views.frames
+        ]
+        header = ChunkHeader(
+            chunk_id=self.chunk.id,
+            start_m=self.chunk.start_m,
+            end_m=self.chunk.end_m,
+            sh_degree=self.street.sh_degree,
+            n_gaussians=len(self.street),
+            n_sky=self.options.sky_points,
+            scene_scale=self.scene_scale,
+            sky_radius_m=self.sky_radius,
+            background=list(self.options.background),
+            train_views=views,
+            steps=self.step_no,
+            best_val_psnr_db=self.best,
+            backend=self.backend,
+            stopped=self.stopped,
+        )
+        model = ChunkModel(
+            header=header, gaussians=self.street, sky=self.sky, appearance=self.appearance.detach()
+        )
+        path = chunk_model_path(models_dir, self.chunk.id)
+        save_chunk_model(model, path)
+        if self.options.write_ply:
+            export_ply(self.street, path.with_suffix(".ply"), extra=self.sky)
+        _log.info(
+            "chunk %d: %s after %d steps, best held-in PSNR %s, %d Gaussians -> %s",
+            self.chunk.id,
+            self.stopped,
+            self.step_no,
+            "n/a" if self.best is None else f"{self.best:.2f} dB",
+            len(self.street),
+            path,
+        )
+        return TrainResult(
+            chunk_id=self.chunk.id,
+            model_path=path,
+            steps=self.step_no,
+            stopped=self.stopped,
+            n_gaussians=len(self.street),
+            n_initial_gaussians=self.n_initial,
+            n_sky=self.options.sky_points,
+            n_train_views=len(self.views.frames),
+            best_val_psnr_db=self.best,
+            val_history=tuple(self.history),
+            train_seconds=self.seconds,
+            backend=self.backend,
+            device=self.device,
+        )
+
+
+# ---------------------------------------------------------------------------- entry points
+
+
+def train_chunk(
+    scene: SceneRecord,
+    chunk_id: int,
+    prep_dir: Path,
+    options: TrainOptions | None = None,
+    progress: ProgressCallback = no_progress,
+    *,
+    models_dir: Path | None = None,
+) -> TrainResult:
+    """Train the model of one chunk and write ``models_dir/chunk_XX.pt``.
+
+    Args:
+        scene: The prepared scene (``prep_dir/scene.json``).
+        chunk_id: Which chunk.
+        prep_dir: ``WS/splat/prep``.
+        options: Training options (defaults: :class:`TrainOptions`).
+        progress: Called with ``("splat steps", done, cap)``.
+        models_dir: Output folder; default ``prep_dir/../models`` (``WS/splat/models``).
+
+    Returns:
+        The chunk's result.
+
+    Raises:
+        StageError: Unknown chunk, or inputs that cannot be trained on.
+    """
+    result = train_scene(
+        prep_dir,
+        options=options,
+        chunk_ids=(chunk_id,),
+        models_dir=models_dir,
+        progress=progress,
+        scene=scene,
+    )
+    return result.chunks[0]
+
+
+def train_scene(
+    prep_dir: Path,
+    *,
+    options: TrainOptions | None = None,
+    chunk_ids: tuple[int, ...] | None = None,
+    models_dir: Path | None = None,
+    progress: ProgressCallback = no_progress,
+    scene: SceneRecord | None = None,
+) -> SceneTrainResult:
+    """Train every chunk (or ``chunk_ids``) of a prepared scene, all in one interleaved loop.
+
+    One step of each unfinished chunk runs in turn, so all chunk models train side by side on
+    one device; a chunk that reaches its plateau (or step cap) is written at once and leaves
+    the loop.
+
+    Args:
+        prep_dir: ``WS/splat/prep``.
+        options: Training options.
+        chunk_ids: Chunks to train; None = all.
+        models_dir: Output folder; default ``prep_dir/../models``.
+        progress: Called with ``("splat steps", done, cap)`` (cap = chunks times max_steps).
+        scene: The scene record, if already loaded.
+
+    Returns:
+        Per-chunk results and totals.
+
+    Raises:
+        StageError: No such chunk, or inputs that cannot be trained on.
+        BackendUnavailableError: The gsplat backend was asked for where it cannot run.
+    """
+    import torch  # noqa: PLC0415
+
+    from cam2sim.splat.raster import resolve_backend, resolve_device  # noqa: PLC0415
+
+    start = time.perf_counter()
+    options = options or TrainOptions()
+    prep_dir = Path(prep_dir)
+    models_dir = prep_dir.parent / "models" if models_dir is None else Path(models_dir)
+    scene = SceneRecord.load(prep_dir / "scene.json") if scene is None else scene
+    known = {c.id: c for c in scene.chunks}
+    wanted = sorted(known) if chunk_ids is None else list(chunk_ids)
+    unknown = [c for c in wanted if c not in known]
+    if unknown or not wanted:
+        msg = f"no chunk {unknown or wanted} in {prep_dir / 'scene.json'}; known: {sorted(known)}"
+        raise StageError(msg)
+    device = resolve_device(options.device)
+    backend = resolve_backend(options.backend, device)
+    torch.manual_seed(options.seed)
+    if device.startswith("cuda"):
+        torch.cuda.reset_peak_memory_stats(device)
+    xyz, rgb, _ = load_points(prep_dir / "points.npz")
+    trainers = [
+        _ChunkTrainer(known[c], scene, prep_dir, (xyz, rgb), options, device, backend)
+        for c in wanted
+    ]
+    _log.info("training %d chunk(s) on %s with the %s rasterizer", len(trainers), device, backend)
+    results: dict[int, TrainResult] = {}
+    cap = len(trainers) * options.max_steps
+    done_steps = 0
+    active = list(trainers)
+    while active:
+        for trainer in list(active):
+            trainer.step()
+            done_steps += 1
+            if trainer.done:
+                results[trainer.chunk.id] = trainer.save(models_dir)
+                active.remove(trainer)
+                done_steps += options.max_steps - trainer.step_no
+        progress("splat steps", done_steps, cap)
+    peak = int(torch.cuda.max_memory_allocated(device)) if device.startswith("cuda") else None
+    return SceneTrainResult(
+        chunks=tuple(results[c] for c in wanted),
+        seconds=time.perf_counter() - start,
+        peak_memory_bytes=peak,
+    )

@@ -1,0 +1,373 @@
+"""Training and evaluation on a small synthetic street: ground, a wall, sky, a hood mask.
+
+The scene is ray-cast exactly (textured ground plane z = 0, a wall at y = 9 m up to 3 m, sky
+above), seen by cameras 1.5 m above the ground driving along +y; the points are sampled on the
+surfaces with noisy colours. Everything runs on the CPU with the torch rasterizer.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+
+import torch
+
+from cam2sim.core.errors import StageError
+from cam2sim.splat import model as gm
+from cam2sim.splat.evaluate import EvalOptions, SplatEval, evaluate_splat
+from cam2sim.splat.scene import ChunkRecord, FrameRecord, SceneRecord, save_points
+from cam2sim.splat.train import (
+    DensifyOptions,
+    LearningRates,
+    SceneTrainResult,
+    TrainOptions,
+    train_chunk,
+    train_scene,
+)
+
+SKY = np.array([0.55, 0.7, 0.95])
+WALL_Y, WALL_TOP = 9.0, 3.0
+STEP_M = 0.25
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread() -> Iterator[None]:
+    """Run torch single-threaded: on a shared 2-core machine, two threads run slower."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def ground_rgb(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return np.stack(
+        [0.45 + 0.3 * np.sin(2.0 * x), 0.4 + 0.25 * np.cos(1.5 * y), 0.35 + 0.2 * np.sin(x + y)], -1
+    )
+
+
+def wall_rgb(x: np.ndarray, z: np.ndarray) -> np.ndarray:
+    return np.stack(
+        [0.5 + 0.4 * np.sin(1.3 * x), 0.5 + 0.4 * np.cos(2.1 * z), 0.4 + 0.3 * np.sin(0.7 * x + z)],
+        -1,
+    )
+
+
+def camera_pose(y: float, x: float = 0.0) -> np.ndarray:
+    """T_world_cam of a camera at (x, y, 1.5) looking along +y (OpenCV optical axes)."""
+    pose = np.eye(4)
+    pose[:3, :3] = [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]
+    pose[:3, 3] = (x, y, 1.5)
+    return pose
+
+
+def ray_cast(pose: np.ndarray, k: np.ndarray, w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
+    """Exact image (uint8) and sky mask (bool) of the synthetic street."""
+    j, i = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    rays = np.stack([(j - k[0, 2]) / k[0, 0], (i - k[1, 2]) / k[1, 1], np.ones_like(j)], -1)
+    d = rays @ pose[:3, :3].T
+    o = pose[:3, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_ground = np.where(d[..., 2] < 0, -o[2] / d[..., 2], np.inf)
+        t_wall = np.where(d[..., 1] > 0, (WALL_Y - o[1]) / d[..., 1], np.inf)
+    on_wall = o + np.where(np.isfinite(t_wall), t_wall, 0.0)[..., None] * d
+    on_ground = o + np.where(np.isfinite(t_ground), t_ground, 0.0)[..., None] * d
+    wall = np.isfinite(t_wall) & (t_wall < t_ground) & (on_wall[..., 2] <= WALL_TOP)
+    ground = np.isfinite(t_ground) & ~wall
+    out = np.broadcast_to(SKY, d.shape).copy()
+    out[ground] = ground_rgb(on_ground[ground][:, 0], on_ground[ground][:, 1])
+    out[wall] = wall_rgb(on_wall[wall][:, 0], on_wall[wall][:, 2])
+    return (np.clip(out, 0, 1) * 255).round().astype(np.uint8), ~(ground | wall)
+
+
+def make_prepared_scene(
+    root: Path,
+    *,
+    n_frames: int = 12,
+    chunks: tuple[tuple[int, int], ...] = ((0, 8), (4, 12)),
+    size: tuple[int, int] = (64, 48),
+    spacing: float = 0.25,
+) -> Path:
+    """Write ``root/splat/prep`` (scene.json, images, masks, sky, points.npz); frames 2, 6, ...
+    are held out, the bottom 3 rows are masked as ego hood."""
+    w, h = size
+    prep = root / "splat" / "prep"
+    for sub in ("images", "masks", "sky"):
+        (prep / sub).mkdir(parents=True, exist_ok=True)
+    k = np.array([[40.0 * w / 64, 0, w / 2], [0, 40.0 * h / 48, h / 2], [0, 0, 1]])
+    frames = []
+    for n in range(n_frames):
+        pose = camera_pose(n * STEP_M)
+        image, sky = ray_cast(pose, k, w, h)
+        mask = np.full((h, w), 255, np.uint8)
+        mask[h - 3 :] = 0
+        stem = f"{n:06d}.png"
+        cv2.imwrite(str(prep / "images" / stem), image[..., ::-1])
+        cv2.imwrite(str(prep / "masks" / stem), mask)
+        cv2.imwrite(str(prep / "sky" / stem), sky.astype(np.uint8) * 255)
+        frames.append(
+            FrameRecord(
+                index=n,
+                dataset_frame=n,
+                stamp_ns=n * 100_000_000,
+                T_world_cam=pose.tolist(),
+                fx=k[0, 0],
+                fy=k[1, 1],
+                cx=k[0, 2],
+                cy=k[1, 2],
+                width=w,
+                height=h,
+                held_out=n % 4 == 2,
+                chunks=[c for c, (a, b) in enumerate(chunks) if a <= n < b],
+                progress_m=n * STEP_M,
+            )
+        )
+    records = [
+        ChunkRecord(
+            id=c,
+            start_m=a * STEP_M,
+            end_m=(b - 1) * STEP_M,
+            frames=list(range(a, b)),
+            center=[0.0, (a + b - 1) / 2 * STEP_M, 1.5],
+        )
+        for c, (a, b) in enumerate(chunks)
+    ]
+    SceneRecord(frames=frames, chunks=records, pose_source="recording").save(prep / "scene.json")
+    gx, gy = np.meshgrid(np.arange(-5, 5, spacing), np.arange(1.0, WALL_Y, spacing))
+    wx, wz = np.meshgrid(np.arange(-7, 7, spacing), np.arange(0, WALL_TOP, spacing))
+    ground = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], -1)
+    wall = np.stack([wx.ravel(), np.full(wx.size, WALL_Y), wz.ravel()], -1)
+    rgb = np.concatenate([ground_rgb(ground[:, 0], ground[:, 1]), wall_rgb(wall[:, 0], wall[:, 2])])
+    rgb = np.clip(rgb + np.random.default_rng(0).normal(0, 0.15, rgb.shape), 0, 1)
+    xyz = np.concatenate([ground, wall]).astype(np.float32)
+    save_points(
+        prep / "points.npz", xyz, (rgb * 255).astype(np.uint8), np.zeros(len(xyz), np.uint8)
+    )
+    return prep
+
+
+def fast_options(**changes: object) -> TrainOptions:
+    """Options that make a CPU run of a few dozen steps learn something."""
+    base = TrainOptions(
+        max_steps=40,
+        min_steps=40,
+        val_every=10,
+        n_val_views=3,
+        sh_degree=1,
+        sh_degree_interval=25,
+        sky_points=150,
+        lr=LearningRates(means=1.6e-3, scales=1e-2, sh0=2e-2),
+        densify=DensifyOptions(refine_start=15, refine_every=15, refine_stop=35, reset_every=1000),
+        device="cpu",
+    )
+    return dataclasses.replace(base, **changes)  # type: ignore[arg-type]
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, SceneTrainResult]:
+    prep = make_prepared_scene(tmp_path_factory.mktemp("ws"))
+    return prep, train_scene(prep, options=fast_options())
+
+
+# ----------------------------------------------------------------------------------- tests
+
+
+def test_training_raises_held_in_psnr(trained: tuple[Path, SceneTrainResult]) -> None:
+    _, result = trained
+    for chunk in result.chunks:
+        first, last = chunk.val_history[0][1], chunk.val_history[-1][1]
+        assert last > first + 2.0, chunk.val_history
+        assert chunk.stopped == "max_steps"
+        assert chunk.steps == 40
+
+
+def test_every_chunk_is_written_with_its_header(trained: tuple[Path, SceneTrainResult]) -> None:
+    prep, result = trained
+    assert [c.chunk_id for c in result.chunks] == [0, 1]
+    for chunk in result.chunks:
+        assert chunk.model_path == prep.parent / "models" / f"chunk_{chunk.chunk_id:02d}.pt"
+        header = gm.load_chunk_header(chunk.model_path)
+        assert header.n_gaussians == chunk.n_gaussians
+        assert [v.index for v in header.train_views] == [
+            i for i in range(4 * chunk.chunk_id, 4 * chunk.chunk_id + 8) if i % 4 != 2
+        ]
+        assert header.backend == "torch"
+
+
+def test_held_out_frames_reach_a_psnr_floor(trained: tuple[Path, SceneTrainResult]) -> None:
+    prep, _ = trained
+    result = evaluate_splat(
+        prep,
+        prep.parent / "models",
+        offsets=(-1.0, 0.5, 2.0),
+        options=EvalOptions(lpips=False, device="cpu"),
+    )
+    assert result.n_held_out == 3
+    assert result.psnr_db.mean is not None
+    assert result.psnr_db.mean > 24.0, result.frames
+    assert result.ssim.mean is not None
+    assert result.ssim.mean > 0.7
+    assert result.lpips.n == 0
+    assert result.psnr_db_raw is not None
+    assert result.psnr_db_raw.n == 3
+    coverage = {o.offset_m: o.coverage.mean or 0.0 for o in result.offsets}
+    assert coverage[0.5] < coverage[-1.0] < coverage[2.0]
+    assert all(0.0 <= (o.street_hole_fraction.mean or 0.0) <= 1.0 for o in result.offsets)
+    assert SplatEval.load(prep.parent / "eval.json") == result
+
+
+def test_chunk_model_roundtrips(trained: tuple[Path, SceneTrainResult], tmp_path: Path) -> None:
+    _, result = trained
+    loaded = gm.load_chunk_model(result.chunks[0].model_path)
+    copy = tmp_path / "chunk_00.pt"
+    gm.save_chunk_model(loaded, copy)
+    again = gm.load_chunk_model(copy)
+    assert again.header == loaded.header
+    for a, b in ((loaded.gaussians, again.gaussians), (loaded.sky, again.sky)):
+        for name in gm.PARAM_NAMES:
+            torch.testing.assert_close(a.params[name], b.params[name], rtol=0, atol=0)
+    torch.testing.assert_close(loaded.appearance, again.appearance, rtol=0, atol=0)
+
+
+def test_ply_export_has_the_3dgs_layout(tmp_path: Path) -> None:
+    xyz = torch.rand(5, 3)
+    model = gm.GaussianModel.from_points(xyz, torch.rand(5, 3), sh_degree=2)
+    sky = gm.GaussianModel.from_points(torch.rand(2, 3) + 5, torch.rand(2, 3), sh_degree=0)
+    path = tmp_path / "m.ply"
+    gm.export_ply(model, path, extra=sky)
+    data = path.read_bytes()
+    head, _, body = data.partition(b"end_header\n")
+    lines = head.decode().splitlines()
+    assert lines[:3] == ["ply", "format binary_little_endian 1.0", "element vertex 7"]
+    names = [line.split()[-1] for line in lines if line.startswith("property")]
+    assert names[:9] == ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+    assert names[9:33] == [f"f_rest_{i}" for i in range(24)]
+    assert names[33:] == ["opacity", *(f"scale_{i}" for i in range(3))] + [
+        f"rot_{i}" for i in range(4)
+    ]
+    table = np.frombuffer(body, dtype=[(n, "<f4") for n in names])
+    np.testing.assert_allclose(table["x"][:5], xyz[:, 0].numpy())
+    assert np.all(table["f_rest_0"][5:] == 0)
+
+
+def test_plateau_stops_training(tmp_path: Path) -> None:
+    prep = make_prepared_scene(tmp_path, n_frames=4, chunks=((0, 4),), size=(32, 24))
+    scene = SceneRecord.load(prep / "scene.json")
+    options = fast_options(
+        max_steps=100, min_steps=4, val_every=2, patience=2, min_delta_db=50.0, sky_points=0
+    )
+    result = train_chunk(scene, 0, prep, options, models_dir=tmp_path / "models")
+    assert result.stopped == "plateau"
+    assert result.steps == 6
+    assert [s for s, _ in result.val_history] == [2, 4, 6]
+    assert (tmp_path / "models" / "chunk_00.json").is_file()
+
+
+def test_unknown_chunk_is_refused(tmp_path: Path) -> None:
+    prep = make_prepared_scene(tmp_path, n_frames=4, chunks=((0, 4),), size=(32, 24))
+    with pytest.raises(StageError, match=r"no chunk \[7\]"):
+        train_scene(prep, options=fast_options(), chunk_ids=(7,))
+
+
+def test_invalid_options_are_refused() -> None:
+    with pytest.raises(ValueError, match="sh_degree=4"):
+        TrainOptions(sh_degree=4)
+
+
+# --------------------------------------------------------------------- densification surgery
+
+
+def _model_and_adam(n: int = 6) -> tuple[gm.GaussianModel, dict[str, torch.optim.Optimizer]]:
+    model = gm.GaussianModel.from_points(torch.rand(n, 3), torch.rand(n, 3), sh_degree=1)
+    opts: dict[str, torch.optim.Optimizer] = {
+        k: torch.optim.Adam([p], lr=0.01) for k, p in model.params.items()
+    }
+    torch.autograd.backward(torch.stack([p.sum() for p in model.params.values()]).sum())
+    for opt in opts.values():
+        opt.step()
+    return model, opts
+
+
+def _check_aligned(model: gm.GaussianModel, opts: dict[str, torch.optim.Optimizer]) -> None:
+    n = len(model)
+    for name, p in model.params.items():
+        assert p.shape[0] == n
+        assert opts[name].param_groups[0]["params"][0] is p
+        state = opts[name].state[p]
+        assert state["exp_avg"].shape == p.shape
+        assert state["exp_avg_sq"].shape == p.shape
+
+
+def test_duplicate_split_remove_keep_optimizer_state_aligned() -> None:
+    model, opts = _model_and_adam()
+    mask = torch.tensor([True, False, True, False, False, False])
+    gm.duplicate(model, opts, mask)
+    assert len(model) == 8
+    _check_aligned(model, opts)
+    means_before = model.params["means"][1].clone()
+    gm.split(model, opts, torch.tensor([False, True, False, False, False, False, False, True]))
+    assert len(model) == 10
+    _check_aligned(model, opts)
+    assert not torch.isclose(model.params["means"], means_before).all(dim=1).any()
+    gm.remove(model, opts, torch.arange(10) < 3)
+    assert len(model) == 7
+    _check_aligned(model, opts)
+
+
+def test_opacity_reset_clamps_and_clears_moments() -> None:
+    model, opts = _model_and_adam()
+    with torch.no_grad():
+        model.params["opacities"][:3] = 5.0
+    gm.reset_opacity(model, opts, 0.01)
+    assert torch.sigmoid(model.params["opacities"]).max() <= 0.01 + 1e-6
+    state = opts["opacities"].state[model.params["opacities"]]
+    assert state["exp_avg"].abs().sum() == 0
+
+
+def test_sky_sphere_points_lie_on_the_sphere() -> None:
+    pts = gm.sky_sphere_points(np.array([1.0, 2.0, 3.0]), 50.0, 500)
+    np.testing.assert_allclose(np.linalg.norm(pts - [1.0, 2.0, 3.0], axis=1), 50.0)
+    assert abs(pts[:, 2].mean() - 3.0) < 1.0
+
+
+def test_nearest_neighbour_scales_match_brute_force() -> None:
+    xyz = torch.rand(200, 3, dtype=torch.float64)
+    d = torch.cdist(xyz, xyz)
+    expected = torch.topk(d, 4, largest=False).values[:, 1:].mean(dim=1)
+    torch.testing.assert_close(gm.nearest_neighbour_distances(xyz), expected)
+
+
+@pytest.mark.requires_cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_gsplat_training_densifies_and_resets(tmp_path: Path) -> None:
+    from cam2sim.splat.raster import has_gsplat
+
+    if not has_gsplat():
+        pytest.skip("gsplat is not installed (pip install 'cam2sim[splat-cuda]')")
+    prep = make_prepared_scene(tmp_path, size=(320, 240), spacing=0.2)
+    options = fast_options(
+        max_steps=600,
+        min_steps=600,
+        val_every=100,
+        device="cuda",
+        backend="gsplat",
+        # The synthetic street is ~1 m of driving: scene scale ~1 m, so allow 1 m Gaussians.
+        densify=DensifyOptions(
+            refine_start=50, refine_every=50, reset_every=300, refine_stop=450, prune_scale3d=1.0
+        ),
+    )
+    result = train_scene(prep, options=options)
+    for chunk in result.chunks:
+        assert chunk.backend == "gsplat"
+        assert chunk.val_history[0][1] > 25.0, chunk.val_history
+        assert chunk.val_history[-1][1] > 25.0, chunk.val_history  # recovered from the reset
+        assert chunk.n_gaussians != chunk.n_initial_gaussians  # the strategy cloned/split/pruned
+        header = gm.load_chunk_header(chunk.model_path)
+        assert header.n_gaussians == chunk.n_gaussians
+    assert result.peak_memory_bytes is not None
