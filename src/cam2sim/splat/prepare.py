@@ -1,0 +1,901 @@
+"""Splat preparation: turn ``WS/dataset/`` into a prepared scene ``WS/splat/prep/``.
+
+The prepared scene is the contract described in :mod:`cam2sim.splat.scene`. Steps:
+
+1. **Frame selection** by distance travelled (one frame every ``spacing_m``; standing still adds
+   no frames), or every ``frame_step``-th frame for pose-less datasets.
+2. **Undistortion** with the calibration (OpenCV; plumb-bob or equidistant). The new pinhole K
+   comes from ``getOptimalNewCameraMatrix`` with ``alpha=0`` at the same image size (every output
+   pixel valid) and is what ``scene.json`` records.
+3. **Ego-hood mask** from the configured rows or polygon (recorded-image pixels), else detected
+   as the bottom region that stays constant while the scene moves; undistorted with the frames.
+4. **Sky masks**: SegFormer when a model is given, else the classical heuristic
+   (:mod:`cam2sim.splat.masks`).
+5. **Camera poses** ``T_world_cam = T_world_body (poses.csv) o T_body_camera (calibration)``.
+6. **Chunks** along the route by distance (``chunk_length_m`` with ``overlap_m``); a frame
+   belongs to one or two chunks. Every ``held_out_every``-th frame is held out for evaluation.
+7. **Initial points**: known-pose triangulation (pycolmap) and, when the dataset has LiDAR
+   scans, the scans in the world frame, coloured from the nearest frame, voxel-downsampled.
+
+Datasets without poses get poses, intrinsics and points from images-only SfM
+(:func:`cam2sim.splat.sfm.sfm_images_only`): ``pose_source="sfm"``, ``scale_ambiguous=True``,
+one chunk. Datasets with poses but no intrinsics also run SfM (self-calibrating); its result is
+then aligned to the recorded camera centres by a similarity, so the world frame stays metric.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import tempfile
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+
+from cam2sim.core import frames as fr
+from cam2sim.core.dataset import Calibration, CameraIntrinsics, DatasetInfo, MountRecord
+from cam2sim.core.errors import StageError, WorkspaceError
+from cam2sim.core.files import atomic_folder
+from cam2sim.core.progress import no_progress
+from cam2sim.core.table import read_table
+from cam2sim.core.workspace import DatasetPaths
+from cam2sim.splat.scene import ChunkRecord, FrameRecord, SceneRecord, save_points
+from cam2sim.splat.sfm import (
+    FeatureOptions,
+    KnownView,
+    SfmOptions,
+    SfmResult,
+    apply_similarity,
+    sfm_images_only,
+    similarity_from_poses,
+    triangulate_known_poses,
+)
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from cam2sim.core.progress import ProgressCallback
+    from cam2sim.core.workspace import Workspace
+
+__all__ = [
+    "PREP_DIR",
+    "PrepareOptions",
+    "Undistorter",
+    "camera_poses",
+    "chunks_by_distance",
+    "distance_travelled",
+    "prepare_scene",
+    "select_by_distance",
+    "undistorter",
+    "voxel_downsample",
+]
+
+logger = logging.getLogger(__name__)
+
+PREP_DIR = "prep"
+"""Folder of the prepared scene inside ``WS/splat/``."""
+
+_HOOD_FRAMES = 30
+_SKY_BATCH = 8
+_LIDAR_MIN_RANGE_M = 1.0  # closer returns hit the ego vehicle
+_LIDAR_COMPACT_EVERY = 32
+_GREY = 128
+
+
+@dataclass(frozen=True)
+class PrepareOptions:
+    """Options of :func:`prepare_scene`.
+
+    Attributes:
+        spacing_m: Distance travelled between selected frames, metres.
+        frame_step: Pose-less datasets: keep every n-th frame.
+        max_frames: Keep at most this many selected frames (the first ones), or None.
+        hood_rows: Bottom rows of the recorded image showing the ego hood, or None.
+        hood_polygon_px: Hood polygon ``((x, y), ...)`` in recorded-image pixels, or None.
+        detect_hood: Detect the hood when neither rows nor polygon are given.
+        segformer: SegFormer model (local folder or hub id) for sky masks; None = classical.
+        device: torch device for SegFormer.
+        chunk_length_m: Length of a route chunk, metres.
+        overlap_m: Overlap of consecutive chunks, metres (less than half a chunk).
+        held_out_every: Every n-th selected frame is held out for evaluation (0 = none).
+        triangulate: Triangulate initial points from the frames (pycolmap).
+        refine_poses: Refine the recorded poses by bundle adjustment (intrinsics fixed).
+        match_window: Sequential matching window, frames.
+        lidar_voxel_m: Voxel size for downsampling LiDAR points, metres.
+        sfm: Options of images-only SfM (pose-less datasets, or no intrinsics).
+    """
+
+    spacing_m: float = 0.5
+    frame_step: int = 1
+    max_frames: int | None = None
+    hood_rows: int | None = None
+    hood_polygon_px: tuple[tuple[float, float], ...] | None = None
+    detect_hood: bool = True
+    segformer: str | None = None
+    device: str = "cpu"
+    chunk_length_m: float = 150.0
+    overlap_m: float = 30.0
+    held_out_every: int = 8
+    triangulate: bool = True
+    refine_poses: bool = False
+    match_window: int = 20
+    lidar_voxel_m: float = 0.1
+    sfm: SfmOptions = field(default_factory=SfmOptions)
+
+    def __post_init__(self) -> None:
+        problems = []
+        if not self.spacing_m >= 0:
+            problems.append(f"spacing_m must be >= 0, got {self.spacing_m!r}")
+        if self.frame_step < 1:
+            problems.append(f"frame_step must be >= 1, got {self.frame_step!r}")
+        if not self.chunk_length_m > 0:
+            problems.append(f"chunk_length_m must be > 0, got {self.chunk_length_m!r}")
+        if not 0 <= self.overlap_m < self.chunk_length_m / 2:
+            problems.append(
+                f"overlap_m must lie in [0, chunk_length_m / 2), got {self.overlap_m!r}"
+            )
+        if self.held_out_every < 0 or self.held_out_every == 1:
+            problems.append(f"held_out_every must be 0 or >= 2, got {self.held_out_every!r}")
+        if not self.lidar_voxel_m > 0:
+            problems.append(f"lidar_voxel_m must be > 0, got {self.lidar_voxel_m!r}")
+        if problems:
+            raise ValueError("; ".join(problems))
+
+
+# --------------------------------------------------------------------------------------------
+# Geometry helpers (pure, vectorised)
+# --------------------------------------------------------------------------------------------
+
+
+def distance_travelled(positions: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Cumulative path length along ``(N, 3)`` positions: ``(N,)`` metres, starting at 0."""
+    p = np.asarray(positions, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        msg = f"positions must be (N, 3), got {p.shape}"
+        raise ValueError(msg)
+    steps = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def select_by_distance(positions: npt.ArrayLike, spacing_m: float) -> npt.NDArray[np.int64]:
+    """Pick one frame every ``spacing_m`` metres of distance travelled.
+
+    For each multiple ``k * spacing_m`` of the path length the first frame at or beyond it is
+    taken (so frames while standing still are skipped, and a fast stretch with fewer frames than
+    targets keeps every frame once).
+
+    Args:
+        positions: ``(N, 3)`` positions in recording order, metres.
+        spacing_m: Spacing, metres; 0 keeps every frame.
+
+    Returns:
+        ``(M,)`` int64 sorted unique indices into ``positions`` (the first frame always).
+    """
+    s = distance_travelled(positions)
+    if spacing_m <= 0 or s.shape[0] == 0:
+        return np.arange(s.shape[0], dtype=np.int64)
+    targets = np.arange(0.0, s[-1] + 1e-9, spacing_m)
+    idx = np.searchsorted(s, targets - 1e-9, side="left")
+    return np.unique(np.clip(idx, 0, s.shape[0] - 1)).astype(np.int64)
+
+
+def chunks_by_distance(
+    progress_m: npt.ArrayLike,
+    positions: npt.ArrayLike,
+    *,
+    chunk_length_m: float,
+    overlap_m: float,
+) -> list[ChunkRecord]:
+    """Split a route into overlapping chunks by distance travelled.
+
+    Chunk ``k`` spans ``[k * step, k * step + chunk_length_m]`` with
+    ``step = chunk_length_m - overlap_m``; the last one ends at the end of the route. A frame
+    belongs to every chunk whose span contains it: one or two (``overlap_m`` is less than half a
+    chunk). Chunks without frames (a gap in the recording) are dropped.
+
+    Args:
+        progress_m: ``(N,)`` non-decreasing distance travelled at each frame, metres.
+        positions: ``(N, 3)`` camera positions (for each chunk's centre), metres.
+        chunk_length_m: Chunk length, metres.
+        overlap_m: Overlap, metres, ``0 <= overlap_m < chunk_length_m / 2``.
+
+    Returns:
+        Chunks with consecutive ids, each listing its frame indices.
+    """
+    s = np.asarray(progress_m, dtype=np.float64)
+    p = np.asarray(positions, dtype=np.float64)
+    if s.ndim != 1 or p.shape != (s.shape[0], 3) or s.shape[0] == 0:
+        msg = f"need progress (N,) and positions (N, 3) with N >= 1, got {s.shape}, {p.shape}"
+        raise ValueError(msg)
+    if not (chunk_length_m > 0 and 0 <= overlap_m < chunk_length_m / 2):
+        msg = "need chunk_length_m > 0 and 0 <= overlap_m < chunk_length_m / 2, got "
+        msg += f"{chunk_length_m!r}, {overlap_m!r}"
+        raise ValueError(msg)
+    start, total = float(s[0]), float(s[-1])
+    step = chunk_length_m - overlap_m
+    n = 1 + max(0, math.ceil((total - start - chunk_length_m) / step - 1e-9))
+    starts = start + step * np.arange(n)
+    ends = np.minimum(starts + chunk_length_m, total)
+    ends[-1] = total
+    member = (s[None, :] >= starts[:, None] - 1e-9) & (s[None, :] <= ends[:, None] + 1e-9)
+    chunks: list[ChunkRecord] = []
+    for k in np.flatnonzero(member.any(axis=1)):
+        idx = np.flatnonzero(member[k])
+        chunks.append(
+            ChunkRecord(
+                id=len(chunks),
+                start_m=float(starts[k]),
+                end_m=float(ends[k]),
+                frames=[int(i) for i in idx],
+                center=[float(v) for v in p[idx].mean(axis=0)],
+            )
+        )
+    return chunks
+
+
+def camera_poses(
+    position: npt.ArrayLike, quat: npt.ArrayLike, mount: MountRecord
+) -> npt.NDArray[np.float64]:
+    """Camera poses ``T_world_cam = T_world_body o T_body_camera``.
+
+    Args:
+        position: ``(N, 3)`` body positions, world metres.
+        quat: ``(N, 4)`` body orientations ``(x, y, z, w)``, body -> world.
+        mount: The camera mount ``T_body_camera`` (optical axes).
+
+    Returns:
+        ``(N, 4, 4)`` float64, camera (optical) -> world.
+    """
+    pos = np.asarray(position, dtype=np.float64).reshape(-1, 3)
+    q = fr.quat_normalize(np.asarray(quat, dtype=np.float64).reshape(-1, 4))
+    T_body_cam = fr.Pose(np.asarray(mount.translation_m), np.asarray(mount.quat_xyzw)).as_matrix()
+    T_world_body = np.tile(np.eye(4), (pos.shape[0], 1, 1))
+    T_world_body[:, :3, :3] = fr.quat_to_matrix(q)
+    T_world_body[:, :3, 3] = pos
+    return T_world_body @ T_body_cam
+
+
+def voxel_downsample(
+    xyz: npt.ArrayLike, rgb: npt.ArrayLike, voxel_m: float
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uint8]]:
+    """Average points and colours per voxel.
+
+    Args:
+        xyz: ``(N, 3)`` positions, metres.
+        rgb: ``(N, 3)`` uint8 colours.
+        voxel_m: Voxel edge, metres.
+
+    Returns:
+        ``(M, 3)`` float64 voxel means and ``(M, 3)`` uint8 mean colours, ``M <= N``.
+    """
+    p = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    c = np.asarray(rgb).reshape(-1, 3)
+    if p.shape[0] == 0:
+        return p, c.astype(np.uint8)
+    keys = np.floor(p / voxel_m).astype(np.int64)
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    m = counts.shape[0]
+    out_p = np.stack([np.bincount(inverse, p[:, i], minlength=m) for i in range(3)], 1)
+    out_c = np.stack([np.bincount(inverse, c[:, i].astype(np.float64), m) for i in range(3)], 1)
+    return out_p / counts[:, None], np.round(out_c / counts[:, None]).astype(np.uint8)
+
+
+@dataclass(frozen=True, eq=False)
+class Undistorter:
+    """Undistortion of one camera to a pinhole camera of the same size.
+
+    Attributes:
+        K: ``(3, 3)`` recorded intrinsics.
+        K_new: ``(3, 3)`` intrinsics of the undistorted images.
+        size: ``(width, height)`` pixels.
+        maps: OpenCV remap tables, or None when there is no distortion (identity).
+    """
+
+    K: npt.NDArray[np.float64]
+    K_new: npt.NDArray[np.float64]
+    size: tuple[int, int]
+    maps: tuple[npt.NDArray[Any], npt.NDArray[Any]] | None  # cv2 map dtypes vary (int16/float)
+
+    def apply(self, image: npt.NDArray[Any], *, nearest: bool = False) -> npt.NDArray[Any]:
+        """Undistort an image or mask (``nearest`` for masks); out-of-view pixels become 0."""
+        import cv2  # noqa: PLC0415
+
+        if self.maps is None:
+            return image
+        interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
+        out: npt.NDArray[Any] = cv2.remap(
+            image, self.maps[0], self.maps[1], interp, borderMode=cv2.BORDER_CONSTANT
+        )
+        return out
+
+
+def undistorter(
+    K: npt.ArrayLike,
+    distortion: Sequence[float],
+    size: tuple[int, int],
+    *,
+    model: str = "plumb_bob",
+) -> Undistorter:
+    """Build the undistortion of a camera (alpha = 0: every output pixel sees the scene).
+
+    Args:
+        K: ``(3, 3)`` intrinsics, pixels.
+        distortion: plumb-bob ``(k1, k2, p1, p2[, k3, ...])`` or equidistant ``(k1..k4)``.
+        size: ``(width, height)`` pixels.
+        model: ``plumb_bob`` or ``equidistant``.
+
+    Returns:
+        The new intrinsics and remap tables.
+    """
+    import cv2  # noqa: PLC0415
+
+    K = np.asarray(K, dtype=np.float64).reshape(3, 3)
+    dist = np.asarray(distortion, dtype=np.float64)
+    if dist.size == 0 or not np.any(dist):
+        return Undistorter(K, K.copy(), size, None)
+    if model == "equidistant":
+        d4 = np.zeros(4)
+        d4[: min(4, dist.size)] = dist[:4]
+        K_new = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(
+            K, d4, size, np.eye(3), balance=0.0
+        )
+        maps = cv2.fisheye.initUndistortRectifyMap(K, d4, np.eye(3), K_new, size, cv2.CV_16SC2)
+    else:
+        K_new, _ = cv2.getOptimalNewCameraMatrix(K, dist, size, 0.0, size)
+        maps = cv2.initUndistortRectifyMap(K, dist, None, K_new, size, cv2.CV_16SC2)
+    return Undistorter(K, np.asarray(K_new, dtype=np.float64), size, (maps[0], maps[1]))
+
+
+# --------------------------------------------------------------------------------------------
+# Dataset input
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class _Source:
+    """The selected dataset frames."""
+
+    frame: npt.NDArray[np.int64]  # dataset frame numbers
+    stamp_ns: npt.NDArray[np.int64]
+    files: list[Path]
+    position: npt.NDArray[np.float64] | None  # (M, 3) body positions
+    quat: npt.NDArray[np.float64] | None
+    progress_m: npt.NDArray[np.float64] | None  # distance travelled at each selected frame
+
+
+def _load_dataset(paths: DatasetPaths) -> tuple[DatasetInfo, Calibration]:
+    if not paths.dataset_json.is_file():
+        msg = (
+            f"no dataset at {paths.root}; run `cam2sim extract` (or `cam2sim import`) before "
+            "preparing the splat scene"
+        )
+        raise StageError(msg)
+    try:
+        return DatasetInfo.load(paths.dataset_json), Calibration.load(paths.calibration_json)
+    except WorkspaceError as err:
+        msg = f"the dataset is incomplete ({err}); re-run `cam2sim extract`"
+        raise StageError(msg) from err
+
+
+def _select(paths: DatasetPaths, info: DatasetInfo, opts: PrepareOptions) -> _Source:
+    fmt = info.frame_format
+    if info.pose_less:
+        table = read_table(paths.frames_csv)
+        rows = np.arange(0, table["frame"].shape[0], opts.frame_step)
+        position = quat = progress = None
+    else:
+        table = read_table(paths.poses_csv)
+        xyz = np.stack([table["x"], table["y"], table["z"]], 1).astype(np.float64)
+        rows = select_by_distance(xyz, opts.spacing_m)
+        position = xyz[rows]
+        quat = np.stack([table[c] for c in ("qx", "qy", "qz", "qw")], 1).astype(np.float64)[rows]
+        progress = distance_travelled(xyz)[rows]
+    if opts.max_frames is not None:
+        rows = rows[: opts.max_frames]
+        position = None if position is None else position[: opts.max_frames]
+        quat = None if quat is None else quat[: opts.max_frames]
+        progress = None if progress is None else progress[: opts.max_frames]
+    if rows.shape[0] < 2:
+        msg = f"only {rows.shape[0]} frame(s) selected; record a longer drive or lower spacing_m"
+        raise StageError(msg)
+    frame = table["frame"][rows].astype(np.int64)
+    files = [paths.frame_file(int(i), fmt) for i in frame]
+    return _Source(frame, table["stamp_ns"][rows].astype(np.int64), files, position, quat, progress)
+
+
+def _read_rgb(path: Path) -> npt.NDArray[np.uint8]:
+    import cv2  # noqa: PLC0415
+
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        msg = f"{path} cannot be read; re-run `cam2sim extract`"
+        raise StageError(msg)
+    return np.asarray(cv2.cvtColor(image, cv2.COLOR_BGR2RGB), dtype=np.uint8)
+
+
+def _write_png(path: Path, image: npt.NDArray[Any], *, rgb: bool = False) -> None:
+    import cv2  # noqa: PLC0415
+
+    data = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if rgb else image
+    if not cv2.imwrite(str(path), data):
+        msg = f"cannot write {path}"
+        raise StageError(msg)
+
+
+# --------------------------------------------------------------------------------------------
+# Masks and views
+# --------------------------------------------------------------------------------------------
+
+
+def _hood(files: Sequence[Path], size: tuple[int, int], opts: PrepareOptions) -> tuple[Any, str]:
+    """The hood in recorded-image pixels (bool (H, W) or None) and a note saying where from."""
+    from cam2sim.splat import masks  # noqa: PLC0415
+
+    w, h = size
+    if opts.hood_polygon_px is not None:
+        return masks.hood_mask_from_polygon(h, w, opts.hood_polygon_px), "hood: config polygon"
+    if opts.hood_rows is not None:
+        return masks.hood_mask_from_rows(h, w, opts.hood_rows), f"hood: {opts.hood_rows} rows"
+    if not opts.detect_hood or len(files) < 3:
+        return None, "hood: none"
+    pick = np.unique(np.linspace(0, len(files) - 1, min(_HOOD_FRAMES, len(files))).astype(int))
+    found = masks.detect_hood_mask([_read_rgb(files[int(i)]) for i in pick])
+    if found is None:
+        return None, "hood: none detected"
+    return found, f"hood: detected ({100 * found.mean():.1f}% of the image)"
+
+
+def _sky_masks(images: list[npt.NDArray[np.uint8]], opts: PrepareOptions) -> list[Any]:
+    from cam2sim.splat import masks  # noqa: PLC0415
+
+    if opts.segformer is not None:
+        return masks.sky_mask_segformer(images, opts.segformer, device=opts.device)
+    return [masks.sky_mask_classical(im) for im in images]
+
+
+@dataclass(frozen=True, eq=False)
+class _Views:
+    """Where the undistorted views were written."""
+
+    images: list[Path]
+    masks: list[Path]
+
+
+def _write_views(
+    files: Sequence[Path],
+    undist: Undistorter,
+    hood_raw: npt.NDArray[np.bool_] | None,
+    out: Path,
+    opts: PrepareOptions | None,
+    report: ProgressCallback,
+) -> _Views:
+    """Undistort frames into ``out/images``, ``out/masks`` and (when ``opts``) ``out/sky``."""
+    w, h = undist.size
+    valid = undist.apply(np.full((h, w), 255, np.uint8), nearest=True) > 0
+    hood = (
+        undist.apply(hood_raw.astype(np.uint8), nearest=True) > 0 if hood_raw is not None else None
+    )
+    keep = valid & ~hood if hood is not None else valid
+    for name in ("images", "masks") + (("sky",) if opts is not None else ()):
+        (out / name).mkdir(parents=True, exist_ok=True)
+    views = _Views([], [])
+    for start in range(0, len(files), _SKY_BATCH):
+        block = [undist.apply(_read_rgb(f)) for f in files[start : start + _SKY_BATCH]]
+        skies = _sky_masks(block, opts) if opts is not None else [None] * len(block)
+        for offset, (image, sky) in enumerate(zip(block, skies, strict=True)):
+            stem = f"{start + offset:06d}.png"
+            _write_png(out / "images" / stem, image, rgb=True)
+            _write_png(out / "masks" / stem, np.where(keep, 255, 0).astype(np.uint8))
+            if sky is not None:
+                _write_png(out / "sky" / stem, np.where(sky & keep, 255, 0).astype(np.uint8))
+            views.images.append(out / "images" / stem)
+            views.masks.append(out / "masks" / stem)
+        report("frames", min(start + _SKY_BATCH, len(files)), len(files))
+    return views
+
+
+# --------------------------------------------------------------------------------------------
+# Points
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class _Points:
+    xyz: npt.NDArray[np.float64]
+    rgb: npt.NDArray[np.uint8]
+    source: npt.NDArray[np.uint8]
+
+    @classmethod
+    def empty(cls) -> _Points:
+        return cls(np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros(0, np.uint8))
+
+    def __add__(self, other: _Points) -> _Points:
+        return _Points(
+            np.concatenate([self.xyz, other.xyz]),
+            np.concatenate([self.rgb, other.rgb]),
+            np.concatenate([self.source, other.source]),
+        )
+
+
+def _colour_from_view(
+    xyz: npt.NDArray[np.float64],
+    T_world_cam: npt.NDArray[np.float64],
+    K: npt.NDArray[np.float64],
+    image: npt.NDArray[np.uint8],
+    mask: npt.NDArray[np.uint8],
+) -> npt.NDArray[np.uint8]:
+    """Colours of world points seen in one view; grey where not visible."""
+    T_cam_world = np.linalg.inv(T_world_cam)
+    cam = xyz @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    z = cam[:, 2]
+    safe = np.where(z > 0.1, z, 1.0)
+    u = np.round(K[0, 0] * cam[:, 0] / safe + K[0, 2]).astype(np.int64)
+    v = np.round(K[1, 1] * cam[:, 1] / safe + K[1, 2]).astype(np.int64)
+    h, w = image.shape[:2]
+    seen = (z > 0.1) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    seen[seen] &= mask[v[seen], u[seen]] > 0
+    rgb = np.full((xyz.shape[0], 3), _GREY, np.uint8)
+    rgb[seen] = image[v[seen], u[seen]]
+    return rgb
+
+
+def _lidar_points(
+    paths: DatasetPaths,
+    stamps: npt.NDArray[np.int64],
+    poses: npt.NDArray[np.float64],
+    K: npt.NDArray[np.float64],
+    views: _Views,
+    opts: PrepareOptions,
+) -> _Points:
+    """LiDAR scans in the world frame, coloured from the nearest frame, voxel-downsampled."""
+    table = read_table(paths.lidar_csv)
+    n = table["scan"].shape[0]
+    if n == 0:
+        return _Points.empty()
+    pos = np.stack([table["x"], table["y"], table["z"]], 1).astype(np.float64)
+    rot = fr.quat_to_matrix(np.stack([table[c] for c in ("qx", "qy", "qz", "qw")], 1))
+    scan_ns = table["stamp_ns"].astype(np.int64)
+    nearest = np.clip(np.searchsorted(stamps, scan_ns), 0, len(stamps) - 1)
+    before = np.clip(nearest - 1, 0, len(stamps) - 1)
+    closer = np.abs(stamps[before] - scan_ns) < np.abs(stamps[nearest] - scan_ns)
+    nearest = np.where(closer, before, nearest)
+    acc = _Points.empty()
+    cached: tuple[int, npt.NDArray[np.uint8], npt.NDArray[np.uint8]] | None = None
+    for i in range(n):
+        scan = np.load(paths.lidar_file(int(table["scan"][i])))
+        local = np.stack([scan[c] for c in ("x", "y", "z")], 1).astype(np.float64)
+        near = np.linalg.norm(local, axis=1) <= _LIDAR_MIN_RANGE_M
+        local = local[np.isfinite(local).all(1) & ~near]
+        world = local @ rot[i].T + pos[i]
+        j = int(nearest[i])
+        if cached is None or cached[0] != j:
+            cached = (j, _read_rgb(views.images[j]), _read_mask(views.masks[j]))
+        rgb = _colour_from_view(world, poses[j], K, cached[1], cached[2])
+        xyz_d, rgb_d = voxel_downsample(world, rgb, opts.lidar_voxel_m)
+        acc = acc + _Points(xyz_d, rgb_d, np.ones(len(xyz_d), np.uint8))
+        if i % _LIDAR_COMPACT_EVERY == _LIDAR_COMPACT_EVERY - 1 or i == n - 1:
+            xyz, rgb = voxel_downsample(acc.xyz, acc.rgb, opts.lidar_voxel_m)
+            acc = _Points(xyz, rgb, np.ones(len(xyz), np.uint8))
+    logger.info("lidar: %d scans -> %d points (%.2f m voxels)", n, len(acc.xyz), opts.lidar_voxel_m)
+    return acc
+
+
+def _read_mask(path: Path) -> npt.NDArray[np.uint8]:
+    import cv2  # noqa: PLC0415
+
+    mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if mask is None:
+        msg = f"{path} cannot be read"
+        raise StageError(msg)
+    return np.asarray(mask, dtype=np.uint8)
+
+
+# --------------------------------------------------------------------------------------------
+# The stage step
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class _Posed:
+    """Frames with final poses and intrinsics, ready to be recorded."""
+
+    source: _Source
+    poses: npt.NDArray[np.float64]  # (M, 4, 4) T_world_cam
+    K_new: npt.NDArray[np.float64]
+    size: tuple[int, int]
+    views: _Views
+    points: _Points
+    progress_m: npt.NDArray[np.float64]
+    pose_source: str
+    scale_ambiguous: bool
+    notes: list[str]
+
+
+def prepare_scene(
+    ws: Workspace,
+    *,
+    options: PrepareOptions | None = None,
+    progress: ProgressCallback | None = None,
+) -> SceneRecord:
+    """Prepare the splat training scene ``WS/splat/prep/`` from ``WS/dataset/``.
+
+    The folder is built beside the old one and swapped in at the end; an error leaves the old
+    one in place. See the module docstring for the steps.
+
+    Args:
+        ws: The workspace.
+        options: Selection, mask, chunk and point options.
+        progress: Reports ``frames``, ``triangulation``/``sfm`` and ``lidar`` steps.
+
+    Returns:
+        The scene record also written to ``scene.json``.
+
+    Raises:
+        StageError: No dataset (run ``cam2sim extract``), too few frames, or reconstruction
+            failed.
+        BackendUnavailableError: pycolmap (or transformers for SegFormer) is missing.
+    """
+    opts = options or PrepareOptions()
+    report = progress or no_progress
+    paths = DatasetPaths(ws.dataset_dir)
+    info, calib = _load_dataset(paths)
+    source = _select(paths, info, opts)
+    size = _frame_size(source.files[0])
+    logger.info("splat prep: %d frames selected from %s", len(source.files), paths.root)
+    if calib.camera is not None and (calib.camera.width, calib.camera.height) != size:
+        msg = (
+            f"calibration.json is for {calib.camera.width}x{calib.camera.height} images but the "
+            f"frames are {size[0]}x{size[1]}; fix the calibration and re-run `cam2sim extract`"
+        )
+        raise StageError(msg)
+    with atomic_folder(ws.splat_dir / PREP_DIR) as tmp:
+        hood, hood_note = _hood(source.files, size, opts)
+        if info.pose_less or calib.camera is None:
+            posed = _with_sfm(source, calib, hood, tmp, opts, report)
+        else:
+            posed = _with_poses(source, calib.camera, calib.camera_mount, hood, tmp, opts, report)
+        if source.position is not None and not posed.scale_ambiguous and _has_lidar(paths):
+            report("lidar", 0, 1)
+            stamps = posed.source.stamp_ns
+            lidar = _lidar_points(paths, stamps, posed.poses, posed.K_new, posed.views, opts)
+            posed = replace(posed, points=posed.points + lidar)
+            posed.notes.append(f"points: {len(lidar.xyz)} from LiDAR")
+            report("lidar", 1, 1)
+        pts = posed.points
+        save_points(tmp / "points.npz", pts.xyz.astype(np.float32), pts.rgb, pts.source)
+        scene = _scene_record(posed, [hood_note, *posed.notes], opts)
+        scene.save(tmp / "scene.json")
+    logger.info(
+        "splat prep: %d frames, %d chunks, %d points (%s poses%s)",
+        len(scene.frames),
+        len(scene.chunks),
+        len(posed.points.xyz),
+        scene.pose_source,
+        ", scale ambiguous" if scene.scale_ambiguous else "",
+    )
+    return scene
+
+
+def _has_lidar(paths: DatasetPaths) -> bool:
+    return paths.lidar_csv.is_file() and paths.lidar_dir.is_dir()
+
+
+def _frame_size(path: Path) -> tuple[int, int]:
+    image = _read_rgb(path)
+    return int(image.shape[1]), int(image.shape[0])
+
+
+def _with_poses(
+    source: _Source,
+    camera: CameraIntrinsics,
+    mount: MountRecord,
+    hood: npt.NDArray[np.bool_] | None,
+    out: Path,
+    opts: PrepareOptions,
+    report: ProgressCallback,
+) -> _Posed:
+    """Recorded poses and calibration: undistort, triangulate (optionally refine)."""
+    assert source.position is not None
+    assert source.quat is not None
+    assert source.progress_m is not None
+    undist = undistorter(
+        camera.K, camera.distortion, (camera.width, camera.height), model=camera.distortion_model
+    )
+    views = _write_views(source.files, undist, hood, out, opts, report)
+    poses = camera_poses(source.position, source.quat, mount)
+    points, pose_source, notes = _Points.empty(), "recording", []
+    if opts.triangulate:
+        tri = triangulate_known_poses(
+            views.images,
+            [KnownView(undist.K_new, T) for T in poses],
+            views.masks,
+            window=opts.match_window,
+            refine=opts.refine_poses,
+            # Full resolution from the first octave: about 3x faster than upsampled SIFT.
+            features=FeatureOptions(window=opts.match_window, first_octave=0),
+            progress=report,
+        )
+        points = _Points(tri.points.xyz, tri.points.rgb, np.zeros(len(tri.points), np.uint8))
+        notes.append(
+            f"points: {len(tri.points)} triangulated "
+            f"({tri.mean_reprojection_error_px:.2f} px mean reprojection error)"
+        )
+        if tri.refined:
+            poses, pose_source = tri.T_world_cam, "refined"
+    return _Posed(
+        source,
+        poses,
+        undist.K_new,
+        undist.size,
+        views,
+        points,
+        source.progress_m,
+        pose_source,
+        scale_ambiguous=False,
+        notes=notes,
+    )
+
+
+def _with_sfm(
+    source: _Source,
+    calib: Calibration,
+    hood: npt.NDArray[np.bool_] | None,
+    out: Path,
+    opts: PrepareOptions,
+    report: ProgressCallback,
+) -> _Posed:
+    """No poses, or no intrinsics: images-only SfM (aligned to the recorded poses if any)."""
+    camera = calib.camera
+    with tempfile.TemporaryDirectory(prefix="cam2sim-sfm-in-") as work_name:
+        work = Path(work_name)
+        if camera is not None:
+            # Known intrinsics: SfM on the undistorted frames with K held fixed.
+            size = (camera.width, camera.height)
+            undist = undistorter(camera.K, camera.distortion, size, model=camera.distortion_model)
+            staged = _write_views(source.files, undist, hood, work, None, report)
+            K = undist.K_new
+            sfm_opts = replace(
+                opts.sfm,
+                camera_model="PINHOLE",
+                camera_params=(K[0, 0], K[1, 1], K[0, 2], K[1, 2]),
+            )
+            names = [p.name for p in staged.images]
+            result = sfm_images_only(staged.images, staged.masks, options=sfm_opts, progress=report)
+        else:
+            # Unknown intrinsics: SfM on the recorded frames, self-calibrating at the end.
+            masks = None
+            if hood is not None:
+                _write_png(work / "hood.png", np.where(hood, 0, 255).astype(np.uint8))
+                masks = [work / "hood.png"] * len(source.files)
+            names = [p.name for p in source.files]
+            result = sfm_images_only(source.files, masks, options=opts.sfm, progress=report)
+            cam = result.camera
+            undist = undistorter(cam.K(), cam.distortion(), (cam.width, cam.height))
+    return _posed_from_sfm(
+        _SfmInput(source, result, names, calib.camera_mount), undist, hood, out, opts, report
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class _SfmInput:
+    source: _Source
+    result: SfmResult
+    names: list[str]  # file names SfM saw, in source order
+    mount: MountRecord
+
+
+def _posed_from_sfm(
+    sfm: _SfmInput,
+    undist: Undistorter,
+    hood: npt.NDArray[np.bool_] | None,
+    out: Path,
+    opts: PrepareOptions,
+    report: ProgressCallback,
+) -> _Posed:
+    source, result = sfm.source, sfm.result
+    index = {n: i for i, n in enumerate(sfm.names)}
+    rows = np.array([index[n] for n in result.names], dtype=np.int64)
+    if rows.shape[0] < 2:
+        msg = f"SfM registered {rows.shape[0]} of {len(sfm.names)} frames; cannot prepare a scene"
+        raise StageError(msg)
+    kept = _Source(
+        source.frame[rows],
+        source.stamp_ns[rows],
+        [source.files[i] for i in rows],
+        None if source.position is None else source.position[rows],
+        None if source.quat is None else source.quat[rows],
+        None if source.progress_m is None else source.progress_m[rows],
+    )
+    notes = [
+        (
+            f"sfm ({result.mapper}): {result.registered} of {result.total_images} frames "
+            f"registered, {result.mean_reprojection_error_px:.2f} px mean reprojection error, "
+            f"camera {result.camera.model} {tuple(round(p, 4) for p in result.camera.params)}"
+        )
+    ]
+    poses, xyz = result.T_world_cam, result.points.xyz
+    scale_ambiguous = True
+    if kept.position is not None and kept.quat is not None and rows.shape[0] >= 3:
+        recorded = camera_poses(kept.position, kept.quat, sfm.mount)
+        S = similarity_from_poses(poses, recorded)
+        poses = apply_similarity(S, poses)
+        xyz = xyz @ S[:3, :3].T + S[:3, 3]
+        residual = np.linalg.norm(poses[:, :3, 3] - recorded[:, :3, 3], axis=1)
+        notes.append(
+            f"sfm aligned to the recorded positions ({residual.mean():.2f} m mean residual)"
+        )
+        scale_ambiguous = False
+    views = _write_views(kept.files, undist, hood, out, opts, report)
+    if not scale_ambiguous and kept.progress_m is not None:
+        progress_m = kept.progress_m
+    else:
+        progress_m = distance_travelled(poses[:, :3, 3])
+        notes.append("scale ambiguous: progress in SfM units, one chunk")
+    points = _Points(xyz, result.points.rgb, np.zeros(len(xyz), np.uint8))
+    notes.append(f"points: {len(xyz)} from SfM")
+    return _Posed(
+        kept,
+        poses,
+        undist.K_new,
+        undist.size,
+        views,
+        points,
+        progress_m,
+        "sfm",
+        scale_ambiguous,
+        notes,
+    )
+
+
+def _scene_record(posed: _Posed, notes: list[str], opts: PrepareOptions) -> SceneRecord:
+    centres = posed.poses[:, :3, 3]
+    if posed.scale_ambiguous:
+        s = posed.progress_m
+        chunks = [
+            ChunkRecord(
+                id=0,
+                start_m=float(s[0]),
+                end_m=float(s[-1]),
+                frames=list(range(len(s))),
+                center=[float(v) for v in centres.mean(axis=0)],
+            )
+        ]
+    else:
+        chunks = chunks_by_distance(
+            posed.progress_m, centres, chunk_length_m=opts.chunk_length_m, overlap_m=opts.overlap_m
+        )
+    member: dict[int, list[int]] = {}
+    for chunk in chunks:
+        for i in chunk.frames:
+            member.setdefault(i, []).append(chunk.id)
+    K = posed.K_new
+    w, h = posed.size
+    frame_records = [
+        FrameRecord(
+            index=i,
+            dataset_frame=int(posed.source.frame[i]),
+            stamp_ns=int(posed.source.stamp_ns[i]),
+            T_world_cam=posed.poses[i].tolist(),
+            fx=float(K[0, 0]),
+            fy=float(K[1, 1]),
+            cx=float(K[0, 2]),
+            cy=float(K[1, 2]),
+            width=w,
+            height=h,
+            held_out=opts.held_out_every > 0 and i % opts.held_out_every == 0,
+            chunks=member.get(i, []),
+            progress_m=float(posed.progress_m[i]),
+        )
+        for i in range(len(posed.source.frame))
+    ]
+    return SceneRecord(
+        frames=frame_records,
+        chunks=chunks,
+        scale_ambiguous=posed.scale_ambiguous,
+        pose_source=posed.pose_source,
+        notes=notes,
+    )

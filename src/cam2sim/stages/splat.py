@@ -1,0 +1,105 @@
+"""Stage splat: prepare the recording for Gaussian splatting, train chunk models, evaluate them.
+
+``WS/splat/prep/`` (frames, masks, initial points: :mod:`cam2sim.splat.prepare`),
+``WS/splat/models/chunk_XX.pt`` (:mod:`cam2sim.splat.train`; gsplat on CUDA, the pure-torch
+rasterizer on CPU) and ``WS/splat/eval.json`` (:mod:`cam2sim.splat.evaluate`).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+from cam2sim.core.errors import StageError
+from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.workspace import Workspace, hash_inputs
+from cam2sim.stages._runner import stage_run
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from cam2sim.splat.evaluate import SplatEval
+    from cam2sim.splat.prepare import PrepareOptions
+    from cam2sim.splat.train import SceneTrainResult, TrainOptions
+
+__all__ = ["SplatResult", "SplatStageOptions", "run_splat"]
+
+logger = logging.getLogger(__name__)
+STAGE = "splat"
+
+
+@dataclass(frozen=True)
+class SplatStageOptions:
+    """What ``cam2sim splat`` does; None options take each step's defaults."""
+
+    prepare: PrepareOptions | None = None
+    train: TrainOptions | None = None
+    evaluate: bool = True
+    lpips_weights: Path | None = None
+    offsets_m: tuple[float, ...] = (-2.0, -1.0, -0.5, 0.5, 1.0, 2.0)
+    steps: tuple[str, ...] = field(default=("prepare", "train", "evaluate"))
+
+
+@dataclass(frozen=True)
+class SplatResult:
+    """Paths and outcomes of the splat stage."""
+
+    prep_dir: Path
+    models_dir: Path
+    trained: SceneTrainResult | None
+    evaluation: SplatEval | None
+
+
+def run_splat(
+    ws: Workspace,
+    *,
+    options: SplatStageOptions | None = None,
+    force: bool = False,
+    progress: ProgressCallback | None = None,
+) -> SplatResult:
+    """Run preparation, training and evaluation of the workspace's splat models.
+
+    Raises:
+        StageError: No dataset, or a step failed (the message says which).
+        BackendUnavailableError: pycolmap, torch or gsplat (on CUDA) is missing.
+    """
+    from cam2sim.splat.evaluate import evaluate_splat  # noqa: PLC0415
+    from cam2sim.splat.prepare import prepare_scene  # noqa: PLC0415
+    from cam2sim.splat.scene import SceneRecord  # noqa: PLC0415
+    from cam2sim.splat.train import train_scene  # noqa: PLC0415
+
+    opts = options or SplatStageOptions()
+    report = progress or no_progress
+    record = ws.stage_record("extract")
+    if record is None or record.state != "done":
+        msg = f"{ws.root} has no dataset; run `cam2sim extract {ws.root}` (or import) first"
+        raise StageError(msg)
+    prep_dir = ws.splat_dir / "prep"
+    models_dir = ws.splat_dir / "models"
+    inputs = hash_inputs({"dataset": record.inputs_hash, "options": repr(opts)})
+    if not force and ws.is_up_to_date(STAGE, inputs):
+        logger.info("splat: up to date; skipping")
+        return SplatResult(prep_dir, models_dir, None, None)
+    trained = evaluation = None
+    with stage_run(ws, STAGE, inputs_hash=inputs, config=None):
+        if "prepare" in opts.steps:
+            prepare_scene(ws, options=opts.prepare, progress=report)
+        if not (prep_dir / "scene.json").is_file():
+            msg = f"{prep_dir} holds no prepared scene; run `cam2sim splat {ws.root}` fully"
+            raise StageError(msg)
+        scene = SceneRecord.load(prep_dir / "scene.json")
+        if "train" in opts.steps:
+            trained = train_scene(
+                prep_dir, options=opts.train, models_dir=models_dir, progress=report, scene=scene
+            )
+        if opts.evaluate and "evaluate" in opts.steps:
+            evaluation = evaluate_splat(
+                prep_dir,
+                models_dir,
+                offsets=() if scene.scale_ambiguous else opts.offsets_m,
+                lpips_weights=opts.lpips_weights,
+                out_path=ws.splat_dir / "eval.json",
+                progress=report,
+            )
+    return SplatResult(prep_dir, models_dir, trained, evaluation)

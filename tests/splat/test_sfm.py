@@ -1,0 +1,172 @@
+"""SfM: known-pose triangulation on a rendered scene; images-only SfM on real frames."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from cam2sim.splat.sfm import (
+    FeatureOptions,
+    KnownView,
+    SfmCamera,
+    SfmOptions,
+    apply_similarity,
+    sfm_images_only,
+    similarity_from_poses,
+    triangulate_known_poses,
+)
+
+pytest.importorskip("pycolmap")
+
+W, H = 320, 240
+K = np.array([[260.0, 0.0, 160.0], [0.0, 260.0, 120.0], [0.0, 0.0, 1.0]])
+UDACITY = Path(__file__).resolve().parents[3] / "shared" / "data" / "images" / "udacity-ch2"
+
+# Two textured walls facing the cameras: (origin, axis a, axis b, texture metres per pixel).
+WALLS = (
+    (np.array([-6.0, -2.5, 8.0]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), 0.012),
+    (np.array([-1.0, -1.5, 5.0]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), 0.006),
+)
+
+
+def _texture(seed: int, size: int = 512) -> np.ndarray:
+    """Blob texture at several scales (SIFT-friendly), RGB uint8."""
+    rng = np.random.default_rng(seed)
+    out = np.zeros((size, size, 3), np.float64)
+    for cells in (8, 24, 64):
+        noise = rng.random((cells, cells, 3))
+        out += cv2.resize(noise, (size, size), interpolation=cv2.INTER_CUBIC)
+    out -= out.min()
+    return (255 * out / out.max()).astype(np.uint8)
+
+
+def render(T_world_cam: np.ndarray) -> np.ndarray:
+    """Render the walls (far first) through a pinhole camera ``K`` at ``T_world_cam``."""
+    T_cam_world = np.linalg.inv(T_world_cam)
+    R, t = T_cam_world[:3, :3], T_cam_world[:3, 3]
+    image = np.full((H, W, 3), 90, np.uint8)
+    for k, (origin, a, b, scale) in enumerate(WALLS):
+        tex = _texture(k)
+        Hmat = K @ np.column_stack([R @ (scale * a), R @ (scale * b), R @ origin + t])
+        warped = cv2.warpPerspective(tex, Hmat, (W, H), flags=cv2.INTER_LINEAR)
+        cover = cv2.warpPerspective(np.full(tex.shape[:2], 255, np.uint8), Hmat, (W, H)) > 128
+        image[cover] = warped[cover]
+    return image
+
+
+def wall_distance(xyz: np.ndarray) -> np.ndarray:
+    """Distance of points to the nearest wall (planes z = 5 within its extent, else z = 8)."""
+    origin, _, _, scale = WALLS[1]
+    near = (
+        (xyz[:, 0] >= origin[0])
+        & (xyz[:, 0] <= origin[0] + 512 * scale)
+        & (xyz[:, 1] >= origin[1])
+        & (xyz[:, 1] <= origin[1] + 512 * scale)
+    )
+    return np.where(near, np.abs(xyz[:, 2] - 5.0), np.abs(xyz[:, 2] - 8.0))
+
+
+def camera_track(n: int = 10, step_m: float = 0.25) -> np.ndarray:
+    """Cameras sliding sideways (x) and a little forward (z), looking along +z."""
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, 0, 3] = np.arange(n) * step_m - 1.0
+    poses[:, 2, 3] = np.arange(n) * 0.05
+    return poses
+
+
+def _write_views(folder: Path, poses: np.ndarray) -> list[Path]:
+    folder.mkdir(parents=True, exist_ok=True)
+    files = []
+    for i, T in enumerate(poses):
+        path = folder / f"{i:06d}.png"
+        cv2.imwrite(str(path), cv2.cvtColor(render(T), cv2.COLOR_RGB2BGR))
+        files.append(path)
+    return files
+
+
+def test_similarity_from_poses_recovers_roll_about_a_straight_track() -> None:
+    src = camera_track(6)
+    src[:, 2, 3] = 0.0  # centres exactly on a line: the centres alone leave the roll free
+    angle = 0.7
+    S = np.eye(4)
+    S[:3, :3] = 2.5 * np.array(
+        [[1.0, 0, 0], [0, np.cos(angle), -np.sin(angle)], [0, np.sin(angle), np.cos(angle)]]
+    )
+    S[:3, 3] = [1.0, -2.0, 3.0]
+    dst = apply_similarity(S, src)
+    assert np.allclose(similarity_from_poses(src, dst), S, atol=1e-9)
+    assert np.allclose(dst[:, :3, 3], src[:, :3, 3] @ S[:3, :3].T + S[:3, 3])
+
+
+def test_sfm_camera_converts_simple_radial_to_opencv() -> None:
+    cam = SfmCamera("SIMPLE_RADIAL", 640, 480, (500.0, 320.0, 240.0, -0.1))
+    assert np.allclose(cam.K(), [[500, 0, 320], [0, 500, 240], [0, 0, 1]])
+    assert cam.distortion() == (-0.1, 0.0, 0.0, 0.0)
+
+
+def test_triangulate_known_poses_recovers_walls_within_centimetres(tmp_path: Path) -> None:
+    poses = camera_track()
+    files = _write_views(tmp_path / "images", poses)
+    result = triangulate_known_poses(
+        files, [KnownView(K, T) for T in poses], window=5, features=FeatureOptions(num_threads=2)
+    )
+    assert len(result.points) > 300
+    err = wall_distance(result.points.xyz)
+    assert np.median(err) < 0.03
+    assert np.quantile(err, 0.9) < 0.08
+    assert result.mean_reprojection_error_px < 1.0
+    assert np.array_equal(result.T_world_cam, poses)
+
+
+def test_triangulate_known_poses_refine_keeps_the_recorded_frame(tmp_path: Path) -> None:
+    poses = camera_track()
+    files = _write_views(tmp_path / "images", poses)
+    noisy = poses.copy()
+    noisy[1:, :3, 3] += np.random.default_rng(0).normal(scale=0.01, size=(len(poses) - 1, 3))
+    result = triangulate_known_poses(
+        files,
+        [KnownView(K, T) for T in noisy],
+        window=5,
+        refine=True,
+        features=FeatureOptions(num_threads=2),
+    )
+    assert result.refined
+    moved = np.linalg.norm(result.T_world_cam[:, :3, 3] - poses[:, :3, 3], axis=1)
+    assert moved.max() < 0.05
+    assert np.median(wall_distance(result.points.xyz)) < 0.05
+
+
+def test_triangulate_known_poses_rejects_mismatched_views(tmp_path: Path) -> None:
+    files = _write_views(tmp_path / "images", camera_track(3))
+    with pytest.raises(ValueError, match="one KnownView per image"):
+        triangulate_known_poses(files, [KnownView(K, np.eye(4))])
+
+
+@pytest.mark.requires_shared_data
+def test_sfm_images_only_registers_real_udacity_frames() -> None:
+    if not UDACITY.is_dir():
+        pytest.skip(f"real data not found at {UDACITY}")
+    files = sorted(UDACITY.glob("*.jpg"))[:40:2]
+    result = sfm_images_only(files, options=SfmOptions(mapper="global"))
+    assert result.registered == len(files)
+    assert result.scale_ambiguous
+    assert result.mean_reprojection_error_px < 1.5
+    assert len(result.points) > 500
+    centres = result.T_world_cam[:, :3, 3]
+    # The car drives forward: camera centres advance along the optical axis.
+    forward = result.T_world_cam[0, :3, 2]
+    assert np.all(np.diff(centres @ forward) > 0)
+
+
+def test_sfm_without_pycolmap_names_the_extra(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from cam2sim.core.errors import BackendUnavailableError
+
+    monkeypatch.setitem(sys.modules, "pycolmap", None)
+    with pytest.raises(BackendUnavailableError, match=r"pip install cam2sim\[splat\]"):
+        sfm_images_only([tmp_path / "a.png", tmp_path / "b.png"])
