@@ -26,7 +26,6 @@ then aligned to the recorded camera centres by a similarity, so the world frame 
 from __future__ import annotations
 
 import logging
-import math
 import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -42,6 +41,15 @@ from cam2sim.core.files import atomic_folder
 from cam2sim.core.progress import no_progress
 from cam2sim.core.table import read_table
 from cam2sim.core.workspace import DatasetPaths
+from cam2sim.splat.geometry import (
+    Undistorter,
+    camera_poses,
+    chunks_by_distance,
+    distance_travelled,
+    select_by_distance,
+    undistorter,
+    voxel_downsample,
+)
 from cam2sim.splat.scene import ChunkRecord, FrameRecord, SceneRecord, save_points
 from cam2sim.splat.sfm import (
     FeatureOptions,
@@ -143,211 +151,6 @@ class PrepareOptions:
             problems.append(f"lidar_voxel_m must be > 0, got {self.lidar_voxel_m!r}")
         if problems:
             raise ValueError("; ".join(problems))
-
-
-# --------------------------------------------------------------------------------------------
-# Geometry helpers (pure, vectorised)
-# --------------------------------------------------------------------------------------------
-
-
-def distance_travelled(positions: npt.ArrayLike) -> npt.NDArray[np.float64]:
-    """Cumulative path length along ``(N, 3)`` positions: ``(N,)`` metres, starting at 0."""
-    p = np.asarray(positions, dtype=np.float64)
-    if p.ndim != 2 or p.shape[1] != 3:
-        msg = f"positions must be (N, 3), got {p.shape}"
-        raise ValueError(msg)
-    steps = np.linalg.norm(np.diff(p, axis=0), axis=1)
-    return np.concatenate([[0.0], np.cumsum(steps)])
-
-
-def select_by_distance(positions: npt.ArrayLike, spacing_m: float) -> npt.NDArray[np.int64]:
-    """Pick one frame every ``spacing_m`` metres of distance travelled.
-
-    For each multiple ``k * spacing_m`` of the path length the first frame at or beyond it is
-    taken (so frames while standing still are skipped, and a fast stretch with fewer frames than
-    targets keeps every frame once).
-
-    Args:
-        positions: ``(N, 3)`` positions in recording order, metres.
-        spacing_m: Spacing, metres; 0 keeps every frame.
-
-    Returns:
-        ``(M,)`` int64 sorted unique indices into ``positions`` (the first frame always).
-    """
-    s = distance_travelled(positions)
-    if spacing_m <= 0 or s.shape[0] == 0:
-        return np.arange(s.shape[0], dtype=np.int64)
-    targets = np.arange(0.0, s[-1] + 1e-9, spacing_m)
-    idx = np.searchsorted(s, targets - 1e-9, side="left")
-    return np.unique(np.clip(idx, 0, s.shape[0] - 1)).astype(np.int64)
-
-
-def chunks_by_distance(
-    progress_m: npt.ArrayLike,
-    positions: npt.ArrayLike,
-    *,
-    chunk_length_m: float,
-    overlap_m: float,
-) -> list[ChunkRecord]:
-    """Split a route into overlapping chunks by distance travelled.
-
-    Chunk ``k`` spans ``[k * step, k * step + chunk_length_m]`` with
-    ``step = chunk_length_m - overlap_m``; the last one ends at the end of the route. A frame
-    belongs to every chunk whose span contains it: one or two (``overlap_m`` is less than half a
-    chunk). Chunks without frames (a gap in the recording) are dropped.
-
-    Args:
-        progress_m: ``(N,)`` non-decreasing distance travelled at each frame, metres.
-        positions: ``(N, 3)`` camera positions (for each chunk's centre), metres.
-        chunk_length_m: Chunk length, metres.
-        overlap_m: Overlap, metres, ``0 <= overlap_m < chunk_length_m / 2``.
-
-    Returns:
-        Chunks with consecutive ids, each listing its frame indices.
-    """
-    s = np.asarray(progress_m, dtype=np.float64)
-    p = np.asarray(positions, dtype=np.float64)
-    if s.ndim != 1 or p.shape != (s.shape[0], 3) or s.shape[0] == 0:
-        msg = f"need progress (N,) and positions (N, 3) with N >= 1, got {s.shape}, {p.shape}"
-        raise ValueError(msg)
-    if not (chunk_length_m > 0 and 0 <= overlap_m < chunk_length_m / 2):
-        msg = "need chunk_length_m > 0 and 0 <= overlap_m < chunk_length_m / 2, got "
-        msg += f"{chunk_length_m!r}, {overlap_m!r}"
-        raise ValueError(msg)
-    start, total = float(s[0]), float(s[-1])
-    step = chunk_length_m - overlap_m
-    n = 1 + max(0, math.ceil((total - start - chunk_length_m) / step - 1e-9))
-    starts = start + step * np.arange(n)
-    ends = np.minimum(starts + chunk_length_m, total)
-    ends[-1] = total
-    member = (s[None, :] >= starts[:, None] - 1e-9) & (s[None, :] <= ends[:, None] + 1e-9)
-    chunks: list[ChunkRecord] = []
-    for k in np.flatnonzero(member.any(axis=1)):
-        idx = np.flatnonzero(member[k])
-        chunks.append(
-            ChunkRecord(
-                id=len(chunks),
-                start_m=float(starts[k]),
-                end_m=float(ends[k]),
-                frames=[int(i) for i in idx],
-                center=[float(v) for v in p[idx].mean(axis=0)],
-            )
-        )
-    return chunks
-
-
-def camera_poses(
-    position: npt.ArrayLike, quat: npt.ArrayLike, mount: MountRecord
-) -> npt.NDArray[np.float64]:
-    """Camera poses ``T_world_cam = T_world_body o T_body_camera``.
-
-    Args:
-        position: ``(N, 3)`` body positions, world metres.
-        quat: ``(N, 4)`` body orientations ``(x, y, z, w)``, body -> world.
-        mount: The camera mount ``T_body_camera`` (optical axes).
-
-    Returns:
-        ``(N, 4, 4)`` float64, camera (optical) -> world.
-    """
-    pos = np.asarray(position, dtype=np.float64).reshape(-1, 3)
-    q = fr.quat_normalize(np.asarray(quat, dtype=np.float64).reshape(-1, 4))
-    T_body_cam = fr.Pose(np.asarray(mount.translation_m), np.asarray(mount.quat_xyzw)).as_matrix()
-    T_world_body = np.tile(np.eye(4), (pos.shape[0], 1, 1))
-    T_world_body[:, :3, :3] = fr.quat_to_matrix(q)
-    T_world_body[:, :3, 3] = pos
-    return T_world_body @ T_body_cam
-
-
-def voxel_downsample(
-    xyz: npt.ArrayLike, rgb: npt.ArrayLike, voxel_m: float
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uint8]]:
-    """Average points and colours per voxel.
-
-    Args:
-        xyz: ``(N, 3)`` positions, metres.
-        rgb: ``(N, 3)`` uint8 colours.
-        voxel_m: Voxel edge, metres.
-
-    Returns:
-        ``(M, 3)`` float64 voxel means and ``(M, 3)`` uint8 mean colours, ``M <= N``.
-    """
-    p = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
-    c = np.asarray(rgb).reshape(-1, 3)
-    if p.shape[0] == 0:
-        return p, c.astype(np.uint8)
-    keys = np.floor(p / voxel_m).astype(np.int64)
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.ravel()
-    m = counts.shape[0]
-    out_p = np.stack([np.bincount(inverse, p[:, i], minlength=m) for i in range(3)], 1)
-    out_c = np.stack([np.bincount(inverse, c[:, i].astype(np.float64), m) for i in range(3)], 1)
-    return out_p / counts[:, None], np.round(out_c / counts[:, None]).astype(np.uint8)
-
-
-@dataclass(frozen=True, eq=False)
-class Undistorter:
-    """Undistortion of one camera to a pinhole camera of the same size.
-
-    Attributes:
-        K: ``(3, 3)`` recorded intrinsics.
-        K_new: ``(3, 3)`` intrinsics of the undistorted images.
-        size: ``(width, height)`` pixels.
-        maps: OpenCV remap tables, or None when there is no distortion (identity).
-    """
-
-    K: npt.NDArray[np.float64]
-    K_new: npt.NDArray[np.float64]
-    size: tuple[int, int]
-    maps: tuple[npt.NDArray[Any], npt.NDArray[Any]] | None  # cv2 map dtypes vary (int16/float)
-
-    def apply(self, image: npt.NDArray[Any], *, nearest: bool = False) -> npt.NDArray[Any]:
-        """Undistort an image or mask (``nearest`` for masks); out-of-view pixels become 0."""
-        import cv2  # noqa: PLC0415
-
-        if self.maps is None:
-            return image
-        interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
-        out: npt.NDArray[Any] = cv2.remap(
-            image, self.maps[0], self.maps[1], interp, borderMode=cv2.BORDER_CONSTANT
-        )
-        return out
-
-
-def undistorter(
-    K: npt.ArrayLike,
-    distortion: Sequence[float],
-    size: tuple[int, int],
-    *,
-    model: str = "plumb_bob",
-) -> Undistorter:
-    """Build the undistortion of a camera (alpha = 0: every output pixel sees the scene).
-
-    Args:
-        K: ``(3, 3)`` intrinsics, pixels.
-        distortion: plumb-bob ``(k1, k2, p1, p2[, k3, ...])`` or equidistant ``(k1..k4)``.
-        size: ``(width, height)`` pixels.
-        model: ``plumb_bob`` or ``equidistant``.
-
-    Returns:
-        The new intrinsics and remap tables.
-    """
-    import cv2  # noqa: PLC0415
-
-    K = np.asarray(K, dtype=np.float64).reshape(3, 3)
-    dist = np.asarray(distortion, dtype=np.float64)
-    if dist.size == 0 or not np.any(dist):
-        return Undistorter(K, K.copy(), size, None)
-    if model == "equidistant":
-        d4 = np.zeros(4)
-        d4[: min(4, dist.size)] = dist[:4]
-        K_new = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(
-            K, d4, size, np.eye(3), balance=0.0
-        )
-        maps = cv2.fisheye.initUndistortRectifyMap(K, d4, np.eye(3), K_new, size, cv2.CV_16SC2)
-    else:
-        K_new, _ = cv2.getOptimalNewCameraMatrix(K, dist, size, 0.0, size)
-        maps = cv2.initUndistortRectifyMap(K, dist, None, K_new, size, cv2.CV_16SC2)
-    return Undistorter(K, np.asarray(K_new, dtype=np.float64), size, (maps[0], maps[1]))
 
 
 # --------------------------------------------------------------------------------------------

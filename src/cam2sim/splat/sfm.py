@@ -37,6 +37,7 @@ import numpy as np
 import numpy.typing as npt
 
 from cam2sim.core.errors import BackendUnavailableError, StageError
+from cam2sim.splat.geometry import apply_similarity, similarity_from_poses
 
 if TYPE_CHECKING:
     from collections.abc import Iterator, Sequence
@@ -395,60 +396,6 @@ def _T_world_cam(image: _Colmap) -> npt.NDArray[np.float64]:
 def _cam_from_world(pycolmap: _Colmap, T_world_cam: npt.NDArray[np.float64]) -> _Colmap:
     T = np.linalg.inv(T_world_cam)
     return pycolmap.Rigid3d(T[:3, :4])
-
-
-def similarity_from_poses(
-    T_src: npt.ArrayLike, T_dst: npt.ArrayLike, *, with_scale: bool = True
-) -> npt.NDArray[np.float64]:
-    """Least-squares similarity ``S`` with ``S o T_src ~ T_dst`` for corresponding poses.
-
-    The rotation is the chordal mean of ``R_dst R_src^T`` (so camera centres on a straight
-    line, where a fit to the centres alone leaves the roll about that line free, still give a
-    unique answer); scale and translation then fit the camera centres.
-
-    Args:
-        T_src: ``(N, 4, 4)`` poses ``T_world_cam`` in the source frame, ``N >= 1``.
-        T_dst: ``(N, 4, 4)`` the same cameras in the destination frame.
-        with_scale: Estimate the scale (else ``s = 1``; also when the centres coincide).
-
-    Returns:
-        ``(4, 4)`` float64 ``[[s R, t], [0, 1]]`` mapping source points to destination points.
-
-    Raises:
-        ValueError: Shapes differ or are not ``(N, 4, 4)``.
-    """
-    a = np.asarray(T_src, dtype=np.float64)
-    b = np.asarray(T_dst, dtype=np.float64)
-    if a.shape != b.shape or a.ndim != 3 or a.shape[1:] != (4, 4) or a.shape[0] < 1:
-        msg = f"need two (N >= 1, 4, 4) pose stacks of one shape, got {a.shape} and {b.shape}"
-        raise ValueError(msg)
-    u, _, vt = np.linalg.svd((b[:, :3, :3] @ np.swapaxes(a[:, :3, :3], 1, 2)).sum(axis=0))
-    rot = u @ np.diag([1.0, 1.0, float(np.linalg.det(u @ vt))]) @ vt
-    ca, cb = a[:, :3, 3], b[:, :3, 3]
-    da = (ca - ca.mean(0)) @ rot.T
-    db = cb - cb.mean(0)
-    var = float((da**2).sum())
-    scale = float((da * db).sum() / var) if with_scale and var > 1e-12 else 1.0
-    T = np.eye(4)
-    T[:3, :3] = scale * rot
-    T[:3, 3] = cb.mean(0) - scale * rot @ ca.mean(0)
-    return T
-
-
-def apply_similarity(S: npt.ArrayLike, T_world_cam: npt.ArrayLike) -> npt.NDArray[np.float64]:
-    """Map ``(N, 4, 4)`` poses through a similarity ``S`` (rotation turned, centre moved/scaled)."""
-    Sm = np.asarray(S, dtype=np.float64)
-    T = np.asarray(T_world_cam, dtype=np.float64)
-    scale = float(np.cbrt(np.linalg.det(Sm[:3, :3])))
-    out = T.copy()
-    out[..., :3, :3] = (Sm[:3, :3] / scale) @ T[..., :3, :3]
-    out[..., :3, 3] = T[..., :3, 3] @ Sm[:3, :3].T + Sm[:3, 3]
-    return out
-
-
-# --------------------------------------------------------------------------------------------
-# Known poses
-# --------------------------------------------------------------------------------------------
 
 
 def _known_reconstruction(

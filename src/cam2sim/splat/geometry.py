@@ -1,0 +1,293 @@
+"""Route geometry for splat preparation: frame selection, chunks, camera poses, undistortion."""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+
+from cam2sim.core import frames as fr
+from cam2sim.splat.scene import ChunkRecord
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from cam2sim.core.dataset import MountRecord
+
+
+__all__ = [
+    "Undistorter",
+    "apply_similarity",
+    "camera_poses",
+    "chunks_by_distance",
+    "distance_travelled",
+    "select_by_distance",
+    "similarity_from_poses",
+    "undistorter",
+    "voxel_downsample",
+]
+
+logger = logging.getLogger(__name__)
+
+
+# --------------------------------------------------------------------------------------------
+# Geometry helpers (pure, vectorised)
+# --------------------------------------------------------------------------------------------
+
+
+def distance_travelled(positions: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Cumulative path length along ``(N, 3)`` positions: ``(N,)`` metres, starting at 0."""
+    p = np.asarray(positions, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        msg = f"positions must be (N, 3), got {p.shape}"
+        raise ValueError(msg)
+    steps = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def select_by_distance(positions: npt.ArrayLike, spacing_m: float) -> npt.NDArray[np.int64]:
+    """Pick one frame every ``spacing_m`` metres of distance travelled.
+
+    For each multiple ``k * spacing_m`` of the path length the first frame at or beyond it is
+    taken (so frames while standing still are skipped, and a fast stretch with fewer frames than
+    targets keeps every frame once).
+
+    Args:
+        positions: ``(N, 3)`` positions in recording order, metres.
+        spacing_m: Spacing, metres; 0 keeps every frame.
+
+    Returns:
+        ``(M,)`` int64 sorted unique indices into ``positions`` (the first frame always).
+    """
+    s = distance_travelled(positions)
+    if spacing_m <= 0 or s.shape[0] == 0:
+        return np.arange(s.shape[0], dtype=np.int64)
+    targets = np.arange(0.0, s[-1] + 1e-9, spacing_m)
+    idx = np.searchsorted(s, targets - 1e-9, side="left")
+    return np.unique(np.clip(idx, 0, s.shape[0] - 1)).astype(np.int64)
+
+
+def chunks_by_distance(
+    progress_m: npt.ArrayLike,
+    positions: npt.ArrayLike,
+    *,
+    chunk_length_m: float,
+    overlap_m: float,
+) -> list[ChunkRecord]:
+    """Split a route into overlapping chunks by distance travelled.
+
+    Chunk ``k`` spans ``[k * step, k * step + chunk_length_m]`` with
+    ``step = chunk_length_m - overlap_m``; the last one ends at the end of the route. A frame
+    belongs to every chunk whose span contains it: one or two (``overlap_m`` is less than half a
+    chunk). Chunks without frames (a gap in the recording) are dropped.
+
+    Args:
+        progress_m: ``(N,)`` non-decreasing distance travelled at each frame, metres.
+        positions: ``(N, 3)`` camera positions (for each chunk's centre), metres.
+        chunk_length_m: Chunk length, metres.
+        overlap_m: Overlap, metres, ``0 <= overlap_m < chunk_length_m / 2``.
+
+    Returns:
+        Chunks with consecutive ids, each listing its frame indices.
+    """
+    s = np.asarray(progress_m, dtype=np.float64)
+    p = np.asarray(positions, dtype=np.float64)
+    if s.ndim != 1 or p.shape != (s.shape[0], 3) or s.shape[0] == 0:
+        msg = f"need progress (N,) and positions (N, 3) with N >= 1, got {s.shape}, {p.shape}"
+        raise ValueError(msg)
+    if not (chunk_length_m > 0 and 0 <= overlap_m < chunk_length_m / 2):
+        msg = "need chunk_length_m > 0 and 0 <= overlap_m < chunk_length_m / 2, got "
+        msg += f"{chunk_length_m!r}, {overlap_m!r}"
+        raise ValueError(msg)
+    start, total = float(s[0]), float(s[-1])
+    step = chunk_length_m - overlap_m
+    n = 1 + max(0, math.ceil((total - start - chunk_length_m) / step - 1e-9))
+    starts = start + step * np.arange(n)
+    ends = np.minimum(starts + chunk_length_m, total)
+    ends[-1] = total
+    member = (s[None, :] >= starts[:, None] - 1e-9) & (s[None, :] <= ends[:, None] + 1e-9)
+    chunks: list[ChunkRecord] = []
+    for k in np.flatnonzero(member.any(axis=1)):
+        idx = np.flatnonzero(member[k])
+        chunks.append(
+            ChunkRecord(
+                id=len(chunks),
+                start_m=float(starts[k]),
+                end_m=float(ends[k]),
+                frames=[int(i) for i in idx],
+                center=[float(v) for v in p[idx].mean(axis=0)],
+            )
+        )
+    return chunks
+
+
+def camera_poses(
+    position: npt.ArrayLike, quat: npt.ArrayLike, mount: MountRecord
+) -> npt.NDArray[np.float64]:
+    """Camera poses ``T_world_cam = T_world_body o T_body_camera``.
+
+    Args:
+        position: ``(N, 3)`` body positions, world metres.
+        quat: ``(N, 4)`` body orientations ``(x, y, z, w)``, body -> world.
+        mount: The camera mount ``T_body_camera`` (optical axes).
+
+    Returns:
+        ``(N, 4, 4)`` float64, camera (optical) -> world.
+    """
+    pos = np.asarray(position, dtype=np.float64).reshape(-1, 3)
+    q = fr.quat_normalize(np.asarray(quat, dtype=np.float64).reshape(-1, 4))
+    T_body_cam = fr.Pose(np.asarray(mount.translation_m), np.asarray(mount.quat_xyzw)).as_matrix()
+    T_world_body = np.tile(np.eye(4), (pos.shape[0], 1, 1))
+    T_world_body[:, :3, :3] = fr.quat_to_matrix(q)
+    T_world_body[:, :3, 3] = pos
+    return T_world_body @ T_body_cam
+
+
+def voxel_downsample(
+    xyz: npt.ArrayLike, rgb: npt.ArrayLike, voxel_m: float
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uint8]]:
+    """Average points and colours per voxel.
+
+    Args:
+        xyz: ``(N, 3)`` positions, metres.
+        rgb: ``(N, 3)`` uint8 colours.
+        voxel_m: Voxel edge, metres.
+
+    Returns:
+        ``(M, 3)`` float64 voxel means and ``(M, 3)`` uint8 mean colours, ``M <= N``.
+    """
+    p = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    c = np.asarray(rgb).reshape(-1, 3)
+    if p.shape[0] == 0:
+        return p, c.astype(np.uint8)
+    keys = np.floor(p / voxel_m).astype(np.int64)
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    m = counts.shape[0]
+    out_p = np.stack([np.bincount(inverse, p[:, i], minlength=m) for i in range(3)], 1)
+    out_c = np.stack([np.bincount(inverse, c[:, i].astype(np.float64), m) for i in range(3)], 1)
+    return out_p / counts[:, None], np.round(out_c / counts[:, None]).astype(np.uint8)
+
+
+@dataclass(frozen=True, eq=False)
+class Undistorter:
+    """Undistortion of one camera to a pinhole camera of the same size.
+
+    Attributes:
+        K: ``(3, 3)`` recorded intrinsics.
+        K_new: ``(3, 3)`` intrinsics of the undistorted images.
+        size: ``(width, height)`` pixels.
+        maps: OpenCV remap tables, or None when there is no distortion (identity).
+    """
+
+    K: npt.NDArray[np.float64]
+    K_new: npt.NDArray[np.float64]
+    size: tuple[int, int]
+    maps: tuple[npt.NDArray[Any], npt.NDArray[Any]] | None  # cv2 map dtypes vary (int16/float)
+
+    def apply(self, image: npt.NDArray[Any], *, nearest: bool = False) -> npt.NDArray[Any]:
+        """Undistort an image or mask (``nearest`` for masks); out-of-view pixels become 0."""
+        import cv2  # noqa: PLC0415
+
+        if self.maps is None:
+            return image
+        interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
+        out: npt.NDArray[Any] = cv2.remap(
+            image, self.maps[0], self.maps[1], interp, borderMode=cv2.BORDER_CONSTANT
+        )
+        return out
+
+
+def undistorter(
+    K: npt.ArrayLike,
+    distortion: Sequence[float],
+    size: tuple[int, int],
+    *,
+    model: str = "plumb_bob",
+) -> Undistorter:
+    """Build the undistortion of a camera (alpha = 0: every output pixel sees the scene).
+
+    Args:
+        K: ``(3, 3)`` intrinsics, pixels.
+        distortion: plumb-bob ``(k1, k2, p1, p2[, k3, ...])`` or equidistant ``(k1..k4)``.
+        size: ``(width, height)`` pixels.
+        model: ``plumb_bob`` or ``equidistant``.
+
+    Returns:
+        The new intrinsics and remap tables.
+    """
+    import cv2  # noqa: PLC0415
+
+    K = np.asarray(K, dtype=np.float64).reshape(3, 3)
+    dist = np.asarray(distortion, dtype=np.float64)
+    if dist.size == 0 or not np.any(dist):
+        return Undistorter(K, K.copy(), size, None)
+    if model == "equidistant":
+        d4 = np.zeros(4)
+        d4[: min(4, dist.size)] = dist[:4]
+        K_new = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(
+            K, d4, size, np.eye(3), balance=0.0
+        )
+        maps = cv2.fisheye.initUndistortRectifyMap(K, d4, np.eye(3), K_new, size, cv2.CV_16SC2)
+    else:
+        K_new, _ = cv2.getOptimalNewCameraMatrix(K, dist, size, 0.0, size)
+        maps = cv2.initUndistortRectifyMap(K, dist, None, K_new, size, cv2.CV_16SC2)
+    return Undistorter(K, np.asarray(K_new, dtype=np.float64), size, (maps[0], maps[1]))
+
+
+def similarity_from_poses(
+    T_src: npt.ArrayLike, T_dst: npt.ArrayLike, *, with_scale: bool = True
+) -> npt.NDArray[np.float64]:
+    """Least-squares similarity ``S`` with ``S o T_src ~ T_dst`` for corresponding poses.
+
+    The rotation is the chordal mean of ``R_dst R_src^T`` (so camera centres on a straight
+    line, where a fit to the centres alone leaves the roll about that line free, still give a
+    unique answer); scale and translation then fit the camera centres.
+
+    Args:
+        T_src: ``(N, 4, 4)`` poses ``T_world_cam`` in the source frame, ``N >= 1``.
+        T_dst: ``(N, 4, 4)`` the same cameras in the destination frame.
+        with_scale: Estimate the scale (else ``s = 1``; also when the centres coincide).
+
+    Returns:
+        ``(4, 4)`` float64 ``[[s R, t], [0, 1]]`` mapping source points to destination points.
+
+    Raises:
+        ValueError: Shapes differ or are not ``(N, 4, 4)``.
+    """
+    a = np.asarray(T_src, dtype=np.float64)
+    b = np.asarray(T_dst, dtype=np.float64)
+    if a.shape != b.shape or a.ndim != 3 or a.shape[1:] != (4, 4) or a.shape[0] < 1:
+        msg = f"need two (N >= 1, 4, 4) pose stacks of one shape, got {a.shape} and {b.shape}"
+        raise ValueError(msg)
+    u, _, vt = np.linalg.svd((b[:, :3, :3] @ np.swapaxes(a[:, :3, :3], 1, 2)).sum(axis=0))
+    rot = u @ np.diag([1.0, 1.0, float(np.linalg.det(u @ vt))]) @ vt
+    ca, cb = a[:, :3, 3], b[:, :3, 3]
+    da = (ca - ca.mean(0)) @ rot.T
+    db = cb - cb.mean(0)
+    var = float((da**2).sum())
+    scale = float((da * db).sum() / var) if with_scale and var > 1e-12 else 1.0
+    T = np.eye(4)
+    T[:3, :3] = scale * rot
+    T[:3, 3] = cb.mean(0) - scale * rot @ ca.mean(0)
+    return T
+
+
+def apply_similarity(S: npt.ArrayLike, T_world_cam: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Map ``(N, 4, 4)`` poses through a similarity ``S`` (rotation turned, centre moved/scaled)."""
+    Sm = np.asarray(S, dtype=np.float64)
+    T = np.asarray(T_world_cam, dtype=np.float64)
+    scale = float(np.cbrt(np.linalg.det(Sm[:3, :3])))
+    out = T.copy()
+    out[..., :3, :3] = (Sm[:3, :3] / scale) @ T[..., :3, :3]
+    out[..., :3, 3] = T[..., :3, 3] @ Sm[:3, :3].T + Sm[:3, 3]
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Known poses
+# --------------------------------------------------------------------------------------------
