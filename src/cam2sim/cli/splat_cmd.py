@@ -18,6 +18,9 @@ def splat(
     *,
     spacing: Annotated[float, typer.Option(help="Select a frame every N metres.")] = 0.5,
     chunk_length: Annotated[float, typer.Option(help="Route chunk length, metres.")] = 150.0,
+    overlap: Annotated[
+        float | None, typer.Option(help="Chunk overlap, metres (default min(30, length/4)).")
+    ] = None,
     max_steps: Annotated[int, typer.Option(help="Training step cap per chunk.")] = 30_000,
     min_steps: Annotated[int, typer.Option(help="No plateau stop before this step.")] = 7_000,
     device: Annotated[str, typer.Option(help="auto, cuda or cpu.")] = "auto",
@@ -44,19 +47,24 @@ def splat(
     from cam2sim.splat.train import TrainOptions  # noqa: PLC0415
     from cam2sim.stages.splat import SplatStageOptions, run_splat  # noqa: PLC0415
 
-    options = SplatStageOptions(
-        prepare=PrepareOptions(
-            spacing_m=spacing,
-            chunk_length_m=chunk_length,
-            segformer=segformer,
-            sfm=SfmOptions(mapper=mapper),  # type: ignore[arg-type]
-        ),
-        train=TrainOptions(
-            max_steps=max_steps, min_steps=min_steps, device=device, downscale=downscale
-        ),
-        evaluate=not no_eval,
-        lpips_weights=lpips_weights,
-    )
+    try:
+        options = SplatStageOptions(
+            prepare=PrepareOptions(
+                spacing_m=spacing,
+                chunk_length_m=chunk_length,
+                overlap_m=min(30.0, chunk_length / 4) if overlap is None else overlap,
+                segformer=segformer,
+                sfm=SfmOptions(mapper=mapper),  # type: ignore[arg-type]
+            ),
+            train=TrainOptions(
+                max_steps=max_steps, min_steps=min_steps, device=device, downscale=downscale
+            ),
+            evaluate=not no_eval,
+            lpips_weights=lpips_weights,
+        )
+    except ValueError as err:
+        error_console.print(f"[bold red]error:[/] {err}", highlight=False, soft_wrap=True)
+        raise typer.Exit(1) from None
     try:
         ws = Workspace.open(workspace)
         with progress_bars() as sink:
