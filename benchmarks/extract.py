@@ -6,15 +6,20 @@ PointCloud2 scans of 120,000 points at 10 Hz), then measures, each on its own:
 * LiDAR decoding alone (``decode_pointcloud`` on already deserialised messages), M points/s;
 * image encoding alone (``encode_image_file``, PNG and JPEG q95, 1 and 2 threads), frames/s;
 * the whole stage (``extract(ws)``) end to end, frames/s and points/s, run in a child process
-  that also reports its peak RSS; the child runs for two bag lengths (N and N/4 frames) to show
-  that peak memory does not grow with the length of the bag.
+  that also reports its CPU time and peak RSS (VmHWM); the child runs for two bag lengths (N and
+  N/4 frames, scans and poses in proportion) to show whether peak memory grows with bag length.
 
 Run from the repository root::
 
-    PYTHONPATH=src python benchmarks/extract.py [--frames 2000] [--frame-format png|jpeg]
+    PYTHONPATH=src python benchmarks/extract.py [--frames 2000] [--format mcap|ros1|sqlite3]
+        [--frame-format png|jpeg] [--out DIR] [--keep] [--reuse-bags]
+        [--repeat 3] [--extract-repeat 2] [--quiet-wait SECONDS]
 
-Results are printed as a table and written as JSON to ``--out`` (a temporary folder unless given;
-the bags and workspaces there are deleted at the end unless ``--keep``).
+Every figure is the best of ``--repeat`` (``--extract-repeat``) runs and is recorded with the CPU
+that other processes used meanwhile (``others_cores``); on a shared machine ``--quiet-wait``
+waits for an idle spell before each run. Results are printed as a table and written as JSON to
+``--out`` (a temporary folder unless given; the bags and workspaces there are deleted at the end
+unless ``--keep``, and ``--reuse-bags`` reuses the bags a ``--keep`` run left there).
 """
 
 from __future__ import annotations
@@ -526,6 +531,24 @@ def child_extract(ws_dir: Path, result: Path) -> None:
     result.write_text(json.dumps(data))
 
 
+def _cached_fraction(path: Path) -> float | None:
+    """Fraction of the bag's bytes in the page cache (``fincore``), None when unknown."""
+    files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
+    fincore = shutil.which("fincore")
+    if fincore is None or not files:
+        return None
+    cmd = [fincore, "--bytes", "--noheadings", "--output", "RES,SIZE", *map(str, files)]
+    try:
+        text = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    res = size = 0
+    for line in text.splitlines():
+        r, s = line.split()
+        res, size = res + int(r), size + int(s)
+    return round(res / size, 3) if size else None
+
+
 def run_extract(out: Path, bag: Path, frame_format: str, name: str) -> dict[str, Any]:
     """Create a workspace for ``bag`` and run the extraction in a child process."""
     from cam2sim.core.config import (  # noqa: PLC0415
@@ -565,10 +588,12 @@ def run_extract(out: Path, bag: Path, frame_format: str, name: str) -> dict[str,
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(SRC), env.get("PYTHONPATH", "")) if p)
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child-extract", str(ws_dir)]
     cmd += ["--child-result", str(result)]
+    cached = _cached_fraction(bag)
     print(f"extracting {bag.name} ({frame_format}) in a child process ...", flush=True)
     subprocess.run(cmd, check=True, env=env)
     data = json.loads(result.read_text())
     result.unlink()
+    data["bag_cached_fraction"] = cached
     data["fps"] = data["frames"] / data["wall_s"]
     data["cpu_ms_per_frame"] = 1e3 * data["cpu_s"] / data["frames"]
     data["mpts_s"] = data["points"] / data["wall_s"] / 1e6
@@ -651,7 +676,12 @@ def print_table(results: dict[str, Any]) -> None:
             _load(ex),
             f"{ex['frames']} frames + {ex['scans']} scans in {ex['wall_s']:.1f} s "
             f"(pass 1 {ex['pass1_s']:.1f} s, CPU {ex['cpu_ms_per_frame']:.1f} ms/frame); "
-            f"{ex['mpts_s']:.2f} M LiDAR pts/s",
+            f"{ex['mpts_s']:.2f} M LiDAR pts/s"
+            + (
+                f"; bag {100 * ex['bag_cached_fraction']:.0f}% in page cache"
+                if ex.get("bag_cached_fraction") is not None
+                else ""
+            ),
         )
         table.add_row(
             f"peak RSS {key}",
