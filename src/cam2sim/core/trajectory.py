@@ -104,7 +104,8 @@ class Trajectory:
         idx = np.clip(np.searchsorted(self.stamp_ns, query_ns, side="right"), 1, len(self) - 1)
         max_gap_ns = int(max_gap_s * 1e9) if np.isfinite(max_gap_s) else np.iinfo(np.int64).max
         gap = (self.stamp_ns[idx] - self.stamp_ns[idx - 1]) > max_gap_ns
-        exact = np.isin(query_ns, self.stamp_ns)
+        below = np.clip(np.searchsorted(self.stamp_ns, query_ns, side="left"), 0, len(self) - 1)
+        exact = self.stamp_ns[below] == query_ns
         gap &= ~outside & ~exact
         reason[gap] = DropReason.GAP
         valid = ~outside & ~gap

@@ -175,7 +175,9 @@ def decode_image(
     name, layout = _layout_for(str(msg.encoding))
     pixels = _pixel_rows(msg, layout, name)
     if layout.kind == "colour":
-        return np.ascontiguousarray(pixels[:, :, layout.channels])
+        identity = tuple(layout.channels) == tuple(range(pixels.shape[2]))
+        # rgb8 needs no reordering: no copy when the rows are already contiguous.
+        return np.ascontiguousarray(pixels if identity else pixels[:, :, layout.channels])
     if layout.kind == "mono" and layout.bytes_per_pixel == 1:
         return pixels[:, :, 0].copy()
     if layout.kind == "mono":
@@ -388,7 +390,7 @@ def encode_image_file(
         raise RecordingError(msg)
     bgr = cast(
         "npt.NDArray[np.uint8] | npt.NDArray[np.uint16]",
-        image if is_mono else np.ascontiguousarray(image[:, :, ::-1]),
+        image if is_mono else cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2BGR),
     )
     params = [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)] if fmt == "jpeg" else []
     ok, buffer = cv2.imencode(".jpg" if fmt == "jpeg" else ".png", bgr, params)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -25,9 +25,12 @@ __all__ = [
     "NAVSATFIX",
     "ORIENTATION_MSGTYPES",
     "POSE_MSGTYPES",
+    "PoseSample",
     "PoseTrack",
     "orientation_track_from_messages",
+    "pose_sample",
     "pose_track_from_messages",
+    "pose_track_from_samples",
     "require_increasing",
 ]
 
@@ -107,25 +110,48 @@ def require_increasing(stamp_ns: npt.NDArray[np.int64], *, topic: str) -> npt.ND
     return np.concatenate([[True], steps > 0])
 
 
-def _collect(
-    messages: Iterable[BagMessage], *, topic: str, on_invalid: str, kind: str
-) -> PoseTrack:
+class PoseSample(NamedTuple):
+    """What a pose message contributes, without the message (a few hundred bytes, not KB)."""
+
+    stamp_ns: int
+    msgtype: str
+    position: tuple[float, ...]
+    quat: tuple[float, ...] | None
+    valid: bool
+    frame_id: str
+    child_frame_id: str
+
+
+def pose_sample(m: BagMessage) -> PoseSample:
+    """Reduce a pose (or orientation) message to a :class:`PoseSample` as it streams in."""
+    position, quat, ok = _pose_of(m.msgtype, m.msg)
+    return PoseSample(
+        stamp_ns=m.stamp_ns,
+        msgtype=m.msgtype,
+        position=position,
+        quat=quat,
+        valid=ok,
+        frame_id=str(getattr(getattr(m.msg, "header", None), "frame_id", "")),
+        child_frame_id=str(getattr(m.msg, "child_frame_id", "")),
+    )
+
+
+def _collect(samples: Iterable[PoseSample], *, topic: str, on_invalid: str, kind: str) -> PoseTrack:
     stamps: list[int] = []
     positions: list[tuple[float, ...]] = []
     quats: list[tuple[float, ...] | None] = []
     valid: list[bool] = []
     frame_id = child = ""
     msgtype = ""
-    for m in messages:
-        position, quat, ok = _pose_of(m.msgtype, m.msg)
+    for m in samples:
         if not stamps:
             msgtype = m.msgtype
-            frame_id = str(getattr(getattr(m.msg, "header", None), "frame_id", ""))
-            child = str(getattr(m.msg, "child_frame_id", ""))
+            frame_id = m.frame_id
+            child = m.child_frame_id
         stamps.append(m.stamp_ns)
-        positions.append(position)
-        quats.append(quat)
-        valid.append(ok)
+        positions.append(m.position)
+        quats.append(m.quat)
+        valid.append(m.valid)
     if not stamps:
         msg = f"{kind} topic {topic} has no messages; choose a topic that has (cam2sim inspect)"
         raise RecordingError(msg)
@@ -187,14 +213,23 @@ def pose_track_from_messages(
         RecordingError: No messages, invalid poses with ``on_invalid="error"``, or a clock
             running backwards.
     """
-    return _collect(messages, topic=topic, on_invalid=on_invalid, kind="pose")
+    return pose_track_from_samples(map(pose_sample, messages), topic=topic, on_invalid=on_invalid)
+
+
+def pose_track_from_samples(
+    samples: Iterable[PoseSample], *, topic: str, on_invalid: str = "error", kind: str = "pose"
+) -> PoseTrack:
+    """Gather reduced pose samples of one topic into a :class:`PoseTrack` (see above)."""
+    return _collect(samples, topic=topic, on_invalid=on_invalid, kind=kind)
 
 
 def orientation_track_from_messages(
     messages: Iterable[BagMessage], *, topic: str, on_invalid: str = "error"
 ) -> PoseTrack:
     """Gather orientation samples (Imu, Odometry, Pose) of one topic; positions are ignored."""
-    return _collect(messages, topic=topic, on_invalid=on_invalid, kind="orientation")
+    return _collect(
+        map(pose_sample, messages), topic=topic, on_invalid=on_invalid, kind="orientation"
+    )
 
 
 def yaw_offset_quat(offset_rad: float) -> npt.NDArray[np.float64]:

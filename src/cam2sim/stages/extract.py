@@ -43,12 +43,13 @@ from cam2sim.recording.bag import BagMessage, Recording
 from cam2sim.recording.pose import (
     ORIENTATION_MSGTYPES,
     POSE_MSGTYPES,
+    PoseSample,
     PoseTrack,
-    orientation_track_from_messages,
-    pose_track_from_messages,
+    pose_sample,
+    pose_track_from_samples,
     yaw_offset_quat,
 )
-from cam2sim.recording.signal import SignalSeries, signal_from_messages
+from cam2sim.recording.signal import SignalSeries, value_at_path
 from cam2sim.recording.tf import TF_MSGTYPE, TfTree
 from cam2sim.stages._runner import stage_run
 
@@ -106,8 +107,8 @@ def _inputs_hash(config: Config, sources: list[SourceRecord]) -> str:
 # -- pass 1: poses, tf, signals, camera_info ----------------------------------------------------
 @dataclass
 class _SmallStreams:
-    pose_messages: list[BagMessage]
-    orientation_messages: list[BagMessage]
+    pose_messages: list[PoseSample]
+    orientation_messages: list[PoseSample]
     tf: TfTree
     signals: dict[str, SignalSeries]
     camera_info: Any
@@ -162,23 +163,28 @@ def _read_small_streams(rec: Recording, config: Config) -> _SmallStreams:
     signal_topics = {s.topic for s in topics.signals.values()}
 
     streams = _SmallStreams([], [], TfTree(), {}, None)
-    by_topic: dict[str, list[BagMessage]] = {t: [] for t in signal_topics}
+    rows_by_name: dict[str, list[tuple[int, float]]] = {n: [] for n in topics.signals}
     tf_messages: list[BagMessage] = []
     for m in rec.messages(set(wanted) | signal_topics, time_base=config.recording.time_base):
         role = wanted.get(m.topic)
         if role == "pose":
-            streams.pose_messages.append(m)
+            streams.pose_messages.append(pose_sample(m))
         elif role == "orientation":
-            streams.orientation_messages.append(m)
+            streams.orientation_messages.append(pose_sample(m))
         elif role == "tf":
             tf_messages.append(m)
         elif role == "camera_info" and streams.camera_info is None:
             streams.camera_info = m.msg
-        if m.topic in by_topic:
-            by_topic[m.topic].append(m)
+        if m.topic in signal_topics:
+            for name, sig in topics.signals.items():
+                if sig.topic == m.topic:
+                    rows_by_name[name].append((m.stamp_ns, value_at_path(m.msg, sig.field)))
     streams.tf.add_messages(tf_messages, static_topics={"/tf_static"})
-    for name, sig in topics.signals.items():
-        streams.signals[name] = signal_from_messages(by_topic[sig.topic], field=sig.field)
+    for name, rows in rows_by_name.items():
+        streams.signals[name] = SignalSeries(
+            stamp_ns=np.asarray([r[0] for r in rows], dtype=np.int64),
+            value=np.asarray([r[1] for r in rows], dtype=np.float64),
+        )
     return streams
 
 
@@ -301,14 +307,17 @@ def _read_trajectory(
         )
     else:
         assert config.topics.pose is not None
-        track = pose_track_from_messages(
+        track = pose_track_from_samples(
             streams.pose_messages, topic=config.topics.pose, on_invalid=on_invalid
         )
     orientation = None
     if streams.orientation_messages:
         assert config.pose.orientation_topic is not None
-        orientation = orientation_track_from_messages(
-            streams.orientation_messages, topic=config.pose.orientation_topic, on_invalid=on_invalid
+        orientation = pose_track_from_samples(
+            streams.orientation_messages,
+            topic=config.pose.orientation_topic,
+            on_invalid=on_invalid,
+            kind="orientation",
         )
     if track.quat is None and orientation is None and config.pose.heading == "orientation":
         warnings.warn(
