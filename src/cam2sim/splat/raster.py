@@ -193,41 +193,22 @@ def rasterize(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's signa
         BackendUnavailableError: ``"gsplat"`` asked for where it cannot run.
     """
     chosen = resolve_backend(backend, means.device)
+    args = (means, quats, scales, opacities, colors, viewmats, Ks, width, height)
+    options = {
+        "near_plane": near_plane,
+        "far_plane": far_plane,
+        "eps2d": eps2d,
+        "sh_degree": sh_degree,
+        "backgrounds": backgrounds,
+    }
     if chosen == "torch":
         from cam2sim.splat import raster_torch  # noqa: PLC0415
 
-        return raster_torch.rasterization(
-            means,
-            quats,
-            scales,
-            opacities,
-            colors,
-            viewmats,
-            Ks,
-            width,
-            height,
-            near_plane=near_plane,
-            far_plane=far_plane,
-            eps2d=eps2d,
-            sh_degree=sh_degree,
-            backgrounds=backgrounds,
-        )
+        return raster_torch.rasterization(*args, **options)  # type: ignore[arg-type]
     gsplat = importlib.import_module("gsplat")
     render_colors, render_alphas, meta = gsplat.rasterization(
-        means,
-        quats,
-        scales,
-        opacities,
-        colors,
-        viewmats,
-        Ks,
-        width,
-        height,
-        near_plane=near_plane,
-        far_plane=far_plane,
-        eps2d=eps2d,
-        sh_degree=sh_degree,
-        backgrounds=backgrounds,
+        *args,
+        **options,
         packed=False,
         rasterize_mode="classic",
     )

@@ -15,7 +15,7 @@ import math
 import warnings
 from collections import Counter
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path  # noqa: TC003 - used at run time by dataclasses
 from typing import Any
 
@@ -34,7 +34,12 @@ from cam2sim.core.dataset import (
     SourceRecord,
 )
 from cam2sim.core.errors import ConfigError, RecordingError
-from cam2sim.core.files import atomic_folder, file_fingerprint, write_bytes_atomic
+from cam2sim.core.files import (
+    atomic_folder,
+    atomic_write,
+    file_fingerprint,
+    write_bytes_atomic,
+)
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.table import write_table
 from cam2sim.core.trajectory import Trajectory, heading_from_motion
@@ -407,6 +412,13 @@ def _mount(
 class _SensorRows:
     stamp_ns: list[int]
     index: list[int]
+    points: list[int] = field(default_factory=list)
+
+    def add(self, index: int, stamp_ns: int, points: int = 0) -> None:
+        """Record one kept sample."""
+        self.index.append(index)
+        self.stamp_ns.append(stamp_ns)
+        self.points.append(points)
 
 
 @dataclass(frozen=True)
@@ -502,8 +514,7 @@ def _stream_sensors(
                     continue
                 index = len(cam_rows.index)
                 writer.submit(index, m.msgtype, m.msg)
-                cam_rows.index.append(index)
-                cam_rows.stamp_ns.append(m.stamp_ns)
+                cam_rows.add(index, m.stamp_ns)
             else:
                 s = traj.sample(query, max_gap_s=sync.max_pose_gap_s)
                 if not s.valid[0]:
@@ -515,8 +526,7 @@ def _stream_sensors(
                     continue
                 index = len(lidar_rows.index)
                 _save_npy(paths.lidar_file(index), points)
-                lidar_rows.index.append(index)
-                lidar_rows.stamp_ns.append(m.stamp_ns)
+                lidar_rows.add(index, m.stamp_ns, int(points.shape[0]))
     finally:
         writer.finish()
     progress("frames and scans", done, total)
@@ -524,11 +534,8 @@ def _stream_sensors(
 
 
 def _save_npy(path: Path, array: npt.NDArray[Any]) -> None:
-    import io  # noqa: PLC0415
-
-    buffer = io.BytesIO()
-    np.save(buffer, array, allow_pickle=False)
-    write_bytes_atomic(path, buffer.getvalue())
+    with atomic_write(path) as handle:
+        np.save(handle, array, allow_pickle=False)
 
 
 # -- tables -----------------------------------------------------------------------------------
@@ -575,7 +582,7 @@ def _write_tables(
         mount_q = np.asarray(lidar_mount.quat_xyzw)
         p = p_body + frames.quat_rotate(q_body, np.asarray(lidar_mount.translation_m))
         q = frames.quat_multiply(q_body, mount_q) if len(stamps) else np.zeros((0, 4))
-        points = [int(np.load(paths.lidar_file(i), mmap_mode="r").shape[0]) for i in lidar.index]
+        points = lidar.points
         write_table(
             paths.lidar_csv,
             {

@@ -143,9 +143,8 @@ def _read_pose_table(path: Path) -> _PoseTable:
         )
         raise RecordingError(msg)
     try:
-        stamps = np.array([_stamp_ns(r[tcol]) for r in rows], dtype=np.int64)
-        if tcol == "stamp_ns":
-            stamps = np.array([int(r[tcol]) for r in rows], dtype=np.int64)
+        parse = int if tcol == "stamp_ns" else _stamp_ns
+        stamps = np.array([parse(r[tcol]) for r in rows], dtype=np.int64)
         z = [float(r.get("z") or 0.0) for r in rows]
         xyz = np.array([[float(r["x"]), float(r["y"]), zz] for r, zz in zip(rows, z, strict=True)])
         if all(c in rows[0] for c in ("qx", "qy", "qz", "qw")):
