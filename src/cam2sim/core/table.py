@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 
 __all__ = ["is_integer_column", "read_table", "write_table"]
 
-_INT_NAMES = {"frame", "index", "scan", "points"}
+_INT_NAMES = {"frame", "index", "scan", "points", "vehicle"}
 
 
 def is_integer_column(name: str) -> bool:

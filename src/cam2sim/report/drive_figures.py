@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import io
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cam2sim.core.files import write_bytes_atomic
+from cam2sim.report.plotting import pyplot as _pyplot
+from cam2sim.report.plotting import save_figure as _save
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -17,21 +17,6 @@ if TYPE_CHECKING:
 __all__ = ["write_drive_figures"]
 
 _REAL_COLOUR = "0.55"
-
-
-def _pyplot() -> Any:
-    import matplotlib as mpl  # noqa: PLC0415
-
-    mpl.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
-    return plt
-
-
-def _save(fig: Any, path: Path) -> None:
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=130, bbox_inches="tight")
-    write_bytes_atomic(path, buffer.getvalue())
 
 
 def _colours(ev: DriveEvaluation) -> dict[str, Any]:
@@ -80,7 +65,6 @@ def _trajectories(ev: DriveEvaluation, path: Path) -> None:
     ax.set_title(f"Runs in the real-drive corridor (segment {seg.length_m:.1f} m)")
     ax.legend(loc="best", fontsize=8)
     _save(fig, path)
-    plt.close(fig)
 
 
 def _lateral(ev: DriveEvaluation, path: Path) -> None:
@@ -107,7 +91,6 @@ def _lateral(ev: DriveEvaluation, path: Path) -> None:
     ax.set_title("Lateral offset from the reference path")
     ax.legend(fontsize=7, ncol=3)
     _save(fig, path)
-    plt.close(fig)
 
 
 def _steering(ev: DriveEvaluation, path: Path) -> None:
@@ -127,7 +110,6 @@ def _steering(ev: DriveEvaluation, path: Path) -> None:
     ax.set_title("Steering against progress")
     ax.legend(fontsize=7, ncol=3)
     _save(fig, path)
-    plt.close(fig)
 
 
 def write_drive_figures(ev: DriveEvaluation, out_dir: Path) -> list[Path]:
