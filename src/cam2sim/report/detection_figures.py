@@ -48,13 +48,26 @@ def plot_parked_vehicles(
     boxes: WorldBoxes | None,
     route: Route,
     road_map: RoadMap | None = None,
+    background: tuple[Path, tuple[float, float, float, float]] | None = None,
 ) -> None:
-    """Draw the detection result from above and write it to ``path`` (PNG)."""
+    """Draw the detection result from above and write it to ``path`` (PNG).
+
+    Args:
+        path: Output PNG.
+        doc: The fused vehicles.
+        boxes: The per-frame boxes in the world frame (drawn as score-shaded dots).
+        route: The driven route.
+        road_map: The map, whose driving, parking and sidewalk lanes are drawn underneath.
+        background: An RGBA image (the LiDAR bird's-eye density) and its world extent
+            ``(x_min, x_max, y_min, y_max)``, drawn under everything.
+    """
     plt = pyplot()
     from matplotlib.patches import Polygon  # noqa: PLC0415
 
     xy = route.path.xy
     fig, ax = plt.subplots(figsize=(10, 8))
+    if background is not None:
+        ax.imshow(plt.imread(background[0]), extent=background[1], origin="upper", zorder=0.5)
     if road_map is not None:
         for lane_type, colour in _LANE_COLOUR.items():
             for poly in road_map.lane_polygons(lane_type):

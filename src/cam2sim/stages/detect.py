@@ -371,8 +371,15 @@ def _figure(
     route: object,
     road_map: object,
 ) -> Path:
+    from cam2sim.detect.bev import BEV_PNG, load_or_build_bev  # noqa: PLC0415
     from cam2sim.report.detection_figures import plot_parked_vehicles  # noqa: PLC0415
 
+    bev = load_or_build_bev(ws)
+    background = (
+        None
+        if bev is None
+        else (ws.detections_dir / BEV_PNG, (bev.x_min, bev.x_max, bev.y_min, bev.y_max))
+    )
     path = ws.detections_dir / "parked_vehicles.png"
-    plot_parked_vehicles(path, doc, boxes, route, road_map)  # type: ignore[arg-type]
+    plot_parked_vehicles(path, doc, boxes, route, road_map, background)  # type: ignore[arg-type]
     return path

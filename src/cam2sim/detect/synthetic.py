@@ -1,0 +1,396 @@
+"""A synthetic street and a rotating multi-beam LiDAR that scans it, for tests and benchmarks.
+
+The scene lives in a world frame (x, y horizontal, z up, metres): a ground made of a road plane
+(optionally sloped) with kerbs and raised sidewalks along the world x axis, static boxes
+(buildings, walls) and parked cars. Cars are oriented boxes (their ground-truth boxes); the
+scanner draws each as a body plus a narrower, shorter cabin, with the ground visible under the
+body, so the returns have the profile of a real car rather than of a brick.
+
+The LiDAR is a grid of ``beams x azimuths`` rays from one origin (no motion during the sweep),
+cast at every surface at once with numpy: ray-plane intersections for the ground, slab tests for
+the boxes. Each box only tests the rays inside its angular extent as seen from the sensor, so a
+scan of ~150,000 rays takes a fraction of a second. Points come back in the sensor frame with
+Gaussian range noise.
+
+Example::
+
+    scene = parked_street(seed=0)
+    scan = scan_scene(scene, Pose.from_xyz_rpy([0.0, 0.0, 1.8], [0.0, 0.0, 0.3]))
+    scan.points  # (N, 4) float32 x, y, z, intensity in the sensor frame
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from cam2sim.core.frames.rotation import quat_rotate
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    from cam2sim.core.frames.pose import Pose
+
+__all__ = [
+    "LABEL_GROUND",
+    "LABEL_STRUCTURE",
+    "Ground",
+    "LidarModel",
+    "SceneBox",
+    "StreetScene",
+    "SyntheticScan",
+    "car_on_ground",
+    "parked_street",
+    "scan_scene",
+]
+
+LABEL_GROUND = -1
+"""Label of returns from the road, the kerbs and the sidewalks."""
+LABEL_STRUCTURE = -2
+"""Label of returns from buildings and walls."""
+
+_REFLECTIVITY = {LABEL_GROUND: 0.15, LABEL_STRUCTURE: 0.35}
+_CAR_REFLECTIVITY = 0.6
+_RAY_BLOCK = 65_536  # rays per block when casting against the ground (bounds temporaries)
+
+
+@dataclass(frozen=True)
+class SceneBox:
+    """An upright box in the world frame, turned about z only.
+
+    Attributes:
+        center: ``(3,)`` geometric centre, metres, world frame.
+        size: ``(3,)`` length (along ``yaw``), width, height, metres.
+        yaw: Angle of the length axis, radians CCW from world +x.
+    """
+
+    center: tuple[float, float, float]
+    size: tuple[float, float, float]
+    yaw: float
+
+
+@dataclass(frozen=True)
+class Ground:
+    """A road plane with kerbs: the road is ``|y| <= road_half_width_m``, sidewalks beyond.
+
+    Heights follow ``z = height_m + slope[0] * x + slope[1] * y`` on the road and
+    ``kerb_height_m`` more on the sidewalks; the kerbs are vertical faces at
+    ``y = ±road_half_width_m`` (the street runs along world x).
+
+    Attributes:
+        height_m: Road height at the world origin, metres. Default 0.
+        slope: ``(dz/dx, dz/dy)`` of the road, dimensionless. Default flat.
+        road_half_width_m: Half the kerb-to-kerb width, metres. Default 5.0.
+        kerb_height_m: Sidewalk height above the road, metres; 0 for no kerb. Default 0.12.
+    """
+
+    height_m: float = 0.0
+    slope: tuple[float, float] = (0.0, 0.0)
+    road_half_width_m: float = 5.0
+    kerb_height_m: float = 0.12
+
+    def height_at(self, xy: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """Ground height, metres, under ``(..., 2)`` world positions (sidewalks included)."""
+        p = np.asarray(xy, dtype=np.float64)
+        road = self.height_m + self.slope[0] * p[..., 0] + self.slope[1] * p[..., 1]
+        out: npt.NDArray[np.float64] = road + np.where(
+            np.abs(p[..., 1]) > self.road_half_width_m, self.kerb_height_m, 0.0
+        )
+        return out
+
+
+@dataclass(frozen=True)
+class StreetScene:
+    """Everything the synthetic LiDAR can hit.
+
+    Attributes:
+        ground: The road and sidewalks.
+        cars: Ground-truth boxes of the parked cars; a scan labels their returns by index.
+        structures: Buildings and walls (boxes reaching below the ground, so slopes leave no
+            gap under them).
+    """
+
+    ground: Ground = field(default_factory=Ground)
+    cars: tuple[SceneBox, ...] = ()
+    structures: tuple[SceneBox, ...] = ()
+
+
+@dataclass(frozen=True)
+class LidarModel:
+    """A rotating multi-beam LiDAR (defaults: a Velodyne HDL-32E as on nuScenes).
+
+    Attributes:
+        beams: Number of lasers, spread evenly over ``elevation_deg``. Default 32.
+        azimuths: Firings per revolution (rays per beam). Default 1800 (0.2 degrees).
+        elevation_deg: ``(lowest, highest)`` beam elevation, degrees. Default (-30.67, 10.67).
+        max_range_m: Returns beyond this range are dropped, metres. Default 100.
+        range_noise_m: Standard deviation of the Gaussian range noise, metres. Default 0.02.
+    """
+
+    beams: int = 32
+    azimuths: int = 1800
+    elevation_deg: tuple[float, float] = (-30.67, 10.67)
+    max_range_m: float = 100.0
+    range_noise_m: float = 0.02
+
+    def directions(self) -> npt.NDArray[np.float64]:
+        """``(beams, azimuths, 3)`` unit ray directions in the sensor frame (x at azimuth 0)."""
+        el = np.deg2rad(np.linspace(*self.elevation_deg, self.beams))[:, None]
+        az = (2.0 * math.pi / self.azimuths) * np.arange(self.azimuths)[None, :]
+        return np.stack(
+            np.broadcast_arrays(np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)),
+            axis=-1,
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class SyntheticScan:
+    """One synthetic sweep.
+
+    Attributes:
+        points: ``(N, 4)`` float32 x, y, z (metres, sensor frame) and intensity in ``[0, 1]``.
+        labels: ``(N,)`` int32: :data:`LABEL_GROUND`, :data:`LABEL_STRUCTURE`, or the index of
+            the car in :attr:`StreetScene.cars` that the return hit.
+    """
+
+    points: npt.NDArray[np.float32]
+    labels: npt.NDArray[np.int32]
+
+    def car_hits(self, n_cars: int) -> npt.NDArray[np.int64]:
+        """``(n_cars,)`` number of returns on each car."""
+        cars = self.labels[self.labels >= 0]
+        return np.bincount(cars, minlength=n_cars).astype(np.int64)
+
+
+def car_on_ground(
+    ground: Ground, xy: tuple[float, float], yaw: float, size: tuple[float, float, float]
+) -> SceneBox:
+    """Return the box of a car standing on ``ground`` at world ``xy`` (metres), turned ``yaw``."""
+    z = float(ground.height_at(np.asarray(xy)))
+    return SceneBox((xy[0], xy[1], z + size[2] / 2.0), size, yaw)
+
+
+def _car_parts(car: SceneBox) -> list[SceneBox]:
+    """Body (0.25 m clearance to 60% of the height) and cabin (the rest) of a car."""
+    length, width, height = car.size
+    bottom = car.center[2] - height / 2.0
+    clearance = min(0.25, 0.2 * height)
+    body_top = bottom + 0.6 * height
+    top = bottom + height
+    c, s = math.cos(car.yaw), math.sin(car.yaw)
+    back = -0.05 * length  # the cabin sits a little behind the middle
+    return [
+        SceneBox(
+            (car.center[0], car.center[1], (bottom + clearance + body_top) / 2.0),
+            (length, width, body_top - bottom - clearance),
+            car.yaw,
+        ),
+        SceneBox(
+            (car.center[0] + c * back, car.center[1] + s * back, (body_top + top) / 2.0),
+            (0.55 * length, 0.92 * width, top - body_top),
+            car.yaw,
+        ),
+    ]
+
+
+def _ground_hits(
+    ground: Ground, origin: npt.NDArray[np.float64], dirs: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """Range along each ray (``(R, 3)`` world directions) to the road/kerb/sidewalk; inf if none."""
+    gx, gy = ground.slope
+    half, kerb = ground.road_half_width_m, ground.kerb_height_m
+    out = np.full(dirs.shape[0], np.inf)
+    for start in range(0, dirs.shape[0], _RAY_BLOCK):
+        d = dirs[start : start + _RAY_BLOCK]
+        best = np.full(d.shape[0], np.inf)
+        denom = d[:, 2] - gx * d[:, 0] - gy * d[:, 1]
+        base = origin[2] - gx * origin[0] - gy * origin[1] - ground.height_m
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for offset, on_road in ((0.0, True), (kerb, False)):
+                t = -(base - offset) / denom
+                y = origin[1] + t * d[:, 1]
+                ok = (t > 0) & ((np.abs(y) <= half) == on_road)
+                best = np.where(ok & (t < best), t, best)
+            if kerb > 0:
+                for side in (-half, half):
+                    t = (side - origin[1]) / d[:, 1]
+                    p = origin[None, :] + t[:, None] * d
+                    road = ground.height_m + gx * p[:, 0] + gy * p[:, 1]
+                    ok = (t > 0) & (p[:, 2] >= road) & (p[:, 2] <= road + kerb)
+                    best = np.where(ok & (t < best), t, best)
+        out[start : start + _RAY_BLOCK] = best
+    return out
+
+
+def _angular_window(
+    box: SceneBox, T_world_sensor: Pose, lidar: LidarModel
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]] | None:
+    """Beam rows and azimuth columns whose rays may hit ``box`` (``None`` when none can)."""
+    signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], dtype=float)
+    half = 0.5 * np.asarray(box.size) * signs
+    c, s = math.cos(box.yaw), math.sin(box.yaw)
+    corners = np.stack(
+        [
+            box.center[0] + c * half[:, 0] - s * half[:, 1],
+            box.center[1] + s * half[:, 0] + c * half[:, 1],
+            box.center[2] + half[:, 2],
+        ],
+        axis=-1,
+    )
+    local = T_world_sensor.inverse().apply(corners)
+    dist = np.linalg.norm(local, axis=-1)
+    if dist.min() > lidar.max_range_m + max(box.size):
+        return None
+    centre = T_world_sensor.inverse().apply(np.asarray(box.center))
+    az = np.arctan2(local[:, 1], local[:, 0])
+    rel = np.angle(np.exp(1j * (az - math.atan2(centre[1], centre[0]))))
+    step = 2.0 * math.pi / lidar.azimuths
+    inside = np.hypot(centre[0], centre[1]) < 0.5 * math.hypot(box.size[0], box.size[1])
+    if inside or np.ptp(rel) > math.pi:
+        cols = np.arange(lidar.azimuths)
+    else:
+        first = math.floor((math.atan2(centre[1], centre[0]) + rel.min()) / step) - 1
+        last = math.ceil((math.atan2(centre[1], centre[0]) + rel.max()) / step) + 1
+        cols = np.arange(first, last + 1) % lidar.azimuths
+    el = np.rad2deg(np.arcsin(np.clip(local[:, 2] / np.maximum(dist, 1e-9), -1.0, 1.0)))
+    lo, hi = lidar.elevation_deg
+    el_step = (hi - lo) / max(lidar.beams - 1, 1)
+    if inside:
+        rows = np.arange(lidar.beams)
+    else:
+        first_row = max(math.floor((el.min() - lo) / el_step) - 1, 0)
+        last_row = min(math.ceil((el.max() - lo) / el_step) + 1, lidar.beams - 1)
+        if first_row > last_row:
+            return None
+        rows = np.arange(first_row, last_row + 1)
+    return rows, cols
+
+
+def _box_hits(
+    box: SceneBox, origin: npt.NDArray[np.float64], dirs: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """Range along each ray (``(..., 3)`` world directions) to ``box`` (slab test); inf if none."""
+    c, s = math.cos(box.yaw), math.sin(box.yaw)
+    rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # world -> box axes
+    o = rot @ (origin - np.asarray(box.center))
+    d = dirs @ rot.T
+    half = 0.5 * np.asarray(box.size)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / d
+        t1 = (-half - o) * inv
+        t2 = (half - o) * inv
+    near = np.fmax.reduce(np.fmin(t1, t2), axis=-1)
+    far = np.fmin.reduce(np.fmax(t1, t2), axis=-1)
+    hit = (near <= far) & (near > 0)
+    return np.where(hit, near, np.inf)
+
+
+def scan_scene(
+    scene: StreetScene,
+    T_world_sensor: Pose,
+    *,
+    lidar: LidarModel | None = None,
+    seed: int = 0,
+) -> SyntheticScan:
+    """Cast every ray of ``lidar`` from ``T_world_sensor`` into ``scene``.
+
+    Args:
+        scene: What to scan (world frame).
+        T_world_sensor: Pose of the LiDAR in the world (sensor x is azimuth 0, z up).
+        lidar: The sensor model; :class:`LidarModel` defaults when ``None``.
+        seed: Seed of the range and intensity noise.
+
+    Returns:
+        The returns within ``lidar.max_range_m``, in the sensor frame, with their labels.
+    """
+    lidar = lidar or LidarModel()
+    rng = np.random.default_rng(seed)
+    dirs_sensor = lidar.directions()
+    dirs = quat_rotate(T_world_sensor.quat, dirs_sensor)
+    origin = np.asarray(T_world_sensor.position, dtype=np.float64)
+    t_best = _ground_hits(scene.ground, origin, dirs.reshape(-1, 3)).reshape(dirs.shape[:2])
+    label = np.full(t_best.shape, LABEL_GROUND, dtype=np.int32)
+    objects = [(box, LABEL_STRUCTURE) for box in scene.structures]
+    objects += [(part, k) for k, car in enumerate(scene.cars) for part in _car_parts(car)]
+    for box, tag in objects:  # one vectorised slab test per box, over its angular window
+        window = _angular_window(box, T_world_sensor, lidar)
+        if window is None:
+            continue
+        rows, cols = window
+        grid = np.ix_(rows, cols)
+        t = _box_hits(box, origin, dirs[grid])
+        closer = t < t_best[grid]
+        t_best[grid] = np.where(closer, t, t_best[grid])
+        label[grid] = np.where(closer, tag, label[grid])
+    keep = t_best < lidar.max_range_m
+    t = t_best[keep] + rng.normal(0.0, lidar.range_noise_m, size=int(keep.sum()))
+    xyz = dirs_sensor[keep] * t[:, None]
+    labels = label[keep]
+    reflect = np.where(labels >= 0, _CAR_REFLECTIVITY, _REFLECTIVITY[LABEL_STRUCTURE])
+    reflect = np.where(labels == LABEL_GROUND, _REFLECTIVITY[LABEL_GROUND], reflect)
+    intensity = np.clip(reflect + rng.normal(0.0, 0.05, size=labels.shape), 0.0, 1.0)
+    points = np.concatenate([xyz, intensity[:, None]], axis=1).astype(np.float32)
+    return SyntheticScan(points=points, labels=labels.astype(np.int32))
+
+
+def parked_street(
+    *,
+    seed: int = 0,
+    length_m: float = 120.0,
+    ground: Ground | None = None,
+    perpendicular_fraction: float = 0.0,
+    sidewalk_m: float = 3.0,
+    occupancy: float = 0.7,
+) -> StreetScene:
+    """A straight street along world x with parked cars on both kerbs and buildings behind.
+
+    Cars stand along the kerbs of ``ground`` (parallel, or perpendicular with probability
+    ``perpendicular_fraction``), facing either way, with random sizes (length 3.8-5.0 m, width
+    1.7-1.95 m, height 1.4-1.75 m), gaps of 0.8-3 m and empty slots (``1 - occupancy``).
+    Building blocks of 6-25 m with alleys between them line both sidewalks.
+
+    Args:
+        seed: Seed of every random choice.
+        length_m: Street length, centred on the world origin, metres.
+        ground: The road; a flat :class:`Ground` with kerbs by default.
+        perpendicular_fraction: Share of cars parked across the kerb, in ``[0, 1]``.
+        sidewalk_m: Sidewalk width between kerb and facades, metres.
+        occupancy: Chance that a parking slot holds a car, in ``[0, 1]``.
+
+    Returns:
+        The scene (cars listed in order of x, left kerb first).
+    """
+    rng = np.random.default_rng(seed)
+    ground = ground or Ground()
+    half = ground.road_half_width_m
+    cars: list[SceneBox] = []
+    structures: list[SceneBox] = []
+    for side in (1.0, -1.0):
+        x = -length_m / 2.0 + rng.uniform(0.0, 3.0)
+        while x < length_m / 2.0:
+            size = (rng.uniform(3.8, 5.0), rng.uniform(1.7, 1.95), rng.uniform(1.4, 1.75))
+            # Perpendicular only where the car leaves 2.5 m of road to the centre line.
+            across = rng.random() < perpendicular_fraction and half - 0.25 - size[0] >= 2.5
+            extent = size[1] if across else size[0]
+            depth = size[0] if across else size[1]
+            if rng.random() < occupancy:
+                yaw = (math.pi / 2 if across else 0.0) + rng.normal(0.0, 0.03)
+                yaw += math.pi * float(rng.integers(0, 2))
+                centre = (x + extent / 2.0, side * (half - 0.25 - depth / 2.0))
+                cars.append(car_on_ground(ground, centre, yaw, size))
+            x += extent + rng.uniform(0.8, 3.0)
+        x = -length_m / 2.0 - 10.0
+        while x < length_m / 2.0 + 10.0:
+            width = rng.uniform(6.0, 25.0)
+            height = rng.uniform(6.0, 15.0)
+            depth = 10.0
+            centre_xy = (x + width / 2.0, side * (half + sidewalk_m + depth / 2.0))
+            z = float(ground.height_at(np.asarray(centre_xy)))
+            structures.append(
+                SceneBox((*centre_xy, z + (height - 3.0) / 2.0), (width, depth, height + 3.0), 0.0)
+            )
+            x += width + (rng.uniform(2.0, 6.0) if rng.random() < 0.4 else 0.0)
+    return StreetScene(ground=ground, cars=tuple(cars), structures=tuple(structures))
