@@ -12,8 +12,8 @@ from typer.testing import CliRunner
 from cam2sim.cli.main import app
 from cam2sim.core.config import (
     CameraConfig,
-    IntrinsicsConfig,
     Config,
+    IntrinsicsConfig,
     LidarConfig,
     MountConfig,
     PoseConfig,
@@ -249,3 +249,78 @@ def test_cli_detect_prints_the_vehicles(street_ws: Workspace) -> None:
     bad = CliRunner().invoke(app, ["detect", str(street_ws.root), "--model", "nope.onnx"])
     assert bad.exit_code == 1
     assert "does not exist" in bad.output
+
+
+def _frame_aware_camera_model(path: Path) -> Path:
+    """A TorchScript 'detector' that sees the car at street x = 30 m, 3.9 m to the right.
+
+    Frame ``i`` of the bag has every pixel set to ``i``; the camera (at the ego origin, looking
+    forward) is then at street x = SPEED * t_i, so the car's depth is 30 - SPEED * t_i. Frames
+    where the car is behind the camera score 0 (dropped by the score threshold).
+    """
+    import torch
+
+    t_first = 0.1 + 0.001  # camera stamps: lidar stamps + 1 ms, first lidar at 0.1 s
+    step = 1.0 / LIDAR_HZ
+
+    class Mono(torch.nn.Module):
+        def forward(
+            self, image: torch.Tensor, K: torch.Tensor
+        ) -> tuple[torch.Tensor, torch.Tensor]:
+            i = torch.round(image.mean() * 255.0)
+            depth = 30.0 - SPEED * (t_first + step * i)
+            boxes = torch.zeros(1, 7)
+            boxes[0, 0] = 3.9 + 0.0 * K[0, 0, 0]
+            boxes[0, 1] = 0.75
+            boxes[0, 2] = depth
+            boxes[0, 3] = 4.5
+            boxes[0, 4] = 1.8
+            boxes[0, 5] = 1.5
+            boxes[0, 6] = 1.5707963  # length axis (cos, 0, -sin) = -z: along the road
+            scores = (depth > 1.0).float().reshape(1) * 0.9
+            return boxes, scores
+
+    example = (torch.zeros(1, 3, 4, 4), torch.eye(3).reshape(1, 3, 3))
+    torch.export.save(torch.export.export(Mono(), example), str(path))
+    return path
+
+
+def test_camera_detection_places_boxes_with_camera_poses(
+    street_ws: Workspace, tmp_path: Path
+) -> None:
+    model = _frame_aware_camera_model(tmp_path / "mono.pt")
+    res = run_detect(
+        street_ws, options=DetectOptions(source="camera", model=str(model)), force=True
+    )
+    doc = res.vehicles
+    assert doc is not None
+    assert doc.source == "camera"
+    assert len(doc.vehicles) == 1
+    v = doc.vehicles[0]
+    truth = WorldFrame(*_origin(street_ws)).from_crs(
+        UTM32N, np.array([[E0 + 30.0, N0 - 3.9, 0.0]])
+    )[0]
+    assert np.hypot(v.position[0] - truth[0], v.position[1] - truth[1]) < 0.05
+    assert v.side == "right"
+    assert v.orientation == "parallel"  # yaw pi/2 about the camera's up axis: along the road
+    # Every frame with the car ahead (depth > 1 m) and within 40 m contributed one box.
+    boxes = read_table(street_ws.detections_dir / "boxes_camera.csv")
+    assert v.hits == int((boxes["vehicle"] == 0).sum()) >= 20
+    # Monocular sigma grows with depth.
+    order = np.argsort(boxes["range_m"])
+    assert np.all(np.diff(boxes["sigma_m"][order]) >= -1e-9)
+
+
+def _origin(ws: Workspace) -> tuple[float, float, float]:
+    rec = ws.world_frame()
+    assert rec is not None
+    assert rec.origin_lat_deg is not None
+    assert rec.origin_lon_deg is not None
+    return rec.origin_lat_deg, rec.origin_lon_deg, rec.origin_alt_m
+
+
+def test_cli_refine_without_dataset_says_what_to_run(tmp_path: Path) -> None:
+    Workspace.create(tmp_path / "ws", Config(recording=RecordingConfig(bags=[str(tmp_path)])))
+    out = CliRunner().invoke(app, ["refine", str(tmp_path / "ws"), "--no-open"])
+    assert out.exit_code == 1
+    assert "cam2sim extract" in out.output
