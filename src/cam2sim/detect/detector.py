@@ -38,7 +38,10 @@ Source = Literal["lidar", "camera"]
 class LidarDetector(Protocol):
     """Finds vehicles in one LiDAR scan."""
 
-    name: str
+    @property
+    def name(self) -> str:
+        """Detector name recorded in ``parked_vehicles.json``."""
+        ...
 
     def detect(self, points: npt.NDArray[np.float32]) -> Boxes:
         """Boxes (``axes="link"``) in the scan's frame.
@@ -54,7 +57,10 @@ class LidarDetector(Protocol):
 class CameraDetector(Protocol):
     """Finds vehicles in one camera image."""
 
-    name: str
+    @property
+    def name(self) -> str:
+        """Detector name recorded in ``parked_vehicles.json``."""
+        ...
 
     def detect(self, image: npt.NDArray[np.uint8], K: npt.NDArray[np.float64]) -> Boxes:
         """Boxes (``axes="optical"``) in the camera's optical frame.
