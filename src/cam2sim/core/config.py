@@ -196,6 +196,40 @@ class LidarConfig(_Model):
     drop_invalid_points: bool = True
 
 
+class VehicleConfig(_Model):
+    """The ego vehicle's geometry: where the recorded pose sits on the car.
+
+    Vehicle frame: origin at the centre of the vehicle's footprint on the ground, x forward, y
+    left, z up. The recorded pose (odometry, base_link) is the ``reference`` point; the
+    scenario stage derives the centre and the rear axle from it with these numbers, once.
+    Defaults: CARLA's ``vehicle.tesla.model3`` (the published tool's hero), whose rear axle is
+    1.393 m behind its centre, and a recorded pose on the rear axle (ROS ``base_link``).
+    """
+
+    length_m: float = pydantic.Field(4.79, gt=0)
+    width_m: float = pydantic.Field(2.16, gt=0)
+    height_m: float = pydantic.Field(1.49, gt=0)
+    wheelbase_m: float = pydantic.Field(2.875, gt=0)
+    rear_axle_x_m: float = pydantic.Field(
+        -1.393, description="rear axle position along x from the centre (negative: behind)"
+    )
+    reference: Literal["rear_axle", "center", "offset"] = pydantic.Field(
+        "rear_axle", description="which point of the car the recorded pose is"
+    )
+    reference_offset_m: tuple[float, float, float] = pydantic.Field(
+        (0.0, 0.0, 0.0),
+        description="reference point in the vehicle frame when reference is 'offset'",
+    )
+
+    def reference_xyz(self) -> tuple[float, float, float]:
+        """The recorded reference point in the vehicle (centre) frame, metres."""
+        if self.reference == "rear_axle":
+            return (self.rear_axle_x_m, 0.0, 0.0)
+        if self.reference == "center":
+            return (0.0, 0.0, 0.0)
+        return self.reference_offset_m
+
+
 class FramesConfig(_Model):
     """How camera frames are written."""
 
@@ -215,6 +249,7 @@ class Config(_Model):
     camera: CameraConfig = CameraConfig()
     lidar: LidarConfig = LidarConfig()
     frames: FramesConfig = FramesConfig()
+    vehicle: VehicleConfig = VehicleConfig()
 
     @pydantic.model_validator(mode="after")
     def _check_consistency(self) -> Self:
@@ -308,6 +343,9 @@ _HEADER = """\
 #   camera.mount / lidar.mount: sensor position (xyz, m) and rpy_deg relative to the pose's
 #     reference point, in the vehicle frame (x forward, y left, z up); or tf_frame to read it
 #     from /tf_static.
+#   vehicle: the ego car's size and where the recorded pose sits on it (reference: rear_axle,
+#     center, or offset with reference_offset_m); rear_axle_x_m is the rear axle's position
+#     from the car's centre (negative = behind). Used by `cam2sim scenario`.
 """
 
 

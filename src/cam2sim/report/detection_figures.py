@@ -5,8 +5,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-import numpy.typing as npt
 
+from cam2sim.detect.boxes import footprint_corners
 from cam2sim.report.plotting import pyplot, save_figure
 
 if TYPE_CHECKING:
@@ -17,29 +17,10 @@ if TYPE_CHECKING:
     from cam2sim.detect.vehicles import ParkedVehicles
     from cam2sim.map.query import RoadMap
 
-__all__ = ["box_corners", "plot_parked_vehicles"]
+__all__ = ["plot_parked_vehicles"]
 
 _SIDE_COLOUR = {"left": "tab:green", "right": "tab:purple"}
 _LANE_COLOUR = {"driving": "0.85", "parking": "#cfe3f7", "sidewalk": "#f3e3c8"}
-
-
-def box_corners(
-    xy: npt.ArrayLike, yaw: npt.ArrayLike, length: npt.ArrayLike, width: npt.ArrayLike
-) -> npt.NDArray[np.float64]:
-    """``(N, 4, 2)`` rectangle corners: front-left, front-right, rear-right, rear-left."""
-    c = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-    yaw_a = np.asarray(yaw, dtype=np.float64).reshape(-1)
-    hl = np.asarray(length, dtype=np.float64).reshape(-1) / 2.0
-    hw = np.asarray(width, dtype=np.float64).reshape(-1) / 2.0
-    fwd = np.stack([np.cos(yaw_a), np.sin(yaw_a)], -1)
-    left = np.stack([-np.sin(yaw_a), np.cos(yaw_a)], -1)
-    signs = np.array([[1.0, 1.0], [1.0, -1.0], [-1.0, -1.0], [-1.0, 1.0]])
-    corners: npt.NDArray[np.float64] = (
-        c[:, None, :]
-        + signs[None, :, 0:1] * (hl[:, None, None] * fwd[:, None, :])
-        + signs[None, :, 1:2] * (hw[:, None, None] * left[:, None, :])
-    )
-    return corners
 
 
 def plot_parked_vehicles(
@@ -92,7 +73,7 @@ def plot_parked_vehicles(
         fig.colorbar(sc, ax=ax, shrink=0.6, label="box score")
     vs = doc.vehicles
     if vs:
-        corners = box_corners(
+        corners = footprint_corners(
             [v.position[:2] for v in vs],
             [v.yaw for v in vs],
             [v.size[0] for v in vs],

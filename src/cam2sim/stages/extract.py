@@ -103,7 +103,8 @@ def _fingerprints(paths: list[Path]) -> list[SourceRecord]:
 def _inputs_hash(config: Config, sources: list[SourceRecord]) -> str:
     return hash_inputs(
         {
-            "config": config.model_dump(mode="json"),
+            # The vehicle block only feeds later stages: editing it must not re-extract.
+            "config": config.model_dump(mode="json", exclude={"vehicle"}),
             "sources": [s.fingerprint for s in sources],
         }
     )
