@@ -37,11 +37,13 @@ def _register_subcommands() -> None:
     from cam2sim.cli.detect_cmd import detect, refine  # noqa: PLC0415
     from cam2sim.cli.evaluate import evaluate_app  # noqa: PLC0415
     from cam2sim.cli.map_cmd import map_  # noqa: PLC0415
+    from cam2sim.cli.scenario_cmd import scenario  # noqa: PLC0415
     from cam2sim.cli.splat_cmd import splat  # noqa: PLC0415
 
     app.command("detect")(detect)
     app.command("refine")(refine)
     app.command("map")(map_)
+    app.command("scenario")(scenario)
     app.command("splat")(splat)
     app.add_typer(evaluate_app, name="evaluate")
 

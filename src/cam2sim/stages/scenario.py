@@ -1,0 +1,265 @@
+"""Stage scenario: ``WS/scenario/`` from the dataset, the map and the parked vehicles.
+
+Writes, in one atomic folder swap:
+
+- ``scenario.json`` (:class:`~cam2sim.scenario.model.Scenario`), the description every
+  simulator backend loads;
+- ``carla/``: the same in CARLA's frame, as the published tool's scripts read it
+  (:mod:`cam2sim.scenario.carla_export`);
+- ``scenario.xosc``: OpenSCENARIO 1.2, validated against the official schema
+  (:mod:`cam2sim.scenario.openscenario`);
+- ``scenario.png``: map, route, start pose, parked cars and the ones left out.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+
+from cam2sim.core.errors import StageError
+from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.workspace import Workspace, dataset_paths, hash_inputs
+from cam2sim.stages._runner import stage_run
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from cam2sim.core.dataset import Calibration
+    from cam2sim.detect.vehicles import ParkedVehicle
+    from cam2sim.map.query import RoadMap
+    from cam2sim.scenario.checks import CheckOptions
+    from cam2sim.scenario.model import Scenario, ScenarioVehicle, SizeClass
+
+__all__ = ["ScenarioOptions", "ScenarioResult", "run_scenario", "size_class"]
+
+logger = logging.getLogger(__name__)
+STAGE = "scenario"
+SCENARIO_FILE = "scenario.json"
+XOSC_FILE = "scenario.xosc"
+
+
+@dataclass(frozen=True)
+class ScenarioOptions:
+    """What ``cam2sim scenario`` does.
+
+    Attributes:
+        heading: ``orientation`` (the recorded orientation's yaw) or ``motion`` (the direction
+            of travel over ``motion_window_s``).
+        motion_window_s: Centred window for headings from motion.
+        keep_conflicts: Spawn parked vehicles that fail the checks anyway (still reported).
+        checks: Thresholds of the parked-vehicle checks.
+    """
+
+    heading: Literal["orientation", "motion"] = "orientation"
+    motion_window_s: float = 0.5
+    keep_conflicts: bool = False
+    checks: CheckOptions | None = None
+
+
+@dataclass(frozen=True)
+class ScenarioResult:
+    """What the stage wrote (``scenario`` is None when it was up to date)."""
+
+    folder: Path
+    scenario: Scenario | None
+
+
+def size_class(size: tuple[float, float, float]) -> SizeClass:
+    """Size class of a vehicle from its length, width and height (metres)."""
+    length, _, height = size
+    if height > 1.9 or length > 5.3:
+        return "van"
+    if length >= 4.7:
+        return "large"
+    if length >= 4.1:
+        return "medium"
+    return "small"
+
+
+def _inputs(ws: Workspace, opts: ScenarioOptions) -> str:
+    from cam2sim.core.files import file_fingerprint  # noqa: PLC0415
+    from cam2sim.detect.vehicles import parked_vehicles_path  # noqa: PLC0415
+
+    extract = ws.stage_record("extract")
+    parked = parked_vehicles_path(ws.detections_dir)
+    xodr = ws.map_dir / "map.xodr"
+    return hash_inputs(
+        {
+            "dataset": extract.inputs_hash if extract else None,
+            "vehicle": ws.load_config().vehicle.model_dump(mode="json"),
+            "map": file_fingerprint(xodr) if xodr.is_file() else None,
+            "parked": file_fingerprint(parked) if parked.is_file() else None,
+            "options": repr(opts),
+        }
+    )
+
+
+def run_scenario(
+    ws: Workspace,
+    *,
+    options: ScenarioOptions | None = None,
+    force: bool = False,
+    progress: ProgressCallback | None = None,
+) -> ScenarioResult:
+    """Build the workspace's scenario.
+
+    Raises:
+        StageError: No dataset, a dataset without poses, or no map.
+        BackendUnavailableError: scenariogeneration is not installed.
+    """
+    from cam2sim.core.files import atomic_folder  # noqa: PLC0415
+
+    opts = options or ScenarioOptions()
+    report = progress or no_progress
+    record = ws.stage_record("extract")
+    if record is None or record.state != "done":
+        msg = f"{ws.root} has no dataset; run `cam2sim extract {ws.root}` (or import) first"
+        raise StageError(msg)
+    if not (ws.map_dir / "map.xodr").is_file():
+        msg = f"{ws.root} has no map; run `cam2sim map {ws.root}` first"
+        raise StageError(msg)
+    inputs = _inputs(ws, opts)
+    folder = ws.scenario_dir
+    if not force and (folder / SCENARIO_FILE).is_file() and ws.is_up_to_date(STAGE, inputs):
+        logger.info("scenario: up to date; skipping (use --force to run again)")
+        return ScenarioResult(folder, None)
+    config = ws.load_config()
+    with stage_run(ws, STAGE, inputs_hash=inputs, config=config):
+        report("scenario", 0, 4)
+        scenario, conflicts, road_map = build_scenario(ws, opts)
+        left_out = [v for v in _parked(ws) if v.id in conflicts and not opts.keep_conflicts]
+        report("scenario", 1, 4)
+        with atomic_folder(folder) as tmp:
+            scenario.save(tmp / SCENARIO_FILE)
+            _write_exports(ws, scenario, tmp, report)
+            from cam2sim.report.scenario_figures import plot_scenario  # noqa: PLC0415
+
+            plot_scenario(tmp / "scenario.png", scenario, conflicts, road_map, left_out)
+            report("scenario", 4, 4)
+    return ScenarioResult(folder, scenario)
+
+
+def _write_exports(ws: Workspace, scenario: Scenario, tmp: Path, report: ProgressCallback) -> None:
+    import os  # noqa: PLC0415
+
+    from cam2sim.scenario.carla_export import write_carla_files  # noqa: PLC0415
+    from cam2sim.scenario.openscenario import (  # noqa: PLC0415
+        validate_openscenario,
+        write_openscenario,
+    )
+
+    write_carla_files(scenario, tmp / "carla")
+    report("scenario", 2, 4)
+    xosc = tmp / XOSC_FILE
+    map_rel = os.path.relpath(ws.map_dir / "map.xodr", ws.scenario_dir)
+    write_openscenario(scenario, xosc, map_path=map_rel)
+    errors = validate_openscenario(xosc)
+    if errors:
+        msg = f"the written {XOSC_FILE} does not validate: " + "; ".join(errors[:5])
+        raise StageError(msg)
+    report("scenario", 3, 4)
+
+
+def build_scenario(
+    ws: Workspace, opts: ScenarioOptions
+) -> tuple[Scenario, dict[str, list[str]], RoadMap]:
+    """The scenario record, the check findings by vehicle id, and the road map."""
+    from cam2sim.core.dataset import Calibration, DatasetInfo  # noqa: PLC0415
+    from cam2sim.core.frames.rotation import yaw_from_quat  # noqa: PLC0415
+    from cam2sim.core.table import read_table  # noqa: PLC0415
+    from cam2sim.core.trajectory import heading_from_motion  # noqa: PLC0415
+    from cam2sim.scenario.body import body_point_positions, vehicle_geometry  # noqa: PLC0415
+    from cam2sim.scenario.checks import check_parked  # noqa: PLC0415
+    from cam2sim.scenario.model import (  # noqa: PLC0415
+        HeroStart,
+        Rejection,
+        Scenario,
+        ScenarioTrajectory,
+    )
+    from cam2sim.stages.map import load_road_map  # noqa: PLC0415
+
+    paths = dataset_paths(ws.dataset_dir)
+    info = DatasetInfo.load(paths.dataset_json)
+    calib: Calibration = Calibration.load(paths.calibration_json)
+    if info.pose_less:
+        msg = (
+            "this dataset has no poses (images imported without them); a scenario replays the "
+            "recorded drive, so import a pose CSV with the images"
+        )
+        raise StageError(msg)
+    world = ws.world_frame()
+    if world is None:
+        msg = f"{ws.root} has no world frame; re-run `cam2sim extract {ws.root}`"
+        raise StageError(msg)
+    table = read_table(paths.poses_csv)
+    stamp = table["stamp_ns"].astype(np.int64)
+    ref = np.stack([table[c] for c in ("x", "y", "z")], 1).astype(np.float64)
+    if opts.heading == "motion":
+        heading = heading_from_motion(stamp, ref, window_s=opts.motion_window_s, min_speed_mps=0.5)
+    else:
+        q = np.stack([table[c] for c in ("qx", "qy", "qz", "qw")], 1).astype(np.float64)
+        heading = np.asarray(yaw_from_quat(q))
+    geom = vehicle_geometry(ws.load_config().vehicle)
+    centre = body_point_positions(ref, heading, geom.reference_xyz, (0.0, 0.0, 0.0))
+    rear = body_point_positions(ref, heading, geom.reference_xyz, geom.rear_axle_xyz)
+    trajectory = ScenarioTrajectory(
+        heading_source=opts.heading,
+        frame=tuple(int(f) for f in table["frame"]),
+        stamp_ns=tuple(int(s) for s in stamp),
+        t=tuple(float(v) for v in (stamp - stamp[0]) / 1e9),
+        heading=tuple(float(h) for h in heading),
+        speed=tuple(float(v) for v in table["speed"]),
+        reference=tuple(map(tuple, ref.tolist())),
+        center=tuple(map(tuple, centre.tolist())),
+        rear_axle=tuple(map(tuple, rear.tolist())),
+    )
+    road_map = load_road_map(ws)
+    vehicles = _parked(ws)
+    conflicts = check_parked(vehicles, centre[:, :2], geom.width_m, road_map, opts.checks)
+    for vid, why in conflicts.items():
+        logger.warning("parked vehicle %s: %s", vid, "; ".join(why))
+    keep = [v for v in vehicles if opts.keep_conflicts or v.id not in conflicts]
+    scenario = Scenario(
+        map_file="map/map.xodr",
+        world=world,
+        vehicle=geom,
+        trajectory=trajectory,
+        # The map is the plan view (OpenDRIVE elevation is not evaluated): the road is z = 0.
+        hero_start=HeroStart(
+            position=(float(centre[0, 0]), float(centre[0, 1]), 0.0),
+            heading=float(heading[0]),
+            speed=float(table["speed"][0]),
+        ),
+        parked=tuple(_spawn(v) for v in keep),
+        rejected=tuple(Rejection(id=k, reasons=tuple(v)) for k, v in sorted(conflicts.items())),
+        camera=calib.camera,
+        camera_mount=calib.camera_mount,
+    )
+    return scenario, conflicts, road_map
+
+
+def _parked(ws: Workspace) -> list[ParkedVehicle]:
+    from cam2sim.detect.vehicles import ParkedVehicles, parked_vehicles_path  # noqa: PLC0415
+
+    path = parked_vehicles_path(ws.detections_dir)
+    if not path.is_file():
+        logger.info("no %s: the scenario has no parked vehicles (run `cam2sim detect`)", path)
+        return []
+    return list(ParkedVehicles.load(path).vehicles)
+
+
+def _spawn(v: ParkedVehicle) -> ScenarioVehicle:
+    from cam2sim.scenario.model import ScenarioVehicle  # noqa: PLC0415
+
+    return ScenarioVehicle(
+        id=v.id,
+        position=(v.position[0], v.position[1], 0.0),
+        heading=v.yaw,
+        size=v.size,
+        size_class=size_class(v.size),
+        side=v.side,
+        orientation=v.orientation,
+    )
