@@ -99,7 +99,14 @@ def plot_scenario(
     lines = [f"{r.id}: {'; '.join(r.reasons)}" for r in scenario.rejected]
     if lines:
         ax.plot([], [], "s", color="white", markeredgecolor="tab:red", label="left out (below)")
-        fig.text(0.02, 0.01, "Left out:\n" + "\n".join(lines), fontsize=7, va="bottom")
+        ax.annotate(
+            "Left out:\n" + "\n".join(lines),
+            xy=(0.0, -0.25),
+            xycoords="axes fraction",
+            va="top",
+            fontsize=7,
+            annotation_clip=False,
+        )
     ax.set_aspect("equal")
     ax.set_xlabel("east (m)")
     ax.set_ylabel("north (m)")
