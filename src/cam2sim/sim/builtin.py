@@ -1,0 +1,375 @@
+"""The ``builtin`` simulator: an embedded, deterministic kinematic-bicycle world on CPU.
+
+The ego vehicle is a kinematic bicycle about its rear axle, integrated exactly along a circular
+arc each fixed step, with a front wheel angle limit and a steering-rate limit. A PID on
+longitudinal acceleration (with acceleration and braking limits, anti-windup) holds the target
+speed. The world is the OpenDRIVE map's drivable area and the scenario's parked vehicles as
+static boxes. Each step checks, in this order: collision (footprint overlaps a parked box,
+shapely STRtree built once), off-road (a footprint corner or edge midpoint leaves the drivable
+area grown by ``offroad_margin_m``; prepared geometry), route completed (progress along the
+recorded centre trajectory reaches its end), stuck and timeout. Each kind is reported once, at
+the first step it happens.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+import pydantic
+
+from cam2sim.core.errors import ConfigError, StageError
+from cam2sim.sim.interface import (
+    Control,
+    EventKind,
+    Pose,
+    SimEvent,
+    SteeringCalibration,
+    VehicleState,
+)
+
+if TYPE_CHECKING:
+    from cam2sim.map.query import RoadMap
+    from cam2sim.scenario.model import Scenario
+
+__all__ = ["BuiltinOptions", "BuiltinSimulator"]
+
+_ALL_EVENTS: tuple[EventKind, ...] = (
+    "collision",
+    "off_road",
+    "route_completed",
+    "stuck",
+    "timeout",
+)
+_PROJECT_BACK = 4  # route segments searched behind the last foot point
+_PROJECT_AHEAD = 40  # and ahead of it
+
+
+class BuiltinOptions(pydantic.BaseModel):
+    """Settings of the builtin simulator (defaults in the field descriptions)."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+    dt: float = pydantic.Field(1.0 / 30.0, gt=0, description="fixed time step, s")
+    max_wheel_angle_rad: float = pydantic.Field(0.61, gt=0, description="~35 degrees")
+    max_steer_rate_rad_s: float = pydantic.Field(1.0, gt=0, description="wheel angle rate limit")
+    max_accel: float = pydantic.Field(2.5, gt=0, description="m/s^2")
+    max_decel: float = pydantic.Field(6.0, gt=0, description="braking limit, m/s^2")
+    kp: float = pydantic.Field(1.5, ge=0, description="PID gain, (m/s^2) per (m/s)")
+    ki: float = pydantic.Field(0.5, ge=0)
+    kd: float = pydantic.Field(0.0, ge=0)
+    integral_band: float = pydantic.Field(
+        0.5, gt=0, description="the integral only runs this close to the target (m/s)"
+    )
+    target_speed: float | None = pydantic.Field(
+        None, ge=0, description="initial target, m/s; None: the hero start's recorded speed"
+    )
+    calibration: SteeringCalibration = SteeringCalibration()
+    offroad_margin_m: float = pydantic.Field(
+        0.3, description="how far the footprint may leave the drivable area"
+    )
+    route_end_tolerance_m: float = pydantic.Field(3.0, ge=0)
+    route_max_lateral_m: float = pydantic.Field(
+        4.0, gt=0, description="progress only counts this close to the recorded route"
+    )
+    stuck_speed: float = pydantic.Field(0.1, ge=0, description="m/s")
+    stuck_after_s: float = pydantic.Field(5.0, gt=0)
+    timeout_s: float | None = pydantic.Field(
+        None, gt=0, description="None: twice the recorded duration plus 10 s"
+    )
+    steering_noise_std: float = pydantic.Field(0.0, ge=0, description="steering units")
+    seed: int = 0
+
+
+class BuiltinSimulator:
+    """The embedded simulator; see the module docstring.
+
+    Use ``load`` once per scenario, then ``reset`` and ``step``::
+
+        sim = BuiltinSimulator(BuiltinOptions())
+        sim.load(scenario, road_map)
+        state = sim.reset()
+        while not sim.done:
+            state = sim.step(Control(steering=policy(image)))
+    """
+
+    def __init__(self, options: BuiltinOptions | None = None) -> None:
+        self.options = options or BuiltinOptions()
+        self._loaded = False
+        self._events: list[SimEvent] = []
+        self._rng = np.random.default_rng(self.options.seed)
+
+    # -- world ---------------------------------------------------------------------------
+    def load(self, scenario: Scenario, road_map: RoadMap) -> None:
+        """Build the world: drivable area, parked boxes and the recorded route.
+
+        Raises:
+            StageError: The map has no drivable lanes.
+        """
+        import shapely  # noqa: PLC0415
+
+        from cam2sim.detect.boxes import footprint_corners  # noqa: PLC0415
+        from cam2sim.metrics.path import ReferencePath  # noqa: PLC0415
+
+        o = self.options
+        area = road_map.drivable_area()
+        if area.is_empty:
+            msg = "the road map has no drivable lanes; check the map stage's output (map.xodr)"
+            raise StageError(msg)
+        grown = shapely.buffer(area, o.offroad_margin_m) if o.offroad_margin_m else area
+        shapely.prepare(grown)
+        self._area = grown
+        v = scenario.vehicle
+        self._wheelbase = v.wheelbase_m
+        self._rear_x = v.rear_axle_xyz[0]  # rear axle along x from the centre (negative)
+        hl, hw = 0.5 * v.length_m, 0.5 * v.width_m
+        corners = [[hl, hw], [hl, -hw], [-hl, -hw], [-hl, hw]]
+        mids = [[hl, 0.0], [0.0, -hw], [-hl, 0.0], [0.0, hw]]
+        self._local = np.array(corners + mids)  # footprint check points, vehicle frame
+        self._parked = scenario.parked
+        if scenario.parked:
+            pc = np.array([p.position[:2] for p in scenario.parked])
+            yaw = np.array([p.heading for p in scenario.parked])
+            size = np.array([p.size for p in scenario.parked])
+            boxes = shapely.polygons(footprint_corners(pc, yaw, size[:, 0], size[:, 1]))
+            self._boxes: npt.NDArray[np.object_] = np.asarray(boxes, dtype=object)
+            # a cheap distance test first: centres closer than the two half diagonals
+            self._box_xy = pc
+            reach = 0.5 * np.hypot(size[:, 0], size[:, 1]) + 0.5 * math.hypot(hl * 2, hw * 2)
+            self._box_reach2 = reach**2
+        else:
+            self._boxes = np.empty(0, dtype=object)
+        self._tree = shapely.STRtree(self._boxes)
+        center = np.asarray(scenario.trajectory.center, dtype=np.float64)[:, :2]
+        self._route = ReferencePath.from_polyline(center, spacing_m=1.0)
+        r = self._route.xy
+        self._seg_a = r[:-1]
+        self._seg_d = np.diff(r, axis=0)
+        self._seg_len2 = np.maximum((self._seg_d**2).sum(axis=1), 1e-12)
+        self._start = scenario.hero_start
+        self._z = scenario.hero_start.position[2]
+        t = scenario.trajectory.t
+        self._timeout = o.timeout_s if o.timeout_s is not None else 2.0 * (t[-1] - t[0]) + 10.0
+        self._loaded = True
+        self.reset()
+
+    # -- episode ---------------------------------------------------------------------------
+    def reset(self, pose: Pose | None = None, *, seed: int | None = None) -> VehicleState:
+        """Place the vehicle at ``pose`` (default: the hero start) and clear the events.
+
+        Raises:
+            StageError: ``load`` has not been called.
+        """
+        if not self._loaded:
+            msg = "BuiltinSimulator.reset before load; call load(scenario, road_map) first"
+            raise StageError(msg)
+        if pose is None:
+            s = self._start
+            pose = Pose(s.position[0], s.position[1], s.heading, s.speed)
+        self._rng = np.random.default_rng(self.options.seed if seed is None else seed)
+        self._t = 0.0
+        self._heading = pose.heading
+        self._rx = pose.x + self._rear_x * math.cos(pose.heading)
+        self._ry = pose.y + self._rear_x * math.sin(pose.heading)
+        self._speed = max(0.0, pose.speed)
+        self._delta = 0.0
+        self._steer = 0.0
+        ts = self.options.target_speed
+        self._target = ts if ts is not None else self._start.speed
+        self._integral = 0.0
+        self._prev_speed = self._speed
+        self._slow_since: float | None = None
+        self._events = []
+        self._seen: set[EventKind] = set()
+        self._seg = 0
+        self._progress = 0.0
+        self._update_progress()
+        return self._state()
+
+    @property
+    def events(self) -> tuple[SimEvent, ...]:
+        """Events since the last reset, in order."""
+        return tuple(self._events)
+
+    @property
+    def done(self) -> bool:
+        """Whether an event ended the episode (any event does)."""
+        return bool(self._events)
+
+    def close(self) -> None:
+        """Drop the world (nothing external to release)."""
+        self._loaded = False
+
+    # -- dynamics --------------------------------------------------------------------------
+    def step(self, control: Control) -> VehicleState:
+        """Advance one fixed time step.
+
+        Raises:
+            StageError: ``load`` has not been called.
+            ConfigError: A non-finite command.
+        """
+        if not self._loaded:
+            msg = "BuiltinSimulator.step before load; call load(scenario, road_map) first"
+            raise StageError(msg)
+        dt = self.options.dt
+        if control.target_speed is not None:
+            self._target = max(0.0, control.target_speed)
+        self._steer_toward(control)
+        v0 = self._speed
+        v1 = max(0.0, v0 + self._acceleration() * dt)
+        dist = 0.5 * (v0 + v1) * dt
+        self._speed = v1
+
+        kappa = math.tan(self._delta) / self._wheelbase
+        h0 = self._heading
+        dh = kappa * dist
+        if abs(dh) > 1e-9:
+            h1 = h0 + dh
+            self._rx += (math.sin(h1) - math.sin(h0)) / kappa
+            self._ry += (math.cos(h0) - math.cos(h1)) / kappa
+        else:
+            h1 = h0 + dh
+            hm = h0 + 0.5 * dh
+            self._rx += dist * math.cos(hm)
+            self._ry += dist * math.sin(hm)
+        self._heading = math.remainder(h1, math.tau)
+        self._t += dt
+        self._update_progress()
+        self._detect()
+        return self._state()
+
+    # -- helpers ---------------------------------------------------------------------------
+    def _steer_toward(self, control: Control) -> None:
+        """Move the wheel angle toward the command within the angle and rate limits."""
+        o = self.options
+        if control.wheel_angle is not None:
+            want = control.wheel_angle
+            self._steer = math.nan
+        else:
+            cmd = control.steering
+            if o.steering_noise_std:
+                cmd += o.steering_noise_std * float(self._rng.standard_normal())
+            self._steer = cmd
+            want = o.calibration.wheel_angle(cmd, self._wheelbase)
+        if not (math.isfinite(want) and math.isfinite(self._target)):
+            msg = f"control {control!r} is not finite; send finite steering and speed"
+            raise ConfigError(msg)
+        lim = o.max_wheel_angle_rad
+        want = min(lim, max(-lim, want))
+        rate = o.max_steer_rate_rad_s * o.dt
+        self._delta += min(rate, max(-rate, want - self._delta))
+
+    def _acceleration(self) -> float:
+        """PID on the speed error, limited.
+
+        Anti-windup: the integral runs only near the target (``integral_band``), not while the
+        output is saturated in the error's direction, and not while braking at a standstill.
+        """
+        o = self.options
+        err = self._target - self._speed
+        deriv = (self._speed - self._prev_speed) / o.dt
+        self._prev_speed = self._speed
+        acc = o.kp * err + o.ki * self._integral - o.kd * deriv
+        sat = min(o.max_accel, max(-o.max_decel, acc))
+        held = self._speed <= 0.0 and acc < 0.0  # standing still: brakes hold, no windup
+        near = abs(err) < o.integral_band
+        if near and (sat == acc or (acc > sat) != (err > 0)) and not held:
+            self._integral += err * o.dt
+        return sat
+
+    def _center(self) -> tuple[float, float]:
+        c, s = math.cos(self._heading), math.sin(self._heading)
+        return (self._rx - self._rear_x * c, self._ry - self._rear_x * s)
+
+    def _state(self) -> VehicleState:
+        cx, cy = self._center()
+        return VehicleState(
+            t=self._t,
+            x=cx,
+            y=cy,
+            z=self._z,
+            heading=self._heading,
+            speed=self._speed,
+            wheel_angle=self._delta,
+            steering=self._steer,
+            rear_axle=(self._rx, self._ry),
+            progress_m=self._progress,
+        )
+
+    def _corners(self) -> npt.NDArray[np.float64]:
+        """``(8, 2)``: the footprint's corners (FL, FR, RR, RL) then its edge midpoints."""
+        c, s = math.cos(self._heading), math.sin(self._heading)
+        cx, cy = self._rx - self._rear_x * c, self._ry - self._rear_x * s
+        out: npt.NDArray[np.float64] = self._local @ np.array([[c, s], [-s, c]]) + (cx, cy)
+        return out
+
+    def _update_progress(self) -> None:
+        lo = max(0, self._seg - _PROJECT_BACK)
+        hi = min(self._seg_a.shape[0], self._seg + _PROJECT_AHEAD)
+        cx, cy = self._center()
+        a, d = self._seg_a[lo:hi], self._seg_d[lo:hi]
+        u = ((cx - a[:, 0]) * d[:, 0] + (cy - a[:, 1]) * d[:, 1]) / self._seg_len2[lo:hi]
+        u = np.clip(u, 0.0, 1.0)
+        dist2 = (a[:, 0] + u * d[:, 0] - cx) ** 2 + (a[:, 1] + u * d[:, 1] - cy) ** 2
+        k = int(np.argmin(dist2))
+        if dist2[k] > self.options.route_max_lateral_m**2:
+            return
+        seg = lo + k
+        s = self._route.s
+        prog = float(s[seg] + u[k] * (s[seg + 1] - s[seg]))
+        if prog >= self._progress:
+            self._seg, self._progress = seg, prog
+
+    def _near_a_box(self, cx: float, cy: float) -> bool:
+        d = self._box_xy - (cx, cy)
+        return bool(((d * d).sum(axis=1) <= self._box_reach2).any())
+
+    def _emit(self, kind: EventKind, x: float, y: float, reason: str) -> None:
+        if kind not in self._seen:
+            self._seen.add(kind)
+            self._events.append(SimEvent(kind=kind, t=self._t, x=x, y=y, reason=reason))
+
+    def _detect(self) -> None:
+        import shapely  # noqa: PLC0415
+
+        o = self.options
+        cx, cy = self._center()
+        pts = self._corners()
+        if len(self._boxes) and "collision" not in self._seen and self._near_a_box(cx, cy):
+            foot = shapely.Polygon(pts[:4])
+            hit = self._tree.query(foot, predicate="intersects")
+            if hit.size:
+                i = int(hit[0])
+                part = shapely.intersection(foot, self._boxes[i])
+                p = shapely.centroid(part) if not part.is_empty else shapely.Point(cx, cy)
+                self._emit("collision", p.x, p.y, f"hit parked vehicle {self._parked[i].id}")
+        if "off_road" not in self._seen:
+            inside = shapely.contains_xy(self._area, pts[:, 0], pts[:, 1])
+            if not inside.all():
+                out = pts[~inside]
+                px, py = out.mean(axis=0)
+                self._emit(
+                    "off_road",
+                    float(px),
+                    float(py),
+                    f"footprint left the drivable area by more than {o.offroad_margin_m} m",
+                )
+        end = self._route.length_m - o.route_end_tolerance_m
+        if self._progress >= end:
+            self._emit("route_completed", cx, cy, f"reached {self._progress:.1f} m of the route")
+        if self._speed < o.stuck_speed:
+            if self._slow_since is None:
+                self._slow_since = self._t
+            if self._t - self._slow_since >= o.stuck_after_s - 1e-9 and self._progress < end:
+                self._emit(
+                    "stuck",
+                    cx,
+                    cy,
+                    f"slower than {o.stuck_speed} m/s for {o.stuck_after_s} s",
+                )
+        else:
+            self._slow_since = None
+        if self._t >= self._timeout - 1e-9:
+            self._emit("timeout", cx, cy, f"ran {self._timeout:.1f} s without finishing")
