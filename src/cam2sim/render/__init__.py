@@ -1,0 +1,1 @@
+"""Camera renderers that need no training: the simulator-style ``raster`` backend."""
