@@ -37,6 +37,7 @@ def _register_subcommands() -> None:
     from cam2sim.cli.detect_cmd import detect, refine  # noqa: PLC0415
     from cam2sim.cli.evaluate import evaluate_app  # noqa: PLC0415
     from cam2sim.cli.map_cmd import map_  # noqa: PLC0415
+    from cam2sim.cli.run_cmd import drive, replay  # noqa: PLC0415
     from cam2sim.cli.scenario_cmd import scenario  # noqa: PLC0415
     from cam2sim.cli.splat_cmd import splat  # noqa: PLC0415
 
@@ -44,6 +45,8 @@ def _register_subcommands() -> None:
     app.command("refine")(refine)
     app.command("map")(map_)
     app.command("scenario")(scenario)
+    app.command("replay")(replay)
+    app.command("drive")(drive)
     app.command("splat")(splat)
     app.add_typer(evaluate_app, name="evaluate")
 

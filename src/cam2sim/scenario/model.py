@@ -14,6 +14,7 @@ import pydantic
 from cam2sim.core.dataset import CameraIntrinsics, MountRecord
 from cam2sim.core.schema import Artifact
 from cam2sim.core.workspace import WorldFrameRecord
+from cam2sim.sim.interface import SteeringCalibration
 
 __all__ = [
     "BodyPoint",
@@ -142,4 +143,8 @@ class Scenario(Artifact):
     camera: CameraIntrinsics | None = None
     camera_mount: MountRecord = pydantic.Field(
         description="camera pose relative to the recorded reference point (optical axes)"
+    )
+    steering_calibration: SteeringCalibration = pydantic.Field(
+        default_factory=SteeringCalibration,
+        description="steering command unit -> path curvature (fitted from the recording)",
     )

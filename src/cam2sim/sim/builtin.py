@@ -70,6 +70,14 @@ class BuiltinOptions(pydantic.BaseModel):
     offroad_margin_m: float = pydantic.Field(
         0.3, description="how far the footprint may leave the drivable area"
     )
+    road_lane_types: tuple[str, ...] = pydantic.Field(
+        (
+            "driving", "parking", "shoulder", "bidirectional", "entry", "exit", "onRamp",
+            "offRamp",
+        ),
+        description="lane types of the carriageway (kerb to kerb): leaving them is off-road; "
+        "a parking lane or shoulder is road surface, a sidewalk is not",
+    )  # fmt: skip
     route_end_tolerance_m: float = pydantic.Field(3.0, ge=0)
     route_max_lateral_m: float = pydantic.Field(
         4.0, gt=0, description="progress only counts this close to the recorded route"
@@ -114,7 +122,7 @@ class BuiltinSimulator:
         from cam2sim.metrics.path import ReferencePath  # noqa: PLC0415
 
         o = self.options
-        area = road_map.drivable_area()
+        area = road_map.drivable_area(o.road_lane_types)
         if area.is_empty:
             msg = "the road map has no drivable lanes; check the map stage's output (map.xodr)"
             raise StageError(msg)

@@ -32,6 +32,7 @@ if TYPE_CHECKING:
     from cam2sim.map.query import RoadMap
     from cam2sim.scenario.checks import CheckOptions
     from cam2sim.scenario.model import Scenario, ScenarioVehicle, SizeClass
+    from cam2sim.sim.interface import SteeringCalibration
 
 __all__ = ["ScenarioOptions", "ScenarioResult", "run_scenario", "size_class"]
 
@@ -237,8 +238,43 @@ def build_scenario(
         rejected=tuple(Rejection(id=k, reasons=tuple(v)) for k, v in sorted(conflicts.items())),
         camera=calib.camera,
         camera_mount=calib.camera_mount,
+        steering_calibration=steering_calibration(ws),
     )
     return scenario, conflicts, road_map
+
+
+STEERING_SIGNAL = "steering"
+
+
+def steering_calibration(ws: Workspace) -> SteeringCalibration:
+    """Curvature per steering unit, fitted from the recording's ``steering`` signal.
+
+    Without such a signal (or with too little driving to fit), the default calibration (the
+    reference drives' 0.022 1/m per unit) is used and the log says so.
+    """
+    from cam2sim.core.errors import ConfigError  # noqa: PLC0415
+    from cam2sim.core.table import read_table  # noqa: PLC0415
+    from cam2sim.sim.interface import SteeringCalibration, fit_steering_calibration  # noqa: PLC0415
+
+    paths = dataset_paths(ws.dataset_dir)
+    signal = paths.signal_file(STEERING_SIGNAL)
+    if not signal.is_file():
+        logger.info("no '%s' signal: default steering calibration", STEERING_SIGNAL)
+        return SteeringCalibration()
+    s = read_table(signal)
+    tr = read_table(paths.trajectory_csv)
+    try:
+        return fit_steering_calibration(
+            s["stamp_ns"].astype(np.int64) / 1e9,
+            s["value"].astype(np.float64),
+            tr["stamp_ns"].astype(np.int64) / 1e9,
+            np.stack([tr["x"], tr["y"]], 1).astype(np.float64),
+            tr["heading"].astype(np.float64),
+            tr["speed"].astype(np.float64),
+        )
+    except ConfigError as err:
+        logger.warning("steering calibration not fitted (%s); using the default", err)
+        return SteeringCalibration()
 
 
 def _parked(ws: Workspace) -> list[ParkedVehicle]:

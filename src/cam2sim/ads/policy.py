@@ -1,0 +1,907 @@
+"""Steering policies: one observation in, one steering command out.
+
+A closed-loop run calls :meth:`SteeringPolicy.predict` at the policy's own rate with an
+:class:`Observation` (the camera frame, when the run has a camera, and the vehicle state) and
+applies the returned command, in the recording's steering unit, through the run's
+:class:`~cam2sim.sim.interface.SteeringCalibration`. :func:`load_policy` builds one from a spec:
+
+- ``pure-pursuit``: :class:`PurePursuitPolicy`, follows the recorded route (uses the map, not
+  the camera): the reference driver and the loop's self-test.
+- ``constant:VALUE``: :class:`ConstantPolicy`, always ``VALUE`` (diagnosis, e.g. hard right).
+- a model file (``.onnx``, ``.pt``, ``.pth``, ``.ts``): :class:`ModelPolicy`.
+- ``tcp://HOST:PORT``: :class:`RemotePolicy`, a policy served by another process
+  (:class:`PolicyServer`, :func:`serve_policy`).
+
+Tensor contract of image models (:class:`ModelPolicy`)
+------------------------------------------------------
+- One input (any name; ``image`` by convention): float32 ``(1, 3, H, W)``, RGB, values
+  ``pixel / 255`` in ``[0, 1]``, no mean/std normalisation (put it inside the model). The
+  camera frame is resized to the model's declared fixed ``H`` and ``W`` with ``cv2.INTER_AREA``;
+  a model with a dynamic size (and every TorchScript model) needs ``input_size=(W, H)``.
+- One output (any name; ``steering`` is picked when there are several): a single value, shape
+  ``()``, ``(1,)`` or ``(1, 1)``, the steering command in the recording's steering unit.
+- ONNX models run with onnxruntime; torch models are ``torch.export.save`` programs or
+  TorchScript archives (``torch.jit.save``) with ``forward(image)`` returning a tensor (or a
+  one-element tuple, or a dict with ``steering``). A model that breaks the contract raises
+  :class:`~cam2sim.core.errors.ConfigError` naming the inputs and outputs it actually has.
+
+Remote protocol (``tcp://HOST:PORT``)
+-------------------------------------
+One TCP connection per client, served one client at a time. Every message is a length-prefixed
+frame: a 4-byte big-endian unsigned length, then that many bytes.
+
+- Request: a frame of UTF-8 JSON (the header), then a frame of raw payload bytes (length 0 when
+  there is none). Header ``type`` is one of:
+
+  - ``"predict"``: ``{"type": "predict", "t": s, "width": W, "height": H, "encoding": "rgb8",
+    "state": {VehicleState fields; rear_axle as [x, y]}}``; the payload is the image, ``H * W *
+    3`` bytes of row-major RGB (``width``/``height`` 0 and an empty payload: no image).
+  - ``"reset"``: start of a run; empty payload.
+  - ``"info"``: asks for ``{"name": str, "needs_image": bool}``; empty payload.
+
+- Reply: one frame of UTF-8 JSON: ``{"steering": float}`` (predict), ``{"ok": true}`` (reset),
+  the info object, or ``{"error": "..."}`` when the policy failed (the connection stays open; a
+  malformed request also closes it). JSON may carry ``NaN`` (Python's ``json`` writes it).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import math
+import socket
+import socketserver
+import struct
+import threading
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Final, Protocol, Self, cast, runtime_checkable
+
+import cv2
+import numpy as np
+
+from cam2sim.core.errors import ConfigError, StageError
+from cam2sim.detect.learned import (
+    _FLOAT_TYPES,
+    _ONNX_HINT,
+    _TORCH_HINT,
+    _check_file,
+    _check_size,
+    _fixed,
+    _image_tensor,
+    _require,
+    _to_numpy,
+    _torch_kind,
+)
+from cam2sim.sim.interface import SteeringCalibration, VehicleState
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from types import TracebackType
+
+    import numpy.typing as npt
+
+__all__ = [
+    "ConstantPolicy",
+    "ModelPolicy",
+    "Observation",
+    "PolicyServer",
+    "PurePursuitPolicy",
+    "RemotePolicy",
+    "SteeringPolicy",
+    "load_policy",
+    "serve_policy",
+]
+
+_log = logging.getLogger(__name__)
+
+_LENGTH: Final = struct.Struct(">I")
+_MAX_HEADER: Final = 1 << 20
+"""Largest JSON header or reply accepted, bytes."""
+_MAX_PAYLOAD: Final = 1 << 28
+"""Largest image accepted, bytes (256 MiB)."""
+_POLL_S: Final = 0.1
+"""How often a server blocked on a connection checks whether it was closed."""
+_NEAR_M: Final = 1.0
+"""Route segments within ``2 * nearest + this`` metres count as near the vehicle."""
+_MODEL_SUFFIXES: Final = (".onnx", ".pt", ".pth", ".ts")
+_SPECS: Final = (
+    "'pure-pursuit', 'constant:VALUE' (e.g. constant:-10), a model file "
+    f"({', '.join(_MODEL_SUFFIXES)}) or 'tcp://HOST:PORT'"
+)
+
+
+@dataclass(frozen=True, slots=True)
+class Observation:
+    """What a policy sees at one decision.
+
+    Attributes:
+        t: Simulated time since reset, seconds.
+        image: ``(H, W, 3)`` uint8 RGB frame of the run's camera; None when the run has none.
+        state: The ego vehicle's state at ``t``.
+    """
+
+    t: float
+    image: npt.NDArray[np.uint8] | None
+    state: VehicleState
+
+
+@runtime_checkable
+class SteeringPolicy(Protocol):
+    """Turns observations into steering commands (in the recording's steering unit)."""
+
+    @property
+    def name(self) -> str:
+        """Short label for reports and logs."""
+        ...
+
+    @property
+    def needs_image(self) -> bool:
+        """Whether :meth:`predict` uses ``Observation.image`` (False: the run may skip it)."""
+        ...
+
+    def reset(self) -> None:
+        """Forget any state: a new run starts."""
+        ...
+
+    def predict(self, obs: Observation) -> float:
+        """The steering command for ``obs``, in the recording's steering unit."""
+        ...
+
+    def close(self) -> None:
+        """Release models, sessions and connections."""
+        ...
+
+
+# --------------------------------------------------------------------------------------------
+# Pure pursuit
+
+
+class PurePursuitPolicy:
+    """Pure pursuit along the recorded route, from the rear axle.
+
+    The goal point lies ``Ld = max(lookahead_min_m, lookahead_gain_s * speed)`` metres of arc
+    length ahead of the vehicle's progress on the route (beyond the route's end, on the
+    extension of its last segment). With ``alpha`` the goal's bearing from the heading and ``d``
+    its distance, the path curvature is ``2 sin(alpha) / d`` and the command
+    ``(curvature - offset) / curvature_per_unit`` of the calibration.
+
+    Progress is monotone: each call projects the rear axle on the route segments from the last
+    progress up to ``search_ahead_m`` (at least ``2 Ld``) further, and takes the nearest point of
+    the *first* stretch of segments near the vehicle (within ``2 d_min + 1 m``), so loops and
+    routes that pass near themselves are followed in order. The first call after :meth:`reset`
+    searches the whole route among segments heading the vehicle's way.
+
+    Args:
+        route_xy: ``(N, 2)`` rear axle positions of the recorded drive, world metres, in order.
+        wheelbase_m: Vehicle wheelbase, metres (reported; pure pursuit from the rear axle needs
+            only the curvature).
+        calibration: Maps curvature to the steering unit.
+        lookahead_min_m: Shortest look-ahead distance, metres.
+        lookahead_gain_s: Look-ahead per speed, seconds.
+        search_ahead_m: Arc length searched ahead of the last progress, metres.
+    """
+
+    def __init__(
+        self,
+        route_xy: npt.ArrayLike,
+        wheelbase_m: float,
+        calibration: SteeringCalibration,
+        *,
+        lookahead_min_m: float = 4.0,
+        lookahead_gain_s: float = 0.6,
+        search_ahead_m: float = 25.0,
+    ) -> None:
+        xy = np.asarray(route_xy, dtype=np.float64)
+        if xy.ndim != 2 or xy.shape[1] != 2 or not np.isfinite(xy).all():
+            msg = f"route_xy must be a finite (N, 2) array of positions, got shape {xy.shape}"
+            raise ConfigError(msg)
+        keep = np.r_[True, np.any(np.diff(xy, axis=0) != 0.0, axis=1)]
+        xy = xy[keep]
+        if len(xy) < 2:
+            msg = "pure-pursuit needs a route of at least 2 distinct positions"
+            raise ConfigError(msg)
+        bad = {
+            k: v
+            for k, v in (
+                ("wheelbase_m", wheelbase_m),
+                ("lookahead_min_m", lookahead_min_m),
+                ("search_ahead_m", search_ahead_m),
+                ("calibration.curvature_per_unit", abs(calibration.curvature_per_unit)),
+            )
+            if not (math.isfinite(v) and v > 0)
+        }
+        if bad or not (math.isfinite(lookahead_gain_s) and lookahead_gain_s >= 0):
+            msg = (
+                "pure-pursuit needs positive finite wheelbase, look-ahead, search window and "
+                f"curvature_per_unit and a non-negative lookahead_gain_s; got {bad or {}!r}, "
+                f"lookahead_gain_s={lookahead_gain_s!r}"
+            )
+            raise ConfigError(msg)
+        self._xy = xy
+        self._seg = np.diff(xy, axis=0)
+        self._seg_len = np.hypot(self._seg[:, 0], self._seg[:, 1])
+        self._s = np.r_[0.0, np.cumsum(self._seg_len)]
+        self.wheelbase_m = float(wheelbase_m)
+        self._calibration = calibration
+        self._ld_min = float(lookahead_min_m)
+        self._ld_gain = float(lookahead_gain_s)
+        self._ahead = float(search_ahead_m)
+        self._index: int | None = None
+        self._progress = 0.0
+
+    @property
+    def name(self) -> str:
+        """``pure-pursuit``."""
+        return "pure-pursuit"
+
+    @property
+    def needs_image(self) -> bool:
+        """False: pure pursuit uses the route and the state only."""
+        return False
+
+    @property
+    def progress_m(self) -> float:
+        """Arc length reached along the route, metres (monotone between resets)."""
+        return self._progress
+
+    @property
+    def route_length_m(self) -> float:
+        """Total arc length of the route, metres."""
+        return float(self._s[-1])
+
+    def reset(self) -> None:
+        """Forget the progress: the next call searches the whole route."""
+        self._index = None
+        self._progress = 0.0
+
+    def _project(
+        self, p: npt.NDArray[np.float64], heading: float, lookahead: float
+    ) -> tuple[int, float]:
+        """Segment index and arc length of the rear axle's projection, searched monotonically."""
+        if self._index is None:
+            lo, hi = 0, len(self._seg)
+        else:
+            lo = self._index
+            reach = self._progress + max(self._ahead, 2.0 * lookahead)
+            hi = max(lo + 1, int(np.searchsorted(self._s, reach, side="right")))
+            hi = min(hi, len(self._seg))
+        a, d = self._xy[lo:hi], self._seg[lo:hi]
+        t = np.clip(np.einsum("ij,ij->i", p - a, d) / self._seg_len[lo:hi] ** 2, 0.0, 1.0)
+        dist = np.hypot(*(a + t[:, None] * d - p).T)
+        if self._index is None:
+            along = d @ np.array([math.cos(heading), math.sin(heading)]) > 0.0
+            if along.any():
+                dist = np.where(along, dist, np.inf)
+        # The first run of segments near the best one: a later leg of the route passing close
+        # by (a hairpin, a loop) forms a separate run and is not taken.
+        near = dist <= 2.0 * float(dist.min()) + _NEAR_M
+        start = int(np.argmax(near))
+        stop = start + int(np.argmin(near[start:])) if not near[start:].all() else len(near)
+        j = start + int(np.argmin(dist[start:stop]))
+        return lo + j, float(self._s[lo + j] + t[j] * self._seg_len[lo + j])
+
+    def _point_at(self, s: float) -> npt.NDArray[np.float64]:
+        if s >= self._s[-1]:
+            end = self._xy[-1] + (s - self._s[-1]) * self._seg[-1] / self._seg_len[-1]
+            return np.asarray(end, dtype=np.float64)
+        return np.array(
+            [np.interp(s, self._s, self._xy[:, 0]), np.interp(s, self._s, self._xy[:, 1])]
+        )
+
+    def curvature(self, state: VehicleState) -> float:
+        """Pure-pursuit path curvature (1/m, positive left) for ``state``; advances progress."""
+        p = np.asarray(state.rear_axle, dtype=np.float64)
+        lookahead = max(self._ld_min, self._ld_gain * max(state.speed, 0.0))
+        index, s = self._project(p, state.heading, lookahead)
+        if self._index is None or s >= self._progress:
+            self._progress = s
+        self._index = index
+        goal = self._point_at(self._progress + lookahead) - p
+        c, si = math.cos(state.heading), math.sin(state.heading)
+        ahead, left = c * goal[0] + si * goal[1], -si * goal[0] + c * goal[1]
+        d2 = ahead * ahead + left * left
+        return 0.0 if d2 < 1e-12 else 2.0 * left / d2  # 2 sin(alpha) / d
+
+    def predict(self, obs: Observation) -> float:
+        """The steering command that follows the route from ``obs.state``."""
+        cal = self._calibration
+        return (self.curvature(obs.state) - cal.offset) / cal.curvature_per_unit
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+class ConstantPolicy:
+    """Always the same command (tests and diagnosis, e.g. ``constant:-10`` for hard right)."""
+
+    def __init__(self, value: float) -> None:
+        if not math.isfinite(value):
+            msg = f"constant policy value must be finite, got {value!r}"
+            raise ConfigError(msg)
+        self.value = float(value)
+
+    @property
+    def name(self) -> str:
+        """``constant:VALUE``."""
+        return f"constant:{self.value:g}"
+
+    @property
+    def needs_image(self) -> bool:
+        """False."""
+        return False
+
+    def reset(self) -> None:
+        """Nothing to forget."""
+
+    def predict(self, obs: Observation) -> float:  # noqa: ARG002  (the interface's argument)
+        """``value``."""
+        return self.value
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+# --------------------------------------------------------------------------------------------
+# Image models
+
+
+def _contract_error(model: str, what: str, inputs: str, outputs: str) -> ConfigError:
+    msg = (
+        f"{model}: {what}; it has inputs [{inputs}] and outputs [{outputs}] (contract: image "
+        "float32 (1, 3, H, W) in [0, 1] -> one steering value; see cam2sim.ads.policy)"
+    )
+    return ConfigError(msg)
+
+
+def _steering_value(value: Any, model: str) -> float:  # Any: numpy arrays or torch tensors
+    a = _to_numpy(value)
+    if a.size != 1 or a.ndim > 2:
+        msg = (
+            f"{model} returned an output of shape {a.shape}; the contract is one steering value, "
+            "shape (), (1,) or (1, 1) (see cam2sim.ads.policy)"
+        )
+        raise ConfigError(msg)
+    out = float(a.reshape(()))
+    if not math.isfinite(out):
+        msg = f"{model} returned a non-finite steering value ({out}); check the model's inputs"
+        raise StageError(msg)
+    return out
+
+
+def _model_image(obs: Observation, size: tuple[int, int], model: str) -> npt.NDArray[np.float32]:
+    if obs.image is None:
+        msg = f"{model} steers from the camera image, but the run has none; configure a camera"
+        raise ConfigError(msg)
+    img = np.asarray(obs.image)
+    if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8 or min(img.shape[:2]) < 1:
+        msg = f"observation image must be (H, W, 3) uint8 RGB; got {img.dtype} {img.shape}"
+        raise ValueError(msg)
+    if (img.shape[1], img.shape[0]) != size:
+        img = np.asarray(cv2.resize(img, size, interpolation=cv2.INTER_AREA), dtype=np.uint8)
+    return _image_tensor(img)
+
+
+def _fit_size(
+    declared: tuple[int, int] | None, input_size: tuple[int, int] | None, model: str
+) -> tuple[int, int]:
+    size = _check_size(input_size) or declared
+    if size is None:
+        msg = f"{model} has no fixed input size; give input_size=(width, height)"
+        raise ConfigError(msg)
+    if declared is not None and size != declared:
+        msg = f"{model}: input_size {input_size!r} differs from the model's fixed size {declared}"
+        raise ConfigError(msg)
+    return size
+
+
+class _OnnxSteering:
+    """An onnxruntime session checked against the steering contract."""
+
+    def __init__(self, path: Path, input_size: tuple[int, int] | None) -> None:
+        self.name = f"onnx:{path.name}"
+        ort = _require("onnxruntime", _ONNX_HINT, "the ONNX steering policy")
+        options = ort.SessionOptions()
+        options.log_severity_level = 3
+        available = set(ort.get_available_providers())
+        providers = [p for p in ("CUDAExecutionProvider", "CPUExecutionProvider") if p in available]
+        try:
+            self._session = ort.InferenceSession(
+                str(path), sess_options=options, providers=providers
+            )
+        except Exception as err:  # onnxruntime's errors derive from Exception only
+            msg = f"cannot load ONNX model {str(path)!r}: {err}"
+            raise ConfigError(msg) from err
+        inputs: list[Any] = list(self._session.get_inputs())  # Any: onnxruntime NodeArgs
+        outputs: list[Any] = list(self._session.get_outputs())
+
+        def part(args: list[Any]) -> str:
+            return ", ".join(f"{a.name} {a.type} {list(a.shape)}" for a in args)
+
+        ins, outs = part(inputs), part(outputs)
+        shape = list(inputs[0].shape) if len(inputs) == 1 else []
+        ok = (
+            len(shape) == 4
+            and _fixed(shape[0]) in (None, 1)
+            and _fixed(shape[1]) in (None, 3)
+            and inputs[0].type in _FLOAT_TYPES
+        )
+        if not ok:
+            raise _contract_error(self.name, "wrong inputs", ins, outs)
+        names = [o.name for o in outputs]
+        if len(names) != 1 and "steering" not in names:
+            raise _contract_error(self.name, "one output (or one named steering) needed", ins, outs)
+        self._fetch = names[0] if len(names) == 1 else "steering"
+        self._input, self._dtype = inputs[0].name, _FLOAT_TYPES[inputs[0].type]
+        h, w = _fixed(shape[2]), _fixed(shape[3])
+        self.size = _fit_size((w, h) if w and h else None, input_size, self.name)
+
+    def __call__(self, x: npt.NDArray[np.float32]) -> float:
+        try:
+            (value,) = self._session.run([self._fetch], {self._input: x.astype(self._dtype)})
+        except Exception as err:  # onnxruntime's errors derive from Exception only
+            msg = f"{self.name}: inference failed on an image of shape {x.shape} ({err})"
+            raise ConfigError(msg) from err
+        return _steering_value(value, self.name)
+
+
+class _TorchSteering:
+    """A torch.export program or TorchScript module checked against the steering contract."""
+
+    def __init__(self, path: Path, input_size: tuple[int, int] | None, device: str) -> None:
+        import warnings  # noqa: PLC0415  (only torch's deprecations need it)
+
+        self.name = f"torch:{path.name}"
+        torch = _require("torch", _TORCH_HINT, "the torch steering policy")
+        self._device = device
+        declared: tuple[int, int] | None = None
+        try:
+            if _torch_kind(path) == "export":
+                program = torch.export.load(io.BytesIO(path.read_bytes()))
+                user = set(program.graph_signature.user_inputs)
+                shapes = [
+                    tuple(n.meta["val"].shape)
+                    for n in program.graph.nodes
+                    if n.op == "placeholder" and n.name in user and "val" in n.meta
+                ]
+                n_inputs = len(user)
+                if shapes and len(shapes[0]) == 4 and all(type(d) is int for d in shapes[0][2:]):
+                    declared = (int(shapes[0][3]), int(shapes[0][2]))
+                self._module: Callable[..., Any] = program.module().to(device)
+            else:
+                with warnings.catch_warnings():
+                    warnings.filterwarnings("ignore", r".*torch\.jit", DeprecationWarning)
+                    script = torch.jit.load(str(path), map_location=device)
+                n_inputs = len(script.forward.schema.arguments) - 1
+                self._module = script
+        except (RuntimeError, ValueError, KeyError, OSError) as err:
+            msg = f"cannot load torch model {str(path)!r}: {err}"
+            raise ConfigError(msg) from err
+        if n_inputs != 1:
+            msg = f"forward takes {n_inputs} inputs, the contract is forward(image)"
+            raise _contract_error(self.name, msg, f"{n_inputs} tensors", "?")
+        self.size = _fit_size(declared, input_size, self.name)
+
+    def __call__(self, x: npt.NDArray[np.float32]) -> float:
+        import warnings  # noqa: PLC0415
+
+        import torch  # noqa: PLC0415  (an optional backend; checked in __init__)
+
+        try:
+            with torch.inference_mode(), warnings.catch_warnings():
+                warnings.filterwarnings("ignore", r".*torch\.jit", DeprecationWarning)
+                out = self._module(torch.from_numpy(x).to(self._device))
+        except (RuntimeError, ValueError, TypeError) as err:
+            msg = f"{self.name}: inference failed on an image of shape {x.shape} ({err})"
+            raise ConfigError(msg) from err
+        if isinstance(out, dict) and "steering" in out:
+            out = out["steering"]
+        elif isinstance(out, (tuple, list)) and len(out) == 1:
+            out = out[0]
+        if isinstance(out, (dict, tuple, list)):
+            msg = f"{self.name} returned a {type(out).__name__}; return one tensor (or steering=)"
+            raise ConfigError(msg)
+        return _steering_value(out, self.name)
+
+
+class ModelPolicy:
+    """An image model that steers (contract in the module doc): ONNX or torch.
+
+    Args:
+        path: The ``.onnx`` file, or a ``.pt`` / ``.pth`` / ``.ts`` torch archive.
+        input_size: ``(width, height)`` the model takes; needed when it declares none.
+        device: torch device (torch models only).
+    """
+
+    def __init__(
+        self, path: Path | str, *, input_size: tuple[int, int] | None = None, device: str = "cpu"
+    ) -> None:
+        path = _check_file(Path(path), "steering model")
+        suffix = path.suffix.lower()
+        if suffix not in _MODEL_SUFFIXES:
+            msg = f"steering model {path.name!r} must be one of {', '.join(_MODEL_SUFFIXES)}"
+            raise ConfigError(msg)
+        self._model: _OnnxSteering | _TorchSteering = (
+            _OnnxSteering(path, input_size)
+            if suffix == ".onnx"
+            else _TorchSteering(path, input_size, device)
+        )
+
+    @property
+    def name(self) -> str:
+        """``onnx:FILE`` or ``torch:FILE``."""
+        return self._model.name
+
+    @property
+    def needs_image(self) -> bool:
+        """True."""
+        return True
+
+    @property
+    def input_size(self) -> tuple[int, int]:
+        """``(width, height)`` the camera frame is resized to."""
+        return self._model.size
+
+    def reset(self) -> None:
+        """Nothing to forget (the model is stateless)."""
+
+    def predict(self, obs: Observation) -> float:
+        """The model's steering for ``obs.image``."""
+        return self._model(_model_image(obs, self._model.size, self.name))
+
+    def close(self) -> None:
+        """Nothing to release beyond the model object."""
+
+
+# --------------------------------------------------------------------------------------------
+# Remote policies
+
+
+def _frame(data: bytes | memoryview) -> list[bytes | memoryview]:
+    return [_LENGTH.pack(len(data)), data]
+
+
+def _recv_exact(sock: socket.socket, n: int, keep_waiting: Callable[[], bool] | None) -> bytes:
+    """``n`` bytes; EOFError when the peer closes first; TimeoutError unless ``keep_waiting()``."""
+    buf = bytearray(n)
+    view, got = memoryview(buf), 0
+    while got < n:
+        try:
+            k = sock.recv_into(view[got:], n - got)
+        except TimeoutError:
+            if keep_waiting is not None and keep_waiting():
+                continue
+            raise
+        if k == 0:
+            msg = f"connection closed after {got} of {n} bytes"
+            raise EOFError(msg)
+        got += k
+    return bytes(buf)
+
+
+def _recv_frame(
+    sock: socket.socket, limit: int, keep_waiting: Callable[[], bool] | None = None
+) -> bytes:
+    (n,) = _LENGTH.unpack(_recv_exact(sock, _LENGTH.size, keep_waiting))
+    if n > limit:
+        msg = f"frame of {n} bytes exceeds the limit of {limit}"
+        raise ValueError(msg)
+    return _recv_exact(sock, n, keep_waiting) if n else b""
+
+
+def _state_json(state: VehicleState) -> dict[str, Any]:  # Any: JSON values
+    out = asdict(state)
+    out["rear_axle"] = list(state.rear_axle)
+    return out
+
+
+def _state_from_json(data: dict[str, Any]) -> VehicleState:  # Any: JSON values
+    fields = dict(data)
+    fields["rear_axle"] = tuple(float(v) for v in fields["rear_axle"])
+    return VehicleState(**fields)
+
+
+def _parse_address(address: str) -> tuple[str, int]:
+    rest = address.removeprefix("tcp://")
+    host, sep, port = rest.rpartition(":")
+    if not address.startswith("tcp://") or not sep or not host or not port.isdigit():
+        msg = f"remote policy address {address!r} must look like tcp://HOST:PORT"
+        raise ConfigError(msg)
+    if not 0 < int(port) < 65536:
+        msg = f"remote policy port {port} must lie in 1..65535"
+        raise ConfigError(msg)
+    return host.strip("[]"), int(port)
+
+
+class RemotePolicy:
+    """A policy served by another process over TCP (protocol in the module doc).
+
+    Connects and asks for the remote policy's name and whether it needs the image when built,
+    so an unreachable server fails at once.
+
+    Args:
+        address: ``tcp://HOST:PORT`` of a :class:`PolicyServer`.
+        timeout_s: Longest wait to connect and for each reply, seconds.
+    """
+
+    def __init__(self, address: str, *, timeout_s: float = 10.0) -> None:
+        self.host, self.port = _parse_address(address)
+        self._timeout = float(timeout_s)
+        try:
+            self._sock: socket.socket | None = socket.create_connection(
+                (self.host, self.port), timeout=self._timeout
+            )
+        except OSError as err:
+            msg = (
+                f"cannot reach the remote policy at {self.host}:{self.port} ({err}); start it "
+                "first (cam2sim.ads.policy.serve_policy) and check the host and port"
+            )
+            raise StageError(msg) from err
+        self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        try:
+            info = self._call({"type": "info"})
+        except StageError:
+            self.close()
+            raise
+        self.remote_name = str(info.get("name", "?"))
+        self._needs_image = bool(info.get("needs_image", True))
+
+    @property
+    def name(self) -> str:
+        """``tcp://HOST:PORT``."""
+        return f"tcp://{self.host}:{self.port}"
+
+    @property
+    def needs_image(self) -> bool:
+        """What the remote policy says."""
+        return self._needs_image
+
+    def _call(
+        self, header: dict[str, Any], payload: bytes | memoryview = b""
+    ) -> dict[str, Any]:  # Any: JSON values
+        where = f"remote policy at {self.host}:{self.port}"
+        if self._sock is None:
+            msg = f"{where} was closed; build a new RemotePolicy"
+            raise StageError(msg)
+        data = json.dumps(header).encode()
+        try:
+            self._sock.sendall(b"".join([*_frame(data), *_frame(payload)]))
+            reply = json.loads(_recv_frame(self._sock, _MAX_HEADER))
+        except TimeoutError as err:
+            msg = f"{where} sent no reply within {self._timeout:g} s; is it overloaded or hung?"
+            raise StageError(msg) from err
+        except (OSError, EOFError, ValueError) as err:
+            msg = f"lost the {where} ({err}); check that the server still runs"
+            raise StageError(msg) from err
+        if not isinstance(reply, dict):
+            msg = f"{where} sent {reply!r}, not a JSON object"
+            raise StageError(msg)
+        if "error" in reply:
+            msg = f"{where} failed: {reply['error']}"
+            raise StageError(msg)
+        return cast("dict[str, Any]", reply)
+
+    def reset(self) -> None:
+        """Tell the remote policy that a new run starts."""
+        self._call({"type": "reset"})
+
+    def predict(self, obs: Observation) -> float:
+        """Send ``obs`` (the image only when the remote policy needs it) and return its answer."""
+        header: dict[str, Any] = {"type": "predict", "t": obs.t, "width": 0, "height": 0}
+        header |= {"encoding": "rgb8", "state": _state_json(obs.state)}
+        payload: bytes | memoryview = b""
+        if obs.image is not None and self._needs_image:
+            img = np.ascontiguousarray(obs.image, dtype=np.uint8)
+            if img.ndim != 3 or img.shape[2] != 3:
+                msg = f"observation image must be (H, W, 3) uint8 RGB, got shape {img.shape}"
+                raise ValueError(msg)
+            header["height"], header["width"] = img.shape[:2]
+            payload = img.tobytes()
+        reply = self._call(header, payload)
+        try:
+            return float(reply["steering"])
+        except (KeyError, TypeError, ValueError) as err:
+            msg = f"remote policy at {self.host}:{self.port} sent {reply!r}, no steering value"
+            raise StageError(msg) from err
+
+    def close(self) -> None:
+        """Close the connection (the server keeps running)."""
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+
+class _Server(socketserver.TCPServer):
+    allow_reuse_address = True
+
+    def __init__(self, address: tuple[str, int], policy: SteeringPolicy) -> None:
+        self.policy = policy
+        self.closing = threading.Event()
+        super().__init__(address, _Handler)
+
+
+class _Handler(socketserver.BaseRequestHandler):
+    def handle(self) -> None:
+        server = cast("_Server", self.server)
+        sock = cast("socket.socket", self.request)
+        sock.settimeout(_POLL_S)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+        def keep_waiting() -> bool:
+            return not server.closing.is_set()
+
+        while not server.closing.is_set():
+            try:
+                header = json.loads(_recv_frame(sock, _MAX_HEADER, keep_waiting))
+                payload = _recv_frame(sock, _MAX_PAYLOAD, keep_waiting)
+            except (EOFError, TimeoutError, OSError):
+                return
+            except ValueError as err:
+                self._reply(sock, {"error": f"malformed request ({err})"})
+                return
+            try:
+                reply = self._answer(server.policy, header, payload)
+            except Exception as err:  # noqa: BLE001  (any policy failure goes back to the client)
+                _log.warning("policy server: %s: %s", type(err).__name__, err)
+                reply = {"error": f"{type(err).__name__}: {err}"}
+            if not self._reply(sock, reply):
+                return
+
+    @staticmethod
+    def _reply(sock: socket.socket, reply: dict[str, Any]) -> bool:  # Any: JSON values
+        try:
+            sock.sendall(b"".join(_frame(json.dumps(reply).encode())))
+        except OSError:
+            return False
+        return True
+
+    @staticmethod
+    def _answer(
+        policy: SteeringPolicy, header: Any, payload: bytes
+    ) -> dict[str, Any]:  # Any: JSON values
+        kind = header.get("type") if isinstance(header, dict) else None
+        if kind == "info":
+            return {"name": policy.name, "needs_image": policy.needs_image}
+        if kind == "reset":
+            policy.reset()
+            return {"ok": True}
+        if kind != "predict":
+            return {"error": f"unknown request type {kind!r}; expected predict, reset or info"}
+        w, h = int(header.get("width", 0)), int(header.get("height", 0))
+        image = None
+        if payload:
+            if header.get("encoding") != "rgb8" or len(payload) != w * h * 3:
+                return {"error": f"image of {len(payload)} bytes is not {w}x{h} rgb8"}
+            image = np.frombuffer(payload, dtype=np.uint8).reshape(h, w, 3)
+        obs = Observation(float(header["t"]), image, _state_from_json(header["state"]))
+        return {"steering": float(policy.predict(obs))}
+
+
+class PolicyServer:
+    """Serves a policy over TCP (protocol in the module doc), one client at a time.
+
+    Binds on construction (``port=0`` picks a free port; read :attr:`port`). :meth:`start`
+    serves in a background thread, :meth:`serve_forever` in the calling one; :meth:`close` (or
+    leaving the ``with`` block) stops serving and drops the open connection. The policy is not
+    closed: it belongs to the caller.
+
+    Args:
+        policy: The policy to serve.
+        host: Interface to bind; the default serves this machine only.
+        port: TCP port; 0 picks a free one.
+    """
+
+    def __init__(self, policy: SteeringPolicy, host: str = "127.0.0.1", port: int = 0) -> None:
+        try:
+            self._server = _Server((host, port), policy)
+        except OSError as err:
+            msg = f"cannot serve the policy on {host}:{port} ({err}); choose another port"
+            raise StageError(msg) from err
+        self.host = host
+        self._thread: threading.Thread | None = None
+
+    @property
+    def port(self) -> int:
+        """The bound TCP port."""
+        return int(self._server.server_address[1])
+
+    @property
+    def address(self) -> str:
+        """``tcp://HOST:PORT``, the spec a :class:`RemotePolicy` takes."""
+        return f"tcp://{self.host}:{self.port}"
+
+    def start(self) -> Self:
+        """Serve in a daemon thread; returns self."""
+        if self._thread is None:
+            self._thread = threading.Thread(
+                target=self._server.serve_forever,
+                args=(_POLL_S,),
+                name=f"policy-server-{self.port}",
+                daemon=True,
+            )
+            self._thread.start()
+        return self
+
+    def serve_forever(self) -> None:
+        """Serve in the calling thread until interrupted (KeyboardInterrupt) or closed."""
+        self._server.serve_forever(_POLL_S)
+
+    def close(self) -> None:
+        """Stop serving, close the open connection and the listening socket."""
+        self._server.closing.set()
+        if self._thread is not None:
+            self._server.shutdown()
+            self._thread.join()
+            self._thread = None
+        self._server.server_close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def serve_policy(
+    policy: SteeringPolicy,
+    host: str = "127.0.0.1",
+    port: int = 0,
+    *,
+    on_ready: Callable[[int], None] | None = None,
+) -> None:
+    """Serve ``policy`` in this thread until interrupted; ``on_ready(port)`` once bound."""
+    with PolicyServer(policy, host, port) as server:
+        _log.info("serving policy %s on %s", policy.name, server.address)
+        if on_ready is not None:
+            on_ready(server.port)
+        server.serve_forever()
+
+
+# --------------------------------------------------------------------------------------------
+# Specs
+
+
+def load_policy(
+    spec: str,
+    *,
+    route_xy: npt.ArrayLike | None,
+    wheelbase_m: float,
+    calibration: SteeringCalibration,
+    input_size: tuple[int, int] | None = None,
+) -> SteeringPolicy:
+    """The policy a spec names (forms in the module doc).
+
+    Args:
+        spec: ``pure-pursuit``, ``constant:VALUE``, a model path or ``tcp://HOST:PORT``.
+        route_xy: ``(N, 2)`` rear axle route (``pure-pursuit`` only; None when there is none).
+        wheelbase_m: Vehicle wheelbase, metres.
+        calibration: The run's steering calibration.
+        input_size: ``(width, height)`` for image models that declare no fixed size.
+    """
+    text = spec.strip()
+    if text == "pure-pursuit":
+        if route_xy is None:
+            msg = "pure-pursuit follows the recorded route, but none was given"
+            raise ConfigError(msg)
+        return PurePursuitPolicy(route_xy, wheelbase_m, calibration)
+    if text.startswith("constant:"):
+        try:
+            value = float(text.removeprefix("constant:"))
+        except ValueError:
+            value = math.nan
+        if not math.isfinite(value):
+            msg = f"policy {spec!r}: constant:VALUE needs a finite number, e.g. constant:-10"
+            raise ConfigError(msg)
+        return ConstantPolicy(value)
+    if text.startswith("tcp://"):
+        return RemotePolicy(text)
+    if Path(text).suffix.lower() in _MODEL_SUFFIXES:
+        return ModelPolicy(text, input_size=input_size)
+    msg = f"unknown policy {spec!r}; give {_SPECS}"
+    raise ConfigError(msg)

@@ -1,0 +1,154 @@
+"""``cam2sim replay`` and ``cam2sim drive``: trajectory replay and closed-loop runs."""
+
+from __future__ import annotations
+
+import sys
+from enum import StrEnum
+from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
+from typing import Annotated
+
+import typer
+from rich.markup import escape
+
+from cam2sim.cli.display import console, error_console, progress_bars
+from cam2sim.core.errors import Cam2SimError
+
+__all__ = ["drive", "replay"]
+
+
+class ReplayCamera(StrEnum):
+    """Cameras a replay renders."""
+
+    RASTER = "raster"
+    SPLAT = "splat"
+    BOTH = "both"
+
+
+class DriveCamera(StrEnum):
+    """The camera a policy sees."""
+
+    RASTER = "raster"
+    SPLAT = "splat"
+    NONE = "none"
+
+
+def _fail(err: Cam2SimError) -> typer.Exit:
+    error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
+    return typer.Exit(code=1)
+
+
+def _span(text: str | None) -> tuple[int | None, int | None]:
+    if not text:
+        return (None, None)
+    first, sep, stop = text.partition(":")
+    if not sep:
+        msg = f"--frames takes A:B (either side may be empty), got {text!r}"
+        raise typer.BadParameter(msg)
+    try:
+        return (int(first) if first else None, int(stop) if stop else None)
+    except ValueError:
+        msg = f"--frames takes integers A:B, got {text!r}"
+        raise typer.BadParameter(msg) from None
+
+
+def _size(text: str | None) -> tuple[int, int] | None:
+    if not text:
+        return None
+    w, sep, h = text.lower().partition("x")
+    if not sep or not w.isdigit() or not h.isdigit() or int(w) < 1 or int(h) < 1:
+        msg = f"--size takes WIDTHxHEIGHT in pixels, e.g. 200x66, got {text!r}"
+        raise typer.BadParameter(msg)
+    return int(w), int(h)
+
+
+def replay(
+    workspace: Annotated[Path, typer.Argument(help="The workspace folder.")],
+    *,
+    camera: Annotated[
+        ReplayCamera, typer.Option(help="Camera(s) to render.")
+    ] = ReplayCamera.RASTER,
+    frames: Annotated[
+        str | None, typer.Option(help="Samples A:B of the recorded trajectory (default: all).")
+    ] = None,
+    size: Annotated[
+        str | None, typer.Option(help="Render size WIDTHxHEIGHT (default: the calibrated one).")
+    ] = None,
+    video: Annotated[bool, typer.Option("--video/--no-video", help="Write video.mp4.")] = True,
+) -> None:
+    """Replay the recorded trajectory exactly: frames per camera, side by side with the real one.
+
+    Example: cam2sim replay ws --camera both --frames 0:300
+    """
+    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
+    from cam2sim.stages.runs import ReplayOptions  # noqa: PLC0415
+    from cam2sim.stages.runs import replay as run_replay  # noqa: PLC0415
+
+    cams = ("raster", "splat") if camera is ReplayCamera.BOTH else (camera.value,)
+    opts = ReplayOptions(
+        cameras=cams,  # type: ignore[arg-type]
+        frames=_span(frames),
+        image_size=_size(size),
+        video=video,
+    )
+    try:
+        ws = Workspace.open(workspace)
+        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+            result = run_replay(ws, options=opts, progress=sink)
+    except Cam2SimError as err:
+        raise _fail(err) from None
+    console.print(
+        f"{result.folder}: {result.steps} frames replayed in {result.seconds:.1f} s",
+        highlight=False,
+    )
+
+
+def drive(
+    workspace: Annotated[Path, typer.Argument(help="The workspace folder.")],
+    *,
+    policy: Annotated[
+        str,
+        typer.Option(
+            help="pure-pursuit, constant:VALUE, a .onnx/.pt steering model, or tcp://HOST:PORT."
+        ),
+    ] = "pure-pursuit",
+    camera: Annotated[DriveCamera, typer.Option(help="What the policy sees.")] = DriveCamera.RASTER,
+    runs: Annotated[int, typer.Option(min=1, help="Number of runs (seeds seed, seed+1, ...).")] = 1,
+    speed: Annotated[
+        float | None, typer.Option(min=0.0, help="Target speed km/h (default: recorded start).")
+    ] = None,
+    seed: Annotated[int, typer.Option(help="Seed of the first run.")] = 0,
+    every: Annotated[int, typer.Option(min=1, help="The policy answers every n-th step.")] = 3,
+    size: Annotated[
+        str | None, typer.Option(help="Camera size WIDTHxHEIGHT (default: the calibrated one).")
+    ] = None,
+    save_frames: Annotated[bool, typer.Option("--save-frames", help="Write the frames.")] = False,
+    video: Annotated[bool, typer.Option("--video", help="Write video.mp4.")] = False,
+) -> None:
+    """Closed-loop runs in the builtin simulator; each run ends on an event.
+
+    Example: cam2sim drive ws --policy pure-pursuit --camera raster --runs 3 --speed 20
+    """
+    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
+    from cam2sim.stages.runs import DriveOptions  # noqa: PLC0415
+    from cam2sim.stages.runs import drive as run_drive  # noqa: PLC0415
+
+    opts = DriveOptions(
+        policy=policy,
+        camera=camera.value,
+        runs=runs,
+        speed_kmh=speed,
+        seed=seed,
+        policy_every=every,
+        image_size=_size(size),
+        save_frames=save_frames,
+        video=video,
+    )
+    try:
+        ws = Workspace.open(workspace)
+        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+            results = run_drive(ws, options=opts, progress=sink)
+    except Cam2SimError as err:
+        raise _fail(err) from None
+    for r in results:
+        ends = ", ".join(f"{e['kind']} at {e['t']:.1f} s" for e in r.events) or "no event"
+        console.print(f"{r.folder}: {r.steps} steps in {r.seconds:.1f} s ({ends})", highlight=False)

@@ -1,0 +1,566 @@
+"""Runs: trajectory replay and closed-loop drives of a scenario, each in its own run folder.
+
+``cam2sim replay`` moves the vehicle exactly along the recorded trajectory and renders every
+frame with the chosen cameras, beside the real frame. ``cam2sim drive`` closes the loop: the
+builtin simulator (:mod:`cam2sim.sim.builtin`) steps the vehicle, a camera renders what the
+vehicle sees, and a steering policy (:mod:`cam2sim.ads.policy`) answers every
+``policy_every``-th step.
+
+Every run writes a new folder ``WS/runs/<run-id>/`` (built under a temporary name and renamed
+into place, so runs never overwrite each other and no half run is left):
+
+- ``trajectory.csv``: ``t, x, y, z, heading, speed, steering, wheel_angle`` of the recorded
+  reference point (the point real drives are recorded at, so runs and real drives compare
+  directly in ``cam2sim evaluate drive``);
+- ``steering.csv``: the policy's decisions ``t, value``; ``events.json``; ``run.json`` (what was
+  run: kind, policy, camera, seed, options, timing, the world projection);
+- ``frames/<camera>/NNNNNN.png`` and ``side_by_side/`` on request, ``video.mp4`` on request.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import logging
+import time
+from dataclasses import asdict, dataclass, field
+from typing import TYPE_CHECKING, Any, Literal, Self
+
+import numpy as np
+
+from cam2sim.core.errors import StageError
+from cam2sim.core.files import write_text_atomic
+from cam2sim.core.progress import ProgressCallback, no_progress
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterator
+    from pathlib import Path
+
+    import numpy.typing as npt
+
+    from cam2sim.core.workspace import Workspace
+    from cam2sim.map.query import RoadMap
+    from cam2sim.scenario.model import Scenario
+
+__all__ = ["CameraName", "DriveOptions", "ReplayOptions", "RunResult", "drive", "replay"]
+
+logger = logging.getLogger(__name__)
+CameraName = Literal["raster", "splat", "none"]
+
+
+@dataclass(frozen=True)
+class ReplayOptions:
+    """What ``cam2sim replay`` does.
+
+    Attributes:
+        cameras: Cameras to render (``raster``, ``splat``; both for a side by side).
+        frames: ``(first, stop)`` trajectory samples to replay (Python slice bounds).
+        image_size: ``(width, height)`` of rendered frames; None keeps the calibrated size.
+        save_frames: Write every rendered frame (PNG) and the side-by-side images.
+        video: Write ``video.mp4`` of the side-by-side images.
+    """
+
+    cameras: tuple[CameraName, ...] = ("raster",)
+    frames: tuple[int | None, int | None] = (None, None)
+    image_size: tuple[int, int] | None = None
+    save_frames: bool = True
+    video: bool = True
+
+
+@dataclass(frozen=True)
+class DriveOptions:
+    """What ``cam2sim drive`` does.
+
+    Attributes:
+        policy: Policy name (see :func:`cam2sim.ads.policy.load_policy`).
+        camera: Camera the policy sees (``none`` for policies that need no image).
+        runs: Number of runs (seeds ``seed``, ``seed + 1``, ...).
+        speed_kmh: Target speed; None holds the recorded start speed.
+        seed: Seed of the first run.
+        policy_every: The policy answers every n-th simulator step (3, as the published tool).
+        image_size: ``(width, height)`` the camera renders at; None keeps the calibrated size.
+        max_steps: Step cap per run (the simulator's timeout usually ends it first).
+        save_frames: Write the rendered frames.
+        video: Write ``video.mp4``.
+        sim: Builtin simulator options (None: defaults with the scenario's calibration).
+    """
+
+    policy: str = "pure-pursuit"
+    camera: CameraName = "raster"
+    runs: int = 1
+    speed_kmh: float | None = None
+    seed: int = 0
+    policy_every: int = 3
+    image_size: tuple[int, int] | None = None
+    max_steps: int = 100_000
+    save_frames: bool = False
+    video: bool = False
+    sim: Any = field(default=None)
+
+    def __post_init__(self) -> None:
+        if self.runs < 1 or self.policy_every < 1 or self.max_steps < 1:
+            msg = "runs, policy_every and max_steps must be >= 1"
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """One finished run."""
+
+    run_id: str
+    folder: Path
+    steps: int
+    events: tuple[dict[str, Any], ...]
+    seconds: float
+
+
+# -- shared pieces -------------------------------------------------------------------------------
+@dataclass
+class _Context:
+    ws: Workspace
+    scenario: Scenario
+    road_map: RoadMap
+
+
+def _load(ws: Workspace) -> _Context:
+    from cam2sim.scenario.model import Scenario  # noqa: PLC0415
+    from cam2sim.stages.map import load_road_map  # noqa: PLC0415
+
+    path = ws.scenario_dir / "scenario.json"
+    if not path.is_file():
+        msg = f"{ws.root} has no scenario; run `cam2sim scenario {ws.root}` first"
+        raise StageError(msg)
+    return _Context(ws, Scenario.load(path), load_road_map(ws))
+
+
+def _intrinsics(
+    scenario: Scenario, size: tuple[int, int] | None
+) -> tuple[npt.NDArray[np.float64], int, int]:
+    cam = scenario.camera
+    if cam is None:
+        msg = "the scenario has no camera intrinsics; set camera.intrinsics in config.yaml"
+        raise StageError(msg)
+    K = np.asarray(cam.K, dtype=np.float64)
+    if size is None:
+        return K, cam.width, cam.height
+    w, h = size
+    S = np.diag([w / cam.width, h / cam.height, 1.0])
+    K2 = S @ K
+    # Pixel-centre convention: centres at integer coordinates.
+    K2[0, 2] = (K[0, 2] + 0.5) * w / cam.width - 0.5
+    K2[1, 2] = (K[1, 2] + 0.5) * h / cam.height - 0.5
+    return K2, w, h
+
+
+def _camera_poses(
+    scenario: Scenario, reference_xy: npt.NDArray[np.float64], heading: npt.NDArray[np.float64],
+    reference_z: npt.NDArray[np.float64],
+) -> npt.NDArray[np.float64]:  # fmt: skip
+    """``(N, 4, 4)`` camera (optical) -> world from reference-point poses and the mount."""
+    from cam2sim.core import frames as fr  # noqa: PLC0415
+
+    mount = scenario.camera_mount
+    T_ref_cam = fr.Pose(np.asarray(mount.translation_m), np.asarray(mount.quat_xyzw)).as_matrix()
+    n = reference_xy.shape[0]
+    T = np.tile(np.eye(4), (n, 1, 1))
+    c, s = np.cos(heading), np.sin(heading)
+    T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = c, -s, s, c
+    T[:, 0, 3], T[:, 1, 3], T[:, 2, 3] = reference_xy[:, 0], reference_xy[:, 1], reference_z
+    out: npt.NDArray[np.float64] = T @ T_ref_cam
+    return out
+
+
+class _Cameras:
+    """The run's renderers by name, opened once and closed at the end."""
+
+    def __init__(self, ctx: _Context, names: tuple[CameraName, ...]) -> None:
+        self.renderers: dict[str, Any] = {}
+        for name in names:
+            if name == "raster":
+                from cam2sim.render.raster import RasterRenderer, RasterScene  # noqa: PLC0415
+
+                scene = RasterScene(ctx.road_map, ctx.scenario.parked)
+                self.renderers[name] = RasterRenderer(scene)
+            elif name == "splat":
+                from cam2sim.splat.render import SplatRenderer  # noqa: PLC0415
+
+                models = ctx.ws.splat_dir / "models"
+                if not models.is_dir():
+                    msg = f"{ctx.ws.root} has no splat models; run `cam2sim splat {ctx.ws.root}`"
+                    raise StageError(msg)
+                self.renderers[name] = SplatRenderer(models)
+
+    def render(
+        self, name: str, T: npt.NDArray[np.float64], K: npt.NDArray[np.float64], w: int, h: int
+    ) -> npt.NDArray[np.uint8]:
+        rgb: npt.NDArray[np.uint8] = self.renderers[name].render(T, K, w, h).rgb
+        return rgb
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        for r in self.renderers.values():
+            r.close()
+
+
+def _new_run_dir(ws: Workspace, kind: str, label: str) -> tuple[str, Path]:
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%d-%H%M%S")
+    base = f"{stamp}-{kind}-{label}".replace("/", "_").replace(":", "_")
+    ws.runs_dir.mkdir(parents=True, exist_ok=True)
+    run_id, n = base, 1
+    while (ws.runs_dir / run_id).exists() or (ws.runs_dir / f".tmp-{run_id}").exists():
+        n += 1
+        run_id = f"{base}-{n}"
+    tmp = ws.runs_dir / f".tmp-{run_id}"
+    tmp.mkdir()
+    return run_id, tmp
+
+
+def _finish_run(ws: Workspace, run_id: str, tmp: Path) -> Path:
+    final = ws.runs_dir / run_id
+    tmp.rename(final)  # same folder: atomic; the name was checked to be free
+    return final
+
+
+def _write_png(path: Path, rgb: npt.NDArray[np.uint8]) -> None:
+    import cv2  # noqa: PLC0415
+
+    from cam2sim.core.files import write_bytes_atomic  # noqa: PLC0415
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    if not ok:
+        msg = f"could not encode {path.name}"
+        raise StageError(msg)
+    write_bytes_atomic(path, buf.tobytes())
+
+
+class _Video:
+    """An MP4 written frame by frame (OpenCV's ``mp4v``), opened on the first frame."""
+
+    def __init__(self, path: Path, fps: float) -> None:
+        self.path, self.fps = path, fps
+        self.writer: Any = None
+
+    def add(self, rgb: npt.NDArray[np.uint8]) -> None:
+        import cv2  # noqa: PLC0415
+
+        h, w = rgb.shape[:2]
+        if self.writer is None:
+            fourcc = cv2.VideoWriter.fourcc(*"mp4v")
+            self.writer = cv2.VideoWriter(str(self.path), fourcc, self.fps, (w - w % 2, h - h % 2))
+            if not self.writer.isOpened():
+                msg = f"OpenCV cannot write {self.path}; install an OpenCV build with video I/O"
+                raise StageError(msg)
+        self.writer.write(cv2.cvtColor(rgb[: h - h % 2, : w - w % 2], cv2.COLOR_RGB2BGR))
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.release()
+
+
+def side_by_side(images: list[npt.NDArray[np.uint8]], height: int = 360) -> npt.NDArray[np.uint8]:
+    """Images resized to one height and put next to each other."""
+    import cv2  # noqa: PLC0415
+
+    parts = []
+    for im in images:
+        w = max(1, round(im.shape[1] * height / im.shape[0]))
+        parts.append(cv2.resize(im, (w, height), interpolation=cv2.INTER_AREA))
+    out: npt.NDArray[np.uint8] = np.concatenate(parts, axis=1)
+    return out
+
+
+def _write_tables(
+    folder: Path, rows: dict[str, list[float]], decisions: list[tuple[float, float]]
+) -> None:
+    from cam2sim.core.table import write_table  # noqa: PLC0415
+
+    write_table(folder / "trajectory.csv", {k: np.asarray(v) for k, v in rows.items()})
+    arr = np.asarray(decisions, dtype=np.float64).reshape(-1, 2)
+    write_table(folder / "steering.csv", {"t": arr[:, 0], "value": arr[:, 1]})
+
+
+def _write_meta(folder: Path, meta: dict[str, Any], events: list[dict[str, Any]]) -> None:
+    write_text_atomic(folder / "events.json", json.dumps({"events": events}, indent=1) + "\n")
+    write_text_atomic(folder / "run.json", json.dumps(meta, indent=1, default=str) + "\n")
+
+
+# -- replay --------------------------------------------------------------------------------------
+def replay(
+    ws: Workspace,
+    *,
+    options: ReplayOptions | None = None,
+    progress: ProgressCallback | None = None,
+) -> RunResult:
+    """Replay the recorded trajectory exactly and render it with the chosen cameras."""
+    opts = options or ReplayOptions()
+    report = progress or no_progress
+    ctx = _load(ws)
+    tr = ctx.scenario.trajectory
+    sel = slice(*opts.frames)
+    idx = np.arange(len(tr.frame))[sel]
+    if idx.size == 0:
+        msg = f"--frames {opts.frames} selects no sample of the {len(tr.frame)} recorded"
+        raise StageError(msg)
+    ref = np.asarray(tr.reference, dtype=np.float64)[idx]
+    heading = np.asarray(tr.heading, dtype=np.float64)[idx]
+    cams = tuple(c for c in opts.cameras if c != "none")
+    label = "+".join(cams) or "none"
+    run_id, tmp = _new_run_dir(ws, "replay", label)
+    started = time.perf_counter()
+    try:
+        with _Cameras(ctx, cams) as cameras:
+            frames_done = _replay_frames(ctx, opts, cameras, idx, ref, heading, tmp, report)
+        rows = {
+            "t": [tr.t[i] for i in idx],
+            "x": ref[:, 0].tolist(),
+            "y": ref[:, 1].tolist(),
+            "z": ref[:, 2].tolist(),
+            "heading": heading.tolist(),
+            "speed": [tr.speed[i] for i in idx],
+            "steering": [0.0] * idx.size,
+            "wheel_angle": [0.0] * idx.size,
+        }
+        _write_tables(tmp, rows, [])
+        seconds = time.perf_counter() - started
+        meta = {
+            "kind": "replay",
+            "method": f"replay-{label}",
+            "camera": label,
+            "cameras": list(cams),
+            "frames": [int(idx[0]), int(idx[-1]) + 1],
+            "rendered": frames_done,
+            "seconds": round(seconds, 3),
+            "options": asdict(opts),
+            "proj_string": ctx.scenario.world.proj_string,
+        }
+        _write_meta(tmp, meta, [])
+    except BaseException:
+        _discard(tmp)
+        raise
+    return RunResult(run_id, _finish_run(ws, run_id, tmp), int(idx.size), (), seconds)
+
+
+def _discard(tmp: Path) -> None:
+    import shutil  # noqa: PLC0415
+
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _real_frames(ws: Workspace) -> Callable[[int], npt.NDArray[np.uint8] | None]:
+    """A reader of the dataset's real frames by index (returns None where there is none)."""
+    import cv2  # noqa: PLC0415
+
+    from cam2sim.core.dataset import DatasetInfo  # noqa: PLC0415
+    from cam2sim.core.workspace import dataset_paths  # noqa: PLC0415
+
+    paths = dataset_paths(ws.dataset_dir)
+    fmt = (
+        DatasetInfo.load(paths.dataset_json).frame_format if paths.dataset_json.is_file() else None
+    )
+
+    def read(frame: int) -> npt.NDArray[np.uint8] | None:
+        if fmt is None:
+            return None
+        bgr = cv2.imread(str(paths.frame_file(frame, fmt)), cv2.IMREAD_COLOR)
+        if bgr is None:
+            return None
+        return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8)
+
+    return read
+
+
+def _replay_frames(
+    ctx: _Context,
+    opts: ReplayOptions,
+    cameras: _Cameras,
+    idx: npt.NDArray[np.int64],
+    ref: npt.NDArray[np.float64],
+    heading: npt.NDArray[np.float64],
+    folder: Path,
+    report: ProgressCallback,
+) -> int:
+    if not cameras.renderers or not (opts.save_frames or opts.video):
+        return 0
+    K, w, h = _intrinsics(ctx.scenario, opts.image_size)
+    tr = ctx.scenario.trajectory
+    ground = ref[:, 2] - ctx.scenario.vehicle.reference_xyz[2]
+    # The raster world's road is z = 0; the splat models live at the recorded heights.
+    z_of = {"raster": ref[:, 2] - ground, "splat": ref[:, 2]}
+    poses = {name: _camera_poses(ctx.scenario, ref[:, :2], heading, z_of[name]) for name in z_of}
+    fps = 1.0 / max(float(np.median(np.diff(tr.t))), 1e-3) if len(tr.t) > 1 else 10.0
+    video = _Video(folder / "video.mp4", fps) if opts.video else None
+    real_frame = _real_frames(ctx.ws)
+    try:
+        for k, i in enumerate(idx.tolist()):
+            views = [cameras.render(n, poses[n][k], K, w, h) for n in cameras.renderers]
+            real = real_frame(tr.frame[i])
+            sbs = side_by_side(([real] if real is not None else []) + views)
+            if opts.save_frames:
+                for name, im in zip(cameras.renderers, views, strict=True):
+                    _write_png(folder / "frames" / name / f"{tr.frame[i]:06d}.png", im)
+                _write_png(folder / "side_by_side" / f"{tr.frame[i]:06d}.png", sbs)
+            if video is not None:
+                video.add(sbs)
+            report("replay frames", k + 1, int(idx.size))
+    finally:
+        if video is not None:
+            video.close()
+    return int(idx.size)
+
+
+# -- drive ---------------------------------------------------------------------------------------
+def drive(
+    ws: Workspace,
+    *,
+    options: DriveOptions | None = None,
+    progress: ProgressCallback | None = None,
+) -> list[RunResult]:
+    """Closed-loop runs of a policy in the builtin simulator (one folder per run)."""
+    from cam2sim.ads.policy import load_policy  # noqa: PLC0415
+
+    opts = options or DriveOptions()
+    ctx = _load(ws)
+    sc = ctx.scenario
+    policy = load_policy(
+        opts.policy,
+        route_xy=np.asarray(sc.trajectory.rear_axle, dtype=np.float64)[:, :2],
+        wheelbase_m=sc.vehicle.wheelbase_m,
+        calibration=sc.steering_calibration,
+    )
+    results: list[RunResult] = []
+    try:
+        cams: tuple[CameraName, ...] = () if opts.camera == "none" else (opts.camera,)
+        with _Cameras(ctx, cams) as cameras:
+            results.extend(
+                _drive_one(ctx, opts, policy, cameras, opts.seed + r, progress or no_progress)
+                for r in range(opts.runs)
+            )
+    finally:
+        policy.close()
+    return results
+
+
+def _drive_one(  # noqa: PLR0915
+    ctx: _Context,
+    opts: DriveOptions,
+    policy: Any,
+    cameras: _Cameras,
+    seed: int,
+    report: ProgressCallback,
+) -> RunResult:
+    from cam2sim.ads.policy import Observation  # noqa: PLC0415
+    from cam2sim.scenario.body import body_point_positions  # noqa: PLC0415
+    from cam2sim.sim.builtin import BuiltinOptions, BuiltinSimulator  # noqa: PLC0415
+    from cam2sim.sim.interface import Control  # noqa: PLC0415
+
+    sc = ctx.scenario
+    base = opts.sim or BuiltinOptions(calibration=sc.steering_calibration)
+    sim_opts = base.model_copy(update={"seed": seed})
+    target = None if opts.speed_kmh is None else opts.speed_kmh / 3.6
+    sim = BuiltinSimulator(sim_opts)
+    sim.load(sc, ctx.road_map)
+    state = sim.reset()
+    policy.reset()
+    cam_name = next(iter(cameras.renderers), None)
+    K, w, h = _intrinsics(sc, opts.image_size) if cam_name else (np.eye(3), 0, 0)
+    run_id, tmp = _new_run_dir(ctx.ws, "drive", f"{policy.name}-{cam_name or 'none'}-s{seed}")
+    rows: dict[str, list[float]] = {
+        k: [] for k in ("t", "x", "y", "z", "heading", "speed", "steering", "wheel_angle")
+    }
+    decisions: list[tuple[float, float]] = []
+    video = _Video(tmp / "video.mp4", 1.0 / sim_opts.dt / opts.policy_every) if opts.video else None
+    ref_xyz = sc.vehicle.reference_xyz
+    command = 0.0
+    render_s = policy_s = 0.0
+    started = time.perf_counter()
+    steps = 0
+    try:
+        for steps in range(1, opts.max_steps + 1):
+            if (steps - 1) % opts.policy_every == 0:
+                image = None
+                if cam_name is not None and (policy.needs_image or opts.save_frames or video):
+                    t0 = time.perf_counter()
+                    ref_now = body_point_positions(
+                        [[state.x, state.y, 0.0]], [state.heading], (0.0, 0.0, 0.0), ref_xyz
+                    )[0]
+                    T = _camera_poses(
+                        sc, ref_now[None, :2], np.array([state.heading]),
+                        np.array([ref_xyz[2] + _splat_ground(sc, state, cam_name)]),
+                    )[0]  # fmt: skip
+                    image = cameras.render(cam_name, T, K, w, h)
+                    render_s += time.perf_counter() - t0
+                    if opts.save_frames:
+                        _write_png(tmp / "frames" / cam_name / f"{steps - 1:06d}.png", image)
+                    if video is not None:
+                        video.add(image)
+                t0 = time.perf_counter()
+                command = float(policy.predict(Observation(t=state.t, image=image, state=state)))
+                policy_s += time.perf_counter() - t0
+                decisions.append((state.t, command))
+            state = sim.step(Control(steering=command, target_speed=target))
+            ref_now = body_point_positions(
+                [[state.x, state.y, state.z]], [state.heading], (0.0, 0.0, 0.0), ref_xyz
+            )[0]
+            for key, value in zip(
+                rows,
+                (state.t, ref_now[0], ref_now[1], ref_now[2], state.heading, state.speed,
+                 state.steering, state.wheel_angle),
+                strict=True,
+            ):  # fmt: skip
+                rows[key].append(float(value))
+            if steps % 30 == 0:
+                report(f"run {run_id}", steps, None)
+            if sim.done:
+                break
+        seconds = time.perf_counter() - started
+        events = [
+            {"kind": e.kind, "t": e.t, "x": e.x, "y": e.y, "reason": e.reason} for e in sim.events
+        ]
+        _write_tables(tmp, rows, decisions)
+        meta = {
+            "kind": "drive",
+            "method": f"drive-{cam_name or 'none'}",
+            "camera": cam_name or "none",
+            "policy": policy.name,
+            "seed": seed,
+            "steps": steps,
+            "seconds": round(seconds, 3),
+            "steps_per_s": round(steps / max(seconds, 1e-9), 1),
+            "render_ms": round(1e3 * render_s / max(len(decisions), 1), 3),
+            "policy_ms": round(1e3 * policy_s / max(len(decisions), 1), 3),
+            "options": {k: v for k, v in asdict(opts).items() if k != "sim"},
+            "simulator": sim_opts.model_dump(mode="json"),
+            "proj_string": sc.world.proj_string,
+        }
+        _write_meta(tmp, meta, events)
+    except BaseException:
+        if video is not None:
+            video.close()
+        _discard(tmp)
+        raise
+    if video is not None:
+        video.close()
+    sim.close()
+    return RunResult(run_id, _finish_run(ctx.ws, run_id, tmp), steps, tuple(events), seconds)
+
+
+def _splat_ground(sc: Scenario, state: Any, camera: str) -> float:
+    """Ground height under the vehicle for a camera: 0 for raster, recorded for splat."""
+    if camera != "splat":
+        return 0.0
+    ref = np.asarray(sc.trajectory.reference, dtype=np.float64)
+    i = int(np.argmin(np.hypot(ref[:, 0] - state.x, ref[:, 1] - state.y)))
+    return float(ref[i, 2] - sc.vehicle.reference_xyz[2])
+
+
+def iter_runs(ws: Workspace) -> Iterator[Path]:
+    """The finished run folders of a workspace, oldest first."""
+    if not ws.runs_dir.is_dir():
+        return
+    yield from sorted(p for p in ws.runs_dir.iterdir() if p.is_dir() and not p.name.startswith("."))
