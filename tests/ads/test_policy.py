@@ -50,7 +50,7 @@ def _drive(policy: PurePursuitPolicy, x: float, y: float, h: float, seconds: flo
     dt, v, ys = 0.1, 5.0, []
     for _ in range(int(seconds / dt)):
         cmd = policy.predict(_obs(_state(x, y, h, v)))
-        kappa = CAL.curvature_per_unit * cmd + CAL.offset
+        kappa = CAL.curvature_per_unit * cmd
         x, y, h = x + v * math.cos(h) * dt, y + v * math.sin(h) * dt, h + v * kappa * dt
         ys.append(y)
     return ys
@@ -63,7 +63,7 @@ def test_pure_pursuit_returns_to_a_straight_route(y0: float) -> None:
     assert not policy.needs_image
     assert policy.name == "pure-pursuit"
     first = policy.predict(_obs(_state(0.0, y0, 0.0)))
-    assert np.sign(CAL.curvature_per_unit * first + CAL.offset) == -np.sign(y0)
+    assert np.sign(CAL.curvature_per_unit * first) == -np.sign(y0)
     ys = _drive(policy, 0.0, y0, 0.0, 20.0)
     assert abs(ys[-1]) < 0.05
     assert max(abs(y) for y in ys) <= abs(y0) + 1e-9
@@ -80,7 +80,7 @@ def test_pure_pursuit_on_a_circle_gives_its_curvature() -> None:
             radius * math.cos(theta), sign * radius * math.sin(theta), sign * (theta + math.pi / 2)
         )
         cmd = policy.predict(_obs(state))
-        expected = (sign / radius - CAL.offset) / CAL.curvature_per_unit
+        expected = (sign / radius) / CAL.curvature_per_unit
         assert cmd == pytest.approx(expected, rel=0.05)
 
 

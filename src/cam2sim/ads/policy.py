@@ -165,7 +165,8 @@ class PurePursuitPolicy:
     length ahead of the vehicle's progress on the route (beyond the route's end, on the
     extension of its last segment). With ``alpha`` the goal's bearing from the heading and ``d``
     its distance, the path curvature is ``2 sin(alpha) / d`` and the command
-    ``(curvature - offset) / curvature_per_unit`` of the calibration.
+    ``curvature / curvature_per_unit`` of the calibration (the simulator maps a command back
+    with the same ``k`` and no offset: the fit's offset is a recording bias, not vehicle behaviour).
 
     Progress is monotone: each call projects the rear axle on the route segments from the last
     progress up to ``search_ahead_m`` (at least ``2 Ld``) further, and takes the nearest point of
@@ -307,7 +308,7 @@ class PurePursuitPolicy:
     def predict(self, obs: Observation) -> float:
         """The steering command that follows the route from ``obs.state``."""
         cal = self._calibration
-        return (self.curvature(obs.state) - cal.offset) / cal.curvature_per_unit
+        return self.curvature(obs.state) / cal.curvature_per_unit
 
     def close(self) -> None:
         """Nothing to release."""

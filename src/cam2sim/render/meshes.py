@@ -163,18 +163,29 @@ def _flat(positions: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     return normals
 
 
-def _turns(xy: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
-    """``(K - 2,)``: does the polyline turn at each interior sample (sine above 1e-7)?"""
-    d1, d2 = xy[1:-1] - xy[:-2], xy[2:] - xy[1:-1]
-    cross = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
-    return cross > 1e-7 * np.hypot(d1[:, 0], d1[:, 1]) * np.hypot(d2[:, 0], d2[:, 1])
+_MAX_TURN_RAD = 0.035  # 2 degrees of boundary turn between kept samples
+
+
+def _turn_breaks(xy: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
+    """``(K - 2,)``: interior samples where the accumulated turn passes another 2 degrees.
+
+    Dropping the samples in between keeps a boundary within ``L * 2deg / 8`` of its true line
+    (1 cm on a 80 m radius, nothing on straights) with far fewer quads.
+    """
+    seg = np.diff(xy, axis=0)
+    heading = np.unwrap(np.arctan2(seg[:, 1], seg[:, 0]))
+    turn = np.abs(np.diff(heading))  # at interior vertices 1 .. K-2
+    bucket = np.floor(np.cumsum(turn) / _MAX_TURN_RAD)
+    previous = np.concatenate([[0.0], bucket[:-1]])
+    breaks: npt.NDArray[np.bool_] = bucket > previous
+    return breaks
 
 
 def _corners(lane: Lane) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """Left and right boundary without the samples where both run straight on (fewer quads)."""
+    """Left and right boundary, keeping a sample per 2 degrees of turn (fewer quads)."""
     keep = np.ones(len(lane.s), dtype=bool)
     if len(keep) > 2:
-        keep[1:-1] = _turns(lane.left) | _turns(lane.right)
+        keep[1:-1] = _turn_breaks(lane.left) | _turn_breaks(lane.right)
     return lane.left[keep], lane.right[keep]
 
 

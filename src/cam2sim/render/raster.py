@@ -141,12 +141,17 @@ class RasterOptions:
     Attributes:
         near_m: Near clipping plane, metres along the optical axis.
         far_m: Far clipping plane.
+        draw_distance_m: Scene tiles farther than this from the camera are not drawn (the
+            ground plane always is); like a simulator's culling distance.
+        tile_m: Edge of the square tiles the scene is cut into for culling.
         kerb_height_m: Height of sidewalks above the road.
         ground_margin_m: How far the ground plane reaches beyond the map.
     """
 
     near_m: float = 0.1
     far_m: float = 1000.0
+    draw_distance_m: float = 250.0
+    tile_m: float = 20.0
     kerb_height_m: float = 0.15
     ground_margin_m: float = 300.0
 
@@ -201,8 +206,16 @@ class RasterScene:
         else:
             lo = hi = np.zeros(2)
         self.origin: npt.NDArray[np.float64] = np.array([*(0.5 * (lo + hi)), 0.0])
+        body, tiles = _tiled(body, opts.tile_m)
         ground = ground_mesh((lo[0], lo[1], hi[0], hi[1]), margin_m=opts.ground_margin_m)
         self.mesh: Mesh = Mesh.concat([body, ground])  # ground last: hidden parts fail early-z
+        # Culling tiles: first vertex, vertex count, centre (world) and bounding radius.
+        self.tile_first: npt.NDArray[np.int64] = tiles[0]
+        self.tile_count: npt.NDArray[np.int64] = tiles[1]
+        self.tile_centre: npt.NDArray[np.float64] = tiles[2]
+        self.tile_radius: npt.NDArray[np.float64] = tiles[3]
+        self.ground_first = len(body)
+        self.ground_count = len(ground)
         vertices = np.empty(len(self.mesh), dtype=_VERTEX)
         vertices["pos"] = self.mesh.positions - self.origin
         vertices["rgba"][:, :3] = self.mesh.colours
@@ -215,6 +228,33 @@ class RasterScene:
             len(vehicles),
             len(buildings),
         )
+
+
+def _tiled(
+    mesh: Mesh, tile_m: float
+) -> tuple[Mesh, tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.float64],
+                  npt.NDArray[np.float64]]]:  # fmt: skip
+    """The mesh's triangles sorted by square tile; each tile's vertex range and bounds."""
+    n_tri = len(mesh) // 3
+    if n_tri == 0:
+        z = np.zeros(0, dtype=np.int64)
+        return mesh, (z, z, np.zeros((0, 3)), np.zeros(0))
+    tri = mesh.positions.reshape(n_tri, 3, 3)
+    centroid = tri.mean(axis=1)
+    key = np.floor(centroid[:, :2] / tile_m).astype(np.int64)
+    _, tile_of, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    order = np.argsort(tile_of.ravel(), kind="stable")
+    vert_order = (order[:, None] * 3 + np.arange(3)[None, :]).ravel()
+    sorted_mesh = Mesh(
+        mesh.positions[vert_order], mesh.colours[vert_order], mesh.labels[vert_order]
+    )
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    tri_sorted = tri[order]
+    lo = np.minimum.reduceat(tri_sorted.min(axis=1), starts, axis=0)
+    hi = np.maximum.reduceat(tri_sorted.max(axis=1), starts, axis=0)
+    centre = 0.5 * (lo + hi)
+    radius = 0.5 * np.linalg.norm(hi - lo, axis=1)
+    return sorted_mesh, (starts * 3, counts.astype(np.int64) * 3, centre, radius)
 
 
 def projection_matrix(
@@ -307,6 +347,36 @@ class RasterRenderer:
         self._ctx.release()
         self._ctx = None
 
+    def _visible_runs(
+        self, pose: npt.NDArray[np.float64], k: npt.NDArray[np.float64], width: int, height: int
+    ) -> list[tuple[int, int]]:
+        """Contiguous vertex ranges of the tiles inside the view frustum and draw distance."""
+        s = self.scene
+        if s.tile_first.size == 0:
+            return []
+        d = s.tile_centre - pose[:3, 3]
+        cam = d @ pose[:3, :3]  # tile centres in the camera frame (x right, y down, z forward)
+        r = s.tile_radius
+        tan_x = max(k[0, 2] + 0.5, width - k[0, 2] - 0.5) / k[0, 0]
+        tan_y = max(k[1, 2] + 0.5, height - k[1, 2] - 0.5) / k[1, 1]
+        # A bounding sphere is outside a side plane when its centre is beyond it by > r; the
+        # planes' normals are not unit, hence the sqrt(1 + tan^2) factors.
+        ahead = cam[:, 2] + r > self.options.near_m
+        near = np.linalg.norm(d, axis=1) - r < self.options.draw_distance_m
+        inside_x = np.abs(cam[:, 0]) - tan_x * cam[:, 2] < r * np.sqrt(1 + tan_x**2)
+        inside_y = np.abs(cam[:, 1]) - tan_y * cam[:, 2] < r * np.sqrt(1 + tan_y**2)
+        vis = np.flatnonzero(ahead & near & inside_x & inside_y)
+        if vis.size == 0:
+            return []
+        # Merge neighbouring tiles into one draw call.
+        breaks = np.flatnonzero(np.diff(vis) != 1) + 1
+        runs = []
+        for group in np.split(vis, breaks):
+            first = int(s.tile_first[group[0]])
+            end = int(s.tile_first[group[-1]] + s.tile_count[group[-1]])
+            runs.append((first, end - first))
+        return runs
+
     def _target(self, width: int, height: int) -> tuple[Any, npt.NDArray[np.uint8]]:
         """The framebuffer and read-back array of one size (made once, reused)."""
         key = (width, height)
@@ -368,7 +438,12 @@ class RasterRenderer:
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.depth_func = "<="
-        self._scene_vao.render(moderngl.TRIANGLES)
+        for first, count in self._visible_runs(pose, k, width, height):
+            self._scene_vao.render(moderngl.TRIANGLES, vertices=count, first=first)
+        scene = self.scene
+        self._scene_vao.render(
+            moderngl.TRIANGLES, vertices=scene.ground_count, first=scene.ground_first
+        )
         self._sky_vao.render(moderngl.TRIANGLES, vertices=3)
         fbo.read_into(out, components=4, alignment=1)
         return RasterResult(rgb=out[..., :3].copy(), labels=out[..., 3].copy())

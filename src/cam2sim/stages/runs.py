@@ -484,7 +484,7 @@ def _drive_one(  # noqa: PLR0915
         for steps in range(1, opts.max_steps + 1):
             if (steps - 1) % opts.policy_every == 0:
                 image = None
-                if cam_name is not None and (policy.needs_image or opts.save_frames or video):
+                if cam_name is not None:  # the policy sees each camera frame
                     t0 = time.perf_counter()
                     ref_now = body_point_positions(
                         [[state.x, state.y, 0.0]], [state.heading], (0.0, 0.0, 0.0), ref_xyz
