@@ -30,6 +30,7 @@ from cam2sim.core.frames.projection import WorldFrame
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.table import read_table
 from cam2sim.core.workspace import Workspace, dataset_paths, hash_inputs
+from cam2sim.map.buildings import Building, building_footprints
 from cam2sim.map.check import osm_alignment
 from cam2sim.map.convert import ConvertOptions, osm_to_xodr
 from cam2sim.map.osm import BBox, OsmData, parse_osm_xml, read_osm
@@ -46,7 +47,15 @@ from cam2sim.map.report import (
 )
 from cam2sim.stages._runner import stage_run
 
-__all__ = ["MAP_FILES", "MapOptions", "MapResult", "build_map", "load_road_map", "route_box"]
+__all__ = [
+    "MAP_FILES",
+    "MapOptions",
+    "MapResult",
+    "build_map",
+    "load_buildings",
+    "load_road_map",
+    "route_box",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -372,3 +381,14 @@ def load_road_map(ws: Workspace) -> RoadMap:
         msg = f"{path} does not exist; run `cam2sim map {ws.root}` first"
         raise StageError(msg)
     return RoadMap.from_xodr(path)
+
+
+def load_buildings(ws: Workspace, *, default_height_m: float = 10.0) -> list[Building]:
+    """The buildings of the map's OSM source (``WS/map/source.osm``) in the world frame.
+
+    Empty when the map stage kept no OSM source.
+    """
+    path = ws.map_dir / MAP_FILES["source"]
+    if not path.is_file():
+        return []
+    return building_footprints(read_osm(path), _world_frame(ws), default_height_m=default_height_m)

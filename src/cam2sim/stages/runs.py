@@ -177,9 +177,12 @@ class _Cameras:
         self.renderers: dict[str, Any] = {}
         for name in names:
             if name == "raster":
+                from cam2sim.render.meshes import BuildingFootprint  # noqa: PLC0415
                 from cam2sim.render.raster import RasterRenderer, RasterScene  # noqa: PLC0415
+                from cam2sim.stages.map import load_buildings  # noqa: PLC0415
 
-                scene = RasterScene(ctx.road_map, ctx.scenario.parked)
+                buildings = [BuildingFootprint(b.xy, b.height_m) for b in load_buildings(ctx.ws)]
+                scene = RasterScene(ctx.road_map, ctx.scenario.parked, buildings)
                 self.renderers[name] = RasterRenderer(scene)
             elif name == "splat":
                 from cam2sim.splat.render import SplatRenderer  # noqa: PLC0415
