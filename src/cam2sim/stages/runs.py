@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any, Literal, Self
 
 import numpy as np
 
-from cam2sim.core.errors import StageError
+from cam2sim.core.errors import Cam2SimError, StageError
 from cam2sim.core.files import write_text_atomic
 from cam2sim.core.progress import ProgressCallback, no_progress
 
@@ -481,6 +481,7 @@ def _drive_one(  # noqa: PLR0915
     ref_xyz = sc.vehicle.reference_xyz
     command = 0.0
     render_s = policy_s = 0.0
+    failure: dict[str, Any] | None = None
     started = time.perf_counter()
     steps = 0
     try:
@@ -489,21 +490,23 @@ def _drive_one(  # noqa: PLR0915
                 image = None
                 if cam_name is not None:  # the policy sees each camera frame
                     t0 = time.perf_counter()
-                    ref_now = body_point_positions(
-                        [[state.x, state.y, 0.0]], [state.heading], (0.0, 0.0, 0.0), ref_xyz
-                    )[0]
-                    T = _camera_poses(
-                        sc, ref_now[None, :2], np.array([state.heading]),
-                        np.array([ref_xyz[2] + _splat_ground(sc, state, cam_name)]),
-                    )[0]  # fmt: skip
-                    image = cameras.render(cam_name, T, K, w, h)
+                    image = _vehicle_view(sc, state, cameras, cam_name, (K, w, h))
                     render_s += time.perf_counter() - t0
-                    if opts.save_frames:
-                        _write_png(tmp / "frames" / cam_name / f"{steps - 1:06d}.png", image)
-                    if video is not None:
-                        video.add(image)
+                    _keep_frame(
+                        image, tmp / "frames" / cam_name, steps - 1, opts.save_frames, video
+                    )
                 t0 = time.perf_counter()
-                command = float(policy.predict(Observation(t=state.t, image=image, state=state)))
+                try:
+                    command = float(
+                        policy.predict(Observation(t=state.t, image=image, state=state))
+                    )
+                except Cam2SimError as err:  # a remote policy timed out or failed: end the run
+                    failure = {
+                        "kind": "policy_error", "t": state.t, "x": state.x, "y": state.y,
+                        "reason": str(err),
+                    }  # fmt: skip
+                    logger.warning("run %s: policy failed at t=%.2f s: %s", run_id, state.t, err)
+                    break
                 policy_s += time.perf_counter() - t0
                 decisions.append((state.t, command))
             state = sim.step(Control(steering=command, target_speed=target))
@@ -525,6 +528,8 @@ def _drive_one(  # noqa: PLR0915
         events = [
             {"kind": e.kind, "t": e.t, "x": e.x, "y": e.y, "reason": e.reason} for e in sim.events
         ]
+        if failure is not None:
+            events.append(failure)
         _write_tables(tmp, rows, decisions)
         meta = {
             "kind": "drive",
@@ -551,6 +556,40 @@ def _drive_one(  # noqa: PLR0915
         video.close()
     sim.close()
     return RunResult(run_id, _finish_run(ctx.ws, run_id, tmp), steps, tuple(events), seconds)
+
+
+def _keep_frame(
+    image: npt.NDArray[np.uint8], folder: Path, index: int, save: bool, video: _Video | None
+) -> None:
+    """Write a rendered frame as PNG (on request) and add it to the video (if one is made)."""
+    if save:
+        _write_png(folder / f"{index:06d}.png", image)
+    if video is not None:
+        video.add(image)
+
+
+def _vehicle_view(
+    sc: Scenario,
+    state: Any,
+    cameras: _Cameras,
+    cam_name: str,
+    camera: tuple[npt.NDArray[np.float64], int, int],
+) -> npt.NDArray[np.uint8]:
+    """What the vehicle's camera sees in its current state."""
+    from cam2sim.scenario.body import body_point_positions  # noqa: PLC0415
+
+    ref_xyz = sc.vehicle.reference_xyz
+    ref_now = body_point_positions(
+        [[state.x, state.y, 0.0]], [state.heading], (0.0, 0.0, 0.0), ref_xyz
+    )[0]
+    T = _camera_poses(
+        sc,
+        ref_now[None, :2],
+        np.array([state.heading]),
+        np.array([ref_xyz[2] + _splat_ground(sc, state, cam_name)]),
+    )[0]
+    K, w, h = camera
+    return cameras.render(cam_name, T, K, w, h)
 
 
 def _splat_ground(sc: Scenario, state: Any, camera: str) -> float:
