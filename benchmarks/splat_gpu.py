@@ -18,6 +18,17 @@ What it measures (each part optional):
   to the host as uint8), on poses inside one chunk and in chunk overlaps (two chunks blended).
   Reports training time, Gaussians, peak GPU memory; compares with the issue's targets.
 
+* ``--resize WxH``: train and evaluate on a copy of the prepared scene resized to ``WxH`` (PNG
+  images, masks and sky masks; K scaled), written to ``--resized-dir`` (reused when present).
+* ``--set KEY=VALUE`` (repeatable): override a ``TrainOptions`` field (``lr.X`` and
+  ``densify.X`` reach the nested options), e.g. ``--set sky_weight=0 --set lr.appearance=1e-4``.
+* ``--plain-steps N``: a plain gsplat trainer in the style of gsplat's
+  ``examples/simple_trainer.py`` (all SfM points, KNN scales, its learning rates and scene scale,
+  ``DefaultStrategy`` plus the opacity reset that gsplat 1.5.3 never does, L1 + 0.2 SSIM, no sky
+  model) on the same prepared scene, scored on the same held-out frames: the control that tells
+  trainer problems from scene problems. ``--plain-affine`` adds a per-view affine colour transform
+  (held-out frames take the mean of their two neighbours'), ``--plain-sky N`` far sky points.
+
 Run from the repository root::
 
     PYTHONPATH=src python benchmarks/splat_gpu.py --parity --out parity.json
@@ -30,6 +41,8 @@ Results are printed and written as JSON to ``--out``.
 from __future__ import annotations
 
 import argparse
+import ast
+import dataclasses
 import importlib.util
 import json
 import os
@@ -49,8 +62,8 @@ import torch
 from cam2sim.splat.evaluate import EvalOptions, evaluate_splat
 from cam2sim.splat.raster import rasterize
 from cam2sim.splat.render import RenderOptions, SplatRenderer
-from cam2sim.splat.scene import SceneRecord
-from cam2sim.splat.train import TrainOptions, train_scene
+from cam2sim.splat.scene import SceneRecord, load_points
+from cam2sim.splat.train import DensifyOptions, LearningRates, TrainOptions, train_scene
 
 TARGETS = {"psnr_db": 28.5, "ssim": 0.92, "lpips": 0.15, "fps_800x503": 200.0}
 
@@ -115,7 +128,7 @@ def run_parity(sizes: tuple[int, ...] = (20_000, 200_000)) -> dict[str, Any]:
                 out[backend] = r
             diff = (out["torch"].colors - out["gsplat"].colors).abs()
             alpha = (out["torch"].alphas - out["gsplat"].alphas).abs()
-            row = {
+            row: dict[str, Any] = {
                 "n_gaussians": n,
                 "sh_degree": sh_degree,
                 "mean_abs_diff": float(diff.mean()),
@@ -282,17 +295,245 @@ def _time_raw_gsplat(loaded: Any, poses: list[np.ndarray], k: np.ndarray, frames
     return frames / (time.perf_counter() - t0)
 
 
-def run_pipeline(args: argparse.Namespace, prep: Path, work: Path) -> dict[str, Any]:
-    models = Path(args.models) if args.models else work / "models"
-    if models.exists() and not args.keep_models:
-        shutil.rmtree(models)
-    options = TrainOptions(
+def resize_prep(src: Path, dst: Path, size: tuple[int, int]) -> Path:
+    """Write ``src`` (a prepared scene; PNG or JPEG images) resized to ``size`` into ``dst``.
+
+    Images are resized with area averaging and written as PNG, masks and sky masks with nearest
+    neighbours; K is scaled per axis (pixel centres at half-integers, so ``c' = c * s``).
+    An existing ``dst/scene.json`` is taken as done.
+    """
+    import cv2  # noqa: PLC0415
+
+    if (dst / "scene.json").is_file():
+        return dst
+    scene = SceneRecord.load(src / "scene.json")
+    w, h = size
+    frames = []
+    for f in scene.frames:
+        sx, sy = w / f.width, h / f.height
+        frames.append(
+            f.model_copy(
+                update={"fx": f.fx * sx, "fy": f.fy * sy, "cx": f.cx * sx, "cy": f.cy * sy,
+                        "width": w, "height": h}
+            )
+        )  # fmt: skip
+    for sub, interp in (("images", cv2.INTER_AREA), ("masks", cv2.INTER_NEAREST),
+                        ("sky", cv2.INTER_NEAREST)):  # fmt: skip
+        if not (src / sub).is_dir():
+            continue
+        (dst / sub).mkdir(parents=True, exist_ok=True)
+        for path in sorted((src / sub).iterdir()):
+            image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if image is None:
+                continue
+            if image.shape[:2] != (h, w):
+                image = cv2.resize(image, (w, h), interpolation=interp)
+            cv2.imwrite(str(dst / sub / f"{path.stem}.png"), image)
+    shutil.copy2(src / "points.npz", dst / "points.npz")
+    scene.model_copy(update={"frames": frames}).save(dst / "scene.json")
+    return dst
+
+
+def _parse_value(text: str) -> Any:
+    low = text.strip().lower()
+    if low in {"true", "false"}:
+        return low == "true"
+    if low in {"none", "null"}:
+        return None
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return text
+
+
+def train_options(args: argparse.Namespace) -> TrainOptions:
+    """``TrainOptions`` of the run: the defaults, the CLI's steps and ``--set`` overrides."""
+    top: dict[str, Any] = {}
+    nested: dict[str, dict[str, Any]] = {"lr": {}, "densify": {}}
+    for item in args.set or []:
+        key, _, value = item.partition("=")
+        group, _, name = key.partition(".")
+        if name:
+            nested[group][name] = _parse_value(value)
+        else:
+            top[key] = _parse_value(value)
+    return TrainOptions(
         max_steps=args.max_steps,
         min_steps=min(args.min_steps, args.max_steps),
         device="cuda",
         backend="gsplat",
         downscale=args.downscale,
+        lr=dataclasses.replace(LearningRates(), **nested["lr"]),
+        densify=dataclasses.replace(DensifyOptions(), **nested["densify"]),
+        **top,
     )
+
+
+# --------------------------------------------------------------------- plain gsplat control
+
+
+def _ssim_loss(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    from cam2sim.splat.train import _ssim  # noqa: PLC0415 -- the same SSIM as our trainer's
+
+    return 1.0 - _ssim(x, y)
+
+
+def _plain_splats(
+    prep: Path, scene: SceneRecord, images: torch.Tensor, sky_points: int
+) -> tuple[torch.nn.ParameterDict, float]:
+    """simple_trainer's initialisation: SfM points (plus far sky points), KNN scales."""
+    from cam2sim.splat.model import sky_sphere_points  # noqa: PLC0415
+
+    dev = images.device
+    centres = np.stack([f.T()[:3, 3] for f in scene.frames])
+    scene_scale = float(np.linalg.norm(centres - centres.mean(0), axis=1).max()) * 1.1
+    xyz_np, rgb_np, _ = load_points(prep / "points.npz")
+    xyz = torch.tensor(xyz_np, dtype=torch.float32, device=dev)
+    rgb = torch.tensor(rgb_np, dtype=torch.float32, device=dev) / 255.0
+    if sky_points > 0:
+        far = float(np.linalg.norm(xyz_np - centres.mean(0), axis=1).max())
+        sky = sky_sphere_points(centres.mean(0), 10.0 * max(far, scene_scale), sky_points)
+        xyz = torch.cat((xyz, torch.tensor(sky, dtype=torch.float32, device=dev)))
+        top = images[:, : images.shape[1] // 10].reshape(-1, 3).float().mean(0) / 255.0
+        rgb = torch.cat((rgb, top.expand(len(sky), 3)))
+    knn = torch.topk(torch.cdist(xyz, xyz), 4, largest=False).values[:, 1:]
+    n = len(xyz)
+    params = {
+        "means": xyz,
+        "scales": torch.log(torch.sqrt((knn**2).mean(-1))).unsqueeze(-1).repeat(1, 3),
+        "quats": torch.rand((n, 4), device=dev),
+        "opacities": torch.logit(torch.full((n,), 0.1, device=dev)),
+        "sh0": ((rgb - 0.5) / 0.28209479177387814)[:, None, :],
+        "shN": torch.zeros((n, 15, 3), device=dev),
+    }
+    return torch.nn.ParameterDict(
+        {k: torch.nn.Parameter(v) for k, v in params.items()}
+    ), scene_scale
+
+
+def _plain_render(
+    splats: torch.nn.ParameterDict, viewmat: torch.Tensor, k: torch.Tensor, size: tuple[int, int],
+    degree: int,
+) -> tuple[torch.Tensor, dict[str, Any]]:  # fmt: skip
+    import gsplat  # noqa: PLC0415
+
+    render, _, info = gsplat.rasterization(
+        splats["means"], splats["quats"], torch.exp(splats["scales"]),
+        torch.sigmoid(splats["opacities"]), torch.cat((splats["sh0"], splats["shN"]), 1),
+        viewmat[None], k[None], size[0], size[1], sh_degree=degree, packed=False,
+    )  # fmt: skip
+    return render[0], info
+
+
+def _plain_scores(
+    args: argparse.Namespace, prep: Path, scene: SceneRecord, splats: torch.nn.ParameterDict,
+    affine: torch.Tensor,
+) -> dict[str, list[float]]:  # fmt: skip
+    """Held-out PSNR/SSIM/LPIPS; the colour transform is the mean of the two neighbours'."""
+    from cam2sim.metrics.image_quality import psnr, read_rgb, ssim  # noqa: PLC0415
+    from cam2sim.metrics.lpips import load_lpips  # noqa: PLC0415
+
+    dev = affine.device
+    weights = Path(args.lpips_weights) if args.lpips_weights else None
+    lpips = None if args.no_lpips else load_lpips("alex", weights=weights, device=str(dev))
+    train = [f.index for f in scene.frames if not f.held_out]
+    row_of = {index: j for j, index in enumerate(train)}
+    rows: dict[str, list[float]] = {"psnr": [], "ssim": [], "lpips": [], "psnr_raw": []}
+
+    def u8(t: torch.Tensor) -> np.ndarray:
+        return (t.clamp(0, 1) * 255 + 0.5).to(torch.uint8).cpu().numpy()
+
+    with torch.no_grad():
+        for f in (f for f in scene.frames if f.held_out):
+            viewmat = torch.tensor(np.linalg.inv(f.T()), dtype=torch.float32, device=dev)
+            k = torch.tensor(f.K(), dtype=torch.float32, device=dev)
+            raw, _ = _plain_render(splats, viewmat, k, (f.width, f.height), 3)
+            near = [row_of[j] for j in (f.index - 1, f.index + 1) if j in row_of]
+            a = affine[near].mean(0)
+            sim = u8(raw @ a[:, :3].T + a[:, 3] if args.plain_affine else raw)
+            real = read_rgb(prep / "images" / f"{f.index:06d}.png")
+            rows["psnr"].append(psnr(real, sim) or 0.0)
+            rows["ssim"].append(ssim(real, sim) or 0.0)
+            rows["psnr_raw"].append(psnr(real, u8(raw)) or 0.0)
+            if lpips is not None:
+                rows["lpips"].append(lpips.distance_from_images(real[None], sim[None])[0] or 0.0)
+    return rows
+
+
+def run_plain(args: argparse.Namespace, prep: Path) -> dict[str, Any]:
+    """Train and score a plain gsplat model (``examples/simple_trainer.py`` defaults)."""
+    from gsplat.strategy import DefaultStrategy  # noqa: PLC0415
+    from gsplat.strategy.ops import reset_opa  # noqa: PLC0415
+
+    from cam2sim.metrics.image_quality import read_rgb  # noqa: PLC0415
+
+    dev, steps = "cuda", args.plain_steps
+    torch.manual_seed(42)
+    scene = SceneRecord.load(prep / "scene.json")
+    train = [f for f in scene.frames if not f.held_out]
+    images = torch.stack(
+        [torch.from_numpy(read_rgb(prep / "images" / f"{f.index:06d}.png")) for f in train]
+    ).to(dev)
+    viewmats = torch.tensor(
+        np.stack([np.linalg.inv(f.T()) for f in train]), dtype=torch.float32, device=dev
+    )
+    ks = torch.tensor(np.stack([f.K() for f in train]), dtype=torch.float32, device=dev)
+    size = (train[0].width, train[0].height)
+    splats, scene_scale = _plain_splats(prep, scene, images, args.plain_sky)
+    n_initial = len(splats["means"])
+    lrs = {"means": 1.6e-4 * scene_scale, "scales": 5e-3, "quats": 1e-3, "opacities": 5e-2,
+           "sh0": 2.5e-3, "shN": 2.5e-3 / 20}  # fmt: skip
+    optimizers = {
+        k: torch.optim.Adam([{"params": splats[k], "lr": lr, "name": k}], eps=1e-15, fused=True)
+        for k, lr in lrs.items()
+    }
+    scheduler = torch.optim.lr_scheduler.ExponentialLR(optimizers["means"], 0.01 ** (1 / steps))
+    affine = torch.nn.Parameter(torch.eye(3, 4, device=dev).repeat(len(train), 1, 1))
+    affine_opt = torch.optim.Adam([affine], lr=args.plain_affine_lr)
+    strategy = DefaultStrategy()
+    state = strategy.initialize_state(scene_scale=scene_scale)
+    order: list[int] = []
+    t0 = time.perf_counter()
+    for step in range(steps):
+        order = order or torch.randperm(len(train)).tolist()
+        i = order.pop()
+        colour, info = _plain_render(splats, viewmats[i], ks[i], size, min(step // 1000, 3))
+        if args.plain_affine:
+            colour = colour @ affine[i, :, :3].T + affine[i, :, 3]
+        target = images[i].float() / 255.0
+        strategy.step_pre_backward(splats, optimizers, state, step, info)
+        loss = torch.lerp(torch.abs(colour - target).mean(), _ssim_loss(colour, target), 0.2)
+        torch.autograd.backward(loss)
+        for opt in (*optimizers.values(), affine_opt):
+            opt.step()
+            opt.zero_grad(set_to_none=True)
+        scheduler.step()
+        strategy.step_post_backward(splats, optimizers, state, step, info, packed=False)
+        if 0 < step < strategy.refine_stop_iter and step % strategy.reset_every == 0:
+            reset_opa(splats, optimizers, state, value=strategy.prune_opa * 2.0)
+    torch.cuda.synchronize()
+    train_s = time.perf_counter() - t0
+    rows = _plain_scores(args, prep, scene, splats, affine.detach())
+    out: dict[str, Any] = {
+        "steps": steps,
+        "train_seconds": train_s,
+        "n_gaussians": len(splats["means"]),
+        "n_initial": n_initial,
+        "scene_scale": scene_scale,
+        "affine": args.plain_affine,
+        "sky_points": args.plain_sky,
+    }
+    out.update({key: float(np.mean(values)) for key, values in rows.items() if values})
+    out["psnr_p10"] = float(np.percentile(rows["psnr"], 10))
+    print("plain gsplat:", json.dumps(out))
+    return out
+
+
+def run_pipeline(args: argparse.Namespace, prep: Path, work: Path) -> dict[str, Any]:
+    models = Path(args.models) if args.models else work / "models"
+    if models.exists() and not args.keep_models:
+        shutil.rmtree(models)
+    options = train_options(args)
     torch.cuda.reset_peak_memory_stats()
     t0 = time.perf_counter()
     chunk_ids = tuple(int(c) for c in args.chunks.split(",")) if args.chunks else None
@@ -306,6 +547,7 @@ def run_pipeline(args: argparse.Namespace, prep: Path, work: Path) -> dict[str, 
     evaluation = evaluate_splat(
         prep,
         models,
+        offsets=() if args.no_offsets else (-2.0, -1.0, -0.5, 0.5, 1.0, 2.0),
         lpips_weights=Path(args.lpips_weights) if args.lpips_weights else None,
         options=EvalOptions(lpips=not args.no_lpips, device="cuda", backend="gsplat"),
         out_path=work / "eval.json",
@@ -315,12 +557,14 @@ def run_pipeline(args: argparse.Namespace, prep: Path, work: Path) -> dict[str, 
         "psnr_db": evaluation.psnr_db.mean,
         "ssim": evaluation.ssim.mean,
         "lpips": evaluation.lpips.mean,
+        "psnr_db_p10": evaluation.psnr_db.p10,
         "psnr_db_no_appearance": evaluation.psnr_db_raw.mean if evaluation.psnr_db_raw else None,
+        "psnr_db_p10_no_appearance": evaluation.psnr_db_raw.p10 if evaluation.psnr_db_raw else None,
         "ssim_no_appearance": evaluation.ssim_raw.mean if evaluation.ssim_raw else None,
         "lpips_no_appearance": evaluation.lpips_raw.mean if evaluation.lpips_raw else None,
     }
     print("held-out:", json.dumps(summary))
-    rendering = time_rendering(prep, models, args.fps_frames)
+    rendering = time_rendering(prep, models, args.fps_frames) if args.fps_frames > 0 else {}
     fps = rendering.get("single_chunk", {}).get("fps")
     checks = {
         "psnr_db": summary["psnr_db"] is not None and summary["psnr_db"] >= TARGETS["psnr_db"],
@@ -329,6 +573,7 @@ def run_pipeline(args: argparse.Namespace, prep: Path, work: Path) -> dict[str, 
         "fps_800x503": fps is not None and fps >= TARGETS["fps_800x503"],
     }
     return {
+        "train_options": dataclasses.asdict(options),
         "training": {
             "seconds": train_s,
             "peak_gpu_memory_gib": (trained.peak_memory_bytes or 0) / 2**30,
@@ -376,6 +621,15 @@ def main() -> int:
         default=0,
         help="also time rendering a random chunk model of this many Gaussians",
     )
+    parser.add_argument("--resize", help="train on the prepared scene resized to WxH")
+    parser.add_argument("--resized-dir", help="where --resize writes (default: a temporary folder)")
+    parser.add_argument("--set", action="append", help="TrainOptions override KEY=VALUE")
+    parser.add_argument("--no-offsets", action="store_true", help="skip the lateral offsets")
+    parser.add_argument("--no-train", action="store_true", help="skip our trainer")
+    parser.add_argument("--plain-steps", type=int, default=0, help="plain gsplat control steps")
+    parser.add_argument("--plain-affine", action="store_true")
+    parser.add_argument("--plain-affine-lr", type=float, default=1e-3)
+    parser.add_argument("--plain-sky", type=int, default=0)
     parser.add_argument("--out", default="splat_gpu.json")
     args = parser.parse_args()
 
@@ -395,7 +649,14 @@ def main() -> int:
         )
     if args.prep or args.synthetic:
         prep = Path(args.prep) if args.prep else make_synthetic(work, args.synthetic_frames)
-        results["pipeline"] = run_pipeline(args, prep, work)
+        if args.resize:
+            w, h = (int(v) for v in args.resize.lower().split("x"))
+            dst = Path(args.resized_dir) if args.resized_dir else work / "prep"
+            prep = resize_prep(prep, dst, (w, h))
+        if args.plain_steps:
+            results["plain_gsplat"] = run_plain(args, prep)
+        if not args.no_train:
+            results["pipeline"] = run_pipeline(args, prep, work)
     Path(args.out).write_text(json.dumps(results, indent=2, default=str) + "\n")
     print(f"results -> {args.out}")
     return 0

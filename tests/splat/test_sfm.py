@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -41,7 +42,8 @@ def _texture(seed: int, size: int = 512) -> np.ndarray:
         noise = rng.random((cells, cells, 3))
         out += cv2.resize(noise, (size, size), interpolation=cv2.INTER_CUBIC)
     out -= out.min()
-    return (255 * out / out.max()).astype(np.uint8)
+    texture: np.ndarray = (255 * out / out.max()).astype(np.uint8)
+    return texture
 
 
 def render(T_world_cam: np.ndarray) -> np.ndarray:
@@ -170,3 +172,27 @@ def test_sfm_without_pycolmap_names_the_extra(
     monkeypatch.setitem(sys.modules, "pycolmap", None)
     with pytest.raises(BackendUnavailableError, match=r"pip install cam2sim\[splat\]"):
         sfm_images_only([tmp_path / "a.png", tmp_path / "b.png"])
+
+
+def test_sfm_defaults_follow_the_forward_driving_lessons() -> None:
+    opts = SfmOptions()
+    assert opts.mapper == "incremental"
+    assert not opts.refine_focal
+    assert opts.features.window == 20
+
+
+@pytest.mark.parametrize("focal", [False, True])
+def test_final_refinement_refines_the_focal_length_only_when_asked(
+    monkeypatch: pytest.MonkeyPatch, focal: bool
+) -> None:
+    import pycolmap
+
+    from cam2sim.splat import sfm
+
+    seen: list[Any] = []
+    monkeypatch.setattr(pycolmap, "bundle_adjustment", lambda _rec, options: seen.append(options))
+    sfm._final_refinement(pycolmap, object(), 1, focal=focal)
+    (options,) = seen
+    assert options.refine_focal_length is focal
+    assert options.refine_extra_params
+    assert not options.refine_principal_point

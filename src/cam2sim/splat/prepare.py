@@ -19,8 +19,9 @@ The prepared scene is the contract described in :mod:`cam2sim.splat.scene`. Step
 
 Datasets without poses get poses, intrinsics and points from images-only SfM
 (:func:`cam2sim.splat.sfm.sfm_images_only`): ``pose_source="sfm"``, ``scale_ambiguous=True``,
-one chunk. Datasets with poses but no intrinsics also run SfM (self-calibrating); its result is
-then aligned to the recorded camera centres by a similarity, so the world frame stays metric.
+one chunk. Datasets with poses but no intrinsics also run SfM (focal length at its prior, the
+distortion refined); its result is then aligned to the recorded camera centres by a similarity,
+so the world frame stays metric.
 """
 
 from __future__ import annotations
@@ -569,7 +570,7 @@ def _with_sfm(
             names = [p.name for p in staged.images]
             result = sfm_images_only(staged.images, staged.masks, options=sfm_opts, progress=report)
         else:
-            # Unknown intrinsics: SfM on the recorded frames, self-calibrating at the end.
+            # Unknown intrinsics: SfM on the recorded frames, distortion refined at the end.
             masks = None
             if hood is not None:
                 _write_png(work / "hood.png", np.where(hood, 0, 255).astype(np.uint8))
