@@ -14,12 +14,12 @@ from cam2sim.ads.policy import (
     ConstantPolicy,
     ModelPolicy,
     Observation,
-    PolicyServer,
     PurePursuitPolicy,
     RemotePolicy,
     SteeringPolicy,
     load_policy,
 )
+from cam2sim.ads.serve import PolicyServer
 from cam2sim.core.errors import ConfigError, StageError
 from cam2sim.sim.interface import SteeringCalibration, VehicleState
 
@@ -214,30 +214,33 @@ def test_torch_export_model_policy(tmp_path: Path) -> None:
 
 def test_remote_policy_matches_in_process(tmp_path: Path) -> None:
     model = ModelPolicy(_onnx_model(tmp_path / "steer.onnx", 8))
-    image, state = _image(180), _state(3.0, 4.0, 0.5, t=1.5)
+    state = _state(3.0, 4.0, 0.5, t=1.5)
     with PolicyServer(model).start() as server:
         remote = load_policy(server.address, route_xy=None, wheelbase_m=1.0, calibration=CAL)
         try:
             assert isinstance(remote, RemotePolicy)
             assert remote.needs_image
-            assert remote.remote_name == "onnx:steer.onnx"
+            assert remote.name == server.address
             remote.reset()
             for red in (0, 180, 255):
                 got = remote.predict(_obs(state, _image(red)))
                 assert got == pytest.approx(model.predict(_obs(state, _image(red))), abs=1e-7)
-            with pytest.raises(StageError, match="has none"):  # the server's error, relayed
+                assert remote.last_throttle == 0.0
+            with pytest.raises(StageError, match="has none"):
                 remote.predict(_obs(state))
-            assert remote.predict(_obs(state, image)) == pytest.approx(180 / 255 - 0.5, abs=1e-6)
         finally:
             remote.close()
-    with PolicyServer(PurePursuitPolicy([[0, 0], [100, 0]], 2.8, CAL), port=0) as server:
-        server.start()
-        local = PurePursuitPolicy([[0, 0], [100, 0]], 2.8, CAL)
-        remote = RemotePolicy(server.address, timeout_s=5.0)
+
+    class Failing(ConstantPolicy):
+        def predict(self, obs: Observation) -> float:
+            msg = "no model"
+            raise ConfigError(msg)
+
+    with PolicyServer(Failing(1.0)).start() as server:  # the server's error, relayed
+        remote = RemotePolicy(server.address, encoding="raw", timeout_s=5.0)
         try:
-            assert not remote.needs_image
-            for obs in (_obs(state), _obs(state, image), _obs(_state(5.0, -1.0, 0.1))):
-                assert remote.predict(obs) == pytest.approx(local.predict(obs), abs=1e-9)
+            with pytest.raises(StageError, match="ConfigError: no model"):
+                remote.predict(_obs(state, np.zeros((4, 4, 3), np.uint8)))
         finally:
             remote.close()
 
@@ -262,11 +265,12 @@ def test_remote_policy_unreachable_and_bad_specs() -> None:
 def test_closing_the_server_drops_a_connected_client() -> None:
     server = PolicyServer(ConstantPolicy(2.5)).start()
     remote = RemotePolicy(server.address, timeout_s=2.0)
+    obs = _obs(_state(0.0, 0.0, 0.0), _image(10))
     try:
-        assert remote.predict(_obs(_state(0.0, 0.0, 0.0))) == 2.5
+        assert remote.predict(obs) == 2.5
         server.close()
         with pytest.raises(StageError, match=f"127.0.0.1:{server.port}"):
-            remote.predict(_obs(_state(0.0, 0.0, 0.0)))
+            remote.predict(obs)
     finally:
         remote.close()
         server.close()

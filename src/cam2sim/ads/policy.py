@@ -8,9 +8,9 @@ applies the returned command, in the recording's steering unit, through the run'
 - ``pure-pursuit``: :class:`PurePursuitPolicy`, follows the recorded route (uses the map, not
   the camera): the reference driver and the loop's self-test.
 - ``constant:VALUE``: :class:`ConstantPolicy`, always ``VALUE`` (diagnosis, e.g. hard right).
-- a model file (``.onnx``, ``.pt``, ``.pth``, ``.ts``): :class:`ModelPolicy`.
+- a model file (``.onnx``, ``.pt``, ``.pth``, ``.ts``, ``.h5``): :class:`ModelPolicy`.
 - ``tcp://HOST:PORT``: :class:`RemotePolicy`, a policy served by another process
-  (:class:`PolicyServer`, :func:`serve_policy`).
+  (:mod:`cam2sim.ads.serve`).
 
 Tensor contract of image models (:class:`ModelPolicy`)
 ------------------------------------------------------
@@ -18,6 +18,9 @@ Tensor contract of image models (:class:`ModelPolicy`)
   ``pixel / 255`` in ``[0, 1]``, no mean/std normalisation (put it inside the model). The
   camera frame is resized to the model's declared fixed ``H`` and ``W`` with ``cv2.INTER_AREA``;
   a model with a dynamic size (and every TorchScript model) needs ``input_size=(W, H)``.
+  Exception: ONNX models exported by cam2sim (``cam2sim.dave2`` metadata) and Keras ``.h5``
+  models get the DAVE-2 preprocessing (resize, crop, resize; values in ``[0, 255]``; see
+  :mod:`cam2sim.ads.dave2`).
 - One output (any name; ``steering`` is picked when there are several): a single value, shape
   ``()``, ``(1,)`` or ``(1, 1)``, the steering command in the recording's steering unit.
 - ONNX models run with onnxruntime; torch models are ``torch.export.save`` programs or
@@ -25,42 +28,28 @@ Tensor contract of image models (:class:`ModelPolicy`)
   one-element tuple, or a dict with ``steering``). A model that breaks the contract raises
   :class:`~cam2sim.core.errors.ConfigError` naming the inputs and outputs it actually has.
 
-Remote protocol (``tcp://HOST:PORT``)
+Remote policies (``tcp://HOST:PORT``)
 -------------------------------------
-One TCP connection per client, served one client at a time. Every message is a length-prefixed
-frame: a 4-byte big-endian unsigned length, then that many bytes.
-
-- Request: a frame of UTF-8 JSON (the header), then a frame of raw payload bytes (length 0 when
-  there is none). Header ``type`` is one of:
-
-  - ``"predict"``: ``{"type": "predict", "t": s, "width": W, "height": H, "encoding": "rgb8",
-    "state": {VehicleState fields; rear_axle as [x, y]}}``; the payload is the image, ``H * W *
-    3`` bytes of row-major RGB (``width``/``height`` 0 and an empty payload: no image).
-  - ``"reset"``: start of a run; empty payload.
-  - ``"info"``: asks for ``{"name": str, "needs_image": bool}``; empty payload.
-
-- Reply: one frame of UTF-8 JSON: ``{"steering": float}`` (predict), ``{"ok": true}`` (reset),
-  the info object, or ``{"error": "..."}`` when the policy failed (the connection stays open; a
-  malformed request also closes it). JSON may carry ``NaN`` (Python's ``json`` writes it).
+:class:`RemotePolicy` sends each camera frame to a server in another process and reads back
+``steering,throttle``: the published tool's protocol, served by :mod:`cam2sim.ads.serve`
+(``cam2sim ads serve``; :class:`~cam2sim.ads.serve.PolicyServer`) or by the published server.
 """
 
 from __future__ import annotations
 
 import io
-import json
 import logging
 import math
 import socket
-import socketserver
-import struct
-import threading
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Final, Protocol, Self, cast, runtime_checkable
+from typing import TYPE_CHECKING, Any, Final, Protocol, cast, runtime_checkable
 
 import cv2
 import numpy as np
 
+from cam2sim.ads.dave2 import METADATA_KEY as DAVE2_METADATA
+from cam2sim.ads.dave2 import Dave2Config, preprocess
 from cam2sim.core.errors import ConfigError, StageError
 from cam2sim.detect.learned import (
     _FLOAT_TYPES,
@@ -74,38 +63,30 @@ from cam2sim.detect.learned import (
     _to_numpy,
     _torch_kind,
 )
-from cam2sim.sim.interface import SteeringCalibration, VehicleState
 
 if TYPE_CHECKING:
     from collections.abc import Callable
-    from types import TracebackType
 
     import numpy.typing as npt
+
+    from cam2sim.sim.interface import SteeringCalibration, VehicleState
 
 __all__ = [
     "ConstantPolicy",
     "ModelPolicy",
     "Observation",
-    "PolicyServer",
     "PurePursuitPolicy",
     "RemotePolicy",
     "SteeringPolicy",
     "load_policy",
-    "serve_policy",
 ]
 
 _log = logging.getLogger(__name__)
 
-_LENGTH: Final = struct.Struct(">I")
-_MAX_HEADER: Final = 1 << 20
-"""Largest JSON header or reply accepted, bytes."""
-_MAX_PAYLOAD: Final = 1 << 28
-"""Largest image accepted, bytes (256 MiB)."""
-_POLL_S: Final = 0.1
-"""How often a server blocked on a connection checks whether it was closed."""
 _NEAR_M: Final = 1.0
 """Route segments within ``2 * nearest + this`` metres count as near the vehicle."""
-_MODEL_SUFFIXES: Final = (".onnx", ".pt", ".pth", ".ts")
+_MODEL_SUFFIXES: Final = (".onnx", ".pt", ".pth", ".ts", ".h5")
+_KERAS_HINT: Final = "pip install tensorflow (Keras .h5 models need it; cam2sim does not)"
 _SPECS: Final = (
     "'pure-pursuit', 'constant:VALUE' (e.g. constant:-10), a model file "
     f"({', '.join(_MODEL_SUFFIXES)}) or 'tcp://HOST:PORT'"
@@ -437,6 +418,11 @@ class _OnnxSteering:
         self._input, self._dtype = inputs[0].name, _FLOAT_TYPES[inputs[0].type]
         h, w = _fixed(shape[2]), _fixed(shape[3])
         self.size = _fit_size((w, h) if w and h else None, input_size, self.name)
+        meta = self._session.get_modelmeta().custom_metadata_map.get(DAVE2_METADATA)
+        self.dave2 = None if meta is None else Dave2Config.from_json(meta)
+        if self.dave2 is not None and self.dave2.input_size != self.size:
+            msg = f"{self.name}: metadata input size {self.dave2.input_size} != graph {self.size}"
+            raise ConfigError(msg)
 
     def __call__(self, x: npt.NDArray[np.float32]) -> float:
         try:
@@ -483,6 +469,7 @@ class _TorchSteering:
             msg = f"forward takes {n_inputs} inputs, the contract is forward(image)"
             raise _contract_error(self.name, msg, f"{n_inputs} tensors", "?")
         self.size = _fit_size(declared, input_size, self.name)
+        self.dave2: Dave2Config | None = None
 
     def __call__(self, x: npt.NDArray[np.float32]) -> float:
         import warnings  # noqa: PLC0415
@@ -506,11 +493,48 @@ class _TorchSteering:
         return _steering_value(out, self.name)
 
 
+class _KerasSteering:
+    """A Keras ``.h5`` DAVE-2 (the reference system's ``final.h5``), via TensorFlow.
+
+    Takes the published preprocessing (:func:`cam2sim.ads.dave2.preprocess`, values in
+    ``[0, 255]``) channels last, ``(1, 66, 200, 3)``; the first output value is the steering
+    (the reference model returns ``[steering, throttle]``).
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.name = f"keras:{path.name}"
+        tf = _require("tensorflow", _KERAS_HINT, "the Keras steering policy")
+        try:
+            self._model = tf.keras.models.load_model(str(path), compile=False, safe_mode=False)
+        except (OSError, ValueError, TypeError) as err:
+            msg = f"cannot load Keras model {str(path)!r}: {err}"
+            raise ConfigError(msg) from err
+        self.dave2: Dave2Config | None = Dave2Config()
+        self.size = self.dave2.input_size
+
+    def __call__(self, x: npt.NDArray[np.float32]) -> float:
+        out = _to_numpy(self._model(x.transpose(0, 2, 3, 1), training=False))
+        return _steering_value(out.reshape(-1)[:1], self.name)
+
+
+def _dave2_image(obs: Observation, config: Dave2Config, model: str) -> npt.NDArray[np.float32]:
+    """The frame preprocessed as the DAVE-2 training did (crop honoured), ``[0, 255]``."""
+    if obs.image is None:
+        msg = f"{model} steers from the camera image, but the run has none; configure a camera"
+        raise ConfigError(msg)
+    return preprocess(np.asarray(obs.image), config)
+
+
 class ModelPolicy:
-    """An image model that steers (contract in the module doc): ONNX or torch.
+    """An image model that steers (contract in the module doc): ONNX, torch or Keras.
+
+    ONNX models exported by cam2sim (:mod:`cam2sim.ads.export`) carry their DAVE-2
+    preprocessing in metadata: the frame is resized, cropped and resized as in training, and
+    passed in ``[0, 255]``. Keras ``.h5`` models get the published DAVE-2 preprocessing.
 
     Args:
-        path: The ``.onnx`` file, or a ``.pt`` / ``.pth`` / ``.ts`` torch archive.
+        path: The ``.onnx`` file, a ``.pt`` / ``.pth`` / ``.ts`` torch archive, or a Keras
+            ``.h5`` (needs TensorFlow).
         input_size: ``(width, height)`` the model takes; needed when it declares none.
         device: torch device (torch models only).
     """
@@ -523,15 +547,17 @@ class ModelPolicy:
         if suffix not in _MODEL_SUFFIXES:
             msg = f"steering model {path.name!r} must be one of {', '.join(_MODEL_SUFFIXES)}"
             raise ConfigError(msg)
-        self._model: _OnnxSteering | _TorchSteering = (
-            _OnnxSteering(path, input_size)
-            if suffix == ".onnx"
-            else _TorchSteering(path, input_size, device)
-        )
+        self._model: _OnnxSteering | _TorchSteering | _KerasSteering
+        if suffix == ".onnx":
+            self._model = _OnnxSteering(path, input_size)
+        elif suffix == ".h5":
+            self._model = _KerasSteering(path)
+        else:
+            self._model = _TorchSteering(path, input_size, device)
 
     @property
     def name(self) -> str:
-        """``onnx:FILE`` or ``torch:FILE``."""
+        """``onnx:FILE``, ``torch:FILE`` or ``keras:FILE``."""
         return self._model.name
 
     @property
@@ -549,6 +575,8 @@ class ModelPolicy:
 
     def predict(self, obs: Observation) -> float:
         """The model's steering for ``obs.image``."""
+        if self._model.dave2 is not None:
+            return self._model(_dave2_image(obs, self._model.dave2, self.name))
         return self._model(_model_image(obs, self._model.size, self.name))
 
     def close(self) -> None:
@@ -557,50 +585,6 @@ class ModelPolicy:
 
 # --------------------------------------------------------------------------------------------
 # Remote policies
-
-
-def _frame(data: bytes | memoryview) -> list[bytes | memoryview]:
-    return [_LENGTH.pack(len(data)), data]
-
-
-def _recv_exact(sock: socket.socket, n: int, keep_waiting: Callable[[], bool] | None) -> bytes:
-    """``n`` bytes; EOFError when the peer closes first; TimeoutError unless ``keep_waiting()``."""
-    buf = bytearray(n)
-    view, got = memoryview(buf), 0
-    while got < n:
-        try:
-            k = sock.recv_into(view[got:], n - got)
-        except TimeoutError:
-            if keep_waiting is not None and keep_waiting():
-                continue
-            raise
-        if k == 0:
-            msg = f"connection closed after {got} of {n} bytes"
-            raise EOFError(msg)
-        got += k
-    return bytes(buf)
-
-
-def _recv_frame(
-    sock: socket.socket, limit: int, keep_waiting: Callable[[], bool] | None = None
-) -> bytes:
-    (n,) = _LENGTH.unpack(_recv_exact(sock, _LENGTH.size, keep_waiting))
-    if n > limit:
-        msg = f"frame of {n} bytes exceeds the limit of {limit}"
-        raise ValueError(msg)
-    return _recv_exact(sock, n, keep_waiting) if n else b""
-
-
-def _state_json(state: VehicleState) -> dict[str, Any]:  # Any: JSON values
-    out = asdict(state)
-    out["rear_axle"] = list(state.rear_axle)
-    return out
-
-
-def _state_from_json(data: dict[str, Any]) -> VehicleState:  # Any: JSON values
-    fields = dict(data)
-    fields["rear_axle"] = tuple(float(v) for v in fields["rear_axle"])
-    return VehicleState(**fields)
 
 
 def _parse_address(address: str) -> tuple[str, int]:
@@ -616,37 +600,55 @@ def _parse_address(address: str) -> tuple[str, int]:
 
 
 class RemotePolicy:
-    """A policy served by another process over TCP (protocol in the module doc).
+    """A policy served by another process (wire protocol in :mod:`cam2sim.ads.serve`).
 
-    Connects and asks for the remote policy's name and whether it needs the image when built,
-    so an unreachable server fails at once.
+    Speaks the published tool's protocol, so it drives either a :mod:`cam2sim.ads.serve`
+    server (``cam2sim ads serve``) or the published model server. Connects when built, so an
+    unreachable server fails at once. When the connection drops (a server restart) the next
+    request reconnects once and is sent again; a second failure, or no reply within
+    ``timeout_s``, raises :class:`~cam2sim.core.errors.StageError` naming the server.
 
     Args:
-        address: ``tcp://HOST:PORT`` of a :class:`PolicyServer`.
+        address: ``tcp://HOST:PORT`` of the server.
+        encoding: ``raw`` (lossless, no codec cost: the default), ``png`` (lossless) or
+            ``jpeg`` (quality 75, what the published client sends and its server reads).
         timeout_s: Longest wait to connect and for each reply, seconds.
+        smoothing: Server-side EMA factor for this connection (0.85: the published server);
+            None: no smoothing. Needs ``control``.
+        control: Send control messages (:meth:`reset`, ``smoothing``); False for the published
+            server, which does not understand them (:meth:`reset` then does nothing).
     """
 
-    def __init__(self, address: str, *, timeout_s: float = 10.0) -> None:
+    def __init__(
+        self,
+        address: str,
+        *,
+        encoding: str = "raw",
+        timeout_s: float = 10.0,
+        smoothing: float | None = None,
+        control: bool = True,
+    ) -> None:
+        from cam2sim.ads import serve as wire  # noqa: PLC0415  (serve imports this module)
+
         self.host, self.port = _parse_address(address)
+        if encoding not in wire.ENCODINGS:
+            msg = f"remote policy encoding {encoding!r} must be one of {', '.join(wire.ENCODINGS)}"
+            raise ConfigError(msg)
+        if smoothing is not None and not control:
+            msg = "smoothing is a control message; the published server (control=False) has its own"
+            raise ConfigError(msg)
+        if not (math.isfinite(timeout_s) and timeout_s > 0):
+            msg = f"timeout_s must be a positive number of seconds, got {timeout_s!r}"
+            raise ConfigError(msg)
+        self._wire = wire
+        self._encoding = cast("wire.Encoding", encoding)
         self._timeout = float(timeout_s)
-        try:
-            self._sock: socket.socket | None = socket.create_connection(
-                (self.host, self.port), timeout=self._timeout
-            )
-        except OSError as err:
-            msg = (
-                f"cannot reach the remote policy at {self.host}:{self.port} ({err}); start it "
-                "first (cam2sim.ads.policy.serve_policy) and check the host and port"
-            )
-            raise StageError(msg) from err
-        self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        try:
-            info = self._call({"type": "info"})
-        except StageError:
-            self.close()
-            raise
-        self.remote_name = str(info.get("name", "?"))
-        self._needs_image = bool(info.get("needs_image", True))
+        self._controls = wire.control_message(smoothing=smoothing) if smoothing is not None else b""
+        self._control = control
+        self.last_throttle: float | None = None
+        """Throttle of the last reply (the policy interface steers only)."""
+        self._sock: socket.socket | None = None
+        self._connect()
 
     @property
     def name(self) -> str:
@@ -655,213 +657,81 @@ class RemotePolicy:
 
     @property
     def needs_image(self) -> bool:
-        """What the remote policy says."""
-        return self._needs_image
+        """True: the protocol sends the camera image."""
+        return True
 
-    def _call(
-        self, header: dict[str, Any], payload: bytes | memoryview = b""
-    ) -> dict[str, Any]:  # Any: JSON values
-        where = f"remote policy at {self.host}:{self.port}"
-        if self._sock is None:
-            msg = f"{where} was closed; build a new RemotePolicy"
-            raise StageError(msg)
-        data = json.dumps(header).encode()
+    def _where(self) -> str:
+        return f"remote policy at {self.host}:{self.port}"
+
+    def _connect(self) -> None:
+        self.close()
         try:
-            self._sock.sendall(b"".join([*_frame(data), *_frame(payload)]))
-            reply = json.loads(_recv_frame(self._sock, _MAX_HEADER))
+            sock = socket.create_connection((self.host, self.port), timeout=self._timeout)
+        except OSError as err:
+            msg = (
+                f"cannot reach the {self._where()} ({err}); start it first (cam2sim ads serve) "
+                "and check the host and port"
+            )
+            raise StageError(msg) from err
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._sock = sock
+        if self._controls:
+            self._exchange(self._controls)
+
+    def _exchange(self, payload: bytes) -> bytes:
+        """One request/reply on the open socket (OSError/EOF propagate; timeout: StageError)."""
+        if self._sock is None:
+            raise ConnectionResetError
+        try:
+            self._sock.sendall(self._wire.frame(payload))
+            reply = self._wire.recv_message(self._sock, 1 << 20)
         except TimeoutError as err:
-            msg = f"{where} sent no reply within {self._timeout:g} s; is it overloaded or hung?"
+            self.close()
+            msg = f"{self._where()} sent no reply within {self._timeout:g} s; is it hung?"
             raise StageError(msg) from err
-        except (OSError, EOFError, ValueError) as err:
-            msg = f"lost the {where} ({err}); check that the server still runs"
+        except self._wire.ProtocolError as err:
+            raise ConnectionResetError(str(err)) from err
+        if reply is None:
+            msg = "the server closed the connection"
+            raise ConnectionResetError(msg)
+        return reply
+
+    def _call(self, payload: bytes) -> bytes:
+        try:
+            return self._exchange(payload)
+        except OSError as err:
+            _log.info("%s: connection lost (%s); reconnecting once", self._where(), err)
+        self._connect()
+        try:
+            return self._exchange(payload)
+        except OSError as err:
+            self.close()
+            msg = f"lost the {self._where()} again after reconnecting ({err}); is it running?"
             raise StageError(msg) from err
-        if not isinstance(reply, dict):
-            msg = f"{where} sent {reply!r}, not a JSON object"
-            raise StageError(msg)
-        if "error" in reply:
-            msg = f"{where} failed: {reply['error']}"
-            raise StageError(msg)
-        return cast("dict[str, Any]", reply)
 
     def reset(self) -> None:
-        """Tell the remote policy that a new run starts."""
-        self._call({"type": "reset"})
+        """Start of a run: the server forgets this connection's smoothing state."""
+        if self._control:
+            self._call(self._wire.control_message(reset=True))
 
     def predict(self, obs: Observation) -> float:
-        """Send ``obs`` (the image only when the remote policy needs it) and return its answer."""
-        header: dict[str, Any] = {"type": "predict", "t": obs.t, "width": 0, "height": 0}
-        header |= {"encoding": "rgb8", "state": _state_json(obs.state)}
-        payload: bytes | memoryview = b""
-        if obs.image is not None and self._needs_image:
-            img = np.ascontiguousarray(obs.image, dtype=np.uint8)
-            if img.ndim != 3 or img.shape[2] != 3:
-                msg = f"observation image must be (H, W, 3) uint8 RGB, got shape {img.shape}"
-                raise ValueError(msg)
-            header["height"], header["width"] = img.shape[:2]
-            payload = img.tobytes()
-        reply = self._call(header, payload)
+        """Send ``obs.image`` and return the server's steering (throttle: ``last_throttle``)."""
+        if obs.image is None:
+            msg = f"the {self._where()} steers from the camera image, but the run has none"
+            raise StageError(msg)
+        payload = self._wire.encode_image(obs.image, self._encoding)
         try:
-            return float(reply["steering"])
-        except (KeyError, TypeError, ValueError) as err:
-            msg = f"remote policy at {self.host}:{self.port} sent {reply!r}, no steering value"
+            steering, self.last_throttle = self._wire.parse_reply(self._call(payload))
+        except self._wire.ProtocolError as err:
+            msg = f"{self._where()}: {err}"
             raise StageError(msg) from err
+        return steering
 
     def close(self) -> None:
         """Close the connection (the server keeps running)."""
         if self._sock is not None:
             self._sock.close()
             self._sock = None
-
-
-class _Server(socketserver.TCPServer):
-    allow_reuse_address = True
-
-    def __init__(self, address: tuple[str, int], policy: SteeringPolicy) -> None:
-        self.policy = policy
-        self.closing = threading.Event()
-        super().__init__(address, _Handler)
-
-
-class _Handler(socketserver.BaseRequestHandler):
-    def handle(self) -> None:
-        server = cast("_Server", self.server)
-        sock = cast("socket.socket", self.request)
-        sock.settimeout(_POLL_S)
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-
-        def keep_waiting() -> bool:
-            return not server.closing.is_set()
-
-        while not server.closing.is_set():
-            try:
-                header = json.loads(_recv_frame(sock, _MAX_HEADER, keep_waiting))
-                payload = _recv_frame(sock, _MAX_PAYLOAD, keep_waiting)
-            except (EOFError, TimeoutError, OSError):
-                return
-            except ValueError as err:
-                self._reply(sock, {"error": f"malformed request ({err})"})
-                return
-            try:
-                reply = self._answer(server.policy, header, payload)
-            except Exception as err:  # noqa: BLE001  (any policy failure goes back to the client)
-                _log.warning("policy server: %s: %s", type(err).__name__, err)
-                reply = {"error": f"{type(err).__name__}: {err}"}
-            if not self._reply(sock, reply):
-                return
-
-    @staticmethod
-    def _reply(sock: socket.socket, reply: dict[str, Any]) -> bool:  # Any: JSON values
-        try:
-            sock.sendall(b"".join(_frame(json.dumps(reply).encode())))
-        except OSError:
-            return False
-        return True
-
-    @staticmethod
-    def _answer(
-        policy: SteeringPolicy, header: Any, payload: bytes
-    ) -> dict[str, Any]:  # Any: JSON values
-        kind = header.get("type") if isinstance(header, dict) else None
-        if kind == "info":
-            return {"name": policy.name, "needs_image": policy.needs_image}
-        if kind == "reset":
-            policy.reset()
-            return {"ok": True}
-        if kind != "predict":
-            return {"error": f"unknown request type {kind!r}; expected predict, reset or info"}
-        w, h = int(header.get("width", 0)), int(header.get("height", 0))
-        image = None
-        if payload:
-            if header.get("encoding") != "rgb8" or len(payload) != w * h * 3:
-                return {"error": f"image of {len(payload)} bytes is not {w}x{h} rgb8"}
-            image = np.frombuffer(payload, dtype=np.uint8).reshape(h, w, 3)
-        obs = Observation(float(header["t"]), image, _state_from_json(header["state"]))
-        return {"steering": float(policy.predict(obs))}
-
-
-class PolicyServer:
-    """Serves a policy over TCP (protocol in the module doc), one client at a time.
-
-    Binds on construction (``port=0`` picks a free port; read :attr:`port`). :meth:`start`
-    serves in a background thread, :meth:`serve_forever` in the calling one; :meth:`close` (or
-    leaving the ``with`` block) stops serving and drops the open connection. The policy is not
-    closed: it belongs to the caller.
-
-    Args:
-        policy: The policy to serve.
-        host: Interface to bind; the default serves this machine only.
-        port: TCP port; 0 picks a free one.
-    """
-
-    def __init__(self, policy: SteeringPolicy, host: str = "127.0.0.1", port: int = 0) -> None:
-        try:
-            self._server = _Server((host, port), policy)
-        except OSError as err:
-            msg = f"cannot serve the policy on {host}:{port} ({err}); choose another port"
-            raise StageError(msg) from err
-        self.host = host
-        self._thread: threading.Thread | None = None
-
-    @property
-    def port(self) -> int:
-        """The bound TCP port."""
-        return int(self._server.server_address[1])
-
-    @property
-    def address(self) -> str:
-        """``tcp://HOST:PORT``, the spec a :class:`RemotePolicy` takes."""
-        return f"tcp://{self.host}:{self.port}"
-
-    def start(self) -> Self:
-        """Serve in a daemon thread; returns self."""
-        if self._thread is None:
-            self._thread = threading.Thread(
-                target=self._server.serve_forever,
-                args=(_POLL_S,),
-                name=f"policy-server-{self.port}",
-                daemon=True,
-            )
-            self._thread.start()
-        return self
-
-    def serve_forever(self) -> None:
-        """Serve in the calling thread until interrupted (KeyboardInterrupt) or closed."""
-        self._server.serve_forever(_POLL_S)
-
-    def close(self) -> None:
-        """Stop serving, close the open connection and the listening socket."""
-        self._server.closing.set()
-        if self._thread is not None:
-            self._server.shutdown()
-            self._thread.join()
-            self._thread = None
-        self._server.server_close()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
-
-
-def serve_policy(
-    policy: SteeringPolicy,
-    host: str = "127.0.0.1",
-    port: int = 0,
-    *,
-    on_ready: Callable[[int], None] | None = None,
-) -> None:
-    """Serve ``policy`` in this thread until interrupted; ``on_ready(port)`` once bound."""
-    with PolicyServer(policy, host, port) as server:
-        _log.info("serving policy %s on %s", policy.name, server.address)
-        if on_ready is not None:
-            on_ready(server.port)
-        server.serve_forever()
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,0 +1,612 @@
+"""Training a DAVE-2 steering network on a workspace's dataset.
+
+:func:`assemble` pairs every camera frame (``poses.csv``, or ``frames.csv`` of a pose-less
+dataset) with a steering signal (``signals/<name>.csv``) interpolated at the frame's stamp;
+frames outside the signal's time span are dropped. :func:`split_by_time` holds out the last
+``val_fraction`` of the drive and drops the training frames within ``gap_s`` before it, so
+neighbouring, nearly identical frames do not leak into validation. :func:`train_dave2` trains
+with Adam and MSE, augmenting every batch on the device (:func:`augment`), stops early when the
+validation loss stops improving and keeps the best epoch.
+
+Files (written by :func:`save_training`, each atomically) in ``WS/ads/``:
+
+- ``dave2.pt``: the state dict (``torch.save``); ``dave2.json``: :class:`Dave2ModelInfo`;
+- ``train_report.json``: :class:`TrainReport`; ``train_report.png``: loss curves and
+  predicted vs recorded steering over the validation frames.
+
+This module imports torch: import it lazily.
+"""
+
+from __future__ import annotations
+
+import io
+import logging
+import math
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Final
+
+import cv2
+import numpy as np
+import pydantic
+import torch
+
+from cam2sim.ads.dave2 import Dave2Config, build_dave2, preprocess
+from cam2sim.core.errors import StageError
+from cam2sim.core.files import write_bytes_atomic
+from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.schema import Artifact
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    import numpy.typing as npt
+
+    from cam2sim.core.workspace import DatasetPaths
+
+__all__ = [
+    "MODEL_FILE",
+    "MODEL_INFO_FILE",
+    "REPORT_FIGURE",
+    "REPORT_FILE",
+    "Dave2ModelInfo",
+    "EpochRecord",
+    "SteeringData",
+    "TrainOptions",
+    "TrainReport",
+    "TrainedModel",
+    "assemble",
+    "augment",
+    "load_model",
+    "save_training",
+    "split_by_time",
+    "train_dave2",
+]
+
+logger = logging.getLogger(__name__)
+MODEL_FILE: Final = "dave2.pt"
+MODEL_INFO_FILE: Final = "dave2.json"
+REPORT_FILE: Final = "train_report.json"
+REPORT_FIGURE: Final = "train_report.png"
+_LOAD_CHUNK: Final = 64
+
+
+@dataclass(frozen=True)
+class TrainOptions:
+    """How ``cam2sim ads train`` trains.
+
+    Attributes:
+        signal: Steering signal name (``signals/<name>.csv``): the model's own recorded
+            commands or the measured steering.
+        epochs: Most training epochs.
+        batch_size: Frames per step.
+        learning_rate: Adam step size.
+        weight_decay: Adam L2 penalty.
+        val_fraction: Share of the drive, at its end, held out for validation.
+        gap_s: Training frames this close (seconds) before the validation part are dropped.
+        patience: Stop after this many epochs without a better validation loss.
+        augment: Augment training batches (brightness, shadow, shift; flip if ``flip``).
+        shift_px: Largest horizontal shift, network-input pixels.
+        shift_steering_per_px: Steering correction per pixel of shift (content moved right by
+            ``d`` px -> label ``- d * this``: steer towards where the road went; positive
+            steering is left). None: ``0.004 *`` the 95th percentile of ``|steering|``.
+        flip: Also mirror half the batches' images and negate their steering (only for
+            left/right-symmetric traffic scenes).
+        config: Network sizes and preprocessing.
+        seed: Seeds torch and numpy.
+        device: ``cuda``/``cpu``; None takes CUDA when available.
+        workers: Threads decoding frames.
+    """
+
+    signal: str = "steering"
+    epochs: int = 30
+    batch_size: int = 64
+    learning_rate: float = 1e-3
+    weight_decay: float = 1e-5
+    val_fraction: float = 0.2
+    gap_s: float = 1.0
+    patience: int = 5
+    augment: bool = True
+    shift_px: int = 10
+    shift_steering_per_px: float | None = None
+    flip: bool = False
+    config: Dave2Config = field(default_factory=Dave2Config)
+    seed: int = 0
+    device: str | None = None
+    workers: int = 2
+
+    def __post_init__(self) -> None:
+        bad = {
+            k: v
+            for k, v in (
+                ("epochs", self.epochs),
+                ("batch_size", self.batch_size),
+                ("patience", self.patience),
+                ("workers", self.workers),
+            )
+            if v < 1
+        }
+        if bad:
+            msg = f"training options must be >= 1, got {bad}"
+            raise ValueError(msg)
+        if not 0.0 < self.val_fraction < 1.0 or self.gap_s < 0 or self.shift_px < 0:
+            msg = (
+                "val_fraction must lie in (0, 1), gap_s and shift_px must be >= 0; got "
+                f"{self.val_fraction}, {self.gap_s}, {self.shift_px}"
+            )
+            raise ValueError(msg)
+        if not self.learning_rate > 0:
+            msg = f"learning_rate must be positive, got {self.learning_rate}"
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class SteeringData:
+    """Frames and labels, in time order.
+
+    Attributes:
+        frame: ``(N,)`` frame indices.
+        t: ``(N,)`` seconds since the first frame.
+        steering: ``(N,)`` float32 signal values at the frames.
+        images: ``(N, 3, h, w)`` uint8 preprocessed network inputs.
+    """
+
+    frame: npt.NDArray[np.int64]
+    t: npt.NDArray[np.float64]
+    steering: npt.NDArray[np.float32]
+    images: npt.NDArray[np.uint8]
+
+    def take(self, rows: npt.NDArray[np.int64]) -> SteeringData:
+        """The subset ``rows``."""
+        return SteeringData(self.frame[rows], self.t[rows], self.steering[rows], self.images[rows])
+
+
+class EpochRecord(pydantic.BaseModel):
+    """Losses of one epoch (MSE in the signal's unit squared)."""
+
+    model_config = pydantic.ConfigDict(frozen=True, extra="forbid")
+
+    epoch: int
+    train_loss: float
+    val_loss: float
+    seconds: float
+
+
+class TrainReport(Artifact):
+    """``train_report.json``: what was trained on and how well it fits the held-out frames.
+
+    ``baseline_mse`` is the validation variance (the MSE of always predicting the mean), so a
+    useful model has ``val_mse`` well below it.
+    """
+
+    signal: str
+    device: str
+    train_frames: int
+    val_frames: int
+    best_epoch: int
+    epochs: tuple[EpochRecord, ...]
+    val_mse: float
+    val_rmse: float
+    val_mae: float
+    val_correlation: float | None
+    baseline_mse: float
+    shift_steering_per_px: float
+
+
+class Dave2ModelInfo(Artifact):
+    """``dave2.json``: what ``dave2.pt`` needs to be rebuilt."""
+
+    config: Dave2Config
+    signal: str
+
+
+@dataclass(frozen=True)
+class TrainedModel:
+    """A trained network, its report and what the report plot needs."""
+
+    model: torch.nn.Module
+    info: Dave2ModelInfo
+    report: TrainReport
+    val_t: npt.NDArray[np.float64]
+    val_true: npt.NDArray[np.float32]
+    val_pred: npt.NDArray[np.float32]
+
+
+# --------------------------------------------------------------------------------------------
+# Data
+
+
+def _frame_times(paths: DatasetPaths) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    from cam2sim.core.table import read_table  # noqa: PLC0415
+
+    source = paths.poses_csv if paths.poses_csv.is_file() else paths.frames_csv
+    if not source.is_file():
+        msg = f"the dataset at {paths.root} has no camera frames (no poses.csv or frames.csv)"
+        raise StageError(msg)
+    table = read_table(source)
+    return table["frame"].astype(np.int64), table["stamp_ns"].astype(np.int64)
+
+
+def _signal_at(
+    paths: DatasetPaths, name: str, stamps: npt.NDArray[np.int64]
+) -> npt.NDArray[np.float64]:
+    from cam2sim.core.table import read_table  # noqa: PLC0415
+
+    path = paths.signal_file(name)
+    if not path.is_file():
+        have = sorted(p.stem for p in paths.signals_dir.glob("*.csv"))
+        msg = (
+            f"the dataset has no steering signal {name!r}; available: "
+            f"{', '.join(have) or 'none'}. Pick one with --signal NAME, or map the steering "
+            "topic in config.yaml (topics.signals) and re-run `cam2sim extract`"
+        )
+        raise StageError(msg)
+    table = read_table(path)
+    sig_ns, value = table["stamp_ns"].astype(np.int64), table["value"].astype(np.float64)
+    order = np.argsort(sig_ns, kind="stable")
+    sig_ns, value = sig_ns[order], value[order]
+    ok = np.isfinite(value)
+    if ok.sum() < 2:
+        msg = f"signal {name!r} has fewer than 2 finite samples; it cannot label frames"
+        raise StageError(msg)
+    t0 = int(min(sig_ns[0], stamps.min()))
+    st, vt = (sig_ns[ok] - t0).astype(np.float64), value[ok]
+    x = (stamps - t0).astype(np.float64)
+    out = np.interp(x, st, vt)
+    out[(x < st[0]) | (x > st[-1])] = np.nan
+    return out
+
+
+def assemble(
+    paths: DatasetPaths,
+    frame_format: str,
+    options: TrainOptions,
+    progress: ProgressCallback = no_progress,
+) -> SteeringData:
+    """Every frame with the steering signal at its stamp, preprocessed, in time order.
+
+    Raises:
+        StageError: No frames, no such signal (the message lists the available ones), a frame
+            that cannot be read, or fewer than 10 labelled frames.
+    """
+    frame, stamps = _frame_times(paths)
+    order = np.argsort(stamps, kind="stable")
+    frame, stamps = frame[order], stamps[order]
+    value = _signal_at(paths, options.signal, stamps)
+    keep = np.isfinite(value)
+    if keep.sum() < 10:
+        msg = (
+            f"only {int(keep.sum())} frames lie within the time span of signal "
+            f"{options.signal!r}; training needs at least 10"
+        )
+        raise StageError(msg)
+    if not keep.all():
+        logger.info("%d frames lie outside the signal's span; dropped", int((~keep).sum()))
+    frame, stamps, value = frame[keep], stamps[keep], value[keep]
+
+    def load(i: int) -> npt.NDArray[np.uint8]:
+        path = paths.frame_file(int(i), frame_format)
+        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if bgr is None:
+            msg = f"cannot read frame {path}; re-run `cam2sim extract`"
+            raise StageError(msg)
+        return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8)
+
+    def chunk(start: int) -> npt.NDArray[np.uint8]:
+        rgb = np.stack([load(i) for i in frame[start : start + _LOAD_CHUNK]])
+        return preprocess(rgb, options.config).astype(np.uint8)
+
+    n = len(frame)
+    starts = range(0, n, _LOAD_CHUNK)
+    images = []
+    progress("loading frames", 0, n)
+    with ThreadPoolExecutor(max_workers=options.workers) as pool:
+        for start, part in zip(starts, pool.map(chunk, starts), strict=True):
+            images.append(part)
+            progress("loading frames", min(start + _LOAD_CHUNK, n), n)
+    return SteeringData(
+        frame,
+        (stamps - stamps[0]).astype(np.float64) / 1e9,
+        value.astype(np.float32),
+        np.concatenate(images),
+    )
+
+
+def split_by_time(
+    t: npt.NDArray[np.float64], val_fraction: float, gap_s: float
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """Training and validation rows: the last ``val_fraction`` validates, a gap before it.
+
+    Args:
+        t: ``(N,)`` increasing times, seconds.
+        val_fraction: Share of the frames held out at the end.
+        gap_s: Training frames within this many seconds before the first validation frame are
+            dropped.
+
+    Raises:
+        StageError: Fewer than 2 frames remain on either side.
+    """
+    n = len(t)
+    first_val = min(n - 1, max(1, round(n * (1.0 - val_fraction))))
+    val = np.arange(first_val, n, dtype=np.int64)
+    train = np.flatnonzero(t[:first_val] < t[first_val] - gap_s).astype(np.int64)
+    if len(train) < 2 or len(val) < 2:
+        msg = (
+            f"{n} frames leave {len(train)} for training and {len(val)} for validation "
+            f"(val_fraction {val_fraction}, gap {gap_s} s); record more or lower the gap"
+        )
+        raise StageError(msg)
+    return train, val
+
+
+# --------------------------------------------------------------------------------------------
+# Augmentation
+
+
+def augment(
+    x: torch.Tensor,
+    y: torch.Tensor,
+    generator: torch.Generator,
+    *,
+    shift_px: int,
+    steering_per_px: float,
+    flip: bool,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Randomly brightened, shadowed, shifted (and flipped) copies of a batch.
+
+    Args:
+        x: ``(B, 3, h, w)`` float pixels in ``[0, 255]``.
+        y: ``(B,)`` steering.
+        generator: Random source (on ``x``'s device).
+        shift_px: Largest horizontal shift, pixels (edges are repeated).
+        steering_per_px: Label change per pixel of shift to the right (sign included).
+        flip: Mirror half the images and negate their steering.
+
+    Returns:
+        The augmented ``x`` and ``y``.
+    """
+    b, _, h, w = x.shape
+    dev = x.device
+
+    def uniform(lo: float, hi: float, *shape: int) -> torch.Tensor:
+        return lo + (hi - lo) * torch.rand(*shape, generator=generator, device=dev)
+
+    # Brightness: one gain per image.
+    x = x * uniform(0.6, 1.3, b, 1, 1, 1)
+    # Shadow: a slanted band (edges from x1 at the top to x2 at the bottom), darkened, on half.
+    rows = torch.linspace(0.0, 1.0, h, device=dev).view(1, h, 1)
+    cols = torch.arange(w, device=dev, dtype=x.dtype).view(1, 1, w)
+    x1, x2 = uniform(0, w, b, 1, 1), uniform(0, w, b, 1, 1)
+    left = x1 + (x2 - x1) * rows
+    inside = (cols >= left) & (cols < left + uniform(0.15 * w, 0.5 * w, b, 1, 1))
+    shade = torch.where(uniform(0, 1, b, 1, 1) < 0.5, uniform(0.4, 0.8, b, 1, 1), 1.0)
+    x = x * torch.where(inside, shade, 1.0).unsqueeze(1)
+    # Shift: content moves right by d pixels; the label follows.
+    if shift_px > 0:
+        d = torch.randint(-shift_px, shift_px + 1, (b,), generator=generator, device=dev)
+        src = (torch.arange(w, device=dev).view(1, w) - d.view(b, 1)).clamp(0, w - 1)
+        x = torch.gather(x, 3, src.view(b, 1, 1, w).expand(b, 3, h, w))
+        y = y + steering_per_px * d.to(y.dtype)
+    if flip:
+        mirror = uniform(0, 1, b) < 0.5
+        x = torch.where(mirror.view(b, 1, 1, 1), x.flip(3), x)
+        y = torch.where(mirror, -y, y)
+    return x.clamp(0.0, 255.0), y
+
+
+# --------------------------------------------------------------------------------------------
+# Training
+
+
+def _device(name: str | None) -> torch.device:
+    if name is not None:
+        return torch.device(name)
+    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+
+
+def _predict(
+    model: torch.nn.Module, images: npt.NDArray[np.uint8], device: torch.device, batch: int
+) -> npt.NDArray[np.float32]:
+    model.eval()
+    out = []
+    with torch.inference_mode():
+        for s in range(0, len(images), batch):
+            x = torch.from_numpy(images[s : s + batch]).to(device, torch.float32)
+            out.append(model(x).view(-1).cpu().numpy())
+    return np.concatenate(out).astype(np.float32)
+
+
+def _mse(pred: npt.NDArray[np.float32], true: npt.NDArray[np.float32]) -> float:
+    return float(np.mean((pred.astype(np.float64) - true) ** 2))
+
+
+def train_dave2(
+    data: SteeringData,
+    options: TrainOptions | None = None,
+    progress: ProgressCallback = no_progress,
+) -> TrainedModel:
+    """Train DAVE-2 on ``data`` (time-ordered) with a time split, augmentation, early stopping.
+
+    Raises:
+        StageError: Too few frames for the split, or constant steering.
+    """
+    opts = options or TrainOptions()
+    torch.manual_seed(opts.seed)
+    device = _device(opts.device)
+    train_rows, val_rows = split_by_time(data.t, opts.val_fraction, opts.gap_s)
+    train, val = data.take(train_rows), data.take(val_rows)
+    spread = float(np.std(train.steering))
+    if not spread > 0:
+        msg = f"signal {opts.signal!r} is constant over the training frames; nothing to learn"
+        raise StageError(msg)
+    per_px = opts.shift_steering_per_px
+    if per_px is None:
+        per_px = 0.004 * float(np.percentile(np.abs(train.steering), 95))
+    model = build_dave2(opts.config).to(device)
+    model.get_buffer("output_scale").fill_(spread)
+    # Tiny gradients turn subnormal on CPU and slow every step ~10x; flush them while training.
+    flush = device.type == "cpu" and torch.set_flush_denormal(True)
+    try:
+        return _fit(model, train, val, opts, per_px, spread, device, progress)
+    finally:
+        if flush:
+            torch.set_flush_denormal(False)  # the default
+
+
+def _fit(
+    model: torch.nn.Module,
+    train: SteeringData,
+    val: SteeringData,
+    opts: TrainOptions,
+    per_px: float,
+    spread: float,
+    device: torch.device,
+    progress: ProgressCallback,
+) -> TrainedModel:
+    rng = np.random.default_rng(opts.seed)
+    n_train = len(train.frame)
+    optimizer = torch.optim.Adam(
+        model.parameters(), lr=opts.learning_rate, weight_decay=opts.weight_decay
+    )
+    generator = torch.Generator(device=device).manual_seed(opts.seed)
+    x_all = torch.from_numpy(train.images).to(device)
+    y_all = torch.from_numpy(train.steering).to(device)
+    records: list[EpochRecord] = []
+    best = (math.inf, 0, {k: v.clone() for k, v in model.state_dict().items()})
+    progress("training DAVE-2", 0, opts.epochs)
+    for epoch in range(1, opts.epochs + 1):
+        started = _now()
+        model.train()
+        total = 0.0
+        for rows in np.array_split(rng.permutation(n_train), max(1, n_train // opts.batch_size)):
+            idx = torch.from_numpy(rows).to(device)
+            x, y = x_all[idx].to(torch.float32), y_all[idx]
+            if opts.augment:
+                x, y = augment(
+                    x, y, generator, shift_px=opts.shift_px, steering_per_px=-per_px, flip=opts.flip
+                )
+            loss = torch.nn.functional.mse_loss(model(x).view(-1) / spread, y / spread)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()  # type: ignore[no-untyped-call]
+            optimizer.step()
+            total += float(loss.detach()) * len(rows)
+        val_loss = _mse(_predict(model, val.images, device, opts.batch_size), val.steering)
+        records.append(
+            EpochRecord(
+                epoch=epoch,
+                train_loss=total / n_train * spread**2,
+                val_loss=val_loss,
+                seconds=_now() - started,
+            )
+        )
+        logger.info("epoch %d: train %.4g, val %.4g", epoch, records[-1].train_loss, val_loss)
+        progress("training DAVE-2", epoch, opts.epochs)
+        if val_loss < best[0]:
+            best = (val_loss, epoch, {k: v.clone() for k, v in model.state_dict().items()})
+        elif epoch - best[1] >= opts.patience:
+            logger.info("validation loss stalled for %d epochs; stopping", opts.patience)
+            break
+    model.load_state_dict(best[2])
+    model.eval()
+    pred = _predict(model, val.images, device, opts.batch_size)
+    report = _report(opts, str(device), records, best[1], pred, val.steering, n_train)
+    report = report.model_copy(update={"shift_steering_per_px": per_px})
+    info = Dave2ModelInfo(config=opts.config, signal=opts.signal)
+    return TrainedModel(model.cpu(), info, report, val.t, val.steering, pred)
+
+
+def _now() -> float:
+    import time  # noqa: PLC0415
+
+    return time.perf_counter()
+
+
+def _report(
+    opts: TrainOptions,
+    device: str,
+    records: list[EpochRecord],
+    best_epoch: int,
+    pred: npt.NDArray[np.float32],
+    true: npt.NDArray[np.float32],
+    n_train: int,
+) -> TrainReport:
+    err = pred.astype(np.float64) - true
+    mse = float(np.mean(err**2))
+    corr = None
+    if np.std(pred) > 0 and np.std(true) > 0:
+        corr = float(np.corrcoef(pred, true)[0, 1])
+    return TrainReport(
+        signal=opts.signal,
+        device=device,
+        train_frames=n_train,
+        val_frames=len(true),
+        best_epoch=best_epoch,
+        epochs=tuple(records),
+        val_mse=mse,
+        val_rmse=math.sqrt(mse),
+        val_mae=float(np.mean(np.abs(err))),
+        val_correlation=corr,
+        baseline_mse=float(np.var(true.astype(np.float64))),
+        shift_steering_per_px=0.0,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Files
+
+
+def save_training(trained: TrainedModel, ads_dir: Path) -> None:
+    """Write the model, its info, the report and the report figure into ``ads_dir``."""
+    buffer = io.BytesIO()
+    torch.save(trained.model.state_dict(), buffer)
+    write_bytes_atomic(ads_dir / MODEL_FILE, buffer.getvalue())
+    trained.info.save(ads_dir / MODEL_INFO_FILE)
+    trained.report.save(ads_dir / REPORT_FILE)
+    _figure(trained, ads_dir / REPORT_FIGURE)
+
+
+def load_model(ads_dir: Path) -> tuple[torch.nn.Module, Dave2ModelInfo]:
+    """The trained network (eval mode, CPU) and its info from ``ads_dir``.
+
+    Raises:
+        StageError: No trained model there.
+    """
+    weights, info_path = ads_dir / MODEL_FILE, ads_dir / MODEL_INFO_FILE
+    if not weights.is_file() or not info_path.is_file():
+        msg = f"no trained model in {ads_dir}; run `cam2sim ads train` first"
+        raise StageError(msg)
+    info = Dave2ModelInfo.load(info_path)
+    model = build_dave2(info.config)
+    try:
+        state = torch.load(io.BytesIO(weights.read_bytes()), map_location="cpu", weights_only=True)
+        model.load_state_dict(state)
+    except (RuntimeError, ValueError, KeyError) as err:
+        msg = f"cannot load {weights} ({err}); re-run `cam2sim ads train --force`"
+        raise StageError(msg) from err
+    return model.eval(), info
+
+
+def _figure(trained: TrainedModel, path: Path) -> None:
+    from cam2sim.report.plotting import pyplot, save_figure  # noqa: PLC0415
+
+    plt = pyplot()
+    report = trained.report
+    fig, (ax_loss, ax_val) = plt.subplots(2, 1, figsize=(9, 7))
+    epochs = [r.epoch for r in report.epochs]
+    ax_loss.plot(epochs, [r.train_loss for r in report.epochs], "o-", label="training")
+    ax_loss.plot(epochs, [r.val_loss for r in report.epochs], "o-", label="validation")
+    ax_loss.axhline(report.baseline_mse, color="grey", ls="--", label="validation variance")
+    ax_loss.axvline(report.best_epoch, color="k", lw=0.8, ls=":", label="kept epoch")
+    ax_loss.set(xlabel="epoch", ylabel=f"MSE ({report.signal} unit²)", title="DAVE-2 training")
+    ax_loss.set_yscale("log")
+    ax_loss.legend()
+    ax_val.plot(trained.val_t, trained.val_true, label="recorded", lw=1.2)
+    ax_val.plot(trained.val_t, trained.val_pred, label="predicted", lw=1.2)
+    ax_val.set(
+        xlabel="time since the first frame (s)",
+        ylabel=report.signal,
+        title=f"validation frames: RMSE {report.val_rmse:.3g}, MAE {report.val_mae:.3g}",
+    )
+    ax_val.legend()
+    fig.tight_layout()
+    save_figure(fig, path)

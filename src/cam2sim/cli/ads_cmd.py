@@ -1,0 +1,148 @@
+"""``cam2sim ads``: train, export and serve the system under test (DAVE-2)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
+from typing import Annotated
+
+import typer
+from rich.markup import escape
+
+from cam2sim.cli.display import console, error_console, progress_bars
+from cam2sim.core.errors import Cam2SimError
+
+__all__ = ["ads_app"]
+
+ads_app = typer.Typer(
+    help="The system under test: train DAVE-2 on the recording, export it, serve it.",
+    no_args_is_help=True,
+)
+
+
+def _fail(err: Cam2SimError) -> typer.Exit:
+    error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
+    return typer.Exit(code=1)
+
+
+@ads_app.command("train")
+def train(
+    workspace: Annotated[Path, typer.Argument(help="The workspace folder.")],
+    *,
+    signal: Annotated[
+        str, typer.Option(help="Steering signal to learn (a name under dataset/signals/).")
+    ] = "steering",
+    epochs: Annotated[int, typer.Option(min=1, help="Most training epochs.")] = 30,
+    batch_size: Annotated[int, typer.Option("--batch-size", min=1)] = 64,
+    augment: Annotated[bool, typer.Option("--augment/--no-augment")] = True,
+    seed: Annotated[int, typer.Option()] = 0,
+    force: Annotated[bool, typer.Option(help="Train again even if up to date.")] = False,
+) -> None:
+    """Train DAVE-2 on the dataset's frames and a steering signal; writes WS/ads/.
+
+    Example: cam2sim ads train ws --signal steering_cmd --epochs 40
+    """
+    from cam2sim.ads.train import TrainOptions  # noqa: PLC0415
+    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
+    from cam2sim.stages.ads import train_ads  # noqa: PLC0415
+
+    opts = TrainOptions(
+        signal=signal, epochs=epochs, batch_size=batch_size, augment=augment, seed=seed
+    )
+    try:
+        ws = Workspace.open(workspace)
+        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+            result = train_ads(ws, options=opts, force=force, progress=sink)
+    except Cam2SimError as err:
+        raise _fail(err) from None
+    rep = result.report
+    if rep is None:
+        console.print(f"{result.model} is up to date (use --force to train again)")
+        return
+    corr = "-" if rep.val_correlation is None else f"{rep.val_correlation:.3f}"
+    console.print(
+        f"{result.model}: {rep.train_frames} training / {rep.val_frames} validation frames, "
+        f"best epoch {rep.best_epoch}; validation RMSE {rep.val_rmse:.4f} (baseline "
+        f"{rep.baseline_mse**0.5:.4f}), MAE {rep.val_mae:.4f}, correlation {corr}; "
+        f"report {result.figure}",
+        highlight=False,
+    )
+
+
+@ads_app.command("export")
+def export(
+    workspace: Annotated[Path, typer.Argument(help="The workspace folder.")],
+    *,
+    onnx: Annotated[bool, typer.Option("--onnx", help="Export to ONNX (the only format).")] = True,
+    out: Annotated[
+        Path | None, typer.Option(help="Output file (default WS/ads/dave2.onnx).")
+    ] = None,
+) -> None:
+    """Export the trained model to ONNX and check onnxruntime against torch.
+
+    Example: cam2sim ads export ws --onnx
+    """
+    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
+    from cam2sim.stages.ads import export_ads  # noqa: PLC0415
+
+    del onnx  # ONNX is the one export format; the flag mirrors the documented command
+    try:
+        ws = Workspace.open(workspace)
+        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+            result = export_ads(ws, out=out, progress=sink)
+    except Cam2SimError as err:
+        raise _fail(err) from None
+    rep = result.report
+    console.print(
+        f"{result.path}: opset {rep.opset}, max |torch - onnxruntime| "
+        f"{rep.max_abs_diff_random:.2e} on {rep.random_inputs} random inputs; {result.report_path}",
+        highlight=False,
+    )
+
+
+@ads_app.command("serve")
+def serve(
+    workspace: Annotated[Path, typer.Argument(help="The workspace folder.")],
+    *,
+    model: Annotated[
+        str | None,
+        typer.Option(help="Model file or policy spec (default: WS/ads/dave2.onnx)."),
+    ] = None,
+    host: Annotated[str, typer.Option(help="Interface to bind.")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(min=0, max=65535, help="TCP port (0: any free).")] = 5090,
+    allow_remote: Annotated[
+        bool, typer.Option("--allow-remote", help="Allow binding a non-loopback interface.")
+    ] = False,
+    clip: Annotated[float | None, typer.Option(help="Clip steering replies to +-CLIP.")] = None,
+) -> None:
+    """Serve the model over TCP with the published tool's protocol (and a lossless variant).
+
+    Each message is a 4-byte big-endian length and a payload; a request is a JPEG/PNG image
+    (or raw RGB), the reply "steering,throttle". Stop with Ctrl-C.
+
+    Example: cam2sim ads serve ws --port 5090
+    """
+    from cam2sim.ads.serve import serve as run_server  # noqa: PLC0415
+    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
+
+    try:
+        ws = Workspace.open(workspace)
+        spec = model or str(ws.ads_dir / "dave2.onnx")
+        if model is None and not (ws.ads_dir / "dave2.onnx").is_file():
+            msg = (
+                f"{ws.ads_dir / 'dave2.onnx'} does not exist; run `cam2sim ads train` and "
+                "`cam2sim ads export` first, or pass --model"
+            )
+            raise _fail(Cam2SimError(msg))
+
+        def ready(server: object) -> None:
+            console.print(
+                f"serving {spec} on {getattr(server, 'address', '?')} (Ctrl-C to stop)",
+                highlight=False,
+            )
+
+        run_server(spec, host=host, port=port, allow_remote=allow_remote, clip=clip, on_ready=ready)
+    except Cam2SimError as err:
+        raise _fail(err) from None
+    except KeyboardInterrupt:
+        console.print("server stopped")

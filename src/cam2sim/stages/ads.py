@@ -1,0 +1,180 @@
+"""Stages ``ads train`` and ``ads export``: the DAVE-2 system under test.
+
+``ads train`` (:func:`train_ads`) trains DAVE-2 on the dataset's frames and a steering signal
+(:mod:`cam2sim.ads.train`) and writes ``WS/ads/dave2.pt``, ``dave2.json``,
+``train_report.json`` and ``train_report.png``. ``ads export`` (:func:`export_ads`) writes
+``WS/ads/dave2.onnx`` (or ``out``) and ``WS/ads/export.json``, the torch/onnxruntime parity on
+random inputs and on up to 8 of the dataset's frames (:mod:`cam2sim.ads.export`).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Final
+
+from cam2sim.core.errors import StageError
+from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.workspace import Workspace, dataset_paths, hash_inputs
+from cam2sim.stages._runner import stage_run
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    import numpy as np
+    import numpy.typing as npt
+
+    from cam2sim.ads.dave2 import Dave2Config
+    from cam2sim.ads.export import ExportReport
+    from cam2sim.ads.train import TrainOptions, TrainReport
+    from cam2sim.core.dataset import DatasetInfo
+
+__all__ = ["ExportAdsResult", "TrainAdsResult", "export_ads", "train_ads"]
+
+logger = logging.getLogger(__name__)
+TRAIN_STAGE: Final = "ads_train"
+EXPORT_STAGE: Final = "ads_export"
+ONNX_FILE: Final = "dave2.onnx"
+EXPORT_REPORT: Final = "export.json"
+_PARITY_FRAMES: Final = 8
+
+
+@dataclass(frozen=True)
+class TrainAdsResult:
+    """Where ``ads train`` wrote (``report`` is None when the model was up to date)."""
+
+    model: Path
+    report_path: Path
+    figure: Path
+    report: TrainReport | None
+
+
+@dataclass(frozen=True)
+class ExportAdsResult:
+    """The exported file and its parity report."""
+
+    path: Path
+    report_path: Path
+    report: ExportReport
+
+
+def _dataset(ws: Workspace) -> DatasetInfo:
+    from cam2sim.core.dataset import DatasetInfo  # noqa: PLC0415
+    from cam2sim.core.errors import WorkspaceError  # noqa: PLC0415
+
+    record = ws.stage_record("extract")
+    if record is None or record.state != "done":
+        msg = f"{ws.root} has no dataset; run `cam2sim extract {ws.root}` (or import) first"
+        raise StageError(msg)
+    try:
+        return DatasetInfo.load(dataset_paths(ws.dataset_dir).dataset_json)
+    except WorkspaceError as err:
+        msg = f"the dataset is incomplete ({err}); re-run `cam2sim extract {ws.root}`"
+        raise StageError(msg) from err
+
+
+def train_ads(
+    ws: Workspace,
+    *,
+    options: TrainOptions | None = None,
+    force: bool = False,
+    progress: ProgressCallback | None = None,
+) -> TrainAdsResult:
+    """Train DAVE-2 on the workspace's frames and steering signal.
+
+    Args:
+        ws: The workspace (extract done).
+        options: Training options; defaults train on signal ``steering``.
+        force: Train even when the model is up to date.
+        progress: Receives ``loading frames`` and ``training DAVE-2`` progress.
+
+    Raises:
+        StageError: No dataset, no such signal (the message lists those available), too few
+            frames, or constant steering.
+    """
+    from cam2sim.ads import train as tr  # noqa: PLC0415
+
+    opts = options or tr.TrainOptions()
+    report = progress or no_progress
+    info = _dataset(ws)
+    ads = ws.ads_dir
+    result = TrainAdsResult(ads / tr.MODEL_FILE, ads / tr.REPORT_FILE, ads / tr.REPORT_FIGURE, None)
+    extract = ws.stage_record("extract")
+    inputs = hash_inputs(
+        {"dataset": extract.inputs_hash if extract else None, "options": repr(opts)}
+    )
+    done = all(p.is_file() for p in (result.model, result.report_path, result.figure))
+    if not force and done and ws.is_up_to_date(TRAIN_STAGE, inputs):
+        logger.info("ads train: up to date; skipping (use --force to train again)")
+        return result
+    with stage_run(ws, TRAIN_STAGE, inputs_hash=inputs, config=None):
+        data = tr.assemble(dataset_paths(ws.dataset_dir), info.frame_format, opts, report)
+        trained = tr.train_dave2(data, opts, report)
+        ads.mkdir(parents=True, exist_ok=True)
+        tr.save_training(trained, ads)
+    return TrainAdsResult(result.model, result.report_path, result.figure, trained.report)
+
+
+def _real_inputs(ws: Workspace, config: Dave2Config) -> npt.NDArray[np.float32] | None:
+    """Up to 8 preprocessed dataset frames spread over the drive (None without frames)."""
+    import cv2  # noqa: PLC0415
+    import numpy as np  # noqa: PLC0415
+
+    from cam2sim.ads.dave2 import preprocess  # noqa: PLC0415
+
+    try:
+        info = _dataset(ws)
+    except StageError:
+        return None
+    paths = dataset_paths(ws.dataset_dir)
+    files = sorted(paths.frames_dir.glob("*.jpg" if info.frame_format == "jpeg" else "*.png"))
+    if not files:
+        return None
+    pick = np.unique(np.linspace(0, len(files) - 1, _PARITY_FRAMES).round().astype(int))
+    images = [cv2.imread(str(files[i]), cv2.IMREAD_COLOR) for i in pick]
+    rgb = [cv2.cvtColor(b, cv2.COLOR_BGR2RGB) for b in images if b is not None]
+    if not rgb or len({im.shape for im in rgb}) != 1:
+        return None
+    return preprocess(np.stack(rgb), config)
+
+
+def export_ads(
+    ws: Workspace,
+    *,
+    out: Path | None = None,
+    progress: ProgressCallback | None = None,
+) -> ExportAdsResult:
+    """Export the trained DAVE-2 to ONNX and check onnxruntime against torch.
+
+    Args:
+        ws: The workspace (``ads train`` done).
+        out: The ``.onnx`` file; default ``WS/ads/dave2.onnx``.
+        progress: Receives one ``exporting ONNX`` step.
+
+    Raises:
+        StageError: No trained model, or onnxruntime disagrees with torch.
+        BackendUnavailableError: onnx or onnxruntime is missing.
+    """
+    from cam2sim.ads.export import export_onnx  # noqa: PLC0415
+    from cam2sim.ads.train import load_model  # noqa: PLC0415
+
+    report = progress or no_progress
+    path = out or ws.ads_dir / ONNX_FILE
+    if path.suffix.lower() != ".onnx":
+        msg = f"the export file {str(path)!r} must end in .onnx"
+        raise StageError(msg)
+    model, info = load_model(ws.ads_dir)
+    train = ws.stage_record(TRAIN_STAGE)
+    inputs = hash_inputs({"model": train.inputs_hash if train else None, "out": str(path)})
+    report("exporting ONNX", 0, 1)
+    with stage_run(ws, EXPORT_STAGE, inputs_hash=inputs, config=None):
+        doc = export_onnx(model, info.config, path, real_inputs=_real_inputs(ws, info.config))
+        doc.save(ws.ads_dir / EXPORT_REPORT)
+    report("exporting ONNX", 1, 1)
+    logger.info(
+        "exported %s: parity %.2g (random), %s (frames)",
+        path,
+        doc.max_abs_diff_random,
+        "n/a" if doc.max_abs_diff_real is None else f"{doc.max_abs_diff_real:.2g}",
+    )
+    return ExportAdsResult(path, ws.ads_dir / EXPORT_REPORT, doc)

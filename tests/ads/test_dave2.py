@@ -1,0 +1,248 @@
+"""DAVE-2: preprocessing, network, training on a synthetic drive, ONNX export and policy use."""
+
+from __future__ import annotations
+
+import datetime as dt
+import importlib.util
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from cam2sim.ads.dave2 import METADATA_KEY, Dave2Config, build_dave2, preprocess
+from cam2sim.ads.policy import ModelPolicy, Observation
+from cam2sim.core.config import Config
+from cam2sim.core.dataset import (
+    POSE_COLUMNS,
+    POSE_PRECISION,
+    SIGNAL_COLUMNS,
+    DatasetCounts,
+    DatasetInfo,
+)
+from cam2sim.core.errors import BackendUnavailableError, StageError
+from cam2sim.core.table import write_table
+from cam2sim.core.workspace import Workspace, WorldFrameRecord, dataset_paths
+from cam2sim.sim.interface import VehicleState
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("onnxruntime")
+
+T0 = 1_700_000_000_000_000_000
+N_FRAMES = 200
+FPS = 10.0
+SIZE = (80, 50)  # frame (width, height); preprocess upscales to 800x503
+# The band centre lies at x = 40 - 25 s in the frame, i.e. 100 - 62.5 s network pixels, so a
+# shift of the content by d network pixels to the right changes the steering by -d / 62.5.
+PER_PX = 1.0 / 62.5
+
+
+def _frame(s: float, rng: np.random.Generator, size: tuple[int, int] = SIZE) -> np.ndarray:
+    """Dark noisy RGB frame with a bright vertical band whose position encodes steering ``s``."""
+    w, h = size
+    img = rng.integers(20, 70, (h, w, 3), dtype=np.uint8)
+    centre = (40.0 - 25.0 * s) * w / SIZE[0]
+    cols = np.abs(np.arange(w) - centre) < 4.0 * w / SIZE[0]
+    img[:, cols] = (230, 220, 200)
+    return img
+
+
+def _steering(t: np.ndarray) -> np.ndarray:
+    return np.sin(2 * np.pi * t / 7.0) * 0.9
+
+
+def make_drive(root: Path, *, signal: str = "steering") -> Workspace:
+    """A workspace as extract writes it: frames, poses.csv, one signal at 50 Hz."""
+    ws = Workspace.create(root, Config())
+    paths = dataset_paths(ws.dataset_dir)
+    paths.frames_dir.mkdir(parents=True)
+    paths.signals_dir.mkdir(parents=True)
+    rng = np.random.default_rng(3)
+    stamps = T0 + (np.arange(N_FRAMES) * 1e9 / FPS).astype(np.int64)
+    t = (stamps - T0) / 1e9
+    for i, s in enumerate(_steering(t)):
+        rgb = _frame(float(s), rng)
+        cv2.imwrite(str(paths.frame_file(i, "png")), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    n = N_FRAMES
+    cols: dict[str, np.ndarray] = {"frame": np.arange(n), "stamp_ns": stamps, "t": t}
+    cols |= {"x": t * 5.0, "y": np.zeros(n), "z": np.zeros(n)}
+    cols |= {"qx": np.zeros(n), "qy": np.zeros(n), "qz": np.zeros(n), "qw": np.ones(n)}
+    cols |= {"heading": np.zeros(n), "speed": np.full(n, 5.0)}
+    assert tuple(cols) == POSE_COLUMNS
+    write_table(paths.poses_csv, cols, precision=POSE_PRECISION)
+    sig_ns = T0 + np.arange(0, int(n / FPS * 1e9) + 1, 20_000_000, dtype=np.int64)
+    sig_t = (sig_ns - T0) / 1e9
+    sig = dict(zip(SIGNAL_COLUMNS, (sig_ns, sig_t, _steering(sig_t)), strict=True))
+    write_table(paths.signal_file(signal), sig)
+    DatasetInfo(
+        kind="bag",
+        sources=(),
+        time_base="header",
+        counts=DatasetCounts(frames=n, pose_samples=n, signals={signal: len(sig_ns)}),
+        start_ns=int(stamps[0]),
+        end_ns=int(stamps[-1]),
+        duration_s=float(stamps[-1] - stamps[0]) / 1e9,
+        frame_format="png",
+        world=WorldFrameRecord(proj_string=None),
+    ).save(paths.dataset_json)
+    now = dt.datetime.now(dt.UTC)
+    ws.record_stage("extract", state="done", started=now, inputs_hash="sha256:drive-1")
+    return ws
+
+
+# --------------------------------------------------------------------------------------------
+# Preprocessing and network
+
+
+def test_preprocess_crops_published_rows() -> None:
+    img = np.zeros((503, 800, 3), np.uint8)
+    img[204:468] = (100, 150, 200)
+    img[468:] = 255
+    x = preprocess(img)
+    assert x.shape == (1, 3, 66, 200)
+    assert x.dtype == np.float32
+    np.testing.assert_array_equal(x[0, :, 0, 0], [100, 150, 200])
+    assert (x[0, 0] == 100).all()  # nothing of the rows above 204 or below 468
+
+
+def test_preprocess_batch_matches_reference_and_other_sizes() -> None:
+    rng = np.random.default_rng(0)
+    imgs = rng.integers(0, 256, (5, 120, 160, 3), dtype=np.uint8)
+    x = preprocess(imgs)
+    ref = [
+        cv2.resize(cv2.resize(im, (800, 503))[204:468], (200, 66)).transpose(2, 0, 1) for im in imgs
+    ]
+    np.testing.assert_array_equal(x, np.stack(ref).astype(np.float32))
+    cfg = Dave2Config(source_size=(320, 240), crop_rows=(100, 200), input_size=(100, 66))
+    assert preprocess(imgs, cfg).shape == (5, 3, 66, 100)
+    with pytest.raises(ValueError, match="uint8"):
+        preprocess(imgs.astype(np.float32))
+    with pytest.raises(ValueError, match="crop rows"):
+        Dave2Config(crop_rows=(300, 600))
+
+
+def test_model_output_shape() -> None:
+    model = build_dave2().eval()
+    with torch.inference_mode():
+        out = model(torch.zeros(4, 3, 66, 200))
+    assert out.shape == (4, 1)
+    assert sum(p.numel() for p in model.parameters()) == 252_219  # the published DAVE-2 count
+
+
+def test_missing_signal_lists_available(tmp_path: Path) -> None:
+    from cam2sim.ads.train import TrainOptions
+    from cam2sim.stages.ads import train_ads
+
+    ws = make_drive(tmp_path / "ws", signal="steering_cmd")
+    with pytest.raises(StageError, match=r"no steering signal 'steering'; available: steering_cmd"):
+        train_ads(ws, options=TrainOptions(epochs=1))
+
+
+def test_keras_needs_tensorflow(tmp_path: Path) -> None:
+    if importlib.util.find_spec("tensorflow") is not None:
+        pytest.skip("TensorFlow is installed; this checks the message without it")
+    path = tmp_path / "final.h5"
+    path.write_bytes(b"\x89HDF\r\n\x1a\n")
+    with pytest.raises(BackendUnavailableError, match="pip install tensorflow"):
+        ModelPolicy(path)
+
+
+# --------------------------------------------------------------------------------------------
+# Training, export, policy (one training run shared)
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory: pytest.TempPathFactory) -> Workspace:
+    from cam2sim.ads.train import TrainOptions
+    from cam2sim.stages.ads import train_ads
+
+    ws = make_drive(tmp_path_factory.mktemp("dave2") / "ws")
+    options = TrainOptions(
+        epochs=5,
+        batch_size=16,
+        patience=5,
+        shift_px=6,
+        shift_steering_per_px=PER_PX,
+        device="cpu",
+        workers=1,
+    )
+    result = train_ads(ws, options=options)
+    assert result.report is not None
+    again = train_ads(ws, options=options)
+    assert again.report is None  # up to date
+    return ws
+
+
+def test_training_lowers_validation_loss(trained: Workspace) -> None:
+    report = json.loads((trained.ads_dir / "train_report.json").read_text())
+    epochs = report["epochs"]
+    assert report["val_mse"] < 0.25 * report["baseline_mse"]
+    assert report["val_mse"] < epochs[0]["val_loss"]
+    assert report["val_correlation"] > 0.9
+    assert report["train_frames"] + report["val_frames"] < N_FRAMES  # the gap
+    assert (trained.ads_dir / "train_report.png").stat().st_size > 1000
+    assert (trained.ads_dir / "dave2.pt").is_file()
+    assert trained.stage_record("ads_train").state == "done"  # type: ignore[union-attr]
+
+
+def test_export_parity_and_policy_crop(trained: Workspace) -> None:
+    import onnx
+
+    from cam2sim.ads.train import load_model
+    from cam2sim.stages.ads import export_ads
+
+    result = export_ads(trained)
+    doc = result.report
+    assert doc.max_abs_diff_random < 1e-4
+    assert doc.max_abs_diff_real is not None
+    assert doc.max_abs_diff_real < 1e-4
+    assert (trained.ads_dir / "export.json").is_file()
+    meta = {p.key: p.value for p in onnx.load(str(result.path)).metadata_props}
+    assert Dave2Config.from_json(meta[METADATA_KEY]) == Dave2Config()
+
+    # A full-size frame with bright clutter outside the crop: the policy must crop as training.
+    frame = _frame(0.5, np.random.default_rng(9), (1600, 1006))
+    frame[:300] = 255
+    frame[-100:] = 0
+    model, _ = load_model(trained.ads_dir)
+    with torch.inference_mode():
+        want = float(model(torch.from_numpy(preprocess(frame))).item())
+        uncropped = cv2.resize(frame, (200, 66)).transpose(2, 0, 1)[None].astype(np.float32)
+        naive = float(model(torch.from_numpy(uncropped)).item())
+    state = VehicleState(
+        t=0.0,
+        x=0.0,
+        y=0.0,
+        z=0.0,
+        heading=0.0,
+        speed=5.0,
+        wheel_angle=0.0,
+        steering=0.0,
+        rear_axle=(0.0, 0.0),
+    )
+    policy = ModelPolicy(result.path)
+    got = policy.predict(Observation(0.0, frame, state))
+    assert got == pytest.approx(want, abs=1e-4)
+    assert abs(naive - want) > 1e-3  # the crop matters for this frame
+    assert policy.input_size == (200, 66)
+
+
+def test_cli_train_export_and_serve_errors(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from cam2sim.cli.main import app
+
+    ws = make_drive(tmp_path / "ws")
+    runner = CliRunner()
+    out = runner.invoke(app, ["ads", "serve", str(ws.root), "--port", "0"])
+    assert out.exit_code == 1
+    assert "cam2sim ads train" in " ".join(out.output.split())
+    out = runner.invoke(app, ["ads", "train", str(ws.root), "--epochs", "2", "--no-augment"])
+    assert out.exit_code == 0, out.output
+    assert "validation RMSE" in " ".join(out.output.split())
+    out = runner.invoke(app, ["ads", "export", str(ws.root), "--onnx"])
+    assert out.exit_code == 0, out.output
+    assert (ws.ads_dir / "dave2.onnx").is_file()
+    out = runner.invoke(app, ["ads", "train", str(tmp_path / "ws"), "--signal", "nope"])
+    assert out.exit_code == 1
