@@ -184,3 +184,42 @@ def test_drive_needs_a_scenario_and_a_known_policy(tmp_path: Path) -> None:
     out = CliRunner().invoke(app, args)
     assert out.exit_code == 0, out.output
     assert "route_completed" in out.output
+
+
+def test_a_failing_policy_ends_the_run_with_an_event(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A remote policy that times out mid-run becomes a policy_error event; the run is kept."""
+    from cam2sim.ads import policy as policy_module
+
+    class Flaky:
+        name = "flaky"
+        needs_image = False
+
+        def __init__(self) -> None:
+            self.calls = 0
+
+        def reset(self) -> None:
+            self.calls = 0
+
+        def predict(self, obs: object) -> float:
+            del obs
+            self.calls += 1
+            if self.calls > 5:
+                msg = "tcp://127.0.0.1:5090 sent no reply within 10 s; is it hung?"
+                raise StageError(msg)
+            return 0.0
+
+        def close(self) -> None:
+            pass
+
+    monkeypatch.setattr(policy_module, "load_policy", lambda *a, **k: Flaky())
+    ws, _ = _workspace(tmp_path / "ws", StreetSpec())
+    (run,) = drive(ws, options=DriveOptions(policy="tcp://127.0.0.1:5090", camera="none"))
+    assert run.events[-1]["kind"] == "policy_error"
+    assert "no reply" in run.events[-1]["reason"]
+    assert run.steps == 15  # five answers, every 3rd step; the sixth call fails at step 16
+    assert read_table(run.folder / "trajectory.csv")["t"].shape[0] == 15
+    assert json.loads((run.folder / "events.json").read_text())["events"][-1]["kind"] == (
+        "policy_error"
+    )

@@ -506,6 +506,7 @@ def _drive_one(  # noqa: PLR0915
                         "reason": str(err),
                     }  # fmt: skip
                     logger.warning("run %s: policy failed at t=%.2f s: %s", run_id, state.t, err)
+                    steps -= 1  # this step was never simulated
                     break
                 policy_s += time.perf_counter() - t0
                 decisions.append((state.t, command))
