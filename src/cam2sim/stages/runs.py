@@ -506,7 +506,6 @@ def _drive_one(  # noqa: PLR0915
                         "reason": str(err),
                     }  # fmt: skip
                     logger.warning("run %s: policy failed at t=%.2f s: %s", run_id, state.t, err)
-                    steps -= 1  # this step was never simulated
                     break
                 policy_s += time.perf_counter() - t0
                 decisions.append((state.t, command))
@@ -526,6 +525,7 @@ def _drive_one(  # noqa: PLR0915
             if sim.done:
                 break
         seconds = time.perf_counter() - started
+        steps = len(rows["t"])  # simulated steps (a failed policy call simulates none)
         events = [
             {"kind": e.kind, "t": e.t, "x": e.x, "y": e.y, "reason": e.reason} for e in sim.events
         ]
