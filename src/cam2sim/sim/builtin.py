@@ -21,6 +21,7 @@ import numpy.typing as npt
 import pydantic
 
 from cam2sim.core.errors import ConfigError, StageError
+from cam2sim.sim.control import RouteTracker, SpeedPid
 from cam2sim.sim.interface import (
     Control,
     EventKind,
@@ -43,8 +44,6 @@ _ALL_EVENTS: tuple[EventKind, ...] = (
     "stuck",
     "timeout",
 )
-_PROJECT_BACK = 4  # route segments searched behind the last foot point
-_PROJECT_AHEAD = 40  # and ahead of it
 
 
 class BuiltinOptions(pydantic.BaseModel):
@@ -119,7 +118,6 @@ class BuiltinSimulator:
         import shapely  # noqa: PLC0415
 
         from cam2sim.detect.boxes import footprint_corners  # noqa: PLC0415
-        from cam2sim.metrics.path import ReferencePath  # noqa: PLC0415
 
         o = self.options
         area = road_map.drivable_area(o.road_lane_types)
@@ -151,11 +149,8 @@ class BuiltinSimulator:
             self._boxes = np.empty(0, dtype=object)
         self._tree = shapely.STRtree(self._boxes)
         center = np.asarray(scenario.trajectory.center, dtype=np.float64)[:, :2]
-        self._route = ReferencePath.from_polyline(center, spacing_m=1.0)
-        r = self._route.xy
-        self._seg_a = r[:-1]
-        self._seg_d = np.diff(r, axis=0)
-        self._seg_len2 = np.maximum((self._seg_d**2).sum(axis=1), 1e-12)
+        self._tracker = RouteTracker(center, max_lateral_m=self.options.route_max_lateral_m)
+        self._pid = SpeedPid(self.options)
         self._start = scenario.hero_start
         self._z = scenario.hero_start.position[2]
         t = scenario.trajectory.t
@@ -186,13 +181,11 @@ class BuiltinSimulator:
         self._steer = 0.0
         ts = self.options.target_speed
         self._target = ts if ts is not None else self._start.speed
-        self._integral = 0.0
-        self._prev_speed = self._speed
+        self._pid.reset(self._speed)
         self._slow_since: float | None = None
         self._events = []
         self._seen: set[EventKind] = set()
-        self._seg = 0
-        self._progress = 0.0
+        self._tracker.reset()
         self._update_progress()
         return self._state()
 
@@ -275,17 +268,7 @@ class BuiltinSimulator:
         Anti-windup: the integral runs only near the target (``integral_band``), not while the
         output is saturated in the error's direction, and not while braking at a standstill.
         """
-        o = self.options
-        err = self._target - self._speed
-        deriv = (self._speed - self._prev_speed) / o.dt
-        self._prev_speed = self._speed
-        acc = o.kp * err + o.ki * self._integral - o.kd * deriv
-        sat = min(o.max_accel, max(-o.max_decel, acc))
-        held = self._speed <= 0.0 and acc < 0.0  # standing still: brakes hold, no windup
-        near = abs(err) < o.integral_band
-        if near and (sat == acc or (acc > sat) != (err > 0)) and not held:
-            self._integral += err * o.dt
-        return sat
+        return self._pid.acceleration(self._target, self._speed)
 
     def _center(self) -> tuple[float, float]:
         c, s = math.cos(self._heading), math.sin(self._heading)
@@ -303,7 +286,7 @@ class BuiltinSimulator:
             wheel_angle=self._delta,
             steering=self._steer,
             rear_axle=(self._rx, self._ry),
-            progress_m=self._progress,
+            progress_m=self._tracker.progress,
         )
 
     def _corners(self) -> npt.NDArray[np.float64]:
@@ -314,21 +297,7 @@ class BuiltinSimulator:
         return out
 
     def _update_progress(self) -> None:
-        lo = max(0, self._seg - _PROJECT_BACK)
-        hi = min(self._seg_a.shape[0], self._seg + _PROJECT_AHEAD)
-        cx, cy = self._center()
-        a, d = self._seg_a[lo:hi], self._seg_d[lo:hi]
-        u = ((cx - a[:, 0]) * d[:, 0] + (cy - a[:, 1]) * d[:, 1]) / self._seg_len2[lo:hi]
-        u = np.clip(u, 0.0, 1.0)
-        dist2 = (a[:, 0] + u * d[:, 0] - cx) ** 2 + (a[:, 1] + u * d[:, 1] - cy) ** 2
-        k = int(np.argmin(dist2))
-        if dist2[k] > self.options.route_max_lateral_m**2:
-            return
-        seg = lo + k
-        s = self._route.s
-        prog = float(s[seg] + u[k] * (s[seg + 1] - s[seg]))
-        if prog >= self._progress:
-            self._seg, self._progress = seg, prog
+        self._tracker.update(*self._center())
 
     def _near_a_box(self, cx: float, cy: float) -> bool:
         d = self._box_xy - (cx, cy)
@@ -364,13 +333,18 @@ class BuiltinSimulator:
                     float(py),
                     f"footprint left the drivable area by more than {o.offroad_margin_m} m",
                 )
-        end = self._route.length_m - o.route_end_tolerance_m
-        if self._progress >= end:
-            self._emit("route_completed", cx, cy, f"reached {self._progress:.1f} m of the route")
+        end = self._tracker.length_m - o.route_end_tolerance_m
+        if self._tracker.progress >= end:
+            self._emit(
+                "route_completed", cx, cy, f"reached {self._tracker.progress:.1f} m of the route"
+            )
         if self._speed < o.stuck_speed:
             if self._slow_since is None:
                 self._slow_since = self._t
-            if self._t - self._slow_since >= o.stuck_after_s - 1e-9 and self._progress < end:
+            if (
+                self._t - self._slow_since >= o.stuck_after_s - 1e-9
+                and self._tracker.progress < end
+            ):
                 self._emit(
                     "stuck",
                     cx,

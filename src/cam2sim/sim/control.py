@@ -1,0 +1,134 @@
+"""Pieces both simulator backends share: the speed controller and route progress.
+
+The builtin and the CARLA backend must hold speed and judge route completion identically, so
+that runs on either compare; the code lives here once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+__all__ = ["RouteTracker", "SpeedGains", "SpeedPid"]
+
+_PROJECT_BACK = 4  # route segments searched behind the last foot point
+_PROJECT_AHEAD = 40  # and ahead of it
+
+
+class SpeedGains(Protocol):
+    """The controller settings both backends' options carry."""
+
+    @property
+    def dt(self) -> float:
+        """Fixed time step, s."""
+        ...
+
+    @property
+    def kp(self) -> float:
+        """Proportional gain, (m/s^2) per (m/s)."""
+        ...
+
+    @property
+    def ki(self) -> float:
+        """Integral gain."""
+        ...
+
+    @property
+    def kd(self) -> float:
+        """Derivative gain."""
+        ...
+
+    @property
+    def max_accel(self) -> float:
+        """Acceleration limit, m/s^2."""
+        ...
+
+    @property
+    def max_decel(self) -> float:
+        """Braking limit, m/s^2."""
+        ...
+
+    @property
+    def integral_band(self) -> float:
+        """Speed error below which the integral runs, m/s."""
+        ...
+
+
+@dataclass
+class SpeedPid:
+    """PID on the speed error, giving a limited longitudinal acceleration (m/s^2).
+
+    Anti-windup: the integral runs only near the target (``integral_band``), not while the
+    output is saturated in the error's direction, and not while braking at a standstill.
+    """
+
+    gains: SpeedGains
+    integral: float = 0.0
+    prev_speed: float = 0.0
+
+    def reset(self, speed: float) -> None:
+        """Start a new episode at ``speed``."""
+        self.integral = 0.0
+        self.prev_speed = speed
+
+    def acceleration(self, target: float, speed: float) -> float:
+        """The commanded acceleration for one step."""
+        o = self.gains
+        err = target - speed
+        deriv = (speed - self.prev_speed) / o.dt
+        self.prev_speed = speed
+        acc = o.kp * err + o.ki * self.integral - o.kd * deriv
+        sat = min(o.max_accel, max(-o.max_decel, acc))
+        held = speed <= 0.0 and acc < 0.0  # standing still: brakes hold, no windup
+        near = abs(err) < o.integral_band
+        if near and (sat == acc or (acc > sat) != (err > 0)) and not held:
+            self.integral += err * o.dt
+        return sat
+
+
+class RouteTracker:
+    """Monotone progress (metres) of the vehicle centre along the recorded centre route."""
+
+    def __init__(self, center_xy: npt.ArrayLike, *, max_lateral_m: float) -> None:
+        from cam2sim.metrics.path import ReferencePath  # noqa: PLC0415
+
+        self.route = ReferencePath.from_polyline(
+            np.asarray(center_xy, dtype=np.float64)[:, :2], spacing_m=1.0
+        )
+        r = self.route.xy
+        self._a = r[:-1]
+        self._d = np.diff(r, axis=0)
+        self._len2 = np.maximum((self._d**2).sum(axis=1), 1e-12)
+        self.max_lateral_m = max_lateral_m
+        self.seg = 0
+        self.progress = 0.0
+
+    @property
+    def length_m(self) -> float:
+        """Length of the recorded route."""
+        return self.route.length_m
+
+    def reset(self) -> None:
+        """Back to the start of the route."""
+        self.seg, self.progress = 0, 0.0
+
+    def update(self, cx: float, cy: float) -> float:
+        """Project the centre near the last foot point; progress never decreases."""
+        lo = max(0, self.seg - _PROJECT_BACK)
+        hi = min(self._a.shape[0], self.seg + _PROJECT_AHEAD)
+        a, d = self._a[lo:hi], self._d[lo:hi]
+        u = np.clip(((cx - a[:, 0]) * d[:, 0] + (cy - a[:, 1]) * d[:, 1]) / self._len2[lo:hi], 0, 1)
+        dist2 = (a[:, 0] + u * d[:, 0] - cx) ** 2 + (a[:, 1] + u * d[:, 1] - cy) ** 2
+        k = int(np.argmin(dist2))
+        if dist2[k] <= self.max_lateral_m**2:
+            seg = lo + k
+            s = self.route.s
+            prog = float(s[seg] + u[k] * (s[seg + 1] - s[seg]))
+            if prog >= self.progress:
+                self.seg, self.progress = seg, prog
+        return self.progress
