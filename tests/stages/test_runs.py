@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from cam2sim.cli.main import app
 from cam2sim.core.config import Config, RecordingConfig
-from cam2sim.core.errors import StageError
+from cam2sim.core.errors import ConfigError, StageError
 from cam2sim.core.table import read_table
 from cam2sim.core.workspace import Workspace
 from cam2sim.metrics.drive_io import load_run_dir
@@ -223,3 +223,73 @@ def test_a_failing_policy_ends_the_run_with_an_event(
     assert json.loads((run.folder / "events.json").read_text())["events"][-1]["kind"] == (
         "policy_error"
     )
+
+
+def _carla_fakes() -> object:
+    """The CARLA stand-in of tests/sim (loaded by path: test folders are not packages)."""
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).parents[1] / "sim" / "carla_fakes.py"
+    spec = importlib.util.spec_from_file_location("carla_fakes", path)
+    assert spec is not None
+    assert spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault("carla_fakes", module)
+    spec.loader.exec_module(module)
+    return module
+
+
+CARS = ("vehicle.citroen.c3", "vehicle.seat.leon", "vehicle.toyota.prius", "vehicle.tesla.model3")
+
+
+def test_drive_and_replay_in_carla_write_the_same_run_folders(tmp_path: Path) -> None:
+    pytest.importorskip("carla")
+    from cam2sim.sim.carla_backend import CarlaOptions
+
+    fakes = _carla_fakes()
+    ws, scenario = _workspace(tmp_path / "ws", StreetSpec(length_m=20.0))
+    clients: list[object] = []
+
+    def factory(*_: object) -> object:
+        client = fakes.FakeClient(available=CARS)  # type: ignore[attr-defined]
+        clients.append(client)
+        return client
+
+    carla_opts = CarlaOptions.model_validate({"image_size": (8, 5)})
+    (run,) = drive(
+        ws,
+        options=DriveOptions(
+            simulator="carla",
+            camera="carla",
+            carla=carla_opts,
+            carla_client_factory=factory,
+            max_steps=30,
+            save_frames=True,
+        ),
+    )
+    meta = json.loads((run.folder / "run.json").read_text())
+    assert meta["sim"] == "carla"
+    assert meta["camera"] == "carla"
+    traj = read_table(run.folder / "trajectory.csv")
+    assert traj["t"].shape[0] == run.steps == 30
+    assert np.all(np.diff(traj["x"]) > 0)  # the fake server moves the hero forward
+    assert len(list((run.folder / "frames" / "carla").glob("*.png"))) == 10
+    world = clients[0].world  # type: ignore[attr-defined]
+    assert {id(a) for a in world.destroyed} == {id(a) for a in world.actors}  # torn down
+    rep = replay(
+        ws,
+        options=ReplayOptions(
+            cameras=("carla",),
+            simulator="carla",
+            carla=carla_opts,
+            carla_client_factory=factory,
+            frames=(0, 4),
+            video=False,
+        ),
+    )
+    assert len(list((rep.folder / "frames" / "carla").glob("*.png"))) == 4
+    with pytest.raises(ConfigError, match="needs --sim carla"):
+        DriveOptions(camera="carla")
+    assert scenario.parked

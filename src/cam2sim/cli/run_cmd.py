@@ -22,6 +22,14 @@ class ReplayCamera(StrEnum):
     RASTER = "raster"
     SPLAT = "splat"
     BOTH = "both"
+    CARLA = "carla"
+
+
+class SimChoice(StrEnum):
+    """Which simulator runs."""
+
+    BUILTIN = "builtin"
+    CARLA = "carla"
 
 
 class DriveCamera(StrEnum):
@@ -29,7 +37,27 @@ class DriveCamera(StrEnum):
 
     RASTER = "raster"
     SPLAT = "splat"
+    CARLA = "carla"
     NONE = "none"
+
+
+def _carla(ws: Path, sim: SimChoice, host: str | None, port: int | None) -> object:
+    """CARLA options: config.yaml's ``carla`` block, with --carla-host/--carla-port on top."""
+    if sim is not SimChoice.CARLA or (host is None and port is None):
+        return None  # the run reads config.yaml's carla block
+    import pydantic  # noqa: PLC0415
+
+    from cam2sim.core.errors import ConfigError  # noqa: PLC0415
+    from cam2sim.core.schema import format_validation_error  # noqa: PLC0415
+    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
+    from cam2sim.sim.carla_backend import CarlaOptions  # noqa: PLC0415
+
+    raw = dict(Workspace.open(ws).load_config().carla)
+    raw |= {k: v for k, v in (("host", host), ("port", port)) if v is not None}
+    try:
+        return CarlaOptions.model_validate(raw)
+    except pydantic.ValidationError as err:
+        raise ConfigError(format_validation_error(err, source="carla options")) from None
 
 
 def _fail(err: Cam2SimError) -> typer.Exit:
@@ -74,6 +102,15 @@ def replay(
         str | None, typer.Option(help="Render size WIDTHxHEIGHT (default: the calibrated one).")
     ] = None,
     video: Annotated[bool, typer.Option("--video/--no-video", help="Write video.mp4.")] = True,
+    sim: Annotated[
+        SimChoice, typer.Option(help="builtin, or carla (a running CARLA server).")
+    ] = SimChoice.BUILTIN,
+    carla_host: Annotated[
+        str | None, typer.Option("--carla-host", help="CARLA host (default: config carla.host).")
+    ] = None,
+    carla_port: Annotated[
+        int | None, typer.Option("--carla-port", help="CARLA port (default: config carla.port).")
+    ] = None,
 ) -> None:
     """Replay the recorded trajectory exactly: frames per camera, side by side with the real one.
 
@@ -84,13 +121,17 @@ def replay(
     from cam2sim.stages.runs import replay as run_replay  # noqa: PLC0415
 
     cams = ("raster", "splat") if camera is ReplayCamera.BOTH else (camera.value,)
-    opts = ReplayOptions(
-        cameras=cams,  # type: ignore[arg-type]
-        frames=_span(frames),
-        image_size=_size(size),
-        video=video,
-    )
+    if sim is SimChoice.CARLA and "carla" not in cams:
+        cams = (*cams, "carla")
     try:
+        opts = ReplayOptions(
+            cameras=cams,  # type: ignore[arg-type]
+            frames=_span(frames),
+            image_size=_size(size),
+            video=video,
+            simulator=sim.value,
+            carla=_carla(workspace, sim, carla_host, carla_port),
+        )
         ws = Workspace.open(workspace)
         with progress_bars(enabled=sys.stderr.isatty()) as sink:
             result = run_replay(ws, options=opts, progress=sink)
@@ -123,8 +164,17 @@ def drive(
     ] = None,
     save_frames: Annotated[bool, typer.Option("--save-frames", help="Write the frames.")] = False,
     video: Annotated[bool, typer.Option("--video", help="Write video.mp4.")] = False,
+    sim: Annotated[
+        SimChoice, typer.Option(help="builtin, or carla (a running CARLA server).")
+    ] = SimChoice.BUILTIN,
+    carla_host: Annotated[
+        str | None, typer.Option("--carla-host", help="CARLA host (default: config carla.host).")
+    ] = None,
+    carla_port: Annotated[
+        int | None, typer.Option("--carla-port", help="CARLA port (default: config carla.port).")
+    ] = None,
 ) -> None:
-    """Closed-loop runs in the builtin simulator; each run ends on an event.
+    """Closed-loop runs in the builtin simulator (or CARLA); each run ends on an event.
 
     Example: cam2sim drive ws --policy pure-pursuit --camera raster --runs 3 --speed 20
     """
@@ -132,18 +182,20 @@ def drive(
     from cam2sim.stages.runs import DriveOptions  # noqa: PLC0415
     from cam2sim.stages.runs import drive as run_drive  # noqa: PLC0415
 
-    opts = DriveOptions(
-        policy=policy,
-        camera=camera.value,
-        runs=runs,
-        speed_kmh=speed,
-        seed=seed,
-        policy_every=every,
-        image_size=_size(size),
-        save_frames=save_frames,
-        video=video,
-    )
     try:
+        opts = DriveOptions(
+            policy=policy,
+            camera=camera.value,
+            runs=runs,
+            speed_kmh=speed,
+            seed=seed,
+            policy_every=every,
+            image_size=_size(size),
+            save_frames=save_frames,
+            video=video,
+            simulator=sim.value,
+            carla=_carla(workspace, sim, carla_host, carla_port),
+        )
         ws = Workspace.open(workspace)
         with progress_bars(enabled=sys.stderr.isatty()) as sink:
             results = run_drive(ws, options=opts, progress=sink)

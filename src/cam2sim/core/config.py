@@ -11,7 +11,7 @@ import difflib
 import math
 from enum import StrEnum
 from pathlib import Path
-from typing import Literal, Self
+from typing import Any, Literal, Self
 
 import pydantic
 import yaml
@@ -250,6 +250,11 @@ class Config(_Model):
     lidar: LidarConfig = LidarConfig()
     frames: FramesConfig = FramesConfig()
     vehicle: VehicleConfig = VehicleConfig()
+    carla: dict[str, Any] = pydantic.Field(
+        default_factory=dict,
+        description="CARLA backend options (host, port, timeout_s, mesh, blueprints, ...); "
+        "see cam2sim.sim.carla_backend.CarlaOptions",
+    )
 
     @pydantic.model_validator(mode="after")
     def _check_consistency(self) -> Self:
@@ -346,6 +351,8 @@ _HEADER = """\
 #   vehicle: the ego car's size and where the recorded pose sits on it (reference: rear_axle,
 #     center, or offset with reference_offset_m); rear_axle_x_m is the rear axle's position
 #     from the car's centre (negative = behind). Used by `cam2sim scenario`.
+#   carla: the CARLA server and world for `--sim carla` (host, port, timeout_s, vertex_distance,
+#     blueprints per size class, ...); empty = defaults (localhost:2000).
 """
 
 

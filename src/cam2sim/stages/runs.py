@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any, Literal, Self
 
 import numpy as np
 
-from cam2sim.core.errors import Cam2SimError, StageError
+from cam2sim.core.errors import Cam2SimError, ConfigError, StageError
 from cam2sim.core.files import write_text_atomic
 from cam2sim.core.progress import ProgressCallback, no_progress
 
@@ -45,7 +45,8 @@ if TYPE_CHECKING:
 __all__ = ["CameraName", "DriveOptions", "ReplayOptions", "RunResult", "drive", "replay"]
 
 logger = logging.getLogger(__name__)
-CameraName = Literal["raster", "splat", "none"]
+CameraName = Literal["raster", "splat", "carla", "none"]
+SimulatorName = Literal["builtin", "carla"]
 
 
 @dataclass(frozen=True)
@@ -58,6 +59,10 @@ class ReplayOptions:
         image_size: ``(width, height)`` of rendered frames; None keeps the calibrated size.
         save_frames: Write every rendered frame (PNG) and the side-by-side images.
         video: Write ``video.mp4`` of the side-by-side images.
+        simulator: ``carla`` adds CARLA's camera (``cameras`` may then name ``carla``): the
+            hero is teleported to every recorded pose and CARLA renders it.
+        carla: CARLA backend options; None: defaults.
+        carla_client_factory: Builds the ``carla.Client`` (tests and embedding).
     """
 
     cameras: tuple[CameraName, ...] = ("raster",)
@@ -65,6 +70,14 @@ class ReplayOptions:
     image_size: tuple[int, int] | None = None
     save_frames: bool = True
     video: bool = True
+    simulator: SimulatorName = "builtin"
+    carla: Any = field(default=None)
+    carla_client_factory: Any = field(default=None)
+
+    def __post_init__(self) -> None:
+        if "carla" in self.cameras and self.simulator != "carla":
+            msg = "the carla camera needs --sim carla (CARLA's own camera runs in CARLA)"
+            raise ConfigError(msg)
 
 
 @dataclass(frozen=True)
@@ -83,6 +96,9 @@ class DriveOptions:
         save_frames: Write the rendered frames.
         video: Write ``video.mp4``.
         sim: Builtin simulator options (None: defaults with the scenario's calibration).
+        simulator: ``builtin`` (embedded) or ``carla`` (a running CARLA server).
+        carla: CARLA backend options (host, port, mesh, blueprints...); None: defaults.
+        carla_client_factory: Builds the ``carla.Client`` (tests and embedding; None: connect).
     """
 
     policy: str = "pure-pursuit"
@@ -96,11 +112,17 @@ class DriveOptions:
     save_frames: bool = False
     video: bool = False
     sim: Any = field(default=None)
+    simulator: SimulatorName = "builtin"
+    carla: Any = field(default=None)
+    carla_client_factory: Any = field(default=None)
 
     def __post_init__(self) -> None:
         if self.runs < 1 or self.policy_every < 1 or self.max_steps < 1:
             msg = "runs, policy_every and max_steps must be >= 1"
             raise ValueError(msg)
+        if self.camera == "carla" and self.simulator != "carla":
+            msg = "--camera carla needs --sim carla (CARLA's own camera runs in CARLA)"
+            raise ConfigError(msg)
 
 
 @dataclass(frozen=True)
@@ -175,6 +197,7 @@ class _Cameras:
 
     def __init__(self, ctx: _Context, names: tuple[CameraName, ...]) -> None:
         self.renderers: dict[str, Any] = {}
+        self.carla: Any = None  # a CarlaSimulator whose hero is teleported (replay)
         for name in names:
             if name == "raster":
                 from cam2sim.render.meshes import BuildingFootprint  # noqa: PLC0415
@@ -184,6 +207,8 @@ class _Cameras:
                 buildings = [BuildingFootprint(b.xy, b.height_m) for b in load_buildings(ctx.ws)]
                 scene = RasterScene(ctx.road_map, ctx.scenario.parked, buildings)
                 self.renderers[name] = RasterRenderer(scene)
+            elif name == "carla":
+                continue  # rendered by the CARLA server through the simulator
             elif name == "splat":
                 from cam2sim.splat.render import SplatRenderer  # noqa: PLC0415
 
@@ -208,6 +233,8 @@ class _Cameras:
     def close(self) -> None:
         for r in self.renderers.values():
             r.close()
+        if self.carla is not None:
+            self.carla.close()
 
 
 def _new_run_dir(ws: Workspace, kind: str, label: str) -> tuple[str, Path]:
@@ -318,6 +345,10 @@ def replay(
     started = time.perf_counter()
     try:
         with _Cameras(ctx, cams) as cameras:
+            if "carla" in cams:
+                cameras.carla = _open_carla(
+                    ctx, _carla_options(opts.carla, ctx.scenario, 0, ws), opts.carla_client_factory
+                )
             frames_done = _replay_frames(ctx, opts, cameras, idx, ref, heading, tmp, report)
         rows = {
             "t": [tr.t[i] for i in idx],
@@ -388,7 +419,7 @@ def _replay_frames(
     folder: Path,
     report: ProgressCallback,
 ) -> int:
-    if not cameras.renderers or not (opts.save_frames or opts.video):
+    if not (cameras.renderers or cameras.carla) or not (opts.save_frames or opts.video):
         return 0
     K, w, h = _intrinsics(ctx.scenario, opts.image_size)
     tr = ctx.scenario.trajectory
@@ -401,11 +432,15 @@ def _replay_frames(
     real_frame = _real_frames(ctx.ws)
     try:
         for k, i in enumerate(idx.tolist()):
-            views = [cameras.render(n, poses[n][k], K, w, h) for n in cameras.renderers]
+            names = list(cameras.renderers)
+            views = [cameras.render(n, poses[n][k], K, w, h) for n in names]
+            if cameras.carla is not None:
+                views.append(_carla_view(cameras.carla, tr, i))
+                names.append("carla")
             real = real_frame(tr.frame[i])
             sbs = side_by_side(([real] if real is not None else []) + views)
             if opts.save_frames:
-                for name, im in zip(cameras.renderers, views, strict=True):
+                for name, im in zip(names, views, strict=True):
                     _write_png(folder / "frames" / name / f"{tr.frame[i]:06d}.png", im)
                 _write_png(folder / "side_by_side" / f"{tr.frame[i]:06d}.png", sbs)
             if video is not None:
@@ -415,6 +450,16 @@ def _replay_frames(
         if video is not None:
             video.close()
     return int(idx.size)
+
+
+def _carla_view(sim: Any, tr: Any, i: int) -> npt.NDArray[np.uint8]:
+    """Teleport CARLA's hero to recorded sample ``i`` and return its camera image."""
+    from cam2sim.sim.interface import Pose  # noqa: PLC0415
+
+    cx, cy, _ = tr.center[i]
+    sim.reset(Pose(cx, cy, tr.heading[i], tr.speed[i]))
+    rgb: npt.NDArray[np.uint8] = sim.camera_images().rgb
+    return rgb
 
 
 # -- drive ---------------------------------------------------------------------------------------
@@ -449,7 +494,7 @@ def drive(
     return results
 
 
-def _drive_one(  # noqa: PLR0915
+def _drive_one(
     ctx: _Context,
     opts: DriveOptions,
     policy: Any,
@@ -457,20 +502,76 @@ def _drive_one(  # noqa: PLR0915
     seed: int,
     report: ProgressCallback,
 ) -> RunResult:
-    from cam2sim.ads.policy import Observation  # noqa: PLC0415
-    from cam2sim.scenario.body import body_point_positions  # noqa: PLC0415
     from cam2sim.sim.builtin import BuiltinOptions, BuiltinSimulator  # noqa: PLC0415
+
+    sc = ctx.scenario
+    target = None if opts.speed_kmh is None else opts.speed_kmh / 3.6
+    sim: Any
+    if opts.simulator == "carla":
+        sim_opts = _carla_options(opts.carla, sc, seed, ctx.ws)
+        sim = _open_carla(ctx, sim_opts, opts.carla_client_factory)
+    else:
+        base = opts.sim or BuiltinOptions(calibration=sc.steering_calibration)
+        sim_opts = base.model_copy(update={"seed": seed})
+        sim = BuiltinSimulator(sim_opts)
+        sim.load(sc, ctx.road_map)
+    try:
+        return _drive_loop(ctx, opts, policy, cameras, sim, sim_opts, target, seed, report)
+    finally:
+        sim.close()
+
+
+def _carla_options(options: Any, sc: Scenario, seed: int, ws: Workspace | None = None) -> Any:
+    """The CARLA options of a run: given ones, else config.yaml's ``carla`` block."""
+    import pydantic  # noqa: PLC0415
+
+    from cam2sim.core.schema import format_validation_error  # noqa: PLC0415
+    from cam2sim.sim.carla_backend import CarlaOptions  # noqa: PLC0415
+
+    base = options
+    if base is None:
+        raw = ws.load_config().carla if ws is not None else {}
+        try:
+            base = CarlaOptions.model_validate(raw)
+        except pydantic.ValidationError as err:
+            source = "config.yaml carla"
+            raise ConfigError(format_validation_error(err, source=source)) from None
+    update: dict[str, Any] = {"calibration": base.calibration or sc.steering_calibration}
+    if "seed" in type(base).model_fields:
+        update["seed"] = seed
+    return base.model_copy(update=update)
+
+
+def _open_carla(ctx: _Context, options: Any, client_factory: Any) -> Any:
+    from cam2sim.sim.carla_backend import CarlaSimulator  # noqa: PLC0415
+
+    sim = CarlaSimulator(options, workspace_root=ctx.ws.root, client_factory=client_factory)
+    try:
+        sim.load(ctx.scenario, ctx.road_map)
+    except BaseException:
+        sim.close()
+        raise
+    return sim
+
+
+def _drive_loop(  # noqa: PLR0913, PLR0915, PLR0917 - one run: setup, step loop, writing
+    ctx: _Context,
+    opts: DriveOptions,
+    policy: Any,
+    cameras: _Cameras,
+    sim: Any,
+    sim_opts: Any,
+    target: float | None,
+    seed: int,
+    report: ProgressCallback,
+) -> RunResult:
+    from cam2sim.ads.policy import Observation  # noqa: PLC0415
     from cam2sim.sim.interface import Control  # noqa: PLC0415
 
     sc = ctx.scenario
-    base = opts.sim or BuiltinOptions(calibration=sc.steering_calibration)
-    sim_opts = base.model_copy(update={"seed": seed})
-    target = None if opts.speed_kmh is None else opts.speed_kmh / 3.6
-    sim = BuiltinSimulator(sim_opts)
-    sim.load(sc, ctx.road_map)
     state = sim.reset()
     policy.reset()
-    cam_name = next(iter(cameras.renderers), None)
+    cam_name = "carla" if opts.camera == "carla" else next(iter(cameras.renderers), None)
     K, w, h = _intrinsics(sc, opts.image_size) if cam_name else (np.eye(3), 0, 0)
     run_id, tmp = _new_run_dir(ctx.ws, "drive", f"{policy.name}-{cam_name or 'none'}-s{seed}")
     rows: dict[str, list[float]] = {
@@ -490,7 +591,11 @@ def _drive_one(  # noqa: PLR0915
                 image = None
                 if cam_name is not None:  # the policy sees each camera frame
                     t0 = time.perf_counter()
-                    image = _vehicle_view(sc, state, cameras, cam_name, (K, w, h))
+                    image = (
+                        sim.camera_images().rgb
+                        if cam_name == "carla"
+                        else _vehicle_view(sc, state, cameras, cam_name, (K, w, h))
+                    )
                     render_s += time.perf_counter() - t0
                     _keep_frame(
                         image, tmp / "frames" / cam_name, steps - 1, opts.save_frames, video
@@ -510,16 +615,7 @@ def _drive_one(  # noqa: PLR0915
                 policy_s += time.perf_counter() - t0
                 decisions.append((state.t, command))
             state = sim.step(Control(steering=command, target_speed=target))
-            ref_now = body_point_positions(
-                [[state.x, state.y, state.z]], [state.heading], (0.0, 0.0, 0.0), ref_xyz
-            )[0]
-            for key, value in zip(
-                rows,
-                (state.t, ref_now[0], ref_now[1], ref_now[2], state.heading, state.speed,
-                 state.steering, state.wheel_angle),
-                strict=True,
-            ):  # fmt: skip
-                rows[key].append(float(value))
+            _record(rows, state, ref_xyz)
             if steps % 30 == 0:
                 report(f"run {run_id}", steps, None)
             if sim.done:
@@ -532,31 +628,63 @@ def _drive_one(  # noqa: PLR0915
         if failure is not None:
             events.append(failure)
         _write_tables(tmp, rows, decisions)
-        meta = {
-            "kind": "drive",
-            "method": f"drive-{cam_name or 'none'}",
-            "camera": cam_name or "none",
-            "policy": policy.name,
-            "seed": seed,
-            "steps": steps,
-            "seconds": round(seconds, 3),
-            "steps_per_s": round(steps / max(seconds, 1e-9), 1),
-            "render_ms": round(1e3 * render_s / max(len(decisions), 1), 3),
-            "policy_ms": round(1e3 * policy_s / max(len(decisions), 1), 3),
-            "options": {k: v for k, v in asdict(opts).items() if k != "sim"},
-            "simulator": sim_opts.model_dump(mode="json"),
-            "proj_string": sc.world.proj_string,
-        }
+        timing = {"seconds": seconds, "render_s": render_s, "policy_s": policy_s}
+        meta = _drive_meta(opts, policy.name, cam_name, seed, steps, len(decisions), timing)
+        meta |= {"simulator": sim_opts.model_dump(mode="json"), "proj_string": sc.world.proj_string}
         _write_meta(tmp, meta, events)
     except BaseException:
-        if video is not None:
-            video.close()
         _discard(tmp)
         raise
-    if video is not None:
-        video.close()
-    sim.close()
+    finally:
+        if video is not None:
+            video.close()
     return RunResult(run_id, _finish_run(ctx.ws, run_id, tmp), steps, tuple(events), seconds)
+
+
+def _drive_meta(
+    opts: DriveOptions,
+    policy: str,
+    cam_name: str | None,
+    seed: int,
+    steps: int,
+    decisions: int,
+    timing: dict[str, float],
+) -> dict[str, Any]:
+    """``run.json`` of a drive (without the simulator block)."""
+    seconds = timing["seconds"]
+    return {
+        "kind": "drive",
+        "method": f"drive-{cam_name or 'none'}",
+        "camera": cam_name or "none",
+        "policy": policy,
+        "seed": seed,
+        "sim": opts.simulator,
+        "steps": steps,
+        "seconds": round(seconds, 3),
+        "steps_per_s": round(steps / max(seconds, 1e-9), 1),
+        "render_ms": round(1e3 * timing["render_s"] / max(decisions, 1), 3),
+        "policy_ms": round(1e3 * timing["policy_s"] / max(decisions, 1), 3),
+        "options": {
+            k: v
+            for k, v in asdict(opts).items()
+            if k not in ("sim", "carla", "carla_client_factory")
+        },
+    }
+
+
+def _record(rows: dict[str, list[float]], state: Any, ref_xyz: tuple[float, float, float]) -> None:
+    """Append one simulator state, at the recorded reference point, to the run's rows."""
+    from cam2sim.scenario.body import body_point_positions  # noqa: PLC0415
+
+    ref = body_point_positions(
+        [[state.x, state.y, state.z]], [state.heading], (0.0, 0.0, 0.0), ref_xyz
+    )[0]
+    values = (
+        state.t, ref[0], ref[1], ref[2], state.heading, state.speed, state.steering,
+        state.wheel_angle,
+    )  # fmt: skip
+    for key, value in zip(rows, values, strict=True):
+        rows[key].append(float(value))
 
 
 def _keep_frame(
