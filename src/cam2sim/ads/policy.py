@@ -37,7 +37,6 @@ Remote policies (``tcp://HOST:PORT``)
 
 from __future__ import annotations
 
-import io
 import logging
 import math
 import socket
@@ -61,12 +60,10 @@ from cam2sim.detect.learned import (
     _image_tensor,
     _require,
     _to_numpy,
-    _torch_kind,
+    load_torch_model,
 )
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
-
     import numpy.typing as npt
 
     from cam2sim.sim.interface import SteeringCalibration, VehicleState
@@ -437,34 +434,10 @@ class _TorchSteering:
     """A torch.export program or TorchScript module checked against the steering contract."""
 
     def __init__(self, path: Path, input_size: tuple[int, int] | None, device: str) -> None:
-        import warnings  # noqa: PLC0415  (only torch's deprecations need it)
-
         self.name = f"torch:{path.name}"
-        torch = _require("torch", _TORCH_HINT, "the torch steering policy")
+        _require("torch", _TORCH_HINT, "the torch steering policy")
         self._device = device
-        declared: tuple[int, int] | None = None
-        try:
-            if _torch_kind(path) == "export":
-                program = torch.export.load(io.BytesIO(path.read_bytes()))
-                user = set(program.graph_signature.user_inputs)
-                shapes = [
-                    tuple(n.meta["val"].shape)
-                    for n in program.graph.nodes
-                    if n.op == "placeholder" and n.name in user and "val" in n.meta
-                ]
-                n_inputs = len(user)
-                if shapes and len(shapes[0]) == 4 and all(type(d) is int for d in shapes[0][2:]):
-                    declared = (int(shapes[0][3]), int(shapes[0][2]))
-                self._module: Callable[..., Any] = program.module().to(device)
-            else:
-                with warnings.catch_warnings():
-                    warnings.filterwarnings("ignore", r".*torch\.jit", DeprecationWarning)
-                    script = torch.jit.load(str(path), map_location=device)
-                n_inputs = len(script.forward.schema.arguments) - 1
-                self._module = script
-        except (RuntimeError, ValueError, KeyError, OSError) as err:
-            msg = f"cannot load torch model {str(path)!r}: {err}"
-            raise ConfigError(msg) from err
+        self._module, n_inputs, declared = load_torch_model(path, device)
         if n_inputs != 1:
             msg = f"forward takes {n_inputs} inputs, the contract is forward(image)"
             raise _contract_error(self.name, msg, f"{n_inputs} tensors", "?")

@@ -81,6 +81,7 @@ __all__ = [
     "OnnxCameraDetector",
     "OnnxLidarDetector",
     "TorchCameraDetector",
+    "load_torch_model",
 ]
 
 _log = logging.getLogger(__name__)
@@ -552,6 +553,45 @@ def _torch_kind(path: Path) -> str:
     raise ConfigError(msg)
 
 
+def load_torch_model(
+    path: Path, device: str
+) -> tuple[Callable[..., Any], int, tuple[int, int] | None]:
+    """Load a ``torch.export`` program or a TorchScript archive.
+
+    Returns:
+        The callable module on ``device``, its number of inputs, and the ``(width, height)``
+        its first input declares (None when dynamic or unknown).
+
+    Raises:
+        ConfigError: The file is neither, or cannot be loaded.
+    """
+    import warnings  # noqa: PLC0415  (only torch's deprecations need it)
+
+    torch = _require("torch", _TORCH_HINT, "torch models")
+    declared: tuple[int, int] | None = None
+    try:
+        if _torch_kind(path) == "export":
+            program = torch.export.load(io.BytesIO(path.read_bytes()))
+            user = set(program.graph_signature.user_inputs)
+            shapes = [
+                tuple(n.meta["val"].shape)
+                for n in program.graph.nodes
+                if n.op == "placeholder" and n.name in user and "val" in n.meta
+            ]
+            if shapes and len(shapes[0]) == 4 and all(type(d) is int for d in shapes[0][2:]):
+                declared = (int(shapes[0][3]), int(shapes[0][2]))
+            module: Callable[..., Any] = program.module().to(device)
+            return module, len(user), declared
+        with warnings.catch_warnings():
+            # torch >= 2.10 deprecates TorchScript; loading a user's archive still works.
+            warnings.filterwarnings("ignore", r".*torch\.jit", DeprecationWarning)
+            script = torch.jit.load(str(path), map_location=device)
+    except (RuntimeError, ValueError, KeyError, OSError) as err:
+        msg = f"cannot load torch model {str(path)!r}: {err}"
+        raise ConfigError(msg) from err
+    return script, len(script.forward.schema.arguments) - 1, None
+
+
 class TorchCameraDetector:
     """A user-supplied monocular 3D torch model (TorchScript or ``torch.export`` archive).
 
@@ -581,35 +621,12 @@ class TorchCameraDetector:
         device: str = "cpu",
     ) -> None:
         path = _check_file(Path(path), "torch model")
-        torch = _require("torch", _TORCH_HINT, "the torch camera detector")
+        _require("torch", _TORCH_HINT, "the torch camera detector")
         self._filter = _Filter(score_threshold, vehicle_labels)
         self._errors = error_model or MonocularErrorModel()
         self.name = f"torch:{path.name}"
         self._device = device
-        declared: tuple[int, int] | None = None
-        try:
-            if _torch_kind(path) == "export":
-                program = torch.export.load(io.BytesIO(path.read_bytes()))
-                user = set(program.graph_signature.user_inputs)
-                shapes = [
-                    tuple(n.meta["val"].shape)
-                    for n in program.graph.nodes
-                    if n.op == "placeholder" and n.name in user and "val" in n.meta
-                ]
-                n_inputs = len(user)
-                if shapes and len(shapes[0]) == 4 and all(type(d) is int for d in shapes[0][2:]):
-                    declared = (int(shapes[0][3]), int(shapes[0][2]))
-                self._module: Callable[..., Any] = program.module().to(device)
-            else:
-                with warnings.catch_warnings():
-                    # torch >= 2.10 deprecates TorchScript; loading a user's archive still works.
-                    warnings.filterwarnings("ignore", r".*torch\.jit", DeprecationWarning)
-                    script = torch.jit.load(str(path), map_location=device)
-                n_inputs = len(script.forward.schema.arguments) - 1
-                self._module = script
-        except (RuntimeError, ValueError, KeyError, OSError) as err:
-            msg = f"cannot load torch model {str(path)!r}: {err}"
-            raise ConfigError(msg) from err
+        self._module, n_inputs, declared = load_torch_model(path, device)
         if n_inputs not in (1, 2):
             msg = (
                 f"{path.name}: forward takes {n_inputs} inputs; the contract is forward(image) "
