@@ -21,7 +21,7 @@ import numpy.typing as npt
 import pydantic
 
 from cam2sim.core.errors import ConfigError, StageError
-from cam2sim.sim.control import RouteTracker, SpeedPid
+from cam2sim.sim.control import EventLog, RouteTracker, SpeedPid
 from cam2sim.sim.interface import (
     Control,
     EventKind,
@@ -105,7 +105,7 @@ class BuiltinSimulator:
     def __init__(self, options: BuiltinOptions | None = None) -> None:
         self.options = options or BuiltinOptions()
         self._loaded = False
-        self._events: list[SimEvent] = []
+        self._log = EventLog()
         self._rng = np.random.default_rng(self.options.seed)
 
     # -- world ---------------------------------------------------------------------------
@@ -182,9 +182,7 @@ class BuiltinSimulator:
         ts = self.options.target_speed
         self._target = ts if ts is not None else self._start.speed
         self._pid.reset(self._speed)
-        self._slow_since: float | None = None
-        self._events = []
-        self._seen: set[EventKind] = set()
+        self._log.reset()
         self._tracker.reset()
         self._update_progress()
         return self._state()
@@ -192,12 +190,12 @@ class BuiltinSimulator:
     @property
     def events(self) -> tuple[SimEvent, ...]:
         """Events since the last reset, in order."""
-        return tuple(self._events)
+        return tuple(self._log.events)
 
     @property
     def done(self) -> bool:
         """Whether an event ended the episode (any event does)."""
-        return bool(self._events)
+        return bool(self._log.events)
 
     def close(self) -> None:
         """Drop the world (nothing external to release)."""
@@ -304,9 +302,7 @@ class BuiltinSimulator:
         return bool(((d * d).sum(axis=1) <= self._box_reach2).any())
 
     def _emit(self, kind: EventKind, x: float, y: float, reason: str) -> None:
-        if kind not in self._seen:
-            self._seen.add(kind)
-            self._events.append(SimEvent(kind=kind, t=self._t, x=x, y=y, reason=reason))
+        self._log.emit(kind, self._t, x, y, reason)
 
     def _detect(self) -> None:
         import shapely  # noqa: PLC0415
@@ -314,7 +310,7 @@ class BuiltinSimulator:
         o = self.options
         cx, cy = self._center()
         pts = self._corners()
-        if len(self._boxes) and "collision" not in self._seen and self._near_a_box(cx, cy):
+        if len(self._boxes) and "collision" not in self._log.seen and self._near_a_box(cx, cy):
             foot = shapely.Polygon(pts[:4])
             hit = self._tree.query(foot, predicate="intersects")
             if hit.size:
@@ -322,7 +318,7 @@ class BuiltinSimulator:
                 part = shapely.intersection(foot, self._boxes[i])
                 p = shapely.centroid(part) if not part.is_empty else shapely.Point(cx, cy)
                 self._emit("collision", p.x, p.y, f"hit parked vehicle {self._parked[i].id}")
-        if "off_road" not in self._seen:
+        if "off_road" not in self._log.seen:
             inside = shapely.contains_xy(self._area, pts[:, 0], pts[:, 1])
             if not inside.all():
                 out = pts[~inside]
@@ -333,25 +329,4 @@ class BuiltinSimulator:
                     float(py),
                     f"footprint left the drivable area by more than {o.offroad_margin_m} m",
                 )
-        end = self._tracker.length_m - o.route_end_tolerance_m
-        if self._tracker.progress >= end:
-            self._emit(
-                "route_completed", cx, cy, f"reached {self._tracker.progress:.1f} m of the route"
-            )
-        if self._speed < o.stuck_speed:
-            if self._slow_since is None:
-                self._slow_since = self._t
-            if (
-                self._t - self._slow_since >= o.stuck_after_s - 1e-9
-                and self._tracker.progress < end
-            ):
-                self._emit(
-                    "stuck",
-                    cx,
-                    cy,
-                    f"slower than {o.stuck_speed} m/s for {o.stuck_after_s} s",
-                )
-        else:
-            self._slow_since = None
-        if self._t >= self._timeout - 1e-9:
-            self._emit("timeout", cx, cy, f"ran {self._timeout:.1f} s without finishing")
+        self._log.judge_route(self._t, (cx, cy), self._speed, self._tracker, o, self._timeout)

@@ -59,7 +59,7 @@ from cam2sim.core.frames.carla import (
 )
 from cam2sim.core.frames.pose import Pose as FramePose
 from cam2sim.core.frames.rotation import quat_from_yaw, yaw_from_quat
-from cam2sim.sim.control import RouteTracker, SpeedPid
+from cam2sim.sim.control import EventLog, RouteTracker, SpeedPid
 from cam2sim.sim.interface import (
     Control,
     EventKind,
@@ -341,8 +341,7 @@ class CarlaSimulator:
         self._sensors: list[Any] = []
         self._actors: list[Any] = []  # vehicles, spawn order
         self._hero: Any = None
-        self._events: list[SimEvent] = []
-        self._seen: set[EventKind] = set()
+        self._log = EventLog()
         self._lock = threading.Lock()
         self._pending: list[tuple[EventKind, str]] = []
         self._images: dict[str, Any] = {}
@@ -604,11 +603,9 @@ class CarlaSimulator:
         self._frame = int(self._world.tick())
         self._speed = v
         self._pid.reset(v)
-        self._slow_since: float | None = None
         with self._lock:
             self._pending.clear()
-        self._events = []
-        self._seen = set()
+        self._log.reset()
         self._tracker.reset()
         state = self._read_state()
         self._update_progress(state.x, state.y)
@@ -617,12 +614,12 @@ class CarlaSimulator:
     @property
     def events(self) -> tuple[SimEvent, ...]:
         """Events since the last reset, in order."""
-        return tuple(self._events)
+        return tuple(self._log.events)
 
     @property
     def done(self) -> bool:
         """Whether an event ended the episode (any event does)."""
-        return bool(self._events)
+        return bool(self._log.events)
 
     def step(self, control: Control) -> VehicleState:
         """Apply ``control`` through Ackermann control and tick the world once.
@@ -773,9 +770,7 @@ class CarlaSimulator:
         self._tracker.update(cx, cy)
 
     def _emit(self, kind: EventKind, x: float, y: float, reason: str) -> None:
-        if kind not in self._seen:
-            self._seen.add(kind)
-            self._events.append(SimEvent(kind=kind, t=self._t, x=x, y=y, reason=reason))
+        self._log.emit(kind, self._t, x, y, reason)
 
     def _off_road_point(self, state: VehicleState) -> tuple[float, float] | None:
         """The first footprint check point off the road surface, or None."""
@@ -796,7 +791,7 @@ class CarlaSimulator:
             pending, self._pending = self._pending, []
         for kind, reason in pending:
             self._emit(kind, cx, cy, reason)
-        if "off_road" not in self._seen:
+        if "off_road" not in self._log.seen:
             out = self._off_road_point(state)
             if out is not None:
                 self._emit(
@@ -805,25 +800,7 @@ class CarlaSimulator:
                     out[1],
                     f"footprint left the road surface by more than {o.offroad_margin_m} m",
                 )
-        end = self._tracker.length_m - o.route_end_tolerance_m
-        if self._tracker.progress >= end:
-            self._emit(
-                "route_completed", cx, cy, f"reached {self._tracker.progress:.1f} m of the route"
-            )
-        if state.speed < o.stuck_speed:
-            if self._slow_since is None:
-                self._slow_since = self._t
-            if (
-                self._t - self._slow_since >= o.stuck_after_s - 1e-9
-                and self._tracker.progress < end
-            ):
-                self._emit(
-                    "stuck", cx, cy, f"slower than {o.stuck_speed} m/s for {o.stuck_after_s} s"
-                )
-        else:
-            self._slow_since = None
-        if self._t >= self._timeout - 1e-9:
-            self._emit("timeout", cx, cy, f"ran {self._timeout:.1f} s without finishing")
+        self._log.judge_route(self._t, (cx, cy), state.speed, self._tracker, o, self._timeout)
 
 
 def _bgra(image: Any) -> npt.NDArray[np.uint8]:

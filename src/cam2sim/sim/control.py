@@ -6,15 +6,19 @@ that runs on either compare; the code lives here once.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from cam2sim.sim.interface import SimEvent
+
 if TYPE_CHECKING:
     import numpy.typing as npt
 
-__all__ = ["RouteTracker", "SpeedGains", "SpeedPid"]
+    from cam2sim.sim.interface import EventKind
+
+__all__ = ["EpisodeRules", "EventLog", "RouteTracker", "SpeedGains", "SpeedPid"]
 
 _PROJECT_BACK = 4  # route segments searched behind the last foot point
 _PROJECT_AHEAD = 40  # and ahead of it
@@ -132,3 +136,68 @@ class RouteTracker:
             if prog >= self.progress:
                 self.seg, self.progress = seg, prog
         return self.progress
+
+
+class EpisodeRules(Protocol):
+    """The episode-ending settings both backends' options carry."""
+
+    @property
+    def route_end_tolerance_m(self) -> float:
+        """Route completed this close to its end, metres."""
+        ...
+
+    @property
+    def stuck_speed(self) -> float:
+        """Below this speed the vehicle counts as standing, m/s."""
+        ...
+
+    @property
+    def stuck_after_s(self) -> float:
+        """Standing this long before the end is ``stuck``, s."""
+        ...
+
+
+@dataclass
+class EventLog:
+    """The episode's events, each kind reported once (at its first step), and the stuck clock."""
+
+    events: list[SimEvent] = field(default_factory=list)
+    seen: set[EventKind] = field(default_factory=set)
+    slow_since: float | None = None
+
+    def reset(self) -> None:
+        """Forget every event of the last episode."""
+        self.events, self.seen, self.slow_since = [], set(), None
+
+    def emit(self, kind: EventKind, t: float, x: float, y: float, reason: str) -> None:
+        """Record ``kind`` unless it was already reported this episode."""
+        if kind not in self.seen:
+            self.seen.add(kind)
+            self.events.append(SimEvent(kind=kind, t=t, x=x, y=y, reason=reason))
+
+    def judge_route(
+        self,
+        t: float,
+        xy: tuple[float, float],
+        speed: float,
+        tracker: RouteTracker,
+        rules: EpisodeRules,
+        timeout_s: float,
+    ) -> None:
+        """Route completed, stuck and timeout, identically for every backend."""
+        cx, cy = xy
+        end = tracker.length_m - rules.route_end_tolerance_m
+        if tracker.progress >= end:
+            self.emit(
+                "route_completed", t, cx, cy, f"reached {tracker.progress:.1f} m of the route"
+            )
+        if speed < rules.stuck_speed:
+            if self.slow_since is None:
+                self.slow_since = t
+            if t - self.slow_since >= rules.stuck_after_s - 1e-9 and tracker.progress < end:
+                reason = f"slower than {rules.stuck_speed} m/s for {rules.stuck_after_s} s"
+                self.emit("stuck", t, cx, cy, reason)
+        else:
+            self.slow_since = None
+        if t >= timeout_s - 1e-9:
+            self.emit("timeout", t, cx, cy, f"ran {timeout_s:.1f} s without finishing")
