@@ -1,0 +1,47 @@
+"""``cam2sim report``: the self-contained HTML report of a workspace."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
+from typing import Annotated
+
+import typer
+from rich.markup import escape
+
+from cam2sim.cli.display import console, error_console, progress_bars
+from cam2sim.core.errors import Cam2SimError
+
+__all__ = ["report"]
+
+
+def report(
+    workspace: Annotated[Path, typer.Argument(help="The workspace folder.")],
+    *,
+    real: Annotated[
+        list[Path] | None,
+        typer.Option(help="Real drives: trajectory*.csv files or folders (default: WS/real/)."),
+    ] = None,
+    real_crs: Annotated[
+        str, typer.Option(help="CRS of the real drives' x, y (UTM 32N for the reference car).")
+    ] = "EPSG:32632",
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", "-o", help="Output file (default: WS/report/report.html)."),
+    ] = None,
+) -> None:
+    """Write one self-contained HTML page: summary, map, behaviour, runs, frames, metrics.
+
+    Example: cam2sim report ws --real ../shared/data/reference-drives
+    """
+    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
+    from cam2sim.report.html import write_report  # noqa: PLC0415
+
+    try:
+        ws = Workspace.open(workspace)
+        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+            path = write_report(ws, out=out, real_runs=real or (), real_crs=real_crs, progress=sink)
+    except Cam2SimError as err:
+        error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
+        raise typer.Exit(1) from None
+    console.print(str(path), highlight=False, soft_wrap=True)

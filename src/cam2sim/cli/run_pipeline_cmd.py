@@ -1,0 +1,156 @@
+"""``cam2sim run``: the whole pipeline, from bags to report, resuming where it stopped."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+from rich.markup import escape
+from rich.table import Table
+
+from cam2sim.cli.display import console, error_console, print_table, progress_bars
+from cam2sim.core.errors import Cam2SimError
+
+if TYPE_CHECKING:
+    from cam2sim.core.workspace import Workspace
+    from cam2sim.stages.pipeline import PipelineResult
+
+__all__ = ["run"]
+
+_STYLE = {
+    "done": "green",
+    "up_to_date": "cyan",
+    "skipped": "dim",
+    "not_applicable": "yellow",
+    "failed": "bold red",
+}
+
+
+def _workspace(out: Path, bags: list[Path], config: Path | None) -> Workspace:
+    """Open the workspace at ``out``, or create it from the bags (and a given config)."""
+    from cam2sim.core.config import load_config, save_config  # noqa: PLC0415
+    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
+    from cam2sim.stages.init import init_workspace  # noqa: PLC0415
+
+    cfg = None
+    if config is not None:
+        cfg = load_config(config)
+        if bags:
+            recording = cfg.recording.model_copy(update={"bags": [str(p.absolute()) for p in bags]})
+            cfg = cfg.model_copy(update={"recording": recording})
+    if (out / Workspace.MANIFEST).is_file():
+        ws = Workspace.open(out)
+        if cfg is not None:
+            save_config(cfg, ws.config_path, comment=f"From {config} (cam2sim run --config)")
+        return ws
+    if cfg is not None:
+        return Workspace.create(out, cfg, comment=f"From {config} (cam2sim run --config)")
+    if not bags:
+        msg = f"{out} is not a workspace yet; pass the recording's bags: cam2sim run BAG -o {out}"
+        raise typer.BadParameter(msg)
+    return init_workspace(out, bags).workspace
+
+
+def _summary(result: PipelineResult) -> Table:
+    table = Table(title="cam2sim run")
+    table.add_column("step")
+    table.add_column("state")
+    table.add_column("seconds", justify="right")
+    table.add_column("message", overflow="fold")
+    for o in result.outcomes:
+        style = _STYLE.get(o.state, "")
+        state = f"[{style}]{o.state.replace('_', ' ')}[/]" if style else o.state
+        seconds = f"{o.seconds:.1f}" if o.seconds else "-"
+        table.add_row(o.name, state, seconds, escape(o.message))
+    return table
+
+
+def run(
+    bags: Annotated[
+        list[Path] | None,
+        typer.Argument(help="The recording's bag files or folders (not needed to resume)."),
+    ] = None,
+    *,
+    out: Annotated[Path, typer.Option("--out", "-o", help="The workspace folder.")],
+    config: Annotated[
+        Path | None,
+        typer.Option(help="A config.yaml to use instead of the guessed one."),
+    ] = None,
+    osm: Annotated[
+        Path | None,
+        typer.Option(help="OSM file for the map (default: download from the Overpass API)."),
+    ] = None,
+    steps: Annotated[
+        str | None,
+        typer.Option(help="Comma-separated steps to run (default: all)."),
+    ] = None,
+    skip: Annotated[
+        str | None,
+        typer.Option(help="Comma-separated steps not to run, e.g. splat,ads."),
+    ] = None,
+    policy: Annotated[
+        str | None,
+        typer.Option(help="Drive policy (default: the trained DAVE-2, else pure-pursuit)."),
+    ] = None,
+    camera: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="Camera for replay and drive, repeatable: raster, splat, none "
+            "(default: raster, plus splat when splat models exist)."
+        ),
+    ] = None,
+    detect_model: Annotated[
+        str | None,
+        typer.Option(help="Camera detector for recordings without LiDAR (.onnx, .pt)."),
+    ] = None,
+    runs: Annotated[int, typer.Option(min=1, help="Drive runs per camera.")] = 3,
+    splat_on_cpu: Annotated[
+        bool, typer.Option(help="Train splats on the CPU (small preset) when there is no GPU.")
+    ] = True,
+    continue_on_error: Annotated[
+        bool, typer.Option(help="Go on with the next steps after a step failed.")
+    ] = False,
+) -> None:
+    """Run every stage in order, skipping those up to date; re-run to resume.
+
+    Steps: extract, map, detect, scenario, splat, ads, replay, drive, evaluate, report.
+
+    Example: cam2sim run drive.mcap -o ws --osm area.osm --skip splat
+    """
+    from cam2sim.stages.pipeline import STEPS, PipelineOptions, run_pipeline  # noqa: PLC0415
+
+    def names(text: str | None) -> tuple[str, ...]:
+        return tuple(s.strip() for s in (text or "").split(",") if s.strip())
+
+    try:
+        options = PipelineOptions(
+            osm=osm,
+            steps=names(steps) or STEPS,
+            skip=names(skip),
+            detect_model=detect_model,
+            policy=policy,
+            cameras=tuple(camera) if camera else None,  # type: ignore[arg-type]
+            runs=runs,
+            splat_on_cpu=splat_on_cpu,
+            continue_on_error=continue_on_error,
+        )
+        ws = _workspace(out, list(bags or []), config)
+        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+            result = run_pipeline(ws, options=options, progress=sink)
+    except Cam2SimError as err:
+        error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
+        raise typer.Exit(1) from None
+    print_table(_summary(result))
+    total = sum(o.seconds for o in result.outcomes)
+    console.print(f"workspace {ws.root}; {total:.0f} s in all", highlight=False)
+    if result.report is not None:
+        console.print(f"report: {result.report}", highlight=False)
+    if result.failed:
+        error_console.print(
+            "[bold red]a step failed[/]; fix what its message says, then run the same command "
+            "again to resume",
+            highlight=False,
+        )
+        raise typer.Exit(1)

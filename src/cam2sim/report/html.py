@@ -1,0 +1,533 @@
+"""The workspace report: one self-contained HTML page (``WS/report/report.html``).
+
+Everything is embedded: figures and frames as base64 data URIs, the run video as a base64
+``<video>`` source when it is small enough, plain HTML and inline CSS, no script and no external
+resource. Every section is always present; a section whose inputs are missing says which command
+makes them. Every string read from files is escaped.
+
+Sections (stable ids): ``summary`` (inputs, stage timings, warnings), ``map`` (route, parked cars,
+every run's trajectory), ``behaviour`` (drive metrics per method, the paper's layout), ``runs``
+(per-run table, lateral offset and steering plots), ``frames`` (side-by-side frames at chosen
+points, a video strip), ``semantic`` (IoU tables) and ``images`` (PSNR, SSIM, LPIPS tables).
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as dt
+import json
+import tempfile
+from dataclasses import dataclass, field
+from html import escape
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from cam2sim import __version__
+from cam2sim.core.errors import Cam2SimError
+from cam2sim.core.files import write_text_atomic
+from cam2sim.core.progress import ProgressCallback, no_progress
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterable, Sequence
+
+    import numpy.typing as npt
+
+    from cam2sim.core.workspace import Workspace
+    from cam2sim.metrics.drive_io import DriveRun
+    from cam2sim.metrics.drive_quality import DriveEvaluation
+    from cam2sim.metrics.image_quality import MetricStats
+    from cam2sim.scenario.model import Scenario
+
+__all__ = ["SECTION_IDS", "VIDEO_CAP_BYTES", "write_report"]
+
+#: The ids of the report's sections, in page order.
+SECTION_IDS = ("summary", "map", "behaviour", "runs", "frames", "semantic", "images")
+#: A run's ``video.mp4`` is embedded only up to this size.
+VIDEO_CAP_BYTES = 8 * 1024 * 1024
+_CHOSEN_FRAMES = 4
+_STRIP_FRAMES = 8
+_FRAME_WIDTH = 1280
+_STRIP_WIDTH = 320
+_LANE_COLOUR = {"driving": "0.85", "parking": "#cfe3f7", "sidewalk": "#f3e3c8"}
+
+_CSS = """
+body{font-family:system-ui,sans-serif;margin:0;color:#222;background:#fafafa}
+header{background:#23395d;color:#fff;padding:14px 24px}
+header h1{margin:0;font-size:22px}
+nav{padding:6px 24px;background:#e8edf4}
+nav a{margin-right:14px;color:#23395d}
+section{background:#fff;margin:16px 24px;padding:8px 20px 16px;border:1px solid #ddd;
+border-radius:6px}
+h2{border-bottom:1px solid #ddd;padding-bottom:4px}
+table{border-collapse:collapse;margin:8px 0;font-size:13px}
+th,td{border:1px solid #ccc;padding:3px 8px;text-align:right}
+th{background:#eef1f5}
+td:first-child,th:first-child{text-align:left}
+caption{font-weight:600;text-align:left;padding:4px 0}
+img.fig{max-width:100%;height:auto;display:block;margin:8px 0}
+.strip{display:flex;gap:4px;overflow-x:auto}
+.strip img{height:90px;width:auto}
+.na{color:#8a6d00;background:#fff8db;padding:6px 10px;border-left:4px solid #e0b400}
+.warn{color:#8b1a1a}
+.note{color:#555;font-size:13px}
+figure{margin:8px 0}
+figcaption{font-size:12px;color:#555}
+"""
+
+
+@dataclass
+class _Context:
+    """What a report build found and the warnings it collected."""
+
+    ws: Workspace
+    warnings: list[str] = field(default_factory=list)
+    scenario: Scenario | None = None
+    runs: list[Path] = field(default_factory=list)
+    meta: dict[str, dict[str, Any]] = field(default_factory=dict)
+    drives: dict[str, DriveRun] = field(default_factory=dict)
+    evaluation: DriveEvaluation | None = None
+
+
+# -- small HTML helpers ---------------------------------------------------------------------------
+def _e(value: object) -> str:
+    return escape(str(value), quote=True)
+
+
+def _data_uri(data: bytes, mime: str) -> str:
+    return f"data:{mime};base64,{base64.b64encode(data).decode('ascii')}"
+
+
+def _img(data: bytes, alt: str, *, mime: str = "image/png", cls: str = "fig") -> str:
+    return f'<img class="{cls}" alt="{_e(alt)}" src="{_data_uri(data, mime)}">'
+
+
+def _na(what: str, command: str) -> str:
+    return f'<p class="na">{_e(what)} not available: run <code>{_e(command)}</code></p>'
+
+
+def _table(headers: Sequence[str], rows: Iterable[Sequence[object]], caption: str = "") -> str:
+    head = "".join(f"<th>{_e(h)}</th>" for h in headers)
+    body = "".join("<tr>" + "".join(f"<td>{_e(c)}</td>" for c in row) + "</tr>" for row in rows)
+    cap = f"<caption>{_e(caption)}</caption>" if caption else ""
+    return f"<table>{cap}<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _fmt(value: float | None, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def _section(sid: str, title: str, body: str) -> str:
+    return f'<section id="{sid}"><h2>{_e(title)}</h2>{body}</section>'
+
+
+# -- gathering ----------------------------------------------------------------------------------
+def _gather(ctx: _Context) -> None:
+    from cam2sim.metrics.drive_io import load_run_dir  # noqa: PLC0415
+    from cam2sim.scenario.model import Scenario  # noqa: PLC0415
+    from cam2sim.stages.runs import iter_runs  # noqa: PLC0415
+
+    path = ctx.ws.scenario_dir / "scenario.json"
+    if path.is_file():
+        try:
+            ctx.scenario = Scenario.load(path)
+        except Cam2SimError as err:
+            ctx.warnings.append(f"scenario.json unreadable: {err}")
+    for run in iter_runs(ctx.ws):
+        if not (run / "trajectory.csv").is_file():
+            continue
+        try:
+            meta = json.loads((run / "run.json").read_text(encoding="utf-8"))
+            ctx.drives[run.name] = load_run_dir(run)
+        except (OSError, ValueError, Cam2SimError) as err:
+            ctx.warnings.append(f"run {run.name} unreadable: {err}")
+            continue
+        ctx.runs.append(run)
+        ctx.meta[run.name] = meta if isinstance(meta, dict) else {}
+
+
+def _real_drives(ctx: _Context, real_runs: Sequence[Path], real_crs: str) -> list[DriveRun]:
+    """The real reference drives: given, found in ``WS/real/``, or the scenario's recording."""
+    from cam2sim.metrics.drive_io import DriveRun, load_runs  # noqa: PLC0415
+
+    sources = list(real_runs) or ([ctx.ws.root / "real"] if (ctx.ws.root / "real").is_dir() else [])
+    if sources:
+        return load_runs(sources, real=True, crs=real_crs)
+    if ctx.scenario is None:
+        return []
+    tr = ctx.scenario.trajectory
+    ctx.warnings.append(
+        "no real drives given (--real or WS/real/): the scenario's recorded trajectory is the "
+        "only reference, so the corridor has zero width"
+    )
+    return [
+        DriveRun(
+            name="recorded/scenario",
+            method="recorded",
+            real=True,
+            t=np.asarray(tr.t, dtype=np.float64),
+            xy=np.asarray(tr.reference, dtype=np.float64)[:, :2],
+            crs=ctx.scenario.world.proj_string,
+            source=str(ctx.ws.scenario_dir / "scenario.json"),
+        )
+    ]
+
+
+def _evaluate(ctx: _Context, real_runs: Sequence[Path], real_crs: str) -> str | None:
+    """Evaluate the closed-loop runs; return why not, or None when done."""
+    from cam2sim.metrics.drive_quality import evaluate_drives  # noqa: PLC0415
+
+    sims = [ctx.drives[p.name] for p in ctx.runs if ctx.meta[p.name].get("kind") != "replay"]
+    if not sims:
+        return "no closed-loop run"
+    try:
+        real = _real_drives(ctx, real_runs, real_crs)
+        if not real:
+            return "no real drive and no scenario"
+        ctx.evaluation = evaluate_drives(real, sims)
+    except Cam2SimError as err:
+        ctx.warnings.append(f"drive evaluation failed: {err}")
+        return f"drive evaluation failed ({err});"
+    return None
+
+
+# -- sections -----------------------------------------------------------------------------------
+def _summary(ctx: _Context) -> str:
+    manifest = ctx.ws.read_manifest()
+    created = manifest.created.strftime("%Y-%m-%d %H:%M UTC")
+    intro = (
+        f"<p>Workspace <code>{_e(ctx.ws.root)}</code>, cam2sim {_e(manifest.tool_version)}, "
+        f"created {_e(created)}.</p>"
+    )
+    parts = [intro]
+    inputs: list[tuple[str, str]] = []
+    recording = (manifest.config or {}).get("recording")
+    if isinstance(recording, dict):
+        inputs += [(f"recording.{k}", json.dumps(v)) for k, v in recording.items() if v]
+    if ctx.scenario is not None:
+        sc = ctx.scenario
+        inputs += [
+            ("scenario", f"{len(sc.trajectory.t)} samples, {sc.trajectory.t[-1]:.1f} s"),
+            ("parked vehicles", f"{len(sc.parked)} placed, {len(sc.rejected)} left out"),
+            ("world frame", sc.world.proj_string or "local (not geo-referenced)"),
+        ]
+    inputs.append(("runs", str(len(ctx.runs))))
+    parts.append(_table(["input", "value"], inputs, "Inputs"))
+    rows = []
+    for name, rec in manifest.stages.items():
+        seconds = (rec.finished - rec.started).total_seconds()
+        rows.append((name, rec.state, rec.started.strftime("%H:%M:%S"), f"{seconds:.1f}",
+                     rec.message or ""))  # fmt: skip
+        if rec.state == "failed":
+            ctx.warnings.insert(0, f"stage {name} failed: {rec.message or 'no message'}")
+    if rows:
+        parts.append(_table(["stage", "state", "started", "seconds", "message"], rows, "Stages"))
+    else:
+        parts.append(_na("Stage timings", f"cam2sim extract {ctx.ws.root}"))
+    if ctx.scenario is not None:
+        ctx.warnings += [f"left out {r.id}: {'; '.join(r.reasons)}" for r in ctx.scenario.rejected]
+    if ctx.warnings:
+        items = "".join(f"<li>{_e(w)}</li>" for w in ctx.warnings)
+        parts.append(f'<h3>Warnings</h3><ul class="warn">{items}</ul>')
+    else:
+        parts.append("<h3>Warnings</h3><p>none</p>")
+    return "".join(parts)
+
+
+def _figure_bytes(fig: Any) -> bytes:
+    import io  # noqa: PLC0415
+
+    from cam2sim.report.plotting import pyplot  # noqa: PLC0415
+
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
+    pyplot().close(fig)
+    return buffer.getvalue()
+
+
+def _map(ctx: _Context) -> str:
+    if ctx.scenario is None:
+        return _na("The map", f"cam2sim scenario {ctx.ws.root}")
+    from matplotlib.patches import Polygon  # noqa: PLC0415
+
+    from cam2sim.detect.boxes import footprint_corners  # noqa: PLC0415
+    from cam2sim.report.plotting import pyplot  # noqa: PLC0415
+
+    sc = ctx.scenario
+    fig, ax = pyplot().subplots(figsize=(10, 8))
+    xodr = ctx.ws.map_dir / "map.xodr"
+    if xodr.is_file():
+        from cam2sim.map.query import RoadMap  # noqa: PLC0415
+
+        try:
+            road_map = RoadMap.from_xodr(xodr)
+        except Cam2SimError as err:
+            ctx.warnings.append(f"map.xodr unreadable: {err}")
+        else:
+            for lane_type, colour in _LANE_COLOUR.items():
+                for poly in road_map.lane_polygons(lane_type):
+                    for part in getattr(poly, "geoms", [poly]):
+                        ring = np.asarray(part.exterior.coords)
+                        ax.fill(ring[:, 0], ring[:, 1], color=colour, lw=0, zorder=0)
+    route = np.asarray(sc.trajectory.reference)
+    ax.plot(route[:, 0], route[:, 1], color="black", lw=2.5, ls="--", label="recorded route")
+    if sc.parked:
+        quads = footprint_corners(
+            [v.position[:2] for v in sc.parked],
+            [v.heading for v in sc.parked],
+            [v.size[0] for v in sc.parked],
+            [v.size[1] for v in sc.parked],
+        )
+        for quad in quads:
+            ax.add_patch(Polygon(quad, closed=True, facecolor="#4292c6", edgecolor="k", zorder=3))
+        ax.plot([], [], "s", color="#4292c6", label=f"parked ({len(sc.parked)})")
+    cmap = pyplot().get_cmap("tab10")
+    for i, run in enumerate(ctx.runs):
+        xy = ctx.drives[run.name].xy
+        ax.plot(xy[:, 0], xy[:, 1], color=cmap(i % 10), lw=1.2, zorder=4, label=run.name)
+    ax.set_aspect("equal")
+    ax.set_xlabel("east (m)")
+    ax.set_ylabel("north (m)")
+    ax.legend(loc="best", fontsize=7)
+    note = "" if ctx.runs else _na("Run trajectories", f"cam2sim drive {ctx.ws.root}")
+    return _img(_figure_bytes(fig), "map with route, parked cars and runs") + note
+
+
+def _behaviour(ctx: _Context, why: str | None) -> str:
+    ev = ctx.evaluation
+    if ev is None:
+        return _na(f"Behaviour metrics ({why or 'no runs'}):", f"cam2sim drive {ctx.ws.root}")
+    m = ev.metrics
+    rows = []
+    for s in m.methods:
+        ft = s.failure_types
+        rows.append((
+            s.method, s.runs, f"{100 * s.failure_rate:.0f}",
+            f"{s.completion_mean:.2f} ({s.completion_min:.2f}-{s.completion_max:.2f})",
+            f"{ft['out_of_road']}-{ft['collision']}-{ft['oversteer']}-{ft['understeer']}",
+            _fmt(s.avg_min_frechet_m, ".2f"), _fmt(s.avg_corridor_violation_pct, ".1f"),
+            _fmt(s.avg_mean_excess_m, ".3f"), _fmt(s.avg_mean_excess_when_out_m, ".3f"),
+            _fmt(s.avg_jitter, ".3f"),
+        ))  # fmt: skip
+    headers = [
+        "method", "runs", "failure rate %", "completion (min-max)", "failure types OR-CC-OS-US",
+        "Min-Fréchet m", "corridor violations %", "mean excess m", "excess when out m",
+        "steering jitter",
+    ]  # fmt: skip
+    note = (
+        f'<p class="note">Segment {m.segment.length_m:.1f} m '
+        f"(reference {_e(m.segment.reference_run)}), corridor mean width "
+        f"{m.corridor_mean_width_m:.2f} m. Averages over successful runs; "
+        "jitter over all runs. OR out of road, CC collision, OS oversteer, US understeer.</p>"
+    )
+    return _table(headers, rows, "Drive behaviour per method") + note
+
+
+def _runs(ctx: _Context, tmp: Path) -> str:
+    if not ctx.runs:
+        return _na("Runs", f"cam2sim drive {ctx.ws.root}")
+    per_run = {r.name: r for r in ctx.evaluation.metrics.runs} if ctx.evaluation else {}
+    rows = []
+    for run in ctx.runs:
+        meta = ctx.meta[run.name]
+        events = json.loads((run / "events.json").read_text(encoding="utf-8")).get("events", [])
+        kinds = ", ".join(str(e.get("kind")) for e in events) or "-"
+        drv = ctx.drives[run.name]
+        m = per_run.get(drv.name)
+        rows.append((
+            run.name, meta.get("kind", "?"), drv.method, meta.get("policy", "-"),
+            len(drv), f"{float(meta.get('seconds', 0.0)):.2f}", kinds,
+            _fmt(m.completion if m else None, ".2f"), (m.failure or "ok") if m else "-",
+        ))  # fmt: skip
+    headers = ["run", "kind", "method", "policy", "steps", "seconds", "events", "completion",
+               "outcome"]  # fmt: skip
+    parts = [_table(headers, rows, "Runs")]
+    if ctx.evaluation is None:
+        parts.append(_na("Lateral offset and steering plots", f"cam2sim drive {ctx.ws.root}"))
+        return "".join(parts)
+    from cam2sim.report.drive_figures import write_drive_figures  # noqa: PLC0415
+
+    figures = write_drive_figures(ctx.evaluation, tmp)
+    parts += [_img(p.read_bytes(), p.stem.replace("_", " ")) for p in figures[1:]]
+    return "".join(parts)
+
+
+def _evenly(items: Sequence[Path], n: int) -> list[Path]:
+    if len(items) <= n:
+        return list(items)
+    return [items[int(i)] for i in np.linspace(0, len(items) - 1, n).round()]
+
+
+def _jpeg(path: Path, width: int) -> bytes:
+    import cv2  # noqa: PLC0415
+
+    image: npt.NDArray[Any] | None = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        msg = f"{path} is not a readable image"
+        raise OSError(msg)
+    h, w = image.shape[:2]
+    if w > width:
+        image = cv2.resize(
+            image, (width, max(1, round(h * width / w))), interpolation=cv2.INTER_AREA
+        )
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 85])
+    if not ok:
+        msg = f"cannot encode {path}"
+        raise OSError(msg)
+    return bytes(buf.tobytes())
+
+
+def _frame_folder(run: Path) -> Path | None:
+    if any((run / "side_by_side").glob("*.png")):
+        return run / "side_by_side"
+    for folder in sorted((run / "frames").glob("*")):
+        if any(folder.glob("*.png")):
+            return folder
+    return None
+
+
+def _frames(ctx: _Context) -> str:
+    found = [(run, f) for run in ctx.runs if (f := _frame_folder(run)) is not None]
+    if not found:
+        return _na("Frames", f"cam2sim replay {ctx.ws.root} --camera both")
+    parts = []
+    for run, folder in found[-3:]:
+        files = sorted(folder.glob("*.png"))
+        cams = ctx.meta[run.name].get("cameras") or [ctx.meta[run.name].get("camera", "?")]
+        panels = " | ".join(["real (when recorded)", *map(str, cams)])
+        what = f"side by side: {panels}" if folder.name == "side_by_side" else folder.name
+        parts.append(f"<h3>{_e(run.name)}</h3><p class='note'>{_e(what)}</p>")
+        try:
+            for f in _evenly(files, _CHOSEN_FRAMES):
+                img = _img(_jpeg(f, _FRAME_WIDTH), f"frame {f.stem}", mime="image/jpeg")
+                parts.append(f"<figure>{img}<figcaption>frame {_e(f.stem)}</figcaption></figure>")
+            strip = "".join(
+                _img(_jpeg(f, _STRIP_WIDTH), f"strip {f.stem}", mime="image/jpeg", cls="strip")
+                for f in _evenly(files, _STRIP_FRAMES)
+            )
+        except OSError as err:
+            ctx.warnings.append(f"frames of {run.name}: {err}")
+            continue
+        parts.append(f'<p class="note">Video strip</p><div class="strip">{strip}</div>')
+        video = run / "video.mp4"
+        if video.is_file() and video.stat().st_size <= VIDEO_CAP_BYTES:
+            src = _data_uri(video.read_bytes(), "video/mp4")
+            parts.append(f'<video controls muted width="640" src="{src}"></video>')
+        elif video.is_file():
+            parts.append(f'<p class="note">video.mp4 over {VIDEO_CAP_BYTES >> 20} MB: not embedded')
+    return "".join(parts)
+
+
+def _stats_rows(rows: Iterable[tuple[str, MetricStats, str]]) -> list[tuple[str, str, str, int]]:
+    return [(n, _fmt(s.mean, f), _fmt(s.std, f), s.n) for n, s, f in rows]
+
+
+def _found(ctx: _Context, name: str) -> list[Path]:
+    if not ctx.ws.report_dir.is_dir():
+        return []
+    return sorted(p for p in ctx.ws.report_dir.rglob(name) if not p.name.startswith("."))
+
+
+def _semantic(ctx: _Context) -> str:
+    from cam2sim.metrics.semantic import SemanticResult  # noqa: PLC0415
+
+    parts = []
+    for path in _found(ctx, "semantic.json"):
+        try:
+            res = SemanticResult.load(path)
+        except Cam2SimError as err:
+            ctx.warnings.append(f"{path}: {err}")
+            continue
+        s = res.summary
+        rows = [(f"IoU {c}", s.classes[c], ".4f") for c in res.classes]
+        rows.append(("mIoU", s.miou, ".4f"))
+        caption = f"{path.relative_to(ctx.ws.root)}: {len(res.frames)} segmentation pairs"
+        parts.append(_table(["metric", "mean", "std", "n"], _stats_rows(rows), caption))
+    if not parts:
+        return _na(
+            "Semantic IoU", f"cam2sim evaluate semantic REAL SIM -o {ctx.ws.report_dir}/semantic"
+        )
+    return "".join(parts)
+
+
+def _images(ctx: _Context) -> str:
+    from cam2sim.metrics.image_quality import ImageQualityResult  # noqa: PLC0415
+
+    parts = []
+    for path in _found(ctx, "images.json"):
+        try:
+            res = ImageQualityResult.load(path)
+        except Cam2SimError as err:
+            ctx.warnings.append(f"{path}: {err}")
+            continue
+        s = res.summary
+        rows = [("PSNR dB", s["psnr_db"], ".2f"), ("SSIM", s["ssim"], ".4f")]
+        if res.lpips_net is not None and "lpips" in s:
+            rows.append((f"LPIPS {res.lpips_net}", s["lpips"], ".4f"))
+        caption = f"{path.relative_to(ctx.ws.root)}: {len(res.images)} image pairs"
+        parts.append(_table(["metric", "mean", "std", "n"], _stats_rows(rows), caption))
+    if not parts:
+        return _na(
+            "Image quality", f"cam2sim evaluate images REAL SIM -o {ctx.ws.report_dir}/images"
+        )
+    return "".join(parts)
+
+
+# -- the page -----------------------------------------------------------------------------------
+def write_report(
+    ws: Workspace,
+    *,
+    out: Path | None = None,
+    real_runs: Sequence[Path] = (),
+    real_crs: str = "EPSG:32632",
+    progress: ProgressCallback | None = None,
+) -> Path:
+    """Build the self-contained HTML report of a workspace and write it atomically.
+
+    Args:
+        ws: The workspace.
+        out: Output file; default ``WS/report/report.html``.
+        real_runs: Real drives (``trajectory*.csv`` files or folders) the runs are scored
+            against; default ``WS/real/`` if it exists, else the scenario's recorded trajectory.
+        real_crs: CRS of the real drives' x, y.
+        progress: Called as ``progress("report", done, total)``.
+
+    Returns:
+        The path written.
+    """
+    report = progress or no_progress
+    ctx = _Context(ws)
+    total = len(SECTION_IDS) + 1
+    _gather(ctx)
+    why = _evaluate(ctx, real_runs, real_crs)
+    report("report", 1, total)
+    body: dict[str, str] = {}
+    steps: tuple[tuple[str, str, Callable[[], str]], ...]
+    with tempfile.TemporaryDirectory(prefix="cam2sim-report-") as tmp:
+        steps = (
+            ("map", "Map, route and trajectories", lambda: _map(ctx)),
+            ("behaviour", "Behaviour", lambda: _behaviour(ctx, why)),
+            ("runs", "Runs", lambda: _runs(ctx, Path(tmp))),
+            ("frames", "Frames: real | splat | simulator", lambda: _frames(ctx)),
+            ("semantic", "Semantic IoU", lambda: _semantic(ctx)),
+            ("images", "Image quality", lambda: _images(ctx)),
+        )
+        for k, (sid, title, build) in enumerate(steps, start=2):
+            body[sid] = _section(sid, title, build())
+            report("report", k, total)
+    body["summary"] = _section("summary", "Pipeline summary", _summary(ctx))
+    report("report", total, total)
+    nav = "".join(f'<a href="#{sid}">{sid}</a>' for sid in SECTION_IDS)
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    page = (
+        '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
+        f"<title>cam2sim report: {_e(ws.root.name)}</title><style>{_CSS}</style></head><body>"
+        f"<header><h1>cam2sim report: {_e(ws.root.name)}</h1>"
+        f"<div>generated {stamp} by cam2sim {_e(__version__)}</div></header><nav>{nav}</nav>"
+        + "".join(body[sid] for sid in SECTION_IDS)
+        + "</body></html>\n"
+    )
+    path = out if out is not None else ws.report_dir / "report.html"
+    write_text_atomic(path, page)
+    return path

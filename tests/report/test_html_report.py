@@ -1,0 +1,161 @@
+"""The HTML report: self-contained, every section present, renders in headless Chromium."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from cam2sim.cli.report_cmd import report
+from cam2sim.core.config import Config, RecordingConfig
+from cam2sim.core.workspace import Workspace
+from cam2sim.report.html import SECTION_IDS, write_report
+from cam2sim.scenario.synthetic import StreetSpec, synthetic_street
+from cam2sim.stages.runs import DriveOptions, ReplayOptions, drive, replay
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+# Attributes that make a browser fetch something; every value must be a data URI or a fragment.
+RESOURCE = re.compile(r"""\b(?:src|href|poster|data|action)\s*=\s*["']?([^"'\s>]*)""")
+
+
+def _egl() -> bool:
+    try:
+        import moderngl
+
+        moderngl.create_context(standalone=True, backend="egl").release()  # type: ignore[arg-type]
+    except Exception:  # noqa: BLE001 - any failure means no headless GL here
+        return False
+    return True
+
+
+def _workspace(root: Path) -> Workspace:
+    ws = Workspace.create(root, Config(recording=RecordingConfig(bags=[str(root / "none")])))
+    scenario, xodr = synthetic_street(StreetSpec(length_m=30.0, radius_m=60.0))
+    ws.map_dir.mkdir(parents=True, exist_ok=True)
+    (ws.map_dir / "map.xodr").write_text(xodr, encoding="utf-8")
+    ws.scenario_dir.mkdir(parents=True, exist_ok=True)
+    scenario.save(ws.scenario_dir / "scenario.json")
+    return ws
+
+
+def _image_metrics(ws: Workspace, frames: Path) -> None:
+    """Score the replay's frames against themselves: the images and semantic JSON artifacts."""
+    from cam2sim.metrics.image_quality import (
+        ImageQualityOptions,
+        evaluate_image_folders,
+        write_image_quality,
+    )
+    from cam2sim.metrics.semantic import evaluate_semantic_folders
+
+    quality = evaluate_image_folders(frames, frames, options=ImageQualityOptions(lpips_net=None))
+    write_image_quality(quality, ws.report_dir / "images")
+    evaluate_semantic_folders(frames, frames).save(ws.report_dir / "semantic" / "semantic.json")
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspace, Path, bool]:
+    ws = _workspace(tmp_path_factory.mktemp("report") / "ws")
+    drive(ws, options=DriveOptions(camera="none", runs=2))
+    rendered = _egl()
+    if rendered:
+        run = replay(ws, options=ReplayOptions(cameras=("raster",), image_size=(160, 100)))
+        _image_metrics(ws, run.folder / "frames" / "raster")
+    calls: list[tuple[str, int, int | None]] = []
+    path = write_report(ws, progress=lambda *a: calls.append(a))
+    assert calls[-1][1] == calls[-1][2]
+    return ws, path, rendered
+
+
+def _no_external_resources(html: str) -> None:
+    assert "http://" not in html
+    assert "https://" not in html
+    assert RESOURCE.findall(html)
+    assert [v for v in RESOURCE.findall(html) if not v.startswith(("data:", "#"))] == []
+    assert "url(" not in html
+
+
+def test_report_embeds_every_section_and_no_external_resource(
+    built: tuple[Workspace, Path, bool],
+) -> None:
+    ws, path, rendered = built
+    assert path == ws.report_dir / "report.html"
+    html = path.read_text(encoding="utf-8")
+    for sid in SECTION_IDS:
+        assert html.count(f'<section id="{sid}">') == 1
+    _no_external_resources(html)
+    assert html.count('src="data:image/png;base64,') >= 3  # map, lateral offset, steering
+    assert "drive-none" in html  # the behaviour table's method row
+    assert "Min-Fréchet" in html
+    assert not list(ws.report_dir.glob(".*.tmp"))
+    if rendered:
+        assert 'src="data:image/jpeg;base64,' in html  # chosen frames and the strip
+        assert 'src="data:video/mp4;base64,' in html
+        assert "mIoU" in html
+        assert "PSNR dB" in html
+        assert "not available" not in html.split('id="frames"')[1]
+    else:
+        assert "cam2sim replay" in html
+
+
+def test_a_bare_workspace_says_what_to_run_in_every_section(tmp_path: Path) -> None:
+    ws = Workspace.create(tmp_path / "ws", Config(recording=RecordingConfig(bags=["x.bag"])))
+    out = tmp_path / "elsewhere" / "r.html"
+    result = CliRunner().invoke(_app(), [str(ws.root), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert str(out) in result.output.replace("\n", "")
+    html = out.read_text(encoding="utf-8")
+    sections = re.findall(r'<section id="(\w+)">(.*?)</section>', html, re.DOTALL)
+    assert [s for s, _ in sections] == list(SECTION_IDS)
+    for sid, body in sections[1:]:
+        assert "not available: run <code>cam2sim " in body, sid
+    _no_external_resources(html)
+
+
+def _app() -> typer.Typer:
+    app = typer.Typer()
+    app.command()(report)
+    return app
+
+
+def test_report_renders_in_headless_chromium(
+    built: tuple[Workspace, Path, bool], tmp_path: Path
+) -> None:
+    if not CHROMIUM.is_file():
+        pytest.skip(f"{CHROMIUM} not installed")
+    sync_api = pytest.importorskip("playwright.sync_api")
+    _, path, _ = built
+    errors: list[str] = []
+    requests: list[str] = []
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 900})
+            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+            page.on("pageerror", lambda err: errors.append(str(err)))
+            page.on("request", lambda r: requests.append(r.url))
+            page.goto(path.as_uri(), wait_until="load")
+            for sid in SECTION_IDS:
+                assert page.locator(f"section#{sid}").is_visible(), sid
+            loaded = page.evaluate(
+                "Array.from(document.images).every(i => i.complete && i.naturalWidth > 0)"
+            )
+            page.screenshot(path=str(tmp_path / "report.png"), full_page=True)
+        finally:
+            browser.close()
+    assert errors == []
+    assert loaded
+    assert all(u.startswith(("file:", "data:")) for u in requests), requests
+    assert (tmp_path / "report.png").stat().st_size > 10_000
