@@ -345,6 +345,10 @@ def test_calibration_fit_recovers_k_on_synthetic_data() -> None:
     assert cal.samples > 500
     with pytest.raises(ConfigError, match="curvature_per_unit"):
         fit_steering_calibration(t[:100], steer[:100], stamp[:100], xy[:100], h[:100], v[:100])
+    # A signal that does not steer this drive (another signal, or not synchronised) is refused.
+    unrelated = np.random.default_rng(9).normal(0.0, 1.0, steer.shape)
+    with pytest.raises(ConfigError, match="does not explain"):
+        fit_steering_calibration(t, unrelated, stamp, xy, h, v)
 
 
 @pytest.mark.skipif(not DRIVES.is_dir(), reason="shared reference drives not present")

@@ -40,6 +40,7 @@ def _register_subcommands() -> None:
     from cam2sim.cli.map_cmd import map_  # noqa: PLC0415
     from cam2sim.cli.report_cmd import report  # noqa: PLC0415
     from cam2sim.cli.run_cmd import drive, replay  # noqa: PLC0415
+    from cam2sim.cli.run_pipeline_cmd import run  # noqa: PLC0415
     from cam2sim.cli.scenario_cmd import scenario  # noqa: PLC0415
     from cam2sim.cli.splat_cmd import splat  # noqa: PLC0415
 
@@ -50,6 +51,7 @@ def _register_subcommands() -> None:
     app.command("replay")(replay)
     app.command("drive")(drive)
     app.command("report")(report)
+    app.command("run")(run)
     app.command("splat")(splat)
     app.add_typer(evaluate_app, name="evaluate")
     app.add_typer(ads_app, name="ads")

@@ -153,6 +153,9 @@ def _window_mean(values: npt.NDArray[np.float64], half: int) -> npt.NDArray[np.f
     return out
 
 
+_MIN_CALIBRATION_CORR = 0.5  # steering must explain the curvature to calibrate it
+
+
 def fit_steering_calibration(  # noqa: PLR0913
     t_steer: npt.ArrayLike,
     steering: npt.ArrayLike,
@@ -243,6 +246,14 @@ def fit_steering_calibration(  # noqa: PLR0913
     inl = np.abs(res) <= 3.0 * scale if scale > 0 else np.ones_like(res, dtype=bool)
     coef = np.linalg.lstsq(a[inl], y[inl], rcond=None)[0]
     res = y[inl] - a[inl] @ coef
+    corr = float(np.corrcoef(x[inl], y[inl])[0, 1]) if inl.sum() > 2 else 0.0
+    if not (np.isfinite(coef[0]) and coef[0] > 0 and corr >= _MIN_CALIBRATION_CORR):
+        msg = (
+            f"the recorded steering does not explain the path's curvature (slope {coef[0]:.3g} "
+            f"1/m per unit, correlation {corr:.2f}); it may be another signal or unsynchronised "
+            "(give curvature_per_unit instead)"
+        )
+        raise ConfigError(msg)
     return SteeringCalibration(
         curvature_per_unit=float(coef[0]),
         offset=float(coef[1]),

@@ -1,0 +1,503 @@
+"""``cam2sim run``: every stage in order, resuming where an earlier run stopped.
+
+The pipeline calls the stage functions (extract, map, detect, scenario, splat, ads, replay,
+drive, evaluate, report) with defaults. Stages that record themselves in the manifest skip on
+their own when up to date; the pipeline notices (their record did not change) and reports them
+``up_to_date``. Replay and drive write a new run folder each time, so the pipeline remembers the
+runs it made in ``WS/runs/pipeline.json`` with the inputs they were made from, and makes them
+again only when the scenario or the options changed (or a run folder disappeared).
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Final, Literal
+
+from cam2sim.core.errors import ConfigError, StageError
+from cam2sim.core.files import write_text_atomic
+from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.workspace import hash_inputs
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from pathlib import Path
+
+    from cam2sim.core.workspace import Workspace
+    from cam2sim.stages.runs import CameraName
+    from cam2sim.stages.splat import SplatStageOptions
+
+__all__ = [
+    "STEPS",
+    "PipelineOptions",
+    "PipelineResult",
+    "StepOutcome",
+    "StepState",
+    "run_pipeline",
+    "small_splat_options",
+]
+
+logger = logging.getLogger(__name__)
+
+STEPS: Final = (
+    "extract",
+    "map",
+    "detect",
+    "scenario",
+    "splat",
+    "ads",
+    "replay",
+    "drive",
+    "evaluate",
+    "report",
+)
+StepState = Literal["done", "skipped", "up_to_date", "failed", "not_applicable"]
+STATE_FILE: Final = "pipeline.json"
+DRIVE_EVAL_DIR: Final = "drive"
+
+
+@dataclass(frozen=True)
+class PipelineOptions:
+    """What ``cam2sim run`` does.
+
+    Attributes:
+        osm: OSM file for the map; None downloads the route's area from Overpass.
+        steps: Steps to run, a subset of :data:`STEPS` (order is always the pipeline's).
+        skip: Steps not to run (applied after ``steps``).
+        detect_model: Camera detector for recordings without LiDAR; None: detect only from
+            LiDAR (``detect`` is not applicable without it).
+        policy: Drive policy; None: the DAVE-2 ONNX of the ads step when there is one, else
+            ``pure-pursuit``.
+        cameras: Cameras for replay and drive; None: ``raster``, plus ``splat`` when splat
+            models exist. ``("none",)`` renders nothing (fast; pure-pursuit only).
+        runs: Drive runs per camera.
+        splat: Splat options; None: the defaults on CUDA, :func:`small_splat_options` on CPU.
+        splat_on_cpu: Train splats without a GPU (slow even with the small preset); False makes
+            ``splat`` not applicable there.
+        steering_signal: Signal the ads step trains on; None: ``steering``, else the first
+            signal whose name holds ``steer``.
+        continue_on_error: Go on after a failed step (later steps may then fail too).
+    """
+
+    osm: Path | None = None
+    steps: tuple[str, ...] = STEPS
+    skip: tuple[str, ...] = ()
+    detect_model: str | None = None
+    policy: str | None = None
+    cameras: tuple[CameraName, ...] | None = None
+    runs: int = 3
+    splat: SplatStageOptions | None = None
+    splat_on_cpu: bool = True
+    steering_signal: str | None = None
+    continue_on_error: bool = False
+
+    def __post_init__(self) -> None:
+        unknown = sorted((set(self.steps) | set(self.skip)) - set(STEPS))
+        if unknown:
+            msg = f"unknown step(s) {', '.join(unknown)}; choose from {', '.join(STEPS)}"
+            raise ConfigError(msg)
+        cameras = sorted(set(self.cameras or ()) - {"raster", "splat", "carla", "none"})
+        if cameras:
+            msg = f"unknown camera(s) {', '.join(cameras)}; choose from raster, splat, none"
+            raise ConfigError(msg)
+        if self.runs < 1:
+            msg = f"runs must be >= 1, got {self.runs}"
+            raise ConfigError(msg)
+
+    def wants(self, step: str) -> bool:
+        """Whether ``step`` is selected."""
+        return step in self.steps and step not in self.skip
+
+
+@dataclass(frozen=True)
+class StepOutcome:
+    """What one step did.
+
+    Attributes:
+        name: The step (one of :data:`STEPS`).
+        state: ``done`` (ran), ``up_to_date`` (nothing to do), ``skipped`` (not selected, or
+            an earlier step failed), ``not_applicable`` (the recording does not allow it) or
+            ``failed``.
+        seconds: Wall time of the step.
+        message: Why (not applicable, skipped, failed) or what it produced.
+    """
+
+    name: str
+    state: StepState
+    seconds: float = 0.0
+    message: str = ""
+
+
+@dataclass(frozen=True)
+class PipelineResult:
+    """Every step's outcome, in order, and the report's path when one was written."""
+
+    outcomes: tuple[StepOutcome, ...]
+    report: Path | None = None
+
+    @property
+    def failed(self) -> bool:
+        """Whether a step failed."""
+        return any(o.state == "failed" for o in self.outcomes)
+
+    def outcome(self, name: str) -> StepOutcome:
+        """The outcome of step ``name``."""
+        for o in self.outcomes:
+            if o.name == name:
+                return o
+        msg = f"no step {name!r}; steps are {', '.join(STEPS)}"
+        raise KeyError(msg)
+
+
+def small_splat_options() -> SplatStageOptions:
+    """A CPU-sized splat preset: few training steps on quarter-size images, no LPIPS."""
+    from cam2sim.splat.train import TrainOptions  # noqa: PLC0415
+    from cam2sim.stages.splat import SplatStageOptions  # noqa: PLC0415
+
+    train = TrainOptions(max_steps=500, min_steps=200, val_every=100, downscale=4)
+    return SplatStageOptions(train=train, offsets_m=(-1.0, 1.0))
+
+
+class _NotApplicableError(Exception):
+    """A step the recording or the machine does not allow (the message says why)."""
+
+
+@dataclass
+class _Step:
+    """A step's verdict, filled in by the step."""
+
+    up_to_date: bool = False
+    message: str = ""
+
+
+@dataclass
+class _Pipeline:
+    ws: Workspace
+    options: PipelineOptions
+    progress: ProgressCallback
+    report: Path | None = None
+    state: dict[str, Any] = field(default_factory=dict)
+
+    # -- bookkeeping ------------------------------------------------------------------------
+    def _finished(self, stage: str) -> object:
+        record = self.ws.stage_record(stage)
+        return None if record is None else (record.state, record.finished)
+
+    def _recorded(self, stage: str, call: Callable[[], object], step: _Step) -> None:
+        """Run a self-recording stage; up to date when its record did not change."""
+        before = self._finished(stage)
+        call()
+        step.up_to_date = before is not None and self._finished(stage) == before
+
+    def _state_path(self) -> Path:
+        return self.ws.runs_dir / STATE_FILE
+
+    def _load_state(self) -> None:
+        path = self._state_path()
+        try:
+            self.state = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
+        except (OSError, ValueError):
+            logger.warning("%s is unreadable; replay and drive run again", path)
+            self.state = {}
+
+    def _save_state(self) -> None:
+        self.ws.runs_dir.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(self._state_path(), json.dumps(self.state, indent=1) + "\n")
+
+    def _runs_current(self, key: str, inputs: str) -> list[str] | None:
+        entry = self.state.get(key)
+        if not isinstance(entry, dict) or entry.get("inputs") != inputs:
+            return None
+        runs = [str(r) for r in entry.get("runs", [])]
+        if not runs or not all((self.ws.runs_dir / r / "trajectory.csv").is_file() for r in runs):
+            return None
+        return runs
+
+    def _scenario_hash(self) -> str | None:
+        record = self.ws.stage_record("scenario")
+        return None if record is None or record.state != "done" else record.inputs_hash
+
+    def _dataset_info(self) -> Any:
+        from cam2sim.core.dataset import DatasetInfo  # noqa: PLC0415
+        from cam2sim.core.workspace import dataset_paths  # noqa: PLC0415
+
+        path = dataset_paths(self.ws.dataset_dir).dataset_json
+        if not path.is_file():
+            msg = f"{self.ws.root} has no dataset; the extract step must run first"
+            raise StageError(msg)
+        return DatasetInfo.load(path)
+
+    def _cameras(self) -> tuple[CameraName, ...]:
+        if self.options.cameras is not None:
+            return self.options.cameras
+        models = self.ws.splat_dir / "models"
+        has_splat = models.is_dir() and any(models.glob("chunk_*.pt"))
+        return ("raster", "splat") if has_splat else ("raster",)
+
+    # -- steps ------------------------------------------------------------------------------
+    def extract(self, step: _Step) -> None:
+        from cam2sim.stages.extract import extract  # noqa: PLC0415
+
+        self._recorded("extract", lambda: extract(self.ws, progress=self.progress), step)
+
+    def map(self, step: _Step) -> None:
+        from cam2sim.stages.map import MapOptions, build_map  # noqa: PLC0415
+
+        osm = self.options.osm
+        if osm is not None and not osm.is_file():
+            msg = (
+                f"OSM file {osm} does not exist; pass an existing .osm or .osm.pbf file with "
+                "--osm, or leave --osm out to download the area from the Overpass API"
+            )
+            raise StageError(msg)
+        opts = MapOptions(osm=osm)
+        self._recorded(
+            "map", lambda: build_map(self.ws, options=opts, progress=self.progress), step
+        )
+
+    def detect(self, step: _Step) -> None:
+        from cam2sim.stages.detect import DetectOptions, run_detect  # noqa: PLC0415
+
+        info = self._dataset_info()
+        if info.counts.lidar_scans == 0 and self.options.detect_model is None:
+            msg = "no LiDAR scans and no camera detector (pass --detect-model to detect in images)"
+            raise _NotApplicableError(msg)
+        opts = DetectOptions(model=self.options.detect_model)
+        self._recorded(
+            "detect", lambda: run_detect(self.ws, options=opts, progress=self.progress), step
+        )
+
+    def scenario(self, step: _Step) -> None:
+        from cam2sim.stages.scenario import run_scenario  # noqa: PLC0415
+
+        self._recorded("scenario", lambda: run_scenario(self.ws, progress=self.progress), step)
+
+    def splat(self, step: _Step) -> None:
+        from cam2sim.stages.splat import run_splat  # noqa: PLC0415
+
+        opts = self.options.splat
+        if opts is None:
+            import torch  # noqa: PLC0415
+
+            if not torch.cuda.is_available():
+                if not self.options.splat_on_cpu:
+                    msg = "no CUDA GPU, and splat training on the CPU is turned off"
+                    raise _NotApplicableError(msg)
+                opts = small_splat_options()
+                step.message = "no CUDA GPU: trained the small CPU preset"
+        self._recorded(
+            "splat", lambda: run_splat(self.ws, options=opts, progress=self.progress), step
+        )
+
+    def _steering_signal(self) -> str | None:
+        if self.options.steering_signal is not None:
+            return self.options.steering_signal
+        names = [n for n, c in self._dataset_info().counts.signals.items() if c > 0]
+        if "steering" in names:
+            return "steering"
+        return next((n for n in names if "steer" in n.lower()), None)
+
+    def ads(self, step: _Step) -> None:
+        from cam2sim.ads.train import TrainOptions  # noqa: PLC0415
+        from cam2sim.stages.ads import TRAIN_STAGE, export_ads, train_ads  # noqa: PLC0415
+
+        if self.options.policy is not None:
+            msg = f"a policy was given ({self.options.policy}); no model is trained"
+            raise _NotApplicableError(msg)
+        signal = self._steering_signal()
+        if signal is None:
+            msg = "the recording has no steering signal (name a signal 'steering' in config.yaml)"
+            raise _NotApplicableError(msg)
+        opts = TrainOptions(signal=signal)
+        self._recorded(
+            TRAIN_STAGE, lambda: train_ads(self.ws, options=opts, progress=self.progress), step
+        )
+        onnx = self.ws.ads_dir / "dave2.onnx"
+        if step.up_to_date and onnx.is_file():
+            return
+        step.up_to_date = False
+        step.message = f"wrote {export_ads(self.ws, progress=self.progress).path}"
+
+    def _policy(self) -> str:
+        if self.options.policy is not None:
+            return self.options.policy
+        onnx = self.ws.ads_dir / "dave2.onnx"
+        return str(onnx) if onnx.is_file() and self.options.wants("ads") else "pure-pursuit"
+
+    def replay(self, step: _Step) -> None:
+        from cam2sim.stages.runs import ReplayOptions, replay  # noqa: PLC0415
+
+        opts = ReplayOptions(cameras=self._cameras())
+        inputs = hash_inputs({"scenario": self._scenario_hash(), "options": repr(opts)})
+        runs = self._runs_current("replay", inputs)
+        if runs is not None:
+            step.up_to_date = True
+            step.message = runs[0]
+            return
+        result = replay(self.ws, options=opts, progress=self.progress)
+        self.state["replay"] = {"inputs": inputs, "runs": [result.run_id]}
+        self._save_state()
+        step.message = result.run_id
+
+    def drive(self, step: _Step) -> None:
+        from cam2sim.stages.runs import DriveOptions, drive  # noqa: PLC0415
+
+        policy = self._policy()
+        all_opts = [
+            DriveOptions(policy=policy, camera=cam, runs=self.options.runs)
+            for cam in self._cameras()
+        ]
+        inputs = hash_inputs(
+            {"scenario": self._scenario_hash(), "options": [repr(o) for o in all_opts]}
+        )
+        runs = self._runs_current("drive", inputs)
+        if runs is None:
+            runs = [
+                r.run_id
+                for opts in all_opts
+                for r in drive(self.ws, options=opts, progress=self.progress)
+            ]
+            self.state["drive"] = {"inputs": inputs, "runs": runs}
+            self._save_state()
+        else:
+            step.up_to_date = True
+        cams = ", ".join(self._cameras())
+        step.message = f"{len(runs)} run(s), policy {policy}, camera {cams}"
+
+    def evaluate(self, step: _Step) -> None:
+        runs = [str(r) for r in self.state.get("drive", {}).get("runs", [])]
+        if not runs:
+            msg = "no drive runs to evaluate; the drive step must run first"
+            raise StageError(msg)
+        out = self.ws.report_dir / DRIVE_EVAL_DIR
+        inputs = hash_inputs({"scenario": self._scenario_hash(), "runs": runs})
+        if (
+            self.state.get("evaluate", {}).get("inputs") == inputs
+            and (out / "metrics.json").is_file()
+        ):
+            step.up_to_date = True
+            step.message = str(out / "metrics.json")
+            return
+        evaluate_workspace_drives(self.ws, runs, out)
+        self.state["evaluate"] = {"inputs": inputs}
+        self._save_state()
+        step.message = str(out / "metrics.json")
+
+    def report_step(self, step: _Step) -> None:
+        try:
+            module = importlib.import_module("cam2sim.report.html")  # written by its own worker
+        except ImportError:
+            msg = "report module missing (cam2sim.report.html)"
+            raise _NotApplicableError(msg) from None
+        path: Any = module.write_report(self.ws)
+        if path is not None:
+            self.report = path
+            step.message = str(path)
+
+
+def evaluate_workspace_drives(ws: Workspace, run_ids: list[str], out: Path) -> Path:
+    """Score drive runs against the recorded drive; write ``out/metrics.json`` and figures.
+
+    The recorded drive is the scenario's reference trajectory (the point runs are recorded at).
+
+    Returns:
+        The ``metrics.json`` path.
+    """
+    import numpy as np  # noqa: PLC0415
+
+    from cam2sim.metrics.drive_io import DriveRun, load_run_dir  # noqa: PLC0415
+    from cam2sim.metrics.drive_quality import evaluate_drives  # noqa: PLC0415
+    from cam2sim.report.drive_figures import write_drive_figures  # noqa: PLC0415
+    from cam2sim.scenario.model import Scenario  # noqa: PLC0415
+
+    path = ws.scenario_dir / "scenario.json"
+    if not path.is_file():
+        msg = f"{ws.root} has no scenario; run `cam2sim scenario {ws.root}` first"
+        raise StageError(msg)
+    sc = Scenario.load(path)
+    tr = sc.trajectory
+    real = DriveRun(
+        name="real/recorded",
+        method="real",
+        real=True,
+        t=np.asarray(tr.t, dtype=np.float64),
+        xy=np.asarray(tr.reference, dtype=np.float64)[:, :2],
+        crs=sc.world.proj_string,
+        source=str(path),
+    )
+    sims = [load_run_dir(ws.runs_dir / r) for r in run_ids]
+    ev = evaluate_drives([real], sims)
+    out.mkdir(parents=True, exist_ok=True)
+    ev.metrics.save(out / "metrics.json")
+    ev.metrics.segment.save(out / "segment.json")
+    write_drive_figures(ev, out)
+    return out / "metrics.json"
+
+
+def run_pipeline(
+    ws: Workspace,
+    *,
+    options: PipelineOptions | None = None,
+    progress: ProgressCallback | None = None,
+) -> PipelineResult:
+    """Run every selected step in order; up-to-date steps skip, so a re-run resumes.
+
+    A failing step is recorded ``failed`` with its message; the steps after it are ``skipped``
+    unless ``options.continue_on_error``. An interruption (``KeyboardInterrupt``) propagates and
+    leaves the finished steps in place for the next run.
+
+    Args:
+        ws: The workspace (created by ``cam2sim init``).
+        options: Steps and their options; defaults run everything.
+        progress: Receives a ``pipeline`` task (steps done of all) and each stage's tasks.
+    """
+    opts = options or PipelineOptions()
+    report = progress or no_progress
+    pipe = _Pipeline(ws, opts, report)
+    pipe._load_state()  # noqa: SLF001 - the class is this module's own
+    handlers: dict[str, Callable[[_Step], None]] = {
+        "extract": pipe.extract,
+        "map": pipe.map,
+        "detect": pipe.detect,
+        "scenario": pipe.scenario,
+        "splat": pipe.splat,
+        "ads": pipe.ads,
+        "replay": pipe.replay,
+        "drive": pipe.drive,
+        "evaluate": pipe.evaluate,
+        "report": pipe.report_step,
+    }
+    outcomes: list[StepOutcome] = []
+    stopped: str | None = None
+    for i, name in enumerate(STEPS):
+        report("pipeline", i, len(STEPS))
+        if not opts.wants(name):
+            outcomes.append(StepOutcome(name, "skipped", 0.0, "not selected"))
+            continue
+        if stopped is not None:
+            outcomes.append(StepOutcome(name, "skipped", 0.0, f"{stopped} failed"))
+            continue
+        outcomes.append(_run_step(name, handlers[name]))
+        logger.info("step %s: %s", name, outcomes[-1].state)
+        if outcomes[-1].state == "failed" and not opts.continue_on_error:
+            stopped = name
+    report("pipeline", len(STEPS), len(STEPS))
+    return PipelineResult(tuple(outcomes), pipe.report)
+
+
+def _run_step(name: str, handler: Callable[[_Step], None]) -> StepOutcome:
+    step = _Step()
+    started = time.perf_counter()
+    try:
+        handler(step)
+    except _NotApplicableError as err:
+        return StepOutcome(name, "not_applicable", time.perf_counter() - started, str(err))
+    except Exception as err:  # noqa: BLE001 - every step failure is recorded, not raised
+        seconds = time.perf_counter() - started
+        text = str(err) or type(err).__name__
+        return StepOutcome(name, "failed", seconds, text)
+    state: StepState = "up_to_date" if step.up_to_date else "done"
+    return StepOutcome(name, state, time.perf_counter() - started, step.message)

@@ -1,0 +1,243 @@
+"""``cam2sim run`` end to end: a small bag and a local OSM file through every fast step."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pytest
+from pyproj import Transformer
+
+from cam2sim.core.config import (
+    CameraConfig,
+    Config,
+    IntrinsicsConfig,
+    LidarConfig,
+    MountConfig,
+    PoseConfig,
+    RecordingConfig,
+    SignalConfig,
+    TopicsConfig,
+)
+from cam2sim.core.errors import ConfigError
+from cam2sim.core.frames import Pose
+from cam2sim.core.workspace import Workspace
+from cam2sim.detect.synthetic import Ground, LidarModel, SceneBox, StreetScene, scan_scene
+from cam2sim.map.convert import has_carla
+from cam2sim.recording.bagwriter import BagWriter
+from cam2sim.recording.pointcloud import pointcloud_message_fields
+from cam2sim.stages.pipeline import PipelineOptions, PipelineResult, run_pipeline
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+pytestmark = pytest.mark.skipif(not has_carla(), reason="the map step needs carla")
+
+UTM32N = "EPSG:32632"
+E0, N0 = 691_000.0, 5_336_000.0  # Munich, UTM 32N
+SPEED = 5.0  # m/s along +easting
+DURATION_S = 8.0
+LIDAR_HZ = 2.0
+MOUNT = (0.5, 0.0, 1.8)
+LANE_M = 3.5  # the car drives in the right lane of a two-lane street centred on N0 + LANE_M / 2
+CARS = np.array([[14.0, -3.9, 0.0], [24.0, -3.9, 0.03], [32.0, -4.0, -0.02]])
+FAST = ("extract", "map", "detect", "scenario", "replay", "drive", "evaluate")
+
+
+def _lidar_cloud(w: BagWriter, scene: StreetScene, t: float, i: int) -> dict[str, object]:
+    sensor = Pose(np.array([SPEED * t + MOUNT[0], MOUNT[1], MOUNT[2]]), np.array([0, 0, 0, 1.0]))
+    pts = scan_scene(scene, sensor, lidar=LidarModel(beams=16, azimuths=600), seed=i).points
+    cloud = np.zeros(
+        pts.shape[0], dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")]
+    )
+    for k, name in enumerate(("x", "y", "z", "intensity")):
+        cloud[name] = pts[:, k]
+    fields: dict[str, Any] = dict(pointcloud_message_fields(cloud))
+    fields["fields"] = [w.message("sensor_msgs/msg/PointField", f) for f in fields["fields"]]
+    return fields
+
+
+def _write_bag(path: Path) -> None:
+    cars = tuple(
+        SceneBox(center=(float(x), float(y), 0.75), size=(4.5, 1.85, 1.5), yaw=float(yaw))
+        for x, y, yaw in CARS
+    )
+    scene = StreetScene(ground=Ground(road_half_width_m=5.0), cars=cars)
+    t0 = 1_700_000_000_000_000_000
+    odom_ns = t0 + np.arange(0, int(DURATION_S * 50)) * 20_000_000
+    lidar_ns = t0 + 100_000_000 + np.arange(0, int((DURATION_S - 0.5) * LIDAR_HZ)) * 500_000_000
+    steer_ns = t0 + np.arange(0, int(DURATION_S * 20)) * 50_000_000
+    events = [(int(s), "odom", i) for i, s in enumerate(odom_ns)]
+    events += [(int(s), "lidar", i) for i, s in enumerate(lidar_ns)]
+    events += [(int(s) + 1_000_000, "cam", i) for i, s in enumerate(lidar_ns)]
+    events += [(int(s), "steer", i) for i, s in enumerate(steer_ns)]
+    events.sort()
+    with BagWriter(path, "mcap") as w:
+        for stamp, kind, i in events:
+            t = (stamp - t0) / 1e9
+            header = {"stamp": stamp, "frame_id": kind}
+            if kind == "odom":
+                position = {"x": E0 + SPEED * t, "y": N0}
+                pose = {
+                    "position": position,
+                    "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
+                }
+                fields = {"header": header, "child_frame_id": "base_link", "pose": {"pose": pose}}
+                w.write_fields("/odom", "nav_msgs/msg/Odometry", fields, receive_ns=stamp)
+            elif kind == "lidar":
+                cloud = {"header": header, **_lidar_cloud(w, scene, t, i)}
+                w.write_fields("/lidar", "sensor_msgs/msg/PointCloud2", cloud, receive_ns=stamp)
+            elif kind == "steer":
+                value = {"data": float(np.sin(t))}
+                w.write_fields("/steering", "std_msgs/msg/Float64", value, receive_ns=stamp)
+            else:
+                image = {"header": header, "height": 4, "width": 4, "encoding": "rgb8", "step": 12}
+                image["data"] = np.full(48, i % 255, dtype=np.uint8)
+                w.write_fields("/camera", "sensor_msgs/msg/Image", image, receive_ns=stamp)
+
+
+def _write_osm(path: Path) -> None:
+    """A two-lane residential street along the route, 150 m beyond either end."""
+    to_wgs84 = Transformer.from_crs(UTM32N, "EPSG:4326", always_xy=True)
+    north = N0 + LANE_M / 2
+    east = E0 + np.array([-150.0, -50.0, 50.0, 150.0, 200.0])
+    lon, lat = to_wgs84.transform(east, np.full(east.shape, north))
+    lon_box, lat_box = to_wgs84.transform([E0 - 250.0, E0 + 300.0], [N0 - 200.0, N0 + 200.0])
+    nodes = "\n".join(
+        f'  <node id="{k + 1}" lat="{la:.8f}" lon="{lo:.8f}" version="1"/>'
+        for k, (la, lo) in enumerate(zip(lat, lon, strict=True))
+    )
+    refs = "\n".join(f'    <nd ref="{k + 1}"/>' for k in range(east.size))
+    path.write_text(
+        f"""<?xml version="1.0" encoding="UTF-8"?>
+<osm version="0.6" generator="cam2sim test">
+  <bounds minlat="{min(lat_box):.8f}" minlon="{min(lon_box):.8f}" \
+maxlat="{max(lat_box):.8f}" maxlon="{max(lon_box):.8f}"/>
+{nodes}
+  <way id="100" version="1">
+{refs}
+    <tag k="highway" v="residential"/>
+    <tag k="lanes" v="2"/>
+    <tag k="width" v="{2 * LANE_M}"/>
+    <tag k="name" v="Teststraße"/>
+  </way>
+</osm>
+""",
+        encoding="utf-8",
+    )
+
+
+def _config(bag: Path) -> Config:
+    return Config(
+        recording=RecordingConfig(bags=[str(bag)]),
+        topics=TopicsConfig(
+            camera="/camera",
+            pose="/odom",
+            lidar="/lidar",
+            signals={"steer_cmd": SignalConfig(topic="/steering")},
+        ),
+        pose=PoseConfig(crs=UTM32N),
+        lidar=LidarConfig(mount=MountConfig(xyz=MOUNT, rpy_deg=(0.0, 0.0, 0.0))),
+        camera=CameraConfig(
+            intrinsics=IntrinsicsConfig(fx=4.0, fy=4.0, cx=2.0, cy=2.0, width=4, height=4)
+        ),
+    )
+
+
+def _states(result: PipelineResult) -> dict[str, str]:
+    return {o.name: o.state for o in result.outcomes}
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    root = tmp_path_factory.mktemp("pipeline")
+    _write_bag(root / "street")
+    _write_osm(root / "street.osm")
+    return root / "street", root / "street.osm"
+
+
+def _fast(osm: Path, **kw: Any) -> PipelineOptions:
+    return replace(PipelineOptions(osm=osm, steps=FAST, cameras=("none",), runs=1), **kw)
+
+
+def test_pipeline_runs_every_fast_step_then_resumes_up_to_date(
+    tmp_path: Path, recording: tuple[Path, Path]
+) -> None:
+    bag, osm = recording
+    ws = Workspace.create(tmp_path / "ws", _config(bag))
+    seen: list[tuple[str, int, int | None]] = []
+    first = run_pipeline(ws, options=_fast(osm), progress=lambda *a: seen.append(a))
+    assert not first.failed, first.outcomes
+    states = _states(first)
+    assert {states[s] for s in FAST} == {"done"}, first.outcomes
+    assert states["splat"] == states["ads"] == states["report"] == "skipped"
+    assert first.outcome("drive").message.startswith("1 run(s), policy pure-pursuit")
+    assert ("pipeline", 10, 10) in seen
+    metrics = ws.report_dir / "drive" / "metrics.json"
+    assert json.loads(metrics.read_text(encoding="utf-8"))
+    runs = sorted(p.name for p in ws.runs_dir.iterdir() if p.is_dir())
+
+    second = run_pipeline(ws, options=_fast(osm))
+    assert {_states(second)[s] for s in FAST} == {"up_to_date"}, second.outcomes
+    assert sorted(p.name for p in ws.runs_dir.iterdir() if p.is_dir()) == runs
+
+    # The recording has a steering signal, but a policy was given: nothing to train.
+    third = run_pipeline(ws, options=_fast(osm, steps=("ads",), policy="pure-pursuit"))
+    assert third.outcome("ads").state == "not_applicable"
+    assert "policy was given" in third.outcome("ads").message
+
+
+def test_a_failing_step_stops_the_pipeline_and_keeps_earlier_steps(
+    tmp_path: Path, recording: tuple[Path, Path]
+) -> None:
+    bag, _ = recording
+    ws = Workspace.create(tmp_path / "ws", _config(bag))
+    missing = tmp_path / "nope.osm"
+    result = run_pipeline(ws, options=_fast(missing, steps=("extract", "map", "detect")))
+    assert result.failed
+    assert _states(result)["extract"] == "done"
+    failed = result.outcome("map")
+    assert failed.state == "failed"
+    assert "nope.osm does not exist" in failed.message
+    assert "--osm" in failed.message
+    assert result.outcome("detect").state == "skipped"
+    assert result.outcome("detect").message == "map failed"
+
+    go_on = run_pipeline(
+        ws, options=_fast(missing, steps=("extract", "map", "detect"), continue_on_error=True)
+    )
+    assert _states(go_on) == {
+        **_states(go_on),
+        "extract": "up_to_date",
+        "map": "failed",
+        "detect": "done",
+    }
+
+
+def test_unknown_steps_are_a_config_error() -> None:
+    with pytest.raises(ConfigError, match="unknown step"):
+        PipelineOptions(steps=("extract", "splats"))
+
+
+def test_run_command_prints_the_summary_and_exits_1_on_failure(
+    tmp_path: Path, recording: tuple[Path, Path]
+) -> None:
+    import typer
+    from typer.testing import CliRunner
+
+    from cam2sim.cli.run_pipeline_cmd import run
+
+    app = typer.Typer()
+    app.command("run")(run)
+    app.command("noop")(lambda: None)  # a second command keeps `run` a subcommand
+    bag, _ = recording
+    args = ["run", str(bag), "-o", str(tmp_path / "ws"), "--steps", "extract,map"]
+    result = CliRunner().invoke(app, [*args, "--osm", str(tmp_path / "nope.osm")])
+    assert result.exit_code == 1, result.output
+    text = " ".join(result.output.split())
+    assert "extract" in text
+    assert "failed" in text
+    assert "run the same command again to resume" in text
+    assert (tmp_path / "ws" / "workspace.json").is_file()
