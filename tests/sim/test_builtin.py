@@ -365,3 +365,15 @@ def test_calibration_fit_on_the_reference_drives(n: int) -> None:
     cal = fit_steering_calibration(st[:, 0], st[:, 1], t, xy, heading, speed)
     print(f"drive {n}: k={cal.curvature_per_unit:.5f} 1/m per unit, {cal.samples} samples")  # noqa: T201
     assert cal.curvature_per_unit == pytest.approx(0.022, rel=0.05)
+
+
+def test_calibration_fit_on_clean_mostly_straight_data() -> None:
+    """Noise-free data, steering zero on the straights: the robust step must keep the bend."""
+    k, dt = 0.022, 0.01
+    t = np.arange(0.0, 30.0, dt)
+    u = np.where((t > 10) & (t < 18), 1.1, 0.0)  # one bend, straights before and after
+    v = np.full_like(t, 8.0)
+    h = np.cumsum(v * k * u) * dt
+    xy = np.cumsum(np.stack([v * np.cos(h), v * np.sin(h)], -1), axis=0) * dt
+    cal = fit_steering_calibration(t, u, t, xy, h, v)
+    assert cal.curvature_per_unit == pytest.approx(k, rel=0.03)

@@ -154,6 +154,7 @@ def _window_mean(values: npt.NDArray[np.float64], half: int) -> npt.NDArray[np.f
 
 
 _MIN_CALIBRATION_CORR = 0.5  # steering must explain the curvature to calibrate it
+_MIN_RESIDUAL_SCALE = 1e-4  # 1/m: below any real curvature noise
 
 
 def fit_steering_calibration(  # noqa: PLR0913
@@ -242,8 +243,10 @@ def fit_steering_calibration(  # noqa: PLR0913
     a = np.stack([x, np.ones_like(x)], -1)
     coef = np.linalg.lstsq(a, y, rcond=None)[0]
     res = y - a @ coef
-    scale = 1.4826 * float(np.median(np.abs(res - np.median(res))))
-    inl = np.abs(res) <= 3.0 * scale if scale > 0 else np.ones_like(res, dtype=bool)
+    centre = float(np.median(res))
+    # Robust spread (MAD), floored: clean data can have almost every residual identical.
+    scale = max(1.4826 * float(np.median(np.abs(res - centre))), _MIN_RESIDUAL_SCALE)
+    inl = np.abs(res - centre) <= 3.0 * scale
     coef = np.linalg.lstsq(a[inl], y[inl], rcond=None)[0]
     res = y[inl] - a[inl] @ coef
     corr = float(np.corrcoef(x[inl], y[inl])[0, 1]) if inl.sum() > 2 else 0.0
