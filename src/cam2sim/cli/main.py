@@ -35,6 +35,7 @@ _state = {"verbose": 0, "progress": True}
 
 def _register_subcommands() -> None:
     from cam2sim.cli.ads_cmd import ads_app  # noqa: PLC0415
+    from cam2sim.cli.demo_cmd import demo  # noqa: PLC0415
     from cam2sim.cli.detect_cmd import detect, refine  # noqa: PLC0415
     from cam2sim.cli.evaluate import evaluate_app  # noqa: PLC0415
     from cam2sim.cli.map_cmd import map_  # noqa: PLC0415
@@ -52,6 +53,7 @@ def _register_subcommands() -> None:
     app.command("drive")(drive)
     app.command("report")(report)
     app.command("run")(run)
+    app.command("demo")(demo)
     app.command("splat")(splat)
     app.add_typer(evaluate_app, name="evaluate")
     app.add_typer(ads_app, name="ads")

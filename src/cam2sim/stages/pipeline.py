@@ -10,6 +10,7 @@ again only when the scenario or the options changed (or a run folder disappeared
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import json
 import logging
@@ -80,6 +81,7 @@ class PipelineOptions:
         steering_signal: Signal the ads step trains on; None: ``steering``, else the first
             signal whose name holds ``steer``.
         continue_on_error: Go on after a failed step (later steps may then fail too).
+        ads: DAVE-2 training options (None: the defaults, on the steering signal chosen).
     """
 
     osm: Path | None = None
@@ -93,6 +95,7 @@ class PipelineOptions:
     splat_on_cpu: bool = True
     steering_signal: str | None = None
     continue_on_error: bool = False
+    ads: Any = None
 
     def __post_init__(self) -> None:
         unknown = sorted((set(self.steps) | set(self.skip)) - set(STEPS))
@@ -150,6 +153,21 @@ class PipelineResult:
                 return o
         msg = f"no step {name!r}; steps are {', '.join(STEPS)}"
         raise KeyError(msg)
+
+
+def demo_splat_options() -> SplatStageOptions:
+    """The demo's splat preset: a frame every 2 m, LiDAR-initialised, 300 steps at half size.
+
+    Minutes on two CPU cores instead of hours; the images are blurrier than a GPU model's but
+    place every street element where it belongs, which is what the demo's comparison needs.
+    """
+    from cam2sim.splat.prepare import PrepareOptions  # noqa: PLC0415
+    from cam2sim.splat.train import TrainOptions  # noqa: PLC0415
+    from cam2sim.stages.splat import SplatStageOptions  # noqa: PLC0415
+
+    prepare = PrepareOptions(spacing_m=2.0, triangulate=False)
+    train = TrainOptions(max_steps=300, min_steps=300, val_every=100, downscale=2)
+    return SplatStageOptions(prepare=prepare, train=train, offsets_m=(-1.0, 1.0))
 
 
 def small_splat_options() -> SplatStageOptions:
@@ -311,7 +329,11 @@ class _Pipeline:
         if signal is None:
             msg = "the recording has no steering signal (name a signal 'steering' in config.yaml)"
             raise _NotApplicableError(msg)
-        opts = TrainOptions(signal=signal)
+        opts = (
+            TrainOptions(signal=signal)
+            if self.options.ads is None
+            else dataclasses.replace(self.options.ads, signal=signal)
+        )
         self._recorded(
             TRAIN_STAGE, lambda: train_ads(self.ws, options=opts, progress=self.progress), step
         )

@@ -1,0 +1,782 @@
+"""The demo world and its recording: an L-shaped residential street near Munich.
+
+The world lives in a local metric frame whose origin sits at :data:`ORIGIN_UTM` in UTM 32N
+(x east, y north, z up; the frame's axes are the UTM grid's). The route starts at the origin
+heading east, runs :data:`STRAIGHT1_M` straight, turns left on a :data:`RADIUS_M` arc and runs
+:data:`STRAIGHT2_M` north. The street around it has a driving lane, a parking lane and a
+sidewalk each way (the route is the centre of the right driving lane); cars are parked on both
+sides along the straights and buildings line both sidewalks.
+
+:func:`build_demo_recording` writes, into one folder:
+
+* ``demo.osm``: the street as a ``highway=residential`` way (``lanes=2``, ``width``) and the
+  buildings as closed ``building=yes`` ways with ``building:levels``, in WGS84;
+* ``recording/bag``: a ROS2 MCAP bag of a drive along the route at :data:`SPEED_MPS`, with a
+  JPEG camera (:data:`CAMERA_SIZE` at 10 Hz, rendered by the raster renderer and made to look
+  photographic by :func:`photographic_look`), its camera info, odometry in UTM 32N with the
+  reference car's axes (x to the left, y forward) at 50 Hz, a LiDAR ray-cast from the scene at
+  5 Hz and the steering signal at 50 Hz (curvature / :data:`CURVATURE_PER_STEERING`);
+* ``config.yaml``: the cam2sim config of that recording (topics, intrinsics, mounts, pose CRS
+  and axis convention);
+* ``truth.json``: the parked cars (ground-truth boxes) and buildings in the local frame.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Final
+
+import numpy as np
+
+from cam2sim.core.files import atomic_folder, write_text_atomic
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    from cam2sim.core.config import Config
+    from cam2sim.core.progress import ProgressCallback
+    from cam2sim.detect.synthetic import StreetScene
+    from cam2sim.recording.bagwriter import BagWriter
+    from cam2sim.render.raster import RasterScene
+
+__all__ = [
+    "CAMERA_SIZE",
+    "CRS",
+    "CURVATURE_PER_STEERING",
+    "ORIGIN_UTM",
+    "SPEED_MPS",
+    "TOPICS",
+    "DemoBuilding",
+    "DemoRecording",
+    "DemoWorld",
+    "ParkedCar",
+    "build_demo_recording",
+    "camera_matrix",
+    "demo_world",
+    "load_demo_recording",
+    "photographic_look",
+    "route_points",
+]
+
+CRS: Final = "EPSG:32632"
+"""UTM 32N: the odometry's CRS."""
+ORIGIN_UTM: Final = (691_000.0, 5_336_000.0)
+"""Easting, northing of the local frame's origin (Munich)."""
+SPEED_MPS: Final = 8.0
+STRAIGHT1_M: Final = 60.0
+RADIUS_M: Final = 40.0
+STRAIGHT2_M: Final = 60.0
+LEAD_M: Final = 30.0
+"""Street before the route's start and after its end."""
+LANE_M: Final = 3.5
+PARKING_M: Final = 2.5
+SIDEWALK_M: Final = 2.0
+CURVATURE_PER_STEERING: Final = 0.022
+"""The steering calibration: curvature (1/m) = steering * this."""
+CAMERA_SIZE: Final = (320, 200)
+CAMERA_FOCAL_PX: Final = 200.0
+CAMERA_MOUNT: Final = (1.6, 0.0, 1.4)
+LIDAR_MOUNT: Final = (1.0, 0.0, 1.9)
+CAMERA_HZ: Final = 10
+ODOM_HZ: Final = 50
+LIDAR_HZ: Final = 5
+LIDAR_BEAMS: Final = 16
+LIDAR_AZIMUTHS: Final = 720
+TOPICS: Final = {
+    "camera": "/camera/image_raw/compressed",
+    "camera_info": "/camera/camera_info",
+    "pose": "/odom",
+    "lidar": "/lidar/points",
+    "steering": "/vehicle/steering",
+}
+_T0_NS: Final = 1_717_000_000_000_000_000
+_MARKER: Final = "demo.json"
+_VERSION: Final = 1
+# Optical camera axes (x right, y down, z forward) in the body frame (x forward, y left, z up).
+_R_BODY_OPTICAL: Final = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+@dataclass(frozen=True)
+class ParkedCar:
+    """A parked car's ground-truth box in the local frame (bottom centre, metres, radians)."""
+
+    x: float
+    y: float
+    yaw: float
+    length: float
+    width: float
+    height: float
+    side: str
+
+
+@dataclass(frozen=True)
+class DemoBuilding:
+    """A building: a rectangular footprint (local frame, counter-clockwise) and its levels."""
+
+    xy: tuple[tuple[float, float], ...]
+    levels: int
+
+    @property
+    def height_m(self) -> float:
+        """Height at 3 m a level."""
+        return 3.0 * self.levels
+
+
+@dataclass(frozen=True)
+class DemoRecording:
+    """What :func:`build_demo_recording` wrote.
+
+    Attributes:
+        root: The folder holding everything.
+        bag: The ROS2 MCAP bag folder.
+        osm: The OSM file of the street and buildings.
+        config: The cam2sim config of the bag.
+        truth: The parked cars (local frame; add :data:`ORIGIN_UTM` for UTM 32N).
+        buildings: The buildings (local frame).
+        camera_frames: Camera images in the bag.
+        duration_s: Length of the drive.
+    """
+
+    root: Path
+    bag: Path
+    osm: Path
+    config: Path
+    truth: tuple[ParkedCar, ...]
+    buildings: tuple[DemoBuilding, ...]
+    camera_frames: int
+    duration_s: float
+
+
+def _arc_m() -> float:
+    return RADIUS_M * math.pi / 2.0
+
+
+def route_length_m() -> float:
+    """Length of the driven route."""
+    return STRAIGHT1_M + _arc_m() + STRAIGHT2_M
+
+
+def route_points(
+    s: npt.ArrayLike, lateral: float = 0.0
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Positions ``(N, 2)`` and headings ``(N,)`` at route stations ``s``, ``lateral`` to the left.
+
+    Stations before 0 or past :func:`route_length_m` continue the straights.
+    """
+    st = np.atleast_1d(np.asarray(s, dtype=np.float64))
+    th = np.clip((st - STRAIGHT1_M) / RADIUS_M, 0.0, math.pi / 2.0)
+    first = st <= STRAIGHT1_M
+    last = st > STRAIGHT1_M + _arc_m()
+    x = np.where(
+        first, st, np.where(last, STRAIGHT1_M + RADIUS_M, STRAIGHT1_M + RADIUS_M * np.sin(th))
+    )
+    y = np.where(
+        first,
+        0.0,
+        np.where(last, RADIUS_M + st - STRAIGHT1_M - _arc_m(), RADIUS_M - RADIUS_M * np.cos(th)),
+    )
+    xy = np.column_stack([x - lateral * np.sin(th), y + lateral * np.cos(th)])
+    return xy, th
+
+
+def route_curvature(s: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Curvature (1/m, positive left) of the route at stations ``s``."""
+    st = np.asarray(s, dtype=np.float64)
+    inside = (st > STRAIGHT1_M) & (st <= STRAIGHT1_M + _arc_m())
+    out: npt.NDArray[np.float64] = np.where(inside, 1.0 / RADIUS_M, 0.0)
+    return out
+
+
+def camera_matrix() -> npt.NDArray[np.float64]:
+    """The demo camera's ``(3, 3)`` intrinsics."""
+    w, h = CAMERA_SIZE
+    return np.array(
+        [[CAMERA_FOCAL_PX, 0.0, (w - 1) / 2.0], [0.0, CAMERA_FOCAL_PX, (h - 1) / 2.0], [0, 0, 1.0]]
+    )
+
+
+def _body_pose(xy: npt.NDArray[np.float64], heading: float) -> npt.NDArray[np.float64]:
+    c, s = math.cos(heading), math.sin(heading)
+    pose = np.eye(4)
+    pose[:2, :2] = [[c, -s], [s, c]]
+    pose[:2, 3] = xy
+    return pose
+
+
+def camera_pose(station: float) -> npt.NDArray[np.float64]:
+    """``T_world_cam`` (optical axes) of the demo camera with the rear axle at ``station``."""
+    xy, heading = route_points([station])
+    body = _body_pose(xy[0], float(heading[0]))
+    mount = np.eye(4)
+    mount[:3, :3] = _R_BODY_OPTICAL
+    mount[:3, 3] = CAMERA_MOUNT
+    out: npt.NDArray[np.float64] = body @ mount
+    return out
+
+
+# -- the world -------------------------------------------------------------------------------
+_LANES: Final = f"""
+      <left>
+        <lane id="3" type="sidewalk"><width sOffset="0" a="{SIDEWALK_M}" b="0" c="0" d="0"/></lane>
+        <lane id="2" type="parking"><width sOffset="0" a="{PARKING_M}" b="0" c="0" d="0"/></lane>
+        <lane id="1" type="driving"><width sOffset="0" a="{LANE_M}" b="0" c="0" d="0"/></lane>
+      </left>
+      <center><lane id="0" type="none"/></center>
+      <right>
+        <lane id="-1" type="driving"><width sOffset="0" a="{LANE_M}" b="0" c="0" d="0"/></lane>
+        <lane id="-2" type="parking"><width sOffset="0" a="{PARKING_M}" b="0" c="0" d="0"/></lane>
+        <lane id="-3" type="sidewalk"><width sOffset="0" a="{SIDEWALK_M}" b="0" c="0" d="0"/></lane>
+      </right>"""
+
+
+@dataclass(frozen=True)
+class DemoWorld:
+    """The street, the parked cars and the buildings (local frame)."""
+
+    cars: tuple[ParkedCar, ...]
+    buildings: tuple[DemoBuilding, ...]
+
+    def xodr(self) -> str:
+        """The street as OpenDRIVE 1.4 text (reference line between the driving lanes)."""
+        half = LANE_M / 2.0
+        r_ref = RADIUS_M - half
+        a = STRAIGHT1_M + LEAD_M
+        b = a + r_ref * math.pi / 2.0
+        total = b + STRAIGHT2_M + LEAD_M
+        geometry = (
+            f'<geometry s="0" x="{-LEAD_M}" y="{half}" hdg="0" length="{a}"><line/></geometry>'
+            f'<geometry s="{a}" x="{STRAIGHT1_M}" y="{half}" hdg="0" length="{b - a}">'
+            f'<arc curvature="{1.0 / r_ref}"/></geometry>'
+            f'<geometry s="{b}" x="{STRAIGHT1_M + r_ref}" y="{RADIUS_M}" hdg="{math.pi / 2}" '
+            f'length="{total - b}"><line/></geometry>'
+        )
+        return f"""<?xml version="1.0"?>
+<OpenDRIVE><header revMajor="1" revMinor="4"/>
+  <road name="Demostraße" length="{total}" id="1" junction="-1">
+    <planView>{geometry}</planView>
+    <lanes><laneSection s="0">{_LANES}
+    </laneSection></lanes>
+  </road>
+</OpenDRIVE>
+"""
+
+    def osm_xml(self) -> str:
+        """The street and buildings as OSM XML (WGS84 nodes)."""
+        from pyproj import Transformer  # noqa: PLC0415
+
+        to_wgs84 = Transformer.from_crs(CRS, "EPSG:4326", always_xy=True)
+        stations = np.arange(-LEAD_M, route_length_m() + LEAD_M + 1e-6, 5.0)
+        road, _ = route_points(stations, LANE_M / 2.0)
+        rings = [np.asarray(b.xy, dtype=np.float64) for b in self.buildings]
+        local = np.concatenate([road, *rings])
+        lon, lat = to_wgs84.transform(local[:, 0] + ORIGIN_UTM[0], local[:, 1] + ORIGIN_UTM[1])
+        lon, lat = np.asarray(lon), np.asarray(lat)
+        margin = 5e-4
+        lines = [
+            '<?xml version="1.0" encoding="UTF-8"?>',
+            '<osm version="0.6" generator="cam2sim demo">',
+            (
+                f'  <bounds minlat="{lat.min() - margin:.8f}" minlon="{lon.min() - margin:.8f}" '
+                f'maxlat="{lat.max() + margin:.8f}" maxlon="{lon.max() + margin:.8f}"/>'
+            ),
+        ]
+        lines += [
+            f'  <node id="{k + 1}" lat="{la:.8f}" lon="{lo:.8f}" version="1"/>'
+            for k, (la, lo) in enumerate(zip(lat, lon, strict=True))
+        ]
+        tags = {
+            "highway": "residential",
+            "lanes": "2",
+            "width": f"{2 * LANE_M:g}",
+            "name": "Demostraße",
+            "parking:lane:both": "parallel",
+            "surface": "asphalt",
+        }
+        lines += ['  <way id="1000" version="1">']
+        lines += [f'    <nd ref="{k + 1}"/>' for k in range(len(road))]
+        lines += [f'    <tag k="{k}" v="{v}"/>' for k, v in tags.items()]
+        lines += ["  </way>"]
+        first = len(road) + 1
+        for j, (b, ring) in enumerate(zip(self.buildings, rings, strict=True)):
+            refs = [*range(first, first + len(ring)), first]
+            first += len(ring)
+            lines += [f'  <way id="{2000 + j}" version="1">']
+            lines += [f'    <nd ref="{r}"/>' for r in refs]
+            lines += [
+                '    <tag k="building" v="yes"/>',
+                f'    <tag k="building:levels" v="{b.levels}"/>',
+                "  </way>",
+            ]
+        lines += ["</osm>", ""]
+        return "\n".join(lines)
+
+    def lidar_scene(self) -> StreetScene:
+        """The scene the LiDAR scans: flat ground, car boxes, building boxes."""
+        from cam2sim.detect.synthetic import Ground, SceneBox, StreetScene  # noqa: PLC0415
+
+        cars = tuple(
+            SceneBox((c.x, c.y, c.height / 2.0), (c.length, c.width, c.height), c.yaw)
+            for c in self.cars
+        )
+        structures = []
+        for b in self.buildings:
+            ring = np.asarray(b.xy)
+            centre = ring.mean(axis=0)
+            edge = ring[1] - ring[0]
+            depth = float(np.linalg.norm(ring[2] - ring[1]))
+            yaw = math.atan2(edge[1], edge[0])
+            h = b.height_m
+            structures.append(
+                SceneBox(
+                    (float(centre[0]), float(centre[1]), (h - 3.0) / 2.0),
+                    (float(np.linalg.norm(edge)), depth, h + 3.0),
+                    yaw,
+                )
+            )
+        ground = Ground(road_half_width_m=1e9, kerb_height_m=0.0)
+        return StreetScene(ground=ground, cars=cars, structures=tuple(structures))
+
+    def raster_scene(self) -> RasterScene:
+        """The scene the camera renders (the raster renderer's meshes)."""
+        from cam2sim.map.query import RoadMap  # noqa: PLC0415
+        from cam2sim.render.raster import BuildingFootprint, RasterScene  # noqa: PLC0415
+        from cam2sim.scenario.model import ScenarioVehicle  # noqa: PLC0415
+
+        vehicles = [
+            ScenarioVehicle(
+                id=f"pv_{k:03d}",
+                position=(c.x, c.y, 0.0),
+                heading=c.yaw,
+                size=(c.length, c.width, c.height),
+                size_class="medium",
+                side=c.side,
+                orientation="parallel",
+            )
+            for k, c in enumerate(self.cars)
+        ]
+        buildings = [BuildingFootprint(np.asarray(b.xy), b.height_m) for b in self.buildings]
+        return RasterScene(RoadMap.from_xodr(self.xodr()), vehicles, buildings)
+
+
+def _cars(rng: np.random.Generator) -> tuple[ParkedCar, ...]:
+    half = LANE_M / 2.0
+    right = -(LANE_M - half) - PARKING_M / 2.0  # centre of the right parking lane
+    left = half + LANE_M + PARKING_M / 2.0
+    end = route_length_m() + LEAD_M
+    spans = ((-LEAD_M + 3.0, STRAIGHT1_M - 8.0), (STRAIGHT1_M + _arc_m() + 8.0, end - 3.0))
+    cars: list[ParkedCar] = []
+    for lateral, side in ((right, "right"), (left, "left")):
+        for lo, hi in spans:
+            s = lo + rng.uniform(0.0, 2.0)
+            while True:
+                length = rng.uniform(4.0, 4.8)
+                if s + length > hi:
+                    break
+                if rng.random() < 0.65:
+                    xy, heading = route_points([s + length / 2.0], lateral)
+                    flip = math.pi if side == "left" and rng.random() < 0.5 else 0.0
+                    cars.append(
+                        ParkedCar(
+                            x=float(xy[0, 0]),
+                            y=float(xy[0, 1]),
+                            yaw=float(heading[0] + flip + rng.normal(0.0, 0.02)),
+                            length=float(length),
+                            width=float(rng.uniform(1.75, 1.9)),
+                            height=float(rng.uniform(1.45, 1.6)),
+                            side=side,
+                        )
+                    )
+                s += length + rng.uniform(1.0, 3.0)
+    return tuple(cars)
+
+
+def _buildings(rng: np.random.Generator) -> tuple[DemoBuilding, ...]:
+    half = LANE_M / 2.0
+    kerb = LANE_M + PARKING_M + SIDEWALK_M  # from the reference line
+    length, depth, setback = 16.0, 10.0, 1.5
+    out: list[DemoBuilding] = []
+    corner = (STRAIGHT1_M - 12.0, STRAIGHT1_M + _arc_m() + 12.0)
+    for sign in (1.0, -1.0):
+        lateral = half + sign * (kerb + setback + depth / 2.0)
+        for s in np.arange(-LEAD_M + 10.0, route_length_m() + LEAD_M - 8.0, 21.0):
+            if sign > 0 and corner[0] < s < corner[1]:
+                continue  # the inside of the bend stays open
+            c, h = route_points([s], lateral)
+            t = np.array([math.cos(h[0]), math.sin(h[0])])
+            n = np.array([-t[1], t[0]])
+            ring = [
+                c[0] + a * length / 2.0 * t + b * depth / 2.0 * n
+                for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))
+            ]
+            out.append(
+                DemoBuilding(
+                    xy=tuple((float(p[0]), float(p[1])) for p in ring),
+                    levels=int(rng.integers(2, 6)),
+                )
+            )
+    return tuple(out)
+
+
+def demo_world(seed: int = 0) -> DemoWorld:
+    """The demo world; ``seed`` places the parked cars and picks building heights."""
+    rng = np.random.default_rng(seed)
+    return DemoWorld(cars=_cars(rng), buildings=_buildings(rng))
+
+
+# -- the photographic look -------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Textures:
+    fine: npt.NDArray[np.float32]
+    coarse: npt.NDArray[np.float32]
+
+
+@functools.lru_cache(maxsize=4)
+def _textures(seed: int, size: int = 256) -> _Textures:
+    import cv2  # noqa: PLC0415
+
+    rng = np.random.default_rng(seed)
+
+    def noise(sigma: float) -> npt.NDArray[np.float32]:
+        pad = int(4 * sigma) + 1  # blur a wrapped copy so the tile repeats seamlessly
+        wrapped = np.pad(rng.normal(size=(size, size)).astype(np.float32), pad, mode="wrap")
+        tile = np.asarray(cv2.GaussianBlur(wrapped, (0, 0), sigma), np.float32)[pad:-pad, pad:-pad]
+        out: npt.NDArray[np.float32] = (tile - tile.mean()) / (tile.std() + 1e-6)
+        return out
+
+    return _Textures(fine=noise(0.7), coarse=noise(8.0))
+
+
+def _lookup(tile: npt.NDArray[np.float32], u: npt.NDArray[Any], v: npt.NDArray[Any]) -> Any:
+    n = tile.shape[0]
+    return tile[np.floor(v).astype(np.int64) % n, np.floor(u).astype(np.int64) % n]
+
+
+def photographic_look(
+    rgb: npt.NDArray[np.uint8],
+    labels: npt.NDArray[np.uint8],
+    T_world_cam: npt.NDArray[np.float64],
+    K: npt.NDArray[np.float64],
+    *,
+    rng: np.random.Generator,
+    seed: int = 0,
+) -> npt.NDArray[np.uint8]:
+    """Turn a raster frame into a photograph-like one.
+
+    Textures anchored in the world (asphalt grain and patches on the road, paving joints on the
+    sidewalks, grass on the verge, clouds in the sky), plaster-coloured facades, warm colour
+    grading, vignetting, a slight lens blur and sensor noise.
+
+    Args:
+        rgb: ``(H, W, 3)`` raster colours.
+        labels: ``(H, W)`` raster labels (:class:`~cam2sim.render.meshes.Label`).
+        T_world_cam: The camera pose (optical axes).
+        K: The intrinsics.
+        rng: Draws the sensor noise.
+        seed: Seeds the world textures (keep it fixed over a recording).
+    """
+    import cv2  # noqa: PLC0415
+
+    from cam2sim.render.meshes import Label  # noqa: PLC0415
+
+    tex = _textures(seed)
+    h, w = labels.shape
+    img = rgb.astype(np.float32) / 255.0
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    pix = np.stack([u, v, np.ones_like(u)], axis=-1)
+    rays = pix @ (T_world_cam[:3, :3] @ np.linalg.inv(K)).T
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    cam = T_world_cam[:3, 3]
+    down = rays[..., 2] < -1e-3
+    dist = np.where(down, -cam[2] / np.where(down, rays[..., 2], -1.0), 1e3)
+    gx = cam[0] + dist * rays[..., 0]
+    gy = cam[1] + dist * rays[..., 1]
+    near = np.clip(10.0 / dist, 0.15, 1.0).astype(np.float32)  # fine grain fades with range
+
+    road = labels == Label.ROAD
+    grain = _lookup(tex.fine, gx / 0.03, gy / 0.03) * near
+    patches = _lookup(tex.coarse, gx / 0.25, gy / 0.25)
+    asphalt = 1.0 + 0.15 * grain + 0.12 * patches
+    img[road] *= (asphalt[road, None] * np.array([1.03, 1.0, 0.96], np.float32)).astype(np.float32)
+
+    walk = labels == Label.SIDEWALK
+    fx, fy = np.abs((gx / 0.4) % 1.0 - 0.5), np.abs((gy / 0.4) % 1.0 - 0.5)
+    joints = np.where((np.maximum(fx, fy) > 0.46) & (near > 0.3), 0.75, 1.0)
+    paving = joints * (1.0 + 0.08 * grain)
+    img[walk] *= paving[walk, None].astype(np.float32)
+
+    verge = labels == Label.BACKGROUND
+    grass = 1.0 + 0.35 * grain + 0.15 * patches
+    img[verge] = (np.array([0.33, 0.40, 0.22], np.float32) * grass[verge, None]).astype(np.float32)
+
+    facade = labels == Label.BUILDING
+    shade = img[..., :].mean(axis=-1, keepdims=True) / (138.0 / 255.0)
+    plaster = np.array([0.80, 0.70, 0.57], np.float32) * shade
+    plaster *= 1.0 + 0.05 * _lookup(tex.fine, u * 1.5, v * 1.5)[..., None]
+    img[facade] = 0.3 * img[facade] + 0.7 * plaster[facade]
+
+    sky = labels == Label.SKY
+    elev = np.clip(rays[..., 2], 0.0, 1.0)
+    azim = np.arctan2(rays[..., 1], rays[..., 0])
+    base = (1 - np.sqrt(elev))[..., None] * np.array([0.87, 0.90, 0.94]) + np.sqrt(elev)[
+        ..., None
+    ] * np.array([0.33, 0.53, 0.84])
+    cloud = _lookup(tex.coarse, azim * 60.0, elev * 120.0)
+    cover = np.clip((cloud - 0.2) / 0.8, 0.0, 1.0)[..., None]
+    sky_rgb = (1 - 0.8 * cover) * base + 0.8 * cover * np.array([0.95, 0.95, 0.96])
+    img[sky] = sky_rgb[sky].astype(np.float32)
+
+    # Lens and sensor: blur, warm grade with a soft S-curve, vignetting, noise.
+    img = np.asarray(cv2.GaussianBlur(img, (0, 0), 0.6), np.float32)
+    img = np.clip(img * 1.05, 0.0, 1.0) ** 0.9
+    img = 0.5 + (img - 0.5) * 1.12
+    img *= np.array([1.05, 1.0, 0.93], np.float32)
+    r2 = ((u - w / 2) / (w / 2)) ** 2 + ((v - h / 2) / (h / 2)) ** 2
+    img *= (1.0 - 0.18 * r2)[..., None].astype(np.float32)
+    img += rng.normal(0.0, 0.015, img.shape).astype(np.float32)
+    out: npt.NDArray[np.uint8] = np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    return out
+
+
+# -- the recording ---------------------------------------------------------------------------
+def _quat_z(yaw: float) -> dict[str, float]:
+    return {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2.0), "w": math.cos(yaw / 2.0)}
+
+
+def _lidar_fields(w: BagWriter, points: npt.NDArray[np.float32]) -> dict[str, Any]:
+    from cam2sim.recording.pointcloud import pointcloud_message_fields  # noqa: PLC0415
+
+    cloud = np.zeros(
+        points.shape[0], dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")]
+    )
+    for k, name in enumerate(("x", "y", "z", "intensity")):
+        cloud[name] = points[:, k]
+    fields: dict[str, Any] = dict(pointcloud_message_fields(cloud))
+    fields["fields"] = [w.message("sensor_msgs/msg/PointField", f) for f in fields["fields"]]
+    return fields
+
+
+def _steering(t: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """The driver's steering at times ``t``: the route's curvature, eased over 1 s."""
+    fine = np.arange(-1.0, t[-1] + 1.0, 0.01)
+    kappa = route_curvature(SPEED_MPS * fine)
+    window = np.ones(101) / 101.0
+    smooth = np.convolve(kappa, window, mode="same")
+    out: npt.NDArray[np.float64] = np.interp(t, fine, smooth) / CURVATURE_PER_STEERING
+    return out
+
+
+def _camera_info(stamp: int) -> dict[str, Any]:
+    k = camera_matrix()
+    w, h = CAMERA_SIZE
+    return {
+        "header": {"stamp": stamp, "frame_id": "camera_optical"},
+        "height": h,
+        "width": w,
+        "distortion_model": "plumb_bob",
+        "d": np.zeros(5),
+        "k": k.ravel(),
+        "r": np.eye(3).ravel(),
+        "p": np.column_stack([k, np.zeros(3)]).ravel(),
+    }
+
+
+def _write_bag(path: Path, world: DemoWorld, *, seed: int, progress: ProgressCallback) -> int:
+    from cam2sim.core.frames import Pose  # noqa: PLC0415
+    from cam2sim.detect.synthetic import LidarModel, scan_scene  # noqa: PLC0415
+    from cam2sim.recording.bagwriter import BagWriter  # noqa: PLC0415
+    from cam2sim.recording.image import compressed_image_fields  # noqa: PLC0415
+    from cam2sim.render.raster import RasterRenderer  # noqa: PLC0415
+
+    duration = route_length_m() / SPEED_MPS
+    odom_t = np.arange(0.0, duration, 1.0 / ODOM_HZ)
+    cam_t = np.arange(0.05, duration, 1.0 / CAMERA_HZ)
+    lidar_t = np.arange(0.02, duration, 1.0 / LIDAR_HZ)
+    steer = _steering(odom_t)
+    events = [(float(t), 0, "odom", i) for i, t in enumerate(odom_t)]
+    events += [(float(t), 1, "lidar", i) for i, t in enumerate(lidar_t)]
+    events += [(float(t), 2, "camera", i) for i, t in enumerate(cam_t)]
+    events.sort()
+    scene = world.lidar_scene()
+    lidar = LidarModel(beams=LIDAR_BEAMS, azimuths=LIDAR_AZIMUTHS)
+    k = camera_matrix()
+    rng = np.random.default_rng(seed)
+    width, height = CAMERA_SIZE
+    with RasterRenderer(world.raster_scene()) as renderer, BagWriter(path, "mcap") as bag:
+        for t, _, kind, i in events:
+            stamp = _T0_NS + round(t * 1e9)
+            station = SPEED_MPS * t
+            if kind == "odom":
+                xy, heading = route_points([station])
+                pose = {
+                    "position": {"x": ORIGIN_UTM[0] + xy[0, 0], "y": ORIGIN_UTM[1] + xy[0, 1]},
+                    # The reference car's axes: x to the left, so yaw = heading + 90 degrees.
+                    "orientation": _quat_z(float(heading[0]) + math.pi / 2.0),
+                }
+                twist = {"linear": {"y": SPEED_MPS}}
+                odom = {
+                    "header": {"stamp": stamp, "frame_id": "utm"},
+                    "child_frame_id": "base_link",
+                    "pose": {"pose": pose},
+                    "twist": {"twist": twist},
+                }
+                bag.write_fields(TOPICS["pose"], "nav_msgs/msg/Odometry", odom, receive_ns=stamp)
+                value = {"data": float(steer[i])}
+                bag.write_fields(
+                    TOPICS["steering"], "std_msgs/msg/Float64", value, receive_ns=stamp
+                )
+            elif kind == "lidar":
+                xy, heading = route_points([station])
+                body = _body_pose(xy[0], float(heading[0]))
+                position = body[:3, :3] @ np.asarray(LIDAR_MOUNT) + body[:3, 3]
+                q = _quat_z(float(heading[0]))
+                sensor = Pose(position, np.array([q["x"], q["y"], q["z"], q["w"]]))
+                points = scan_scene(scene, sensor, lidar=lidar, seed=seed * 100_003 + i).points
+                cloud = {"header": {"stamp": stamp, "frame_id": "lidar"}}
+                cloud.update(_lidar_fields(bag, points))
+                bag.write_fields(
+                    TOPICS["lidar"], "sensor_msgs/msg/PointCloud2", cloud, receive_ns=stamp
+                )
+            else:
+                pose_cam = camera_pose(station)
+                frame = renderer.render(pose_cam, k, width, height)
+                image = photographic_look(frame.rgb, frame.labels, pose_cam, k, rng=rng, seed=seed)
+                msg: dict[str, object] = {
+                    "header": {"stamp": stamp, "frame_id": "camera_optical"},
+                    **compressed_image_fields(image, "jpeg", quality=88),
+                }
+                bag.write_fields(
+                    TOPICS["camera"], "sensor_msgs/msg/CompressedImage", msg, receive_ns=stamp
+                )
+                bag.write_fields(
+                    TOPICS["camera_info"],
+                    "sensor_msgs/msg/CameraInfo",
+                    _camera_info(stamp),
+                    receive_ns=stamp,
+                )
+                progress("demo frames", i + 1, len(cam_t))
+    return len(cam_t)
+
+
+def demo_config(bag: Path) -> Config:
+    """The cam2sim config of the demo bag."""
+    from cam2sim.core.config import (  # noqa: PLC0415
+        AxisConvention,
+        CameraConfig,
+        Config,
+        IntrinsicsConfig,
+        LidarConfig,
+        MountConfig,
+        PoseConfig,
+        RecordingConfig,
+        SignalConfig,
+        TopicsConfig,
+    )
+
+    k = camera_matrix()
+    width, height = CAMERA_SIZE
+    return Config(
+        recording=RecordingConfig(bags=[str(bag.absolute())]),
+        topics=TopicsConfig(
+            camera=TOPICS["camera"],
+            pose=TOPICS["pose"],
+            lidar=TOPICS["lidar"],
+            signals={"steering": SignalConfig(topic=TOPICS["steering"])},
+        ),
+        pose=PoseConfig(crs=CRS, axis_convention=AxisConvention.X_LEFT),
+        camera=CameraConfig(
+            intrinsics=IntrinsicsConfig(
+                fx=float(k[0, 0]),
+                fy=float(k[1, 1]),
+                cx=float(k[0, 2]),
+                cy=float(k[1, 2]),
+                width=width,
+                height=height,
+            ),
+            mount=MountConfig(xyz=CAMERA_MOUNT),
+        ),
+        lidar=LidarConfig(mount=MountConfig(xyz=LIDAR_MOUNT)),
+    )
+
+
+def _paths(root: Path) -> tuple[Path, Path, Path, Path]:
+    return root / "recording" / "bag", root / "demo.osm", root / "config.yaml", root / "truth.json"
+
+
+def load_demo_recording(out_dir: Path) -> DemoRecording | None:
+    """The recording already built in ``out_dir``, or None when there is none (or a partial one)."""
+    root = Path(out_dir)
+    marker = root / _MARKER
+    bag, osm, config, truth = _paths(root)
+    if not (marker.is_file() and bag.is_dir() and osm.is_file() and config.is_file()):
+        return None
+    try:
+        meta = json.loads(marker.read_text(encoding="utf-8"))
+        data = json.loads(truth.read_text(encoding="utf-8"))
+        if meta.get("version") != _VERSION:
+            return None
+        cars = tuple(ParkedCar(**c) for c in data["cars"])
+        buildings = tuple(
+            DemoBuilding(xy=tuple((float(x), float(y)) for x, y in b["xy"]), levels=b["levels"])
+            for b in data["buildings"]
+        )
+        return DemoRecording(
+            root=root,
+            bag=bag,
+            osm=osm,
+            config=config,
+            truth=cars,
+            buildings=buildings,
+            camera_frames=int(meta["camera_frames"]),
+            duration_s=float(meta["duration_s"]),
+        )
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def build_demo_recording(
+    out_dir: Path, *, seed: int = 0, progress: ProgressCallback | None = None
+) -> DemoRecording:
+    """Write the demo's OSM file, bag, config and ground truth into ``out_dir``.
+
+    Every file is written atomically, and ``demo.json`` last: a folder with it is complete
+    (:func:`load_demo_recording` reads it back).
+
+    Raises:
+        BackendUnavailableError: No headless OpenGL for the raster renderer (the message says
+            what to install).
+    """
+    from cam2sim.core.config import save_config  # noqa: PLC0415
+    from cam2sim.core.progress import no_progress  # noqa: PLC0415
+
+    root = Path(out_dir)
+    root.mkdir(parents=True, exist_ok=True)
+    world = demo_world(seed)
+    bag, osm, config, truth = _paths(root)
+    write_text_atomic(osm, world.osm_xml())
+    with atomic_folder(bag.parent) as tmp:
+        frames = _write_bag(tmp / bag.name, world, seed=seed, progress=progress or no_progress)
+    save_config(demo_config(bag), config, comment="The cam2sim demo recording (cam2sim demo)")
+    data = {
+        "crs": CRS,
+        "origin_utm": list(ORIGIN_UTM),
+        "cars": [asdict(c) for c in world.cars],
+        "buildings": [{"xy": [list(p) for p in b.xy], "levels": b.levels} for b in world.buildings],
+    }
+    write_text_atomic(truth, json.dumps(data, indent=1) + "\n")
+    duration = route_length_m() / SPEED_MPS
+    meta = {"version": _VERSION, "seed": seed, "camera_frames": frames, "duration_s": duration}
+    write_text_atomic(root / _MARKER, json.dumps(meta, indent=1) + "\n")
+    return DemoRecording(
+        root=root,
+        bag=bag,
+        osm=osm,
+        config=config,
+        truth=world.cars,
+        buildings=world.buildings,
+        camera_frames=frames,
+        duration_s=duration,
+    )
