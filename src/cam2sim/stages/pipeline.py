@@ -156,7 +156,7 @@ class PipelineResult:
 
 
 def demo_splat_options() -> SplatStageOptions:
-    """The demo's splat preset: a frame every 2 m, LiDAR-initialised, 300 steps at half size.
+    """The demo's splat preset: a frame every 2 m, 40k LiDAR points, 300 steps at half size.
 
     Minutes on two CPU cores instead of hours; the images are blurrier than a GPU model's but
     place every street element where it belongs, which is what the demo's comparison needs.
@@ -165,8 +165,15 @@ def demo_splat_options() -> SplatStageOptions:
     from cam2sim.splat.train import TrainOptions  # noqa: PLC0415
     from cam2sim.stages.splat import SplatStageOptions  # noqa: PLC0415
 
-    prepare = PrepareOptions(spacing_m=2.0, triangulate=False)
-    train = TrainOptions(max_steps=300, min_steps=300, val_every=100, downscale=2)
+    prepare = PrepareOptions(spacing_m=2.0, triangulate=False, lidar_voxel_m=0.25)
+    train = TrainOptions(
+        max_steps=300,
+        min_steps=300,
+        val_every=100,
+        downscale=2,
+        max_init_points=40_000,
+        sky_points=2_000,
+    )
     return SplatStageOptions(prepare=prepare, train=train, offsets_m=(-1.0, 1.0))
 
 
