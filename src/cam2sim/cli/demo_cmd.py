@@ -74,7 +74,7 @@ def demo(
                 runs=runs,
                 splat=demo_splat_options(),
                 splat_on_cpu=True,
-                ads=TrainOptions(epochs=8, batch_size=32, patience=3),
+                ads=TrainOptions(epochs=30, batch_size=32, patience=5),
             )
             ws = _workspace(out / "ws", [], recording.config)
             result = run_pipeline(ws, options=options, progress=sink)
