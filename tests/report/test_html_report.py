@@ -102,7 +102,7 @@ def test_report_embeds_every_section_and_no_external_resource(
     assert not list(ws.report_dir.glob(".*.tmp"))
     if rendered:
         assert 'src="data:image/jpeg;base64,' in html  # chosen frames and the strip
-        assert 'src="data:video/mp4;base64,' in html
+        assert 'src="data:video/webm;base64,' in html  # a clip browsers can play
         assert "mIoU" in html
         assert "PSNR dB" in html
         assert "not available" not in html.split('id="frames"')[1]
@@ -152,6 +152,13 @@ def test_report_renders_in_headless_chromium(
             loaded = page.evaluate(
                 "Array.from(document.images).every(i => i.complete && i.naturalWidth > 0)"
             )
+            videos = page.locator("video").count()
+            if videos:  # the embedded clip decodes: its size is known once metadata loaded
+                page.wait_for_function(
+                    "Array.from(document.querySelectorAll('video'))"
+                    ".every(v => v.readyState >= 1 && v.videoWidth > 0)",
+                    timeout=10_000,
+                )
             page.screenshot(path=str(tmp_path / "report.png"), full_page=True)
         finally:
             browser.close()

@@ -44,7 +44,9 @@ __all__ = ["SECTION_IDS", "VIDEO_CAP_BYTES", "write_report"]
 
 #: The ids of the report's sections, in page order.
 SECTION_IDS = ("summary", "map", "behaviour", "runs", "frames", "semantic", "images")
-#: A run's ``video.mp4`` is embedded only up to this size.
+_VIDEO_FRAMES = 300  # frames of a run's clip in the report
+_VIDEO_WIDTH = 640
+#: A run's clip (WebM made from its frames) is embedded only up to this size.
 VIDEO_CAP_BYTES = 8 * 1024 * 1024
 _CHOSEN_FRAMES = 4
 _STRIP_FRAMES = 8
@@ -410,13 +412,41 @@ def _frames(ctx: _Context) -> str:
             ctx.warnings.append(f"frames of {run.name}: {err}")
             continue
         parts.append(f'<p class="note">Video strip</p><div class="strip">{strip}</div>')
-        video = run / "video.mp4"
-        if video.is_file() and video.stat().st_size <= VIDEO_CAP_BYTES:
-            src = _data_uri(video.read_bytes(), "video/mp4")
-            parts.append(f'<video controls muted width="640" src="{src}"></video>')
-        elif video.is_file():
-            parts.append(f'<p class="note">video.mp4 over {VIDEO_CAP_BYTES >> 20} MB: not embedded')
+        clip = _webm(files[:_VIDEO_FRAMES])
+        if clip is not None and len(clip) <= VIDEO_CAP_BYTES:
+            src = _data_uri(clip, "video/webm")
+            parts.append(f'<video controls muted loop width="640" src="{src}"></video>')
+        elif (run / "video.mp4").is_file():
+            parts.append(f'<p class="note">the run\'s video: {_e(str(run / "video.mp4"))}</p>')
     return "".join(parts)
+
+
+def _webm(files: list[Path], fps: float = 10.0) -> bytes | None:
+    """The frames as a VP8 WebM clip (browsers play it; OpenCV's MP4 is not H.264), or None."""
+    import tempfile  # noqa: PLC0415
+
+    import cv2  # noqa: PLC0415
+
+    if not files:
+        return None
+    first = cv2.imread(str(files[0]), cv2.IMREAD_COLOR)
+    if first is None:
+        return None
+    h, w = first.shape[:2]
+    size = (_VIDEO_WIDTH, max(2, round(h * _VIDEO_WIDTH / w) // 2 * 2))
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "clip.webm"
+        writer = cv2.VideoWriter(str(out), cv2.VideoWriter.fourcc(*"VP80"), fps, size)
+        if not writer.isOpened():
+            return None
+        try:
+            for f in files:  # one encode per frame
+                bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
+                if bgr is not None:
+                    writer.write(cv2.resize(bgr, size, interpolation=cv2.INTER_AREA))
+        finally:
+            writer.release()
+        return out.read_bytes() if out.stat().st_size else None
 
 
 def _stats_rows(rows: Iterable[tuple[str, MetricStats, str]]) -> list[tuple[str, str, str, int]]:
