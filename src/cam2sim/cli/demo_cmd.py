@@ -10,7 +10,7 @@ from typing import Annotated
 import typer
 from rich.markup import escape
 
-from cam2sim.cli.display import console, error_console, print_table, progress_bars
+from cam2sim.cli.display import console, error_console, progress_bars
 from cam2sim.core.errors import Cam2SimError
 
 __all__ = ["demo"]
@@ -40,7 +40,7 @@ def demo(
     Example: cam2sim demo -o /tmp/demo
     """
     from cam2sim.ads.train import TrainOptions  # noqa: PLC0415
-    from cam2sim.cli.run_pipeline_cmd import _summary, _workspace  # noqa: PLC0415
+    from cam2sim.cli.run_pipeline_cmd import _finish, _workspace  # noqa: PLC0415
     from cam2sim.demo.world import build_demo_recording, load_demo_recording  # noqa: PLC0415
     from cam2sim.stages.pipeline import (  # noqa: PLC0415
         STEPS,
@@ -81,15 +81,4 @@ def demo(
     except Cam2SimError as err:
         error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
         raise typer.Exit(1) from None
-    print_table(_summary(result))
-    total = time.perf_counter() - started
-    console.print(f"workspace {ws.root}; {total:.0f} s in all", highlight=False)
-    if result.report is not None:
-        console.print(f"report: {result.report}", highlight=False)
-    if result.failed:
-        error_console.print(
-            "[bold red]a step failed[/]; fix what its message says, then run the same command "
-            "again to resume",
-            highlight=False,
-        )
-        raise typer.Exit(1)
+    _finish(ws, result, time.perf_counter() - started)

@@ -142,9 +142,13 @@ def run(
     except Cam2SimError as err:
         error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
         raise typer.Exit(1) from None
+    _finish(ws, result, sum(o.seconds for o in result.outcomes))
+
+
+def _finish(ws: Workspace, result: PipelineResult, total_s: float) -> None:
+    """Print the summary table, the total and the report; exit 1 when a step failed."""
     print_table(_summary(result))
-    total = sum(o.seconds for o in result.outcomes)
-    console.print(f"workspace {ws.root}; {total:.0f} s in all", highlight=False)
+    console.print(f"workspace {ws.root}; {total_s:.0f} s in all", highlight=False)
     if result.report is not None:
         console.print(f"report: {result.report}", highlight=False)
     if result.failed:

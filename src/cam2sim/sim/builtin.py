@@ -21,7 +21,7 @@ import numpy.typing as npt
 import pydantic
 
 from cam2sim.core.errors import ConfigError, StageError
-from cam2sim.sim.control import EventLog, RouteTracker, SpeedPid
+from cam2sim.sim.control import EventLog, RouteTracker, SpeedPid, limit_wheel_angle
 from cam2sim.sim.interface import (
     Control,
     EventKind,
@@ -255,10 +255,13 @@ class BuiltinSimulator:
         if not (math.isfinite(want) and math.isfinite(self._target)):
             msg = f"control {control!r} is not finite; send finite steering and speed"
             raise ConfigError(msg)
-        lim = o.max_wheel_angle_rad
-        want = min(lim, max(-lim, want))
-        rate = o.max_steer_rate_rad_s * o.dt
-        self._delta += min(rate, max(-rate, want - self._delta))
+        self._delta = limit_wheel_angle(
+            self._delta,
+            want,
+            max_angle=o.max_wheel_angle_rad,
+            max_rate=o.max_steer_rate_rad_s,
+            dt=o.dt,
+        )
 
     def _acceleration(self) -> float:
         """PID on the speed error, limited.

@@ -59,7 +59,7 @@ from cam2sim.core.frames.carla import (
 )
 from cam2sim.core.frames.pose import Pose as FramePose
 from cam2sim.core.frames.rotation import quat_from_yaw, yaw_from_quat
-from cam2sim.sim.control import EventLog, RouteTracker, SpeedPid
+from cam2sim.sim.control import EventLog, RouteTracker, SpeedPid, limit_wheel_angle
 from cam2sim.sim.interface import (
     Control,
     EventKind,
@@ -734,10 +734,13 @@ class CarlaSimulator:
         if not (math.isfinite(want) and math.isfinite(self._target)):
             msg = f"control {control!r} is not finite; send finite steering and speed"
             raise ConfigError(msg)
-        lim = o.max_wheel_angle_rad
-        want = min(lim, max(-lim, want))
-        rate = o.max_steer_rate_rad_s * o.dt
-        self._delta += min(rate, max(-rate, want - self._delta))
+        self._delta = limit_wheel_angle(
+            self._delta,
+            want,
+            max_angle=o.max_wheel_angle_rad,
+            max_rate=o.max_steer_rate_rad_s,
+            dt=o.dt,
+        )
 
     def _acceleration(self) -> float:
         """The builtin backend's PID on the speed error (same gains, limits and anti-windup)."""

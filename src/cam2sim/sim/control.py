@@ -18,7 +18,14 @@ if TYPE_CHECKING:
 
     from cam2sim.sim.interface import EventKind
 
-__all__ = ["EpisodeRules", "EventLog", "RouteTracker", "SpeedGains", "SpeedPid"]
+__all__ = [
+    "EpisodeRules",
+    "EventLog",
+    "RouteTracker",
+    "SpeedGains",
+    "SpeedPid",
+    "limit_wheel_angle",
+]
 
 _PROJECT_BACK = 4  # route segments searched behind the last foot point
 _PROJECT_AHEAD = 40  # and ahead of it
@@ -201,3 +208,12 @@ class EventLog:
             self.slow_since = None
         if t >= timeout_s - 1e-9:
             self.emit("timeout", t, cx, cy, f"ran {timeout_s:.1f} s without finishing")
+
+
+def limit_wheel_angle(
+    current: float, want: float, *, max_angle: float, max_rate: float, dt: float
+) -> float:
+    """Move the wheel angle from ``current`` toward ``want`` within the angle and rate limits."""
+    want = min(max_angle, max(-max_angle, want))
+    step = max_rate * dt
+    return current + min(step, max(-step, want - current))
