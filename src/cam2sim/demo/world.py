@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, Any, Final
 import numpy as np
 
 from cam2sim.core.files import atomic_folder, write_text_atomic
+from cam2sim.scenario.synthetic import lane_section_xml
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -219,18 +220,7 @@ def camera_pose(station: float) -> npt.NDArray[np.float64]:
 
 
 # -- the world -------------------------------------------------------------------------------
-_LANES: Final = f"""
-      <left>
-        <lane id="3" type="sidewalk"><width sOffset="0" a="{SIDEWALK_M}" b="0" c="0" d="0"/></lane>
-        <lane id="2" type="parking"><width sOffset="0" a="{PARKING_M}" b="0" c="0" d="0"/></lane>
-        <lane id="1" type="driving"><width sOffset="0" a="{LANE_M}" b="0" c="0" d="0"/></lane>
-      </left>
-      <center><lane id="0" type="none"/></center>
-      <right>
-        <lane id="-1" type="driving"><width sOffset="0" a="{LANE_M}" b="0" c="0" d="0"/></lane>
-        <lane id="-2" type="parking"><width sOffset="0" a="{PARKING_M}" b="0" c="0" d="0"/></lane>
-        <lane id="-3" type="sidewalk"><width sOffset="0" a="{SIDEWALK_M}" b="0" c="0" d="0"/></lane>
-      </right>"""
+_LANES: Final = lane_section_xml(LANE_M, PARKING_M, SIDEWALK_M)
 
 
 @dataclass(frozen=True)

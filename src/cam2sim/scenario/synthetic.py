@@ -20,20 +20,24 @@ from cam2sim.core.workspace import WorldFrameRecord
 if TYPE_CHECKING:
     from cam2sim.scenario.model import Scenario
 
-__all__ = ["StreetSpec", "synthetic_street"]
+__all__ = ["StreetSpec", "lane_section_xml", "synthetic_street"]
 
-_LANES = """
-      <left>
-        <lane id="3" type="sidewalk"><width sOffset="0" a="2" b="0" c="0" d="0"/></lane>
-        <lane id="2" type="parking"><width sOffset="0" a="2.5" b="0" c="0" d="0"/></lane>
-        <lane id="1" type="driving"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane>
-      </left>
-      <center><lane id="0" type="none"/></center>
-      <right>
-        <lane id="-1" type="driving"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane>
-        <lane id="-2" type="parking"><width sOffset="0" a="2.5" b="0" c="0" d="0"/></lane>
-        <lane id="-3" type="sidewalk"><width sOffset="0" a="2" b="0" c="0" d="0"/></lane>
-      </right>"""
+
+def lane_section_xml(lane_m: float = 3.5, parking_m: float = 2.5, sidewalk_m: float = 2.0) -> str:
+    """OpenDRIVE lanes of a two-way street: driving, parking and sidewalk lanes on each side."""
+    side = [("sidewalk", sidewalk_m), ("parking", parking_m), ("driving", lane_m)]
+
+    def lane(lane_id: int, kind: str, width: float) -> str:
+        w = f'<width sOffset="0" a="{width}" b="0" c="0" d="0"/>'
+        return f'        <lane id="{lane_id}" type="{kind}">{w}</lane>\n'
+
+    left = "".join(lane(3 - k, kind, w) for k, (kind, w) in enumerate(side))
+    right = "".join(lane(-1 - k, kind, w) for k, (kind, w) in enumerate(reversed(side)))
+    return (
+        f"\n      <left>\n{left}      </left>\n"
+        '      <center><lane id="0" type="none"/></center>\n'
+        f"      <right>\n{right}      </right>"
+    )
 
 
 @dataclass(frozen=True)
@@ -92,7 +96,7 @@ def _xodr(spec: StreetSpec) -> str:
 <OpenDRIVE><header revMajor="1" revMinor="4"/>
   <road name="street" length="{total}" id="1" junction="-1">
     <planView>{geometry}</planView>
-    <lanes><laneSection s="0">{_LANES}
+    <lanes><laneSection s="0">{lane_section_xml()}
     </laneSection></lanes>
   </road>
 </OpenDRIVE>
