@@ -28,6 +28,11 @@ What it measures (each part optional):
   model) on the same prepared scene, scored on the same held-out frames: the control that tells
   trainer problems from scene problems. ``--plain-affine`` adds a per-view affine colour transform
   (held-out frames take the mean of their two neighbours'), ``--plain-sky N`` far sky points.
+* Step timing (both trainers): ``--clock-every N`` records CUDA-synchronised time marks every N
+  steps (ms/step per interval in the JSON); ``--profile-window A:B --profile-dir DIR`` runs
+  ``torch.profiler`` from step A to B and writes its tables (by self CUDA and self CPU time) and a
+  gzipped Chrome trace; ``--set profile=true`` turns on the trainer's per-phase timer
+  (``TrainResult.phase_ms``); ``--label`` names our trainer's run in those files.
 
 Run from the repository root::
 
@@ -43,6 +48,7 @@ from __future__ import annotations
 import argparse
 import ast
 import dataclasses
+import gzip
 import importlib.util
 import json
 import os
@@ -373,9 +379,99 @@ def train_options(args: argparse.Namespace) -> TrainOptions:
 
 
 def _ssim_loss(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-    from cam2sim.splat.train import _ssim  # noqa: PLC0415 -- the same SSIM as our trainer's
+    try:  # the same SSIM as our trainer's
+        from cam2sim.splat.losses import ssim  # noqa: PLC0415
+    except ImportError:  # an older tree (profiling the trainer before the split)
+        from cam2sim.splat.train import _ssim as ssim  # noqa: PLC0415
 
-    return 1.0 - _ssim(x, y)
+    return 1.0 - ssim(x, y)
+
+
+class StepClock:
+    """Progress callback: CUDA-synchronised wall time every ``every`` steps, a profiler window.
+
+    ``window = (a, b)`` runs ``torch.profiler`` (CPU and CUDA) from step ``a`` to step ``b`` and
+    writes its tables (by self CUDA time and by self CPU time) and a gzipped Chrome trace to
+    ``out_dir`` as ``profile_<label>_*``.
+    """
+
+    def __init__(
+        self, label: str, every: int, window: tuple[int, int] | None, out_dir: Path | None
+    ) -> None:
+        self.label, self.every, self.window, self.out_dir = label, every, window, out_dir
+        self.marks: list[tuple[int, float]] = []
+        self.profiler: Any = None
+        self.profile: dict[str, Any] = {}
+
+    def __call__(self, _label: str, done: int, _cap: int) -> None:
+        if self.every and done % self.every == 0:
+            torch.cuda.synchronize()
+            self.marks.append((done, time.perf_counter()))
+        if self.window is None:
+            return
+        if done == self.window[0] and self.profiler is None:
+            from torch.profiler import ProfilerActivity, profile  # noqa: PLC0415
+
+            torch.cuda.synchronize()
+            self.profiler = profile(activities=[ProfilerActivity.CPU, ProfilerActivity.CUDA])
+            self.profiler.start()
+            self._t0 = time.perf_counter()
+        elif done == self.window[1] and self.profiler is not None:
+            torch.cuda.synchronize()
+            wall = time.perf_counter() - self._t0
+            self.profiler.stop()
+            self._write(wall, self.window[1] - self.window[0])
+
+    def _write(self, wall: float, steps: int) -> None:
+        events = self.profiler.key_averages()
+        device_us = sum(
+            getattr(e, "self_device_time_total", getattr(e, "self_cuda_time_total", 0.0))
+            for e in events
+        )
+        n_kernels = sum(
+            e.count for e in events if getattr(e, "device_type", None) is not None
+            and "cuda" in str(e.device_type).lower()
+        )  # fmt: skip
+        self.profile = {
+            "steps": steps,
+            "wall_ms_per_step_profiled": 1e3 * wall / steps,
+            "device_kernel_ms_per_step": device_us / 1e3 / steps,
+            "device_events_per_step": n_kernels / steps,
+        }
+        print(f"profile {self.label}: {json.dumps(self.profile)}")
+        if self.out_dir is None:
+            return
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        for key in ("self_cuda_time_total", "self_cpu_time_total"):
+            try:
+                table = events.table(sort_by=key, row_limit=70, max_name_column_width=70)
+            except (AttributeError, KeyError, ValueError) as err:
+                table = f"(no table by {key}: {err})"
+            name = f"profile_{self.label}_{key.replace('_total', '')}.txt"
+            (self.out_dir / name).write_text(json.dumps(self.profile) + "\n" + table)
+        trace = self.out_dir / f"trace_{self.label}.json"
+        self.profiler.export_chrome_trace(str(trace))
+        with trace.open("rb") as src, gzip.open(f"{trace}.gz", "wb") as dst:
+            shutil.copyfileobj(src, dst)
+        trace.unlink()
+
+    def summary(self) -> dict[str, Any]:
+        """ms/step over each interval between marks, and the profile."""
+        rows = [
+            {"from": a, "to": b, "ms_per_step": 1e3 * (tb - ta) / (b - a)}
+            for (a, ta), (b, tb) in zip(self.marks, self.marks[1:], strict=False)
+            if b > a
+        ]
+        return {"intervals": rows, "profile": self.profile}
+
+
+def _clock(args: argparse.Namespace, label: str) -> StepClock:
+    window = None
+    if args.profile_window:
+        a, _, b = args.profile_window.partition(":")
+        window = (int(a), int(b))
+    out = Path(args.profile_dir) if args.profile_dir else None
+    return StepClock(label, args.clock_every, window, out)
 
 
 def _plain_splats(
@@ -493,6 +589,7 @@ def run_plain(args: argparse.Namespace, prep: Path) -> dict[str, Any]:
     strategy = DefaultStrategy()
     state = strategy.initialize_state(scene_scale=scene_scale)
     order: list[int] = []
+    clock = _clock(args, "plain")
     t0 = time.perf_counter()
     for step in range(steps):
         order = order or torch.randperm(len(train)).tolist()
@@ -511,6 +608,7 @@ def run_plain(args: argparse.Namespace, prep: Path) -> dict[str, Any]:
         strategy.step_post_backward(splats, optimizers, state, step, info, packed=False)
         if 0 < step < strategy.refine_stop_iter and step % strategy.reset_every == 0:
             reset_opa(splats, optimizers, state, value=strategy.prune_opa * 2.0)
+        clock("plain steps", step + 1, steps)
     torch.cuda.synchronize()
     train_s = time.perf_counter() - t0
     rows = _plain_scores(args, prep, scene, splats, affine.detach())
@@ -522,6 +620,7 @@ def run_plain(args: argparse.Namespace, prep: Path) -> dict[str, Any]:
         "scene_scale": scene_scale,
         "affine": args.plain_affine,
         "sky_points": args.plain_sky,
+        "clock": clock.summary(),
     }
     out.update({key: float(np.mean(values)) for key, values in rows.items() if values})
     out["psnr_p10"] = float(np.percentile(rows["psnr"], 10))
@@ -537,7 +636,10 @@ def run_pipeline(args: argparse.Namespace, prep: Path, work: Path) -> dict[str, 
     torch.cuda.reset_peak_memory_stats()
     t0 = time.perf_counter()
     chunk_ids = tuple(int(c) for c in args.chunks.split(",")) if args.chunks else None
-    trained = train_scene(prep, options=options, models_dir=models, chunk_ids=chunk_ids)
+    clock = _clock(args, args.label)
+    trained = train_scene(
+        prep, options=options, models_dir=models, chunk_ids=chunk_ids, progress=clock
+    )
     train_s = time.perf_counter() - t0
     for c in trained.chunks:
         print(
@@ -591,6 +693,8 @@ def run_pipeline(args: argparse.Namespace, prep: Path, work: Path) -> dict[str, 
                 for c in trained.chunks
             ],
             "total_gaussians": sum(c.n_gaussians for c in trained.chunks),
+            "clock": clock.summary(),
+            "phase_ms": [getattr(c, "phase_ms", None) for c in trained.chunks],
         },
         "held_out": summary,
         "offsets": ev["offsets"],
@@ -598,6 +702,13 @@ def run_pipeline(args: argparse.Namespace, prep: Path, work: Path) -> dict[str, 
         "targets": TARGETS,
         "meets_targets": checks,
     }
+
+
+def _add_profile_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--label", default="ours", help="name of our trainer's run in outputs")
+    parser.add_argument("--clock-every", type=int, default=500, help="synchronised time marks")
+    parser.add_argument("--profile-window", help="A:B: torch.profiler from step A to step B")
+    parser.add_argument("--profile-dir", help="where the profiler tables and traces go")
 
 
 def main() -> int:
@@ -631,6 +742,7 @@ def main() -> int:
     parser.add_argument("--plain-affine-lr", type=float, default=1e-3)
     parser.add_argument("--plain-sky", type=int, default=0)
     parser.add_argument("--out", default="splat_gpu.json")
+    _add_profile_args(parser)
     args = parser.parse_args()
 
     if not torch.cuda.is_available():

@@ -26,7 +26,7 @@ import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Final
+from typing import TYPE_CHECKING, Final, Literal
 
 import numpy as np
 import pydantic
@@ -38,9 +38,7 @@ from cam2sim.core.schema import Artifact
 from cam2sim.splat.raster_torch import SH_C0, quats_to_rotmats, rgb_from_sh
 
 if TYPE_CHECKING:
-    from cam2sim.splat.raster import RasterOutput
     from cam2sim.splat.scene import FrameRecord
-    from cam2sim.splat.train import DensifyOptions
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping, Sequence
@@ -51,7 +49,6 @@ __all__ = [
     "PARAM_NAMES",
     "ChunkHeader",
     "ChunkModel",
-    "Densifier",
     "GaussianModel",
     "SeedOptions",
     "SeededModels",
@@ -179,13 +176,25 @@ class GaussianModel:
         }
         return cls(params, sh_degree=sh_degree)
 
-    def colors(self, campos: torch.Tensor, degree: int) -> torch.Tensor:
-        """Return ``[C, N, 3]`` colours seen from camera centres ``campos`` ``[C, 3]``."""
+    def colors(
+        self, campos: torch.Tensor, degree: int, *, backend: Literal["gsplat", "torch"] = "torch"
+    ) -> torch.Tensor:
+        """Return ``[C, N, 3]`` colours seen from camera centres ``campos`` ``[C, 3]``.
+
+        ``backend="gsplat"`` evaluates the SH with gsplat's CUDA kernel (one launch forward and
+        one backward instead of about a hundred small torch operations); ``"torch"`` uses
+        :func:`cam2sim.splat.raster_torch.rgb_from_sh`. Both compute the same function.
+        """
         degree = min(degree, self.sh_degree)
         means = self.params["means"]
         coeffs = torch.cat((self.params["sh0"], self.params["shN"]), dim=1)
         dirs = means[None, :, :] - campos[:, None, :]
-        return rgb_from_sh(coeffs[None].expand(campos.shape[0], -1, -1, -1), dirs, degree)
+        shs = coeffs[None].expand(campos.shape[0], -1, -1, -1)
+        if backend == "gsplat":
+            from gsplat import spherical_harmonics  # noqa: PLC0415
+
+            return torch.clamp_min(spherical_harmonics(degree, dirs, shs) + 0.5, 0.0)
+        return rgb_from_sh(shs, dirs, degree)
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         """Return the parameters as detached CPU tensors."""
@@ -260,7 +269,12 @@ class SplatInputs:
 
 
 def gather_splats(
-    street: GaussianModel, sky: GaussianModel, campos: torch.Tensor, sh_degree: int
+    street: GaussianModel,
+    sky: GaussianModel,
+    campos: torch.Tensor,
+    sh_degree: int,
+    *,
+    backend: Literal["gsplat", "torch"] = "torch",
 ) -> SplatInputs:
     """Join ``street`` and ``sky`` into one set of activated Gaussians seen from ``campos``.
 
@@ -269,13 +283,14 @@ def gather_splats(
         sky: The sky model (SH degree 0).
         campos: ``[C, 3]`` camera centres, world metres.
         sh_degree: SH degree to evaluate for the street model.
+        backend: Who evaluates the SH colours (see :meth:`GaussianModel.colors`).
 
     Returns:
         The joined inputs; gradients flow back to both models.
     """
     parts = (street, sky)
-    street_rgb = street.colors(campos, sh_degree)
-    sky_rgb = sky.colors(campos, 0)
+    street_rgb = street.colors(campos, sh_degree, backend=backend)
+    sky_rgb = sky.colors(campos, 0, backend=backend)
     flag = torch.cat(
         (
             torch.zeros_like(street_rgb[..., :1]),
@@ -387,120 +402,6 @@ def reset_opacity(model: GaussianModel, optimizers: Optimizers, value: float) ->
         opt.param_groups[0]["params"] = [fresh]
         opt.state[fresh] = state
     model.params["opacities"] = fresh
-
-
-# ---------------------------------------------------------------------- densification rules
-
-
-class Densifier:
-    """Clone/split/prune by accumulated 2-D gradients, and reset opacities (3DGS rules).
-
-    The gsplat variant hands the statistics and surgery to ``DefaultStrategy``; the simple
-    variant does the same with this module's operations. Both reset opacities
-    themselves (gsplat 1.5.3 never does).
-    """
-
-    def __init__(self, options: DensifyOptions, scene_scale: float, *, use_gsplat: bool) -> None:
-        self.options = options
-        self.scene_scale = scene_scale
-        self.strategy: Any = None  # Any: gsplat ships no type information
-        self.state: dict[str, Any] = {"grad2d": None, "count": None}
-        if use_gsplat:
-            from gsplat.strategy import DefaultStrategy  # noqa: PLC0415
-
-            self.strategy = DefaultStrategy(
-                prune_opa=options.prune_opacity,
-                grow_grad2d=options.grow_grad2d,
-                grow_scale3d=options.grow_scale3d,
-                prune_scale3d=options.prune_scale3d,
-                refine_start_iter=options.refine_start,
-                refine_stop_iter=options.refine_stop,
-                reset_every=options.reset_every,
-                refine_every=options.refine_every,
-            )
-            self.state = self.strategy.initialize_state(scene_scale=scene_scale)
-
-    def post_backward(
-        self,
-        step: int,
-        model: GaussianModel,
-        optimizers: dict[str, torch.optim.Optimizer],
-        out: RasterOutput,
-        n_street: int,
-        generator: torch.Generator,
-    ) -> None:
-        """Update statistics after ``backward()`` and refine when the step is due."""
-        opts = self.options
-        if step >= opts.refine_stop or out.means2d.grad is None:
-            return
-        if self.strategy is not None:
-            if len(model) < opts.max_gaussians:
-                proxy = out.means2d.detach()[:, :n_street]
-                proxy.grad = out.means2d.grad[:, :n_street]
-                info = {
-                    "means2d": proxy,
-                    "radii": out.radii[:, :n_street],
-                    "width": out.info["width"],
-                    "height": out.info["height"],
-                    "n_cameras": out.info["n_cameras"],
-                    "gaussian_ids": None,
-                }
-                self.strategy.step_post_backward(
-                    model.params, optimizers, self.state, step, info, packed=False
-                )
-        else:
-            self._accumulate(out, n_street, len(model))
-            due = step > opts.refine_start and step % opts.refine_every == 0
-            if due:
-                self._refine(step, model, optimizers, generator)
-        if step > 0 and step % opts.reset_every == 0:
-            reset_opacity(model, optimizers, 2.0 * opts.prune_opacity)
-
-    def _accumulate(self, out: RasterOutput, n_street: int, n: int) -> None:
-        assert out.means2d.grad is not None
-        grads = out.means2d.grad[:, :n_street].clone()
-        grads[..., 0] *= out.info["width"] / 2.0 * out.info["n_cameras"]
-        grads[..., 1] *= out.info["height"] / 2.0 * out.info["n_cameras"]
-        seen = (out.radii[:, :n_street] > 0).all(dim=-1)
-        if self.state["grad2d"] is None:
-            self.state["grad2d"] = torch.zeros(n, device=grads.device)
-            self.state["count"] = torch.zeros(n, device=grads.device)
-        self.state["grad2d"] += (grads.norm(dim=-1) * seen).sum(dim=0)
-        self.state["count"] += seen.sum(dim=0)
-
-    def _refine(
-        self,
-        step: int,
-        model: GaussianModel,
-        optimizers: dict[str, torch.optim.Optimizer],
-        generator: torch.Generator,
-    ) -> None:
-        opts = self.options
-        grad2d, count = self.state["grad2d"], self.state["count"]
-        if grad2d is None:
-            return
-        n_before = len(model)
-        if n_before < opts.max_gaussians:
-            high = grad2d / count.clamp_min(1.0) > opts.grow_grad2d
-            max_scale = torch.exp(model.params["scales"].detach()).max(dim=-1).values
-            small = max_scale <= opts.grow_scale3d * self.scene_scale
-            clone = high & small
-            if clone.any():
-                duplicate(model, optimizers, clone)
-            grown = high & ~small
-            pad = torch.zeros(int(clone.sum()), dtype=torch.bool, device=grown.device)
-            grown = torch.cat((grown, pad))
-            if grown.any():
-                split(model, optimizers, grown, generator=generator)
-        prune = torch.sigmoid(model.params["opacities"].detach()) < opts.prune_opacity
-        if step > opts.reset_every:
-            max_scale = torch.exp(model.params["scales"].detach()).max(dim=-1).values
-            prune |= max_scale > opts.prune_scale3d * self.scene_scale
-        if prune.any():
-            remove(model, optimizers, prune)
-        _log.debug("step %d: %d -> %d Gaussians", step, n_before, len(model))
-        self.state["grad2d"] = None
-        self.state["count"] = None
 
 
 # ---------------------------------------------------------------------------- initialisation

@@ -12,7 +12,7 @@ Reads ``WS/splat/prep/`` (:mod:`cam2sim.splat.scene`), writes ``WS/splat/models/
   Gaussians cannot paint the street.
 - **Appearance**: a per-view affine colour transform (3x3 + bias, identity at first, own small
   learning rate) applied to the render before the loss.
-- **Densification** (:class:`cam2sim.splat.model.Densifier`): gsplat's ``DefaultStrategy``
+- **Densification** (:class:`cam2sim.splat.densify.Densifier`): gsplat's ``DefaultStrategy``
   with the gsplat backend, a simple densifier of the same rules otherwise; opacities are reset
   here every ``reset_every`` steps, as gsplat 1.5.3's strategy never does it.
 - **Stopping**: every ``val_every`` steps the PSNR of up to ``n_val_views`` training views
@@ -26,7 +26,6 @@ one GPU; each stops on its own plateau). torch and gsplat are imported inside fu
 from __future__ import annotations
 
 import logging
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,7 +35,7 @@ import numpy as np
 
 from cam2sim.core.errors import StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
-from cam2sim.splat.scene import ChunkRecord, FrameRecord, SceneRecord, load_points
+from cam2sim.splat.scene import ChunkRecord, SceneRecord, load_points
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -140,6 +139,8 @@ class TrainOptions:
         backend: Rasterizer, see :mod:`cam2sim.splat.raster`.
         write_ply: Also write ``chunk_XX.ply`` (3DGS layout) beside each model.
         seed: Seeds view order, subsets and splits.
+        profile: Time each step's phases (host and CUDA-event device time) into
+            ``TrainResult.phase_ms``; also on with ``CAM2SIM_SPLAT_PROFILE=1``.
     """
 
     max_steps: int = 30_000
@@ -165,6 +166,7 @@ class TrainOptions:
     backend: RasterBackend = "auto"
     write_ply: bool = False
     seed: int = 0
+    profile: bool = False
 
     def __post_init__(self) -> None:
         problems = []
@@ -201,6 +203,8 @@ class TrainResult:
         train_seconds: Wall time spent in this chunk's steps and validations.
         backend: Rasterizer that ran.
         device: torch device.
+        phase_ms: Per-step host and device milliseconds by phase when phase timing was on
+            (``TrainOptions.profile``, see :mod:`cam2sim.splat.profiling`), else empty.
     """
 
     chunk_id: int
@@ -216,6 +220,7 @@ class TrainResult:
     train_seconds: float
     backend: str
     device: str
+    phase_ms: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -233,141 +238,7 @@ class SceneTrainResult:
     peak_memory_bytes: int | None
 
 
-# ------------------------------------------------------------------------------ data loading
-
-
-@dataclass(frozen=True)
-class _Views:
-    """The training views of one chunk, on the training device."""
-
-    frames: tuple[FrameRecord, ...]
-    images: torch.Tensor  # [M, H, W, 3] uint8
-    masks: torch.Tensor  # [M, H, W] bool, True = use
-    sky: torch.Tensor | None  # [M, H, W] bool, True = sky
-    viewmats: torch.Tensor  # [M, 4, 4] world -> camera
-    Ks: torch.Tensor  # [M, 3, 3]
-    campos: torch.Tensor  # [M, 3]
-    width: int
-    height: int
-
-
-def _read_mask(path: Path, shape: tuple[int, int]) -> npt.NDArray[np.uint8] | None:
-    import cv2  # noqa: PLC0415
-
-    if not path.is_file():
-        return None
-    mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if mask is None or mask.shape != shape:
-        msg = f"mask {path} is unreadable or not {shape[1]}x{shape[0]}; re-run splat preparation"
-        raise StageError(msg)
-    return np.asarray(mask, dtype=np.uint8)
-
-
-def _load_views(prep_dir: Path, frames: list[FrameRecord], downscale: int, device: str) -> _Views:
-    import cv2  # noqa: PLC0415
-    import torch  # noqa: PLC0415
-
-    from cam2sim.metrics.image_quality import read_rgb  # noqa: PLC0415
-
-    sizes = {(f.width, f.height) for f in frames}
-    if len(sizes) != 1:
-        msg = f"training views of one chunk must share one image size, found {sorted(sizes)}"
-        raise StageError(msg)
-    (w0, h0) = sizes.pop()
-    w, h = max(1, w0 // downscale), max(1, h0 // downscale)
-    sx, sy = w / w0, h / h0
-    images, masks, skies, viewmats, ks = [], [], [], [], []
-    any_sky = False
-    for f in frames:
-        stem = f"{f.index:06d}.png"
-        rgb = read_rgb(prep_dir / "images" / stem)
-        if rgb.shape[:2] != (h0, w0):
-            msg = f"{prep_dir / 'images' / stem} is {rgb.shape[1]}x{rgb.shape[0]}, not {w0}x{h0}"
-            raise StageError(msg)
-        mask = _read_mask(prep_dir / "masks" / stem, (h0, w0))
-        sky = _read_mask(prep_dir / "sky" / stem, (h0, w0))
-        mask = np.full((h0, w0), 255, np.uint8) if mask is None else mask
-        any_sky = any_sky or sky is not None
-        sky = np.zeros((h0, w0), np.uint8) if sky is None else sky
-        if (w, h) != (w0, h0):
-            rgb = np.asarray(cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA), np.uint8)
-            mask = np.asarray(cv2.resize(mask, (w, h), interpolation=cv2.INTER_AREA), np.uint8)
-            sky = np.asarray(cv2.resize(sky, (w, h), interpolation=cv2.INTER_AREA), np.uint8)
-        images.append(rgb)
-        masks.append(mask > 254)
-        skies.append(sky > 127)
-        viewmats.append(np.linalg.inv(f.T()))
-        k = f.K()
-        k[0] *= sx
-        k[1] *= sy
-        ks.append(k)
-    viewmat_t = torch.tensor(np.stack(viewmats), dtype=torch.float32, device=device)
-    return _Views(
-        frames=tuple(frames),
-        images=torch.from_numpy(np.stack(images)).to(device),
-        masks=torch.from_numpy(np.stack(masks)).to(device),
-        sky=torch.from_numpy(np.stack(skies)).to(device) if any_sky else None,
-        viewmats=viewmat_t,
-        Ks=torch.tensor(np.stack(ks), dtype=torch.float32, device=device),
-        campos=torch.tensor(
-            np.stack([f.T()[:3, 3] for f in frames]), dtype=torch.float32, device=device
-        ),
-        width=w,
-        height=h,
-    )
-
-
-# ------------------------------------------------------------------------------- losses
-
-
-def _ssim(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-    """Mean SSIM of two ``[H, W, C]`` images in ``[0, 1]`` (11x11 Gaussian window, sigma 1.5)."""
-    import torch  # noqa: PLC0415
-    from torch.nn import functional as tnf  # noqa: PLC0415
-
-    c = x.shape[-1]
-    coords = torch.arange(11, dtype=x.dtype, device=x.device) - 5.0
-    g = torch.exp(-(coords**2) / (2 * 1.5**2))
-    g = g / g.sum()
-    window = (g[:, None] * g[None, :]).expand(c, 1, 11, 11).contiguous()
-    a = x.permute(2, 0, 1)[None]
-    b = y.permute(2, 0, 1)[None]
-
-    def blur(t: torch.Tensor) -> torch.Tensor:
-        return tnf.conv2d(t, window, groups=c)
-
-    mu_a, mu_b = blur(a), blur(b)
-    var_a = blur(a * a) - mu_a * mu_a
-    var_b = blur(b * b) - mu_b * mu_b
-    cov = blur(a * b) - mu_a * mu_b
-    c1, c2 = 0.01**2, 0.03**2
-    num = (2 * mu_a * mu_b + c1) * (2 * cov + c2)
-    den = (mu_a * mu_a + mu_b * mu_b + c1) * (var_a + var_b + c2)
-    return (num / den).mean()
-
-
-def _apply_affine(rgb: torch.Tensor, affine: torch.Tensor) -> torch.Tensor:
-    """Apply a ``[3, 4]`` colour transform to ``[..., 3]`` colours."""
-    return rgb @ affine[:, :3].T + affine[:, 3]
-
-
-def _masked_psnr(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> float:
-    err = ((pred.clamp(0.0, 1.0) - target) ** 2)[mask]
-    mse = float(err.mean()) if err.numel() else 0.0
-    return 100.0 if mse <= 1e-10 else -10.0 * math.log10(mse)
-
-
 # --------------------------------------------------------------------------------- trainer
-
-
-def _sky_colour(views: _Views) -> list[float]:
-    """Mean colour of sky pixels, or of the top tenth of the images without sky masks."""
-    if views.sky is not None and bool(views.sky.any()):
-        pixels = views.images[views.sky]
-    else:
-        top = max(1, views.height // 10)
-        pixels = views.images[:, :top].reshape(-1, 3)
-    return (pixels.float().mean(dim=0) / 255.0).tolist()
 
 
 class _ChunkTrainer:
@@ -401,7 +272,13 @@ class _ChunkTrainer:
         if not frames:
             msg = f"chunk {chunk.id} has no training views (all held out?); re-run preparation"
             raise StageError(msg)
-        self.views = _load_views(prep_dir, frames, options.downscale, device)
+        from cam2sim.splat.densify import Densifier  # noqa: PLC0415
+        from cam2sim.splat.profiling import PhaseTimer, profiling_requested  # noqa: PLC0415
+        from cam2sim.splat.views import load_views, loss_constants  # noqa: PLC0415
+
+        self.views = load_views(prep_dir, frames, options.downscale, device)
+        self.loss_constants = loss_constants(self.views)
+        self.timer = PhaseTimer(enabled=profiling_requested(options.profile), device=device)
         self.generator = torch.Generator(device=device).manual_seed(options.seed + chunk.id)
         self.cpu_generator = torch.Generator().manual_seed(options.seed + chunk.id)
         n_views = len(frames)
@@ -411,8 +288,6 @@ class _ChunkTrainer:
         self._order: list[int] = []
         self._build_models(points)
         self._build_optimizers()
-        from cam2sim.splat.model import Densifier  # noqa: PLC0415
-
         self.densifier = (
             Densifier(
                 options.densify,
@@ -437,12 +312,13 @@ class _ChunkTrainer:
     # -- set-up ------------------------------------------------------------------------------
     def _build_models(self, points: tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]) -> None:
         from cam2sim.splat.model import SeedOptions, seed_models  # noqa: PLC0415
+        from cam2sim.splat.views import sky_colour  # noqa: PLC0415
 
         opts = self.options
         seeded = seed_models(
             *points,
             self.views.frames,
-            sky_rgb=_sky_colour(self.views),
+            sky_rgb=sky_colour(self.views),
             options=SeedOptions(
                 sh_degree=opts.sh_degree,
                 opacity=opts.init_opacity,
@@ -492,26 +368,36 @@ class _ChunkTrainer:
             name: torch.optim.Adam([p], lr=rates[name], eps=1e-15, fused=fused)
             for name, p in self.street.params.items()
         }
-        self.sky_optimizers = [
-            torch.optim.Adam([p], lr=rates[name], eps=1e-15, fused=fused)
+        # The sky's parameters share one optimizer (a group each): fewer optimizer calls per step.
+        sky_groups = [
+            {"params": [p], "lr": rates[name]}
             for name, p in self.sky.params.items()
-            if p.requires_grad
+            if p.requires_grad and p.numel() > 0
         ]
         eye = torch.eye(3, 4, device=self.device)
         self.appearance = torch.nn.Parameter(eye.repeat(len(self.views.frames), 1, 1))
         self.appearance.requires_grad = self.options.appearance
-        self.appearance_optimizer = torch.optim.Adam([self.appearance], lr=lr.appearance)
+        self.extra_optimizers: list[torch.optim.Optimizer] = []
+        if sky_groups:
+            self.extra_optimizers.append(torch.optim.Adam(sky_groups, eps=1e-15, fused=fused))
+        if self.options.appearance:
+            self.extra_optimizers.append(
+                torch.optim.Adam([self.appearance], lr=lr.appearance, fused=fused)
+            )
         self.means_gamma = 0.01 ** (1.0 / self.options.max_steps)
         self.means_lr = rates["means"]
 
     # -- steps -------------------------------------------------------------------------------
     def _render(self, view: int, degree: int) -> tuple[RasterOutput, torch.Tensor, torch.Tensor]:
         """Render training view ``view``: (raster output, [H, W, 3] rgb, [H, W] sky share)."""
+        from cam2sim.splat.losses import apply_affine  # noqa: PLC0415
         from cam2sim.splat.model import gather_splats  # noqa: PLC0415
         from cam2sim.splat.raster import rasterize  # noqa: PLC0415
 
         v = self.views
-        inputs = gather_splats(self.street, self.sky, v.campos[view : view + 1], degree)
+        inputs = gather_splats(
+            self.street, self.sky, v.campos[view : view + 1], degree, backend=self.backend
+        )
         out = rasterize(
             inputs.means,
             inputs.quats,
@@ -526,27 +412,38 @@ class _ChunkTrainer:
             backend=self.backend,
         )
         image = out.colors[0]
-        rgb = _apply_affine(image[..., :3], self.appearance[view])
+        rgb = image[..., :3]
+        if self.options.appearance:
+            rgb = apply_affine(rgb, self.appearance[view])
         return out, rgb, image[..., 3]
 
     def _loss(self, view: int, rgb: torch.Tensor, sky_share: torch.Tensor) -> torch.Tensor:
-        import torch  # noqa: PLC0415
+        from cam2sim.splat.losses import photometric_loss  # noqa: PLC0415
 
-        v, opts = self.views, self.options
-        target = v.images[view].float() / 255.0
-        mask = v.masks[view]
-        used = mask.sum().clamp_min(1)
-        l1 = (torch.abs(rgb - target).sum(dim=-1) * mask).sum() / (3 * used)
-        ssim = _ssim(torch.where(mask[..., None], rgb, target), target)
-        loss = (1.0 - opts.ssim_weight) * l1 + opts.ssim_weight * (1.0 - ssim)
-        if v.sky is not None and opts.sky_weight > 0 and opts.sky_points > 0:
-            # Masked means without boolean indexing: no host-device synchronisation.
-            sky = (v.sky[view] & mask).float()
-            ground = (~v.sky[view] & mask).float()
-            not_sky = ((1.0 - sky_share) * sky).sum() / sky.sum().clamp_min(1.0)
-            not_street = (sky_share * ground).sum() / ground.sum().clamp_min(1.0)
-            loss = loss + opts.sky_weight * (not_sky + not_street)
-        return loss
+        v, opts, c = self.views, self.options, self.loss_constants
+        sky = None
+        if (
+            c.sky_pixels is not None
+            and c.street_pixels is not None
+            and c.sky_scale is not None
+            and c.street_scale is not None
+            and opts.sky_weight > 0
+            and opts.sky_points > 0
+        ):
+            sky = (
+                sky_share,
+                c.sky_pixels[view] * c.sky_scale[view],
+                c.street_pixels[view] * c.street_scale[view],
+            )
+        return photometric_loss(
+            rgb,
+            v.images[view].float() / 255.0,
+            v.masks[view],
+            c.l1_scale[view],
+            opts.ssim_weight,
+            sky,
+            opts.sky_weight,
+        )
 
     def _next_view(self) -> int:
         import torch  # noqa: PLC0415
@@ -560,31 +457,43 @@ class _ChunkTrainer:
         """Run one optimisation step (and a validation when one is due)."""
         import torch  # noqa: PLC0415
 
+        from cam2sim.splat.optim import adam_step  # noqa: PLC0415
+
         start = time.perf_counter()
+        timer = self.timer
+        timer.begin()
         opts = self.options
         view = self._next_view()
         degree = min(opts.sh_degree, self.step_no // opts.sh_degree_interval)
         out, rgb, sky_share = self._render(view, degree)
         if self.densifier is not None and out.means2d.requires_grad:
             out.means2d.retain_grad()
-        torch.autograd.backward(self._loss(view, rgb, sky_share))
-        for opt in (*self.optimizers.values(), *self.sky_optimizers, self.appearance_optimizer):
-            opt.step()
-            opt.zero_grad(set_to_none=True)
+        timer.mark("render")
+        loss = self._loss(view, rgb, sky_share)
+        timer.mark("loss")
+        torch.autograd.backward(loss)
+        timer.mark("backward")
+        adam_step((*self.optimizers.values(), *self.extra_optimizers))
+        timer.mark("optimizer")
         if self.densifier is not None:
             self.densifier.post_backward(
                 self.step_no, self.street, self.optimizers, out, len(self.street), self.generator
             )
+            timer.mark("densify")
         self.step_no += 1
         self.means_lr *= self.means_gamma
         for group in self.optimizers["means"].param_groups:
             group["lr"] = self.means_lr
         if self.step_no % opts.val_every == 0 or self.step_no >= opts.max_steps:
             self._validate()
+            timer.mark("validate")
+        timer.end()
         self.seconds += time.perf_counter() - start
 
     def _validate(self) -> None:
         import torch  # noqa: PLC0415
+
+        from cam2sim.splat.losses import masked_psnr  # noqa: PLC0415
 
         opts = self.options
         degree = min(opts.sh_degree, self.step_no // opts.sh_degree_interval)
@@ -593,7 +502,7 @@ class _ChunkTrainer:
             for view in self.val_views:
                 _, rgb, _ = self._render(view, degree)
                 target = self.views.images[view].float() / 255.0
-                values.append(_masked_psnr(rgb, target, self.views.masks[view]))
+                values.append(masked_psnr(rgb, target, self.views.masks[view]))
         psnr = float(np.mean(values))
         self.history.append((self.step_no, psnr))
         if self.best is None or psnr > self.best + opts.min_delta_db:
@@ -680,6 +589,7 @@ class _ChunkTrainer:
             train_seconds=self.seconds,
             backend=self.backend,
             device=self.device,
+            phase_ms=self.timer.summary(),
         )
 
 

@@ -1,0 +1,157 @@
+"""Densification rules of splat training: clone, split and prune Gaussians, reset opacities.
+
+:class:`Densifier` follows the 3DGS rules (as gsplat's ``DefaultStrategy``): 2-D gradients of the
+projected centres are accumulated per Gaussian after every ``backward()``; every
+``refine_every`` steps Gaussians with a high mean gradient are cloned (small ones) or split (large
+ones), transparent and (after the first reset) huge ones are pruned. Two variants:
+
+- gsplat (``use_gsplat=True``): the surgery is ``DefaultStrategy``'s own (``_grow_gs`` and
+  ``_prune_gs`` of the pinned gsplat 1.5.3), while the statistics are accumulated here as dense
+  sums, the same values as the strategy's ``index_add_`` over ``torch.where(radii > 0)`` without
+  its host-device synchronisation on every step;
+- simple: the same rules with :mod:`cam2sim.splat.model`'s operations (any device).
+
+Both reset opacities themselves (gsplat 1.5.3's strategy never does). torch is imported at module
+level: only the trainer imports this module, inside a function.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING, Any
+
+import torch
+
+from cam2sim.splat.model import GaussianModel, duplicate, remove, reset_opacity, split
+
+if TYPE_CHECKING:
+    from cam2sim.splat.raster import RasterOutput
+    from cam2sim.splat.train import DensifyOptions
+
+__all__ = ["Densifier"]
+
+_log = logging.getLogger(__name__)
+
+
+class Densifier:
+    """Clone/split/prune by accumulated 2-D gradients, and reset opacities (see the module doc)."""
+
+    def __init__(self, options: DensifyOptions, scene_scale: float, *, use_gsplat: bool) -> None:
+        self.options = options
+        self.scene_scale = scene_scale
+        self.strategy: Any = None  # Any: gsplat ships no type information
+        self.state: dict[str, Any] = {"grad2d": None, "count": None}
+        self._grad_scale: tuple[tuple[Any, ...], torch.Tensor] | None = None
+        if use_gsplat:
+            from gsplat.strategy import DefaultStrategy  # noqa: PLC0415
+
+            self.strategy = DefaultStrategy(
+                prune_opa=options.prune_opacity,
+                grow_grad2d=options.grow_grad2d,
+                grow_scale3d=options.grow_scale3d,
+                prune_scale3d=options.prune_scale3d,
+                refine_start_iter=options.refine_start,
+                refine_stop_iter=options.refine_stop,
+                reset_every=options.reset_every,
+                refine_every=options.refine_every,
+            )
+            self.state = self.strategy.initialize_state(scene_scale=scene_scale)
+
+    def post_backward(
+        self,
+        step: int,
+        model: GaussianModel,
+        optimizers: dict[str, torch.optim.Optimizer],
+        out: RasterOutput,
+        n_street: int,
+        generator: torch.Generator,
+    ) -> None:
+        """Update statistics after ``backward()`` and refine when the step is due."""
+        opts = self.options
+        if step >= opts.refine_stop or out.means2d.grad is None:
+            return
+        if self.strategy is not None:
+            if len(model) < opts.max_gaussians:
+                self._accumulate(out, n_street, len(model))
+                pause = int(getattr(self.strategy, "pause_refine_after_reset", 0))
+                due = step > opts.refine_start and step % opts.refine_every == 0
+                if due and step % opts.reset_every >= pause:
+                    self._gsplat_refine(step, model, optimizers)
+        else:
+            self._accumulate(out, n_street, len(model))
+            due = step > opts.refine_start and step % opts.refine_every == 0
+            if due:
+                self._refine(step, model, optimizers, generator)
+        if step > 0 and step % opts.reset_every == 0:
+            reset_opacity(model, optimizers, 2.0 * opts.prune_opacity)
+
+    def _accumulate(self, out: RasterOutput, n_street: int, n: int) -> None:
+        """Add this step's normalised 2-D gradient norms and visibility counts (no sync)."""
+        assert out.means2d.grad is not None
+        grads = out.means2d.grad[:, :n_street]
+        n_cameras = out.info["n_cameras"]
+        key = (out.info["width"], out.info["height"], n_cameras, grads.device, grads.dtype)
+        if self._grad_scale is None or self._grad_scale[0] != key:
+            scale = torch.tensor(
+                [out.info["width"] / 2.0 * n_cameras, out.info["height"] / 2.0 * n_cameras],
+                dtype=grads.dtype,
+                device=grads.device,
+            )
+            self._grad_scale = (key, scale)
+        seen = (out.radii[:, :n_street] > 0).all(dim=-1)
+        if self.state["grad2d"] is None:
+            self.state["grad2d"] = torch.zeros(n, device=grads.device)
+            self.state["count"] = torch.zeros(n, device=grads.device)
+        norms = torch.linalg.vector_norm(grads * self._grad_scale[1], dim=-1)
+        self.state["grad2d"] += torch.where(seen, norms, 0.0).sum(dim=0)
+        self.state["count"] += seen.sum(dim=0)
+
+    def _gsplat_refine(
+        self, step: int, model: GaussianModel, optimizers: dict[str, torch.optim.Optimizer]
+    ) -> None:
+        """``DefaultStrategy``'s grow and prune on the statistics gathered here."""
+        strategy = self.strategy
+        if self.state["grad2d"] is None:
+            return
+        n_before = len(model)
+        strategy._grow_gs(model.params, optimizers, self.state, step)  # noqa: SLF001
+        strategy._prune_gs(model.params, optimizers, self.state, step)  # noqa: SLF001
+        self.state["grad2d"].zero_()
+        self.state["count"].zero_()
+        if getattr(strategy, "refine_scale2d_stop_iter", 0) > 0:
+            self.state["radii"].zero_()
+        _log.debug("step %d: %d -> %d Gaussians", step, n_before, len(model))
+
+    def _refine(
+        self,
+        step: int,
+        model: GaussianModel,
+        optimizers: dict[str, torch.optim.Optimizer],
+        generator: torch.Generator,
+    ) -> None:
+        opts = self.options
+        grad2d, count = self.state["grad2d"], self.state["count"]
+        if grad2d is None:
+            return
+        n_before = len(model)
+        if n_before < opts.max_gaussians:
+            high = grad2d / count.clamp_min(1.0) > opts.grow_grad2d
+            max_scale = torch.exp(model.params["scales"].detach()).max(dim=-1).values
+            small = max_scale <= opts.grow_scale3d * self.scene_scale
+            clone = high & small
+            if clone.any():
+                duplicate(model, optimizers, clone)
+            grown = high & ~small
+            pad = torch.zeros(int(clone.sum()), dtype=torch.bool, device=grown.device)
+            grown = torch.cat((grown, pad))
+            if grown.any():
+                split(model, optimizers, grown, generator=generator)
+        prune = torch.sigmoid(model.params["opacities"].detach()) < opts.prune_opacity
+        if step > opts.reset_every:
+            max_scale = torch.exp(model.params["scales"].detach()).max(dim=-1).values
+            prune |= max_scale > opts.prune_scale3d * self.scene_scale
+        if prune.any():
+            remove(model, optimizers, prune)
+        _log.debug("step %d: %d -> %d Gaussians", step, n_before, len(model))
+        self.state["grad2d"] = None
+        self.state["count"] = None
