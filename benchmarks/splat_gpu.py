@@ -12,7 +12,7 @@ What it measures (each part optional):
   the same random Gaussians and 800x503 camera: mean/max absolute pixel difference (target: mean
   below 1/255), with plain colours and with SH degree 3, and both rasterizers' times.
 * ``--prep DIR`` (``WS/splat/prep``) or ``--synthetic``: trains every chunk with gsplat
-  (``train_scene``: chunks interleaved on one GPU, plateau stop), then evaluates held-out PSNR,
+  (``train_scene``: chunks side by side on one GPU, plateau stop), then evaluates held-out PSNR,
   SSIM and LPIPS with and without the appearance transform and the lateral-offset envelope
   (``evaluate_splat``), then times ``SplatRenderer.render`` at 800x503 (frames/s, image returned
   to the host as uint8), on poses inside one chunk and in chunk overlaps (two chunks blended).
@@ -33,12 +33,17 @@ What it measures (each part optional):
   ``torch.profiler`` from step A to B and writes its tables (by self CUDA and self CPU time) and a
   gzipped Chrome trace; ``--set profile=true`` turns on the trainer's per-phase timer
   (``TrainResult.phase_ms``); ``--label`` names our trainer's run in those files.
+* ``--concurrency 1,2,3 [--replicate-chunk K] [--device cpu]``: chunks trained side by side
+  on one GPU at each level, see ``benchmarks/splat_concurrency.py``; ``--set
+  concurrent_chunks=N`` sets it for the ordinary ``--prep`` run.
 
 Run from the repository root::
 
     PYTHONPATH=src python benchmarks/splat_gpu.py --parity --out parity.json
     PYTHONPATH=src python benchmarks/splat_gpu.py --prep WS/splat/prep --out splat.json
     PYTHONPATH=src python benchmarks/splat_gpu.py --synthetic --max-steps 2000 --out smoke.json
+    PYTHONPATH=src python benchmarks/splat_gpu.py --prep WS/splat/prep --resize 480x360 \
+        --concurrency 1,2,3 --replicate-chunk 4 --max-steps 3000 --min-steps 3000 --out c.json
 
 Results are printed and written as JSON to ``--out``.
 """
@@ -366,8 +371,8 @@ def train_options(args: argparse.Namespace) -> TrainOptions:
     return TrainOptions(
         max_steps=args.max_steps,
         min_steps=min(args.min_steps, args.max_steps),
-        device="cuda",
-        backend="gsplat",
+        device=args.device,
+        backend="gsplat" if args.device.startswith("cuda") else "torch",
         downscale=args.downscale,
         lr=dataclasses.replace(LearningRates(), **nested["lr"]),
         densify=dataclasses.replace(DensifyOptions(), **nested["densify"]),
@@ -404,7 +409,8 @@ class StepClock:
         self.profile: dict[str, Any] = {}
 
     def __call__(self, _label: str, done: int, _cap: int) -> None:
-        if self.every and done % self.every == 0:
+        # Worker processes report every 0.1 s: mark on crossing a multiple of ``every``.
+        if self.every and (not self.marks or done // self.every > self.marks[-1][0] // self.every):
             torch.cuda.synchronize()
             self.marks.append((done, time.perf_counter()))
         if self.window is None:
@@ -709,6 +715,21 @@ def _add_profile_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--clock-every", type=int, default=500, help="synchronised time marks")
     parser.add_argument("--profile-window", help="A:B: torch.profiler from step A to step B")
     parser.add_argument("--profile-dir", help="where the profiler tables and traces go")
+    parser.add_argument("--concurrency", help="e.g. 1,2,3: chunks trained at a time, per level")
+    parser.add_argument("--replicate-chunk", type=int, default=0, help="train one chunk K times")
+    parser.add_argument("--device", default="cuda", help="cuda (default) or cpu (--concurrency)")
+
+
+def _prepared(args: argparse.Namespace, work: Path) -> Path | None:
+    """The prepared scene of ``--prep`` or ``--synthetic``, resized by ``--resize``; or None."""
+    if not (args.prep or args.synthetic):
+        return None
+    prep = Path(args.prep) if args.prep else make_synthetic(work, args.synthetic_frames)
+    if args.resize:
+        w, h = (int(v) for v in args.resize.lower().split("x"))
+        dst = Path(args.resized_dir) if args.resized_dir else work / "prep"
+        prep = resize_prep(prep, dst, (w, h))
+    return prep
 
 
 def main() -> int:
@@ -745,6 +766,10 @@ def main() -> int:
     _add_profile_args(parser)
     args = parser.parse_args()
 
+    if args.concurrency:
+        from splat_concurrency import run_concurrency  # noqa: PLC0415 -- beside this file
+
+        return run_concurrency(args, _prepared(args, Path(tempfile.mkdtemp())), _environment())
     if not torch.cuda.is_available():
         print("error: no CUDA device; this benchmark needs an NVIDIA GPU", file=sys.stderr)
         return 2
@@ -759,12 +784,8 @@ def main() -> int:
         results["render_large_model"] = time_large_model(
             args.render_gaussians, work, args.fps_frames
         )
-    if args.prep or args.synthetic:
-        prep = Path(args.prep) if args.prep else make_synthetic(work, args.synthetic_frames)
-        if args.resize:
-            w, h = (int(v) for v in args.resize.lower().split("x"))
-            dst = Path(args.resized_dir) if args.resized_dir else work / "prep"
-            prep = resize_prep(prep, dst, (w, h))
+    prep = _prepared(args, work)
+    if prep is not None:
         if args.plain_steps:
             results["plain_gsplat"] = run_plain(args, prep)
         if not args.no_train:

@@ -19,15 +19,17 @@ Reads ``WS/splat/prep/`` (:mod:`cam2sim.splat.scene`), writes ``WS/splat/models/
   spread along the chunk (held-in validation) is measured; after ``min_steps``, training stops
   when it has not improved by ``min_delta_db`` for ``patience`` checks, else at ``max_steps``.
 
-:func:`train_scene` trains all chunks in one loop, one step of each in turn (all chunks share
-one GPU; each stops on its own plateau). torch and gsplat are imported inside functions only.
+:func:`train_scene` trains several chunks at a time on one device, each in its own worker
+process (``concurrent_chunks``, by default 2 on CUDA; :mod:`cam2sim.splat.parallel`), or, with
+``concurrent_chunks=1`` (the default on CPU), all chunks in one loop, one step of each in turn.
+Each chunk stops on its own plateau. torch and gsplat are imported inside functions only.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
@@ -141,6 +143,9 @@ class TrainOptions:
         seed: Seeds view order, subsets and splits.
         profile: Time each step's phases (host and CUDA-event device time) into
             ``TrainResult.phase_ms``; also on with ``CAM2SIM_SPLAT_PROFILE=1``.
+        concurrent_chunks: Chunks trained at a time by :func:`train_scene`, each in its own
+            worker process on the one device; 1 = all in one interleaved loop in this process;
+            None = 2 on CUDA (two processes overlap on one GPU), 1 elsewhere.
     """
 
     max_steps: int = 30_000
@@ -167,6 +172,7 @@ class TrainOptions:
     write_ply: bool = False
     seed: int = 0
     profile: bool = False
+    concurrent_chunks: int | None = None
 
     def __post_init__(self) -> None:
         problems = []
@@ -178,6 +184,8 @@ class TrainOptions:
             problems.append(f"ssim_weight={self.ssim_weight} (need 0-1)")
         if self.downscale < 1:
             problems.append(f"downscale={self.downscale} (need >= 1)")
+        if self.concurrent_chunks is not None and self.concurrent_chunks < 1:
+            problems.append(f"concurrent_chunks={self.concurrent_chunks} (need >= 1 or None)")
         if self.val_every < 1 or self.patience < 1 or self.n_val_views < 1:
             problems.append("val_every, patience and n_val_views must be >= 1")
         if problems:
@@ -230,7 +238,8 @@ class SceneTrainResult:
     Attributes:
         chunks: One result per chunk, by chunk id.
         seconds: Wall time of the whole run (loading included).
-        peak_memory_bytes: Peak CUDA memory allocated, or None on CPU.
+        peak_memory_bytes: Peak CUDA memory allocated, or None on CPU (with worker processes:
+            the largest of one worker's).
     """
 
     chunks: tuple[TrainResult, ...]
@@ -641,11 +650,14 @@ def train_scene(
     progress: ProgressCallback = no_progress,
     scene: SceneRecord | None = None,
 ) -> SceneTrainResult:
-    """Train every chunk (or ``chunk_ids``) of a prepared scene, all in one interleaved loop.
+    """Train every chunk (or ``chunk_ids``) of a prepared scene side by side on one device.
 
-    One step of each unfinished chunk runs in turn, so all chunk models train side by side on
-    one device; a chunk that reaches its plateau (or step cap) is written at once and leaves
-    the loop.
+    With ``options.concurrent_chunks`` above 1 (by default 2 on CUDA) and several chunks, each
+    chunk trains in its own worker process, that many at a time
+    (:func:`cam2sim.splat.parallel.train_chunks_in_processes`); a worker trains its chunk
+    exactly as this function trains one chunk alone. Otherwise one step of each unfinished
+    chunk runs in turn in this process. Either way a chunk that reaches its plateau (or step
+    cap) is written at once.
 
     Args:
         prep_dir: ``WS/splat/prep``.
@@ -659,7 +671,8 @@ def train_scene(
         Per-chunk results and totals.
 
     Raises:
-        StageError: No such chunk, or inputs that cannot be trained on.
+        StageError: No such chunk, or inputs that cannot be trained on (with worker
+            processes: raised after the other chunks finished, naming each failed chunk).
         BackendUnavailableError: The gsplat backend was asked for where it cannot run.
     """
     import torch  # noqa: PLC0415
@@ -679,6 +692,19 @@ def train_scene(
         raise StageError(msg)
     device = resolve_device(options.device)
     backend = resolve_backend(options.backend, device)
+    in_flight = options.concurrent_chunks or (2 if device.startswith("cuda") else 1)
+    if in_flight > 1 and len(wanted) > 1:
+        from cam2sim.splat.parallel import train_chunks_in_processes  # noqa: PLC0415
+
+        return train_chunks_in_processes(
+            prep_dir,
+            scene,
+            tuple(wanted),
+            replace(options, device=device, backend=backend),
+            models_dir=models_dir,
+            in_flight=min(in_flight, len(wanted)),
+            progress=progress,
+        )
     torch.manual_seed(options.seed)
     if device.startswith("cuda"):
         torch.cuda.reset_peak_memory_stats(device)

@@ -1,0 +1,118 @@
+"""Chunks trained in worker processes (``concurrent_chunks``), on the CPU with tiny chunks.
+
+The process path must write what the one-process loop writes: the same models, bit for bit, and
+the same results (three chunks, two at a time: the third loads ahead and waits for a slot); a
+failing chunk is named after the others finished; an interrupt ends the workers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import multiprocessing
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("torch")
+
+import torch
+from test_train import fast_options, make_prepared_scene
+
+from cam2sim.core.errors import StageError
+from cam2sim.splat import model as gm
+from cam2sim.splat.train import SceneTrainResult, TrainOptions, train_scene
+
+TINY = {"n_frames": 8, "chunks": ((0, 5), (3, 8), (1, 6)), "size": (32, 24)}
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread() -> Iterator[None]:
+    """One torch thread here and in the workers (they take the parent's count on CPU)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def _options(**changes: object) -> TrainOptions:
+    base: dict[str, object] = {"max_steps": 12, "min_steps": 12, "val_every": 4, "sky_points": 30}
+    return fast_options(**(base | changes))
+
+
+def _comparable(result: SceneTrainResult) -> list[dict[str, object]]:
+    """Each chunk's result without what differs between runs (timing, folder)."""
+    return [
+        {
+            k: v
+            for k, v in dataclasses.asdict(c).items()
+            if k not in {"train_seconds", "model_path", "phase_ms"}
+        }
+        for c in result.chunks
+    ]
+
+
+def test_worker_processes_write_what_the_one_process_loop_writes(tmp_path: Path) -> None:
+    prep = make_prepared_scene(tmp_path / "ws", **TINY)  # type: ignore[arg-type]
+    sequential = train_scene(
+        prep, options=_options(concurrent_chunks=1), models_dir=tmp_path / "sequential"
+    )
+    seen: list[tuple[str, int, int | None]] = []
+    parallel = train_scene(
+        prep,
+        options=_options(concurrent_chunks=2),
+        models_dir=tmp_path / "parallel",
+        progress=lambda task, done, total: seen.append((task, done, total)),
+    )
+    assert _comparable(parallel) == _comparable(sequential)
+    assert [c.model_path for c in parallel.chunks] == [
+        tmp_path / "parallel" / f"chunk_{c:02d}.pt" for c in range(3)
+    ]
+    assert sorted(p.name for p in (tmp_path / "parallel").iterdir()) == sorted(
+        p.name for p in (tmp_path / "sequential").iterdir()
+    )
+    for a, b in zip(sequential.chunks, parallel.chunks, strict=True):
+        one, two = gm.load_chunk_model(a.model_path), gm.load_chunk_model(b.model_path)
+        assert one.header == two.header
+        for x, y in ((one.gaussians, two.gaussians), (one.sky, two.sky)):
+            for name in gm.PARAM_NAMES:
+                torch.testing.assert_close(x.params[name], y.params[name], rtol=0, atol=0)
+        torch.testing.assert_close(one.appearance, two.appearance, rtol=0, atol=0)
+    # Progress adds up the workers' steps, never goes back, and ends at the cap.
+    assert {task for task, _, _ in seen} == {"splat steps"}
+    assert {total for _, _, total in seen} == {36}
+    done = [d for _, d, _ in seen]
+    assert done == sorted(done)
+    assert done[-1] == 36
+    assert not multiprocessing.active_children()
+
+
+def test_a_failing_chunk_is_named_after_the_others_finish(tmp_path: Path) -> None:
+    # Chunk 1 holds frame 2 alone, which is held out: it has nothing to train on.
+    prep = make_prepared_scene(
+        tmp_path / "ws", n_frames=5, chunks=((0, 5), (2, 3), (1, 5)), size=(32, 24)
+    )
+    with pytest.raises(
+        StageError, match=r"1 of 3 chunks failed in worker processes \(chunk 1: StageError: chunk 1"
+    ):
+        train_scene(prep, options=_options(concurrent_chunks=2, max_steps=4, min_steps=4))
+    models = tmp_path / "ws" / "splat" / "models"
+    assert sorted(p.name for p in models.glob("*.pt")) == ["chunk_00.pt", "chunk_02.pt"]
+    assert not multiprocessing.active_children()
+
+
+def test_an_interrupt_ends_the_workers(tmp_path: Path) -> None:
+    prep = make_prepared_scene(tmp_path / "ws", **TINY)  # type: ignore[arg-type]
+
+    def interrupt(_task: str, done: int, _total: int | None) -> None:
+        if done > 0:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train_scene(prep, options=_options(concurrent_chunks=2, max_steps=2000), progress=interrupt)
+    assert not multiprocessing.active_children()
+
+
+def test_concurrency_is_validated() -> None:
+    with pytest.raises(ValueError, match="concurrent_chunks=0"):
+        TrainOptions(concurrent_chunks=0)
