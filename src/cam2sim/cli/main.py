@@ -35,6 +35,7 @@ _state = {"verbose": 0, "progress": True}
 
 def _register_subcommands() -> None:
     from cam2sim.cli.ads_cmd import ads_app  # noqa: PLC0415
+    from cam2sim.cli.campaign_cmd import campaign  # noqa: PLC0415
     from cam2sim.cli.demo_cmd import demo  # noqa: PLC0415
     from cam2sim.cli.detect_cmd import detect, refine  # noqa: PLC0415
     from cam2sim.cli.evaluate import evaluate_app  # noqa: PLC0415
@@ -55,6 +56,7 @@ def _register_subcommands() -> None:
     app.command("run")(run)
     app.command("demo")(demo)
     app.command("splat")(splat)
+    app.command("campaign")(campaign)
     app.add_typer(evaluate_app, name="evaluate")
     app.add_typer(ads_app, name="ads")
 

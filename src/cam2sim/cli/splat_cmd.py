@@ -36,6 +36,10 @@ def splat(
     ] = None,
     no_eval: Annotated[bool, typer.Option("--no-eval", help="Skip eval.json.")] = False,
     force: Annotated[bool, typer.Option(help="Redo even if up to date.")] = False,
+    ray: Annotated[
+        str | None,
+        typer.Option(help="Train chunks in parallel on Ray, one GPU each: an address or local."),
+    ] = None,
 ) -> None:
     """Prepare frames and masks, initialise with pycolmap, train splats per chunk, evaluate.
 
@@ -68,7 +72,7 @@ def splat(
     try:
         ws = Workspace.open(workspace)
         with progress_bars() as sink:
-            result = run_splat(ws, options=options, force=force, progress=sink)
+            result = run_splat(ws, options=options, force=force, progress=sink, ray=ray)
     except Cam2SimError as err:
         error_console.print(f"[bold red]error:[/] {err}", highlight=False, soft_wrap=True)
         raise typer.Exit(1) from None

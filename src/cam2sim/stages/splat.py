@@ -57,8 +57,12 @@ def run_splat(
     options: SplatStageOptions | None = None,
     force: bool = False,
     progress: ProgressCallback | None = None,
+    ray: str | None = None,
 ) -> SplatResult:
     """Run preparation, training and evaluation of the workspace's splat models.
+
+    ``ray`` (a Ray address, or ``local``) trains the chunks in parallel, one Ray task and GPU
+    each (:mod:`cam2sim.splat.distributed`); the models folder is the same.
 
     Raises:
         StageError: No dataset, or a step failed (the message says which).
@@ -89,7 +93,14 @@ def run_splat(
             msg = f"{prep_dir} holds no prepared scene; run `cam2sim splat {ws.root}` fully"
             raise StageError(msg)
         scene = SceneRecord.load(prep_dir / "scene.json")
-        if "train" in opts.steps:
+        if "train" in opts.steps and ray is not None:
+            from cam2sim.splat.distributed import train_scene_on_ray  # noqa: PLC0415
+
+            trained = train_scene_on_ray(
+                prep_dir, address=ray, options=opts.train, models_dir=models_dir,
+                progress=report, scene=scene,
+            )  # fmt: skip
+        elif "train" in opts.steps:
             trained = train_scene(
                 prep_dir, options=opts.train, models_dir=models_dir, progress=report, scene=scene
             )

@@ -1,0 +1,159 @@
+"""Where campaign runs execute: a local process pool, or tasks on a Ray cluster.
+
+Both run :func:`cam2sim.campaign.worker.execute` once per job and hand every outcome to a
+callback in the calling process, in the order runs finish.
+
+- :class:`LocalPool`: a ``ProcessPoolExecutor`` (``spawn``) with ``workers`` processes. At most
+  ``workers`` runs are in flight, so when a worker process dies (a crash the run's own error
+  handling cannot catch) the runs in flight are the only suspects: each is tried again alone, and
+  the one that kills its worker again is recorded ``crashed``.
+- :class:`RayCluster`: one Ray task per run, with its resource needs (one GPU for the splat
+  camera, one CPU otherwise). ``ray`` is an optional extra, imported only here.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import os
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+
+from cam2sim.campaign.state import RunOutcome
+from cam2sim.campaign.worker import execute
+from cam2sim.core.cluster import ray_session
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+
+    from cam2sim.campaign.plan import RunSpec
+
+__all__ = ["Executor", "Job", "LocalPool", "RayCluster"]
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Job:
+    """One run to execute: the spec, its log file and its time limit."""
+
+    spec: RunSpec
+    log: str
+    timeout_s: float | None
+
+
+class Executor(Protocol):
+    """Runs jobs and reports each outcome as it arrives."""
+
+    name: str
+
+    def run(self, jobs: Sequence[Job], report: Callable[[RunOutcome], None]) -> None:
+        """Execute every job; call ``report`` once per job."""
+
+
+def _died(job: Job, why: str) -> RunOutcome:
+    """The outcome of a job whose worker process died; the reason is appended to its log."""
+    path = Path(job.log)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("a", encoding="utf-8") as log:
+        log.write(f"\n{why}\n")
+    return RunOutcome(job.spec.spec_id, "crashed", None, 0.0, why, job.log)
+
+
+class LocalPool:
+    """A local pool of ``workers`` processes (default: the CPU count).
+
+    ``task`` is what runs a job (a module-level function, picklable by reference); tests swap
+    in one that crashes.
+    """
+
+    name = "local pool"
+
+    def __init__(
+        self, workers: int | None = None, *, task: Callable[..., RunOutcome] = execute
+    ) -> None:
+        self.workers = max(1, workers or os.cpu_count() or 1)
+        self.task = task
+
+    def run(self, jobs: Sequence[Job], report: Callable[[RunOutcome], None]) -> None:
+        """Execute ``jobs``; a dead worker's runs are retried alone to find the crashing one."""
+        suspects = self._batch(list(jobs), self.workers, report)
+        for job in suspects:
+            again = self._batch([job], 1, report)
+            if again:
+                why = "the worker process died during the run (a crash, e.g. a segfault); "
+                why += "its log ends where it died"
+                report(_died(job, why))
+
+    def _batch(
+        self, jobs: list[Job], workers: int, report: Callable[[RunOutcome], None]
+    ) -> list[Job]:
+        """Run ``jobs`` with at most ``workers`` in flight; return those in flight at a crash."""
+        if not jobs:
+            return []
+        context = multiprocessing.get_context("spawn")
+        queue = list(reversed(jobs))
+        inflight: dict[Future[RunOutcome], Job] = {}
+        suspects: list[Job] = []
+        with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context) as pool:
+            while queue or inflight:
+                while queue and len(inflight) < workers:
+                    job = queue.pop()
+                    inflight[pool.submit(self.task, job.spec, job.log, job.timeout_s)] = job
+                finished, _ = wait(inflight, return_when=FIRST_COMPLETED)
+                for future in finished:
+                    job = inflight.pop(future)
+                    try:
+                        report(future.result())
+                    except BrokenProcessPool:
+                        suspects.append(job)
+                if suspects:
+                    break
+        if suspects:  # the pool is broken: the rest runs in a new one
+            suspects += list(inflight.values())
+            logger.warning("a worker process died; retrying %d run(s) one by one", len(suspects))
+            suspects += self._batch(list(reversed(queue)), workers, report)
+        return suspects
+
+
+class RayCluster:
+    """Ray tasks on the cluster at ``address`` (``local``: start a local instance).
+
+    When Ray is already initialised in this process (an embedding program, the tests) that
+    instance is used and left running; otherwise one is connected to (or started) and shut down
+    at the end. Workers need cam2sim installed and the workspaces at the same paths (a shared
+    file system).
+    """
+
+    name = "ray"
+
+    def __init__(self, address: str = "local", *, num_cpus: int | None = None) -> None:
+        self.address = address
+        self.num_cpus = num_cpus
+
+    def run(self, jobs: Sequence[Job], report: Callable[[RunOutcome], None]) -> None:
+        """Submit every job as a task, then report outcomes as tasks finish."""
+        with ray_session(self.address, num_cpus=self.num_cpus) as ray:
+            self._run(ray, jobs, report)
+
+    @staticmethod
+    def _run(ray: Any, jobs: Sequence[Job], report: Callable[[RunOutcome], None]) -> None:
+        task = ray.remote(execute)
+        pending: dict[Any, Job] = {}
+        for job in jobs:
+            needs = {"num_cpus": 1, "num_gpus": 1 if job.spec.needs_gpu else 0, "max_retries": 0}
+            pending[task.options(**needs).remote(job.spec, job.log, job.timeout_s)] = job
+        while pending:
+            refs = list(pending)
+            first, rest = ray.wait(refs, num_returns=1)  # block for one, then take all ready
+            more, _ = ray.wait(rest, num_returns=len(rest), timeout=0) if rest else ([], [])
+            for ref in first + more:
+                job = pending.pop(ref)
+                try:
+                    outcome = ray.get(ref)
+                except ray.exceptions.RayError as err:  # the worker died or the task was lost
+                    outcome = _died(job, f"the Ray task failed: {type(err).__name__}: {err}")
+                report(outcome)

@@ -1,0 +1,49 @@
+"""A small campaign for the campaign tests: one short synthetic street, pure pursuit, few runs."""
+
+from __future__ import annotations
+
+import os
+from typing import TYPE_CHECKING
+
+import pytest
+
+from cam2sim.campaign.worker import execute
+from cam2sim.scenario.synthetic import StreetSpec
+from conftest import has_egl, street_workspace
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from cam2sim.campaign.plan import RunSpec
+    from cam2sim.campaign.state import RunOutcome
+
+needs_egl = pytest.mark.skipif(
+    not has_egl(), reason="no headless OpenGL (EGL) for the raster camera"
+)
+
+PLAN = """
+workspaces: [ws]
+policies: [pure-pursuit]
+cameras: [none]
+seeds: [0]
+perturbations:
+  - {lateral_m: [0.0, 0.3]}
+drive: {image_size: [32, 24]}
+timeout_s: 120
+"""
+
+
+def write_campaign(root: Path, plan: str = PLAN, *, name: str = "plan") -> Path:
+    """``root/ws`` (a 30 m curved street, made once) and ``root/<name>.yaml``; the plan's path."""
+    if not (root / "ws").is_dir():
+        street_workspace(root / "ws", StreetSpec(length_m=30.0, radius_m=60.0))
+    path = root / f"{name}.yaml"
+    path.write_text(plan, encoding="utf-8")
+    return path
+
+
+def crashing_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOutcome:
+    """The worker's task, except that policy ``constant:13`` kills the worker process."""
+    if spec.policy == "constant:13":
+        os.abort()
+    return execute(spec, log, timeout_s)

@@ -1,0 +1,88 @@
+"""Campaigns on Ray (a local instance, 2 CPUs): the same metrics as the local pool."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import pytest
+from campaign_helpers import PLAN, needs_egl, write_campaign
+
+from cam2sim.campaign.executors import LocalPool, RayCluster
+from cam2sim.campaign.runner import run_campaign
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+
+ray = pytest.importorskip("ray")
+
+# Seeds matter (steering noise), starts are perturbed; one spec fails (a bad policy).
+DETERMINISM_PLAN = (
+    PLAN.replace("[pure-pursuit]", '[pure-pursuit, "constant:nan"]')
+    .replace("cameras: [none]", "cameras: [raster]")
+    .replace("seeds: [0]", "seeds: [0, 1]")
+    .replace("[32, 24]}", "[32, 24], steering_noise_std: 2}")
+)
+
+
+@pytest.fixture(scope="module")
+def local_ray() -> Iterator[None]:
+    """One local Ray instance for the module (it takes seconds to start)."""
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield
+    ray.shutdown()
+
+
+@needs_egl
+def test_ray_and_the_local_pool_give_identical_metrics(tmp_path: Path, local_ray: None) -> None:
+    local = run_campaign(
+        write_campaign(tmp_path, DETERMINISM_PLAN + "output: local\n", name="local"),
+        executor=LocalPool(2),
+    )
+    on_ray = run_campaign(
+        write_campaign(tmp_path, DETERMINISM_PLAN + "output: on-ray\n", name="on-ray"),
+        executor=RayCluster(),
+    )
+    assert on_ray.ran == local.ran == 8
+    assert [r.spec_id for r in on_ray.rows] == [r.spec_id for r in local.rows]
+    keys = ("status", "completion", "success", "min_frechet_m", "corridor_violation_pct")
+    for a, b in zip(local.rows, on_ray.rows, strict=True):
+        assert [getattr(a, k) for k in keys] == [getattr(b, k) for k in keys], a.spec_id
+        if a.status == "done":
+            runs = tmp_path / "ws" / "runs"
+            trajectory = (runs / str(a.run_id) / "trajectory.csv").read_text()
+            assert trajectory == (runs / str(b.run_id) / "trajectory.csv").read_text()
+    assert local.summary == on_ray.summary
+    done = [r for r in local.rows if r.status == "done"]
+    assert len(done) == 4
+    assert len({r.min_frechet_m for r in done}) > 1  # the seeds and the offsets do change runs
+    failed = [r for r in on_ray.rows if r.status == "failed"]
+    assert len(failed) == 4
+    log = (on_ray.folder / "logs" / f"{failed[0].spec_id}.log").read_text()
+    assert "constant:VALUE needs a finite number" in log
+
+
+def test_splat_chunks_train_as_ray_tasks_into_the_same_models_folder(
+    tmp_path: Path, local_ray: None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    pytest.importorskip("torch")
+    # The small synthetic street of the training tests (tests/splat/test_train.py).
+    monkeypatch.syspath_prepend(str(Path(__file__).parents[1] / "splat"))
+    from test_train import fast_options, make_prepared_scene
+
+    from cam2sim.splat.distributed import train_scene_on_ray
+
+    prep = make_prepared_scene(tmp_path / "ws", n_frames=6, chunks=((0, 4), (2, 6)), size=(32, 24))
+    options = fast_options(max_steps=4, min_steps=4, val_every=2, sky_points=20)
+    seen: list[tuple[int, int | None]] = []
+    result = train_scene_on_ray(
+        prep, options=options, progress=lambda _task, done, total: seen.append((done, total))
+    )
+    assert [(c.chunk_id, c.steps) for c in result.chunks] == [(0, 4), (1, 4)]
+    assert seen[-1] == (2, 2)
+    # What train_scene writes (tests/splat/test_train.py checks its files): one model per chunk.
+    models = tmp_path / "ws" / "splat" / "models"
+    assert sorted(p.name for p in models.iterdir()) == [
+        "chunk_00.json", "chunk_00.pt", "chunk_01.json", "chunk_01.pt",
+    ]  # fmt: skip
+    assert [c.model_path for c in result.chunks] == [models / "chunk_00.pt", models / "chunk_01.pt"]

@@ -1,0 +1,169 @@
+"""Campaigns on the local process pool: runs, resume, failure isolation, summary, the command."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import signal
+import threading
+from typing import TYPE_CHECKING
+
+import pytest
+from campaign_helpers import PLAN, crashing_execute, needs_egl, write_campaign
+from typer.testing import CliRunner
+
+from cam2sim.campaign import worker
+from cam2sim.campaign.executors import LocalPool
+from cam2sim.campaign.runner import campaign_lock, run_campaign
+from cam2sim.campaign.state import CampaignState
+from cam2sim.cli.main import app
+from cam2sim.core.errors import StageError
+from cam2sim.core.table import read_table
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+
+def _runs(ws: Path) -> list[Path]:
+    return sorted(p for p in (ws / "runs").iterdir() if p.is_dir())
+
+
+@needs_egl
+def test_a_campaign_runs_resumes_and_summarises(tmp_path: Path) -> None:
+    plan = write_campaign(tmp_path, PLAN.replace("cameras: [none]", "cameras: [none, raster]"))
+    result = run_campaign(plan, executor=LocalPool(2))
+    assert (result.specs, result.ran, result.failed) == (4, 4, 0)
+    folder = tmp_path / "plan-campaign"
+    assert result.folder == folder
+    state = CampaignState.load(folder / "state.json")
+    assert len(state.done()) == 4
+    runs = _runs(tmp_path / "ws")
+    assert sorted(r.run_id for r in state.runs.values()) == [p.name for p in runs]
+    # Results are ordinary drive runs; the perturbed start is recorded and applied.
+    by_offset = {}
+    for row in result.rows:
+        meta = json.loads((tmp_path / "ws" / "runs" / str(row.run_id) / "run.json").read_text())
+        assert meta["options"]["start_offset"] == [row.lateral_m, 0.0]
+        assert meta["camera"] == row.camera
+        if row.camera == "none":
+            by_offset[row.lateral_m] = read_table(
+                tmp_path / "ws" / "runs" / str(row.run_id) / "trajectory.csv"
+            )
+    gap = math.hypot(
+        by_offset[0.3]["x"][0] - by_offset[0.0]["x"][0],
+        by_offset[0.3]["y"][0] - by_offset[0.0]["y"][0],
+    )
+    assert abs(gap - 0.3) < 0.02
+    # One summary row per recording, policy and camera, with metrics of the finished runs.
+    assert [(s.camera, s.runs, s.done, s.failed) for s in result.summary] == [
+        ("none", 2, 2, 0),
+        ("raster", 2, 2, 0),
+    ]
+    assert all(s.completion_mean is not None and s.completion_mean > 0.5 for s in result.summary)
+    summary = json.loads((folder / "summary.json").read_text())
+    assert len(summary["summary"]) == 2
+    assert len(summary["runs"]) == 4
+    assert (folder / "summary.csv").read_text().splitlines()[0].startswith("workspace,policy,")
+    assert (folder / "metrics" / "ws" / "metrics.json").is_file()
+
+    # A second campaign does nothing; a deleted run folder is run again.
+    again = run_campaign(plan, executor=LocalPool(2))
+    assert again.ran == 0
+    assert _runs(tmp_path / "ws") == runs
+    shutil.rmtree(runs[0])
+    third = run_campaign(plan, executor=LocalPool(2))
+    assert third.ran == 1
+    assert len(_runs(tmp_path / "ws")) == 4
+
+
+def test_failed_runs_are_recorded_with_their_logs_and_the_rest_goes_on(tmp_path: Path) -> None:
+    plan = write_campaign(
+        tmp_path,
+        PLAN.replace("[ws]", "[ws, no-such-ws]")
+        .replace("[pure-pursuit]", '[pure-pursuit, "constant:nan"]')
+        .replace("{lateral_m: [0.0, 0.3]}", "{}"),
+    )
+    result = run_campaign(plan, executor=LocalPool(2))
+    status = {(r.workspace, r.policy): r.status for r in result.rows}
+    assert status == {
+        ("ws", "pure-pursuit"): "done",
+        ("ws", "constant:nan"): "failed",
+        ("no-such-ws", "pure-pursuit"): "failed",
+        ("no-such-ws", "constant:nan"): "failed",
+    }
+    state = CampaignState.load(result.folder / "state.json")
+    records = {r.workspace + " " + (r.error or ""): r for r in state.runs.values()}
+    bad_policy = next(r for k, r in records.items() if k.startswith("ws ConfigError"))
+    assert "constant:VALUE needs a finite number" in str(bad_policy.error)
+    bad_id = next(r.spec_id for r in result.rows if r.workspace == "ws" and r.status != "done")
+    log = (result.folder / "logs" / f"{bad_id}.log").read_text()
+    assert "Traceback" in log
+    assert "ConfigError" in log
+    missing = next(r for k, r in records.items() if k.startswith("no-such-ws"))
+    assert "is not a cam2sim workspace" in str(missing.error)
+    assert [(s.workspace, s.policy, s.done, s.failed) for s in result.summary] == [
+        ("ws", "pure-pursuit", 1, 0),
+        ("ws", "constant:nan", 0, 1),
+        ("no-such-ws", "pure-pursuit", 0, 1),
+        ("no-such-ws", "constant:nan", 0, 1),
+    ]
+    # Failed runs are tried again, unless asked not to; finished ones never.
+    assert run_campaign(plan, executor=LocalPool(2), retry_failed=False).ran == 0
+    retried = run_campaign(plan, executor=LocalPool(2))
+    assert retried.ran == 3
+    assert CampaignState.load(result.folder / "state.json").runs[bad_id].attempts == 2
+
+
+def test_a_run_past_its_time_limit_is_recorded_as_timed_out(tmp_path: Path) -> None:
+    plan = write_campaign(tmp_path, PLAN.replace("timeout_s: 120", "timeout_s: 0.001"))
+    result = run_campaign(plan, executor=LocalPool(1))
+    assert [r.status for r in result.rows] == ["timeout", "timeout"]
+    log = (result.folder / "logs" / f"{result.rows[0].spec_id}.log").read_text()
+    assert "RunTimeoutError: the run took longer than timeout_s=0.001" in log
+    runs = tmp_path / "ws" / "runs"
+    assert not runs.exists() or not list(runs.iterdir())  # no half run is left
+
+
+def test_a_crashing_worker_fails_only_its_own_run(tmp_path: Path) -> None:
+    plan = write_campaign(
+        tmp_path,
+        PLAN.replace("[pure-pursuit]", '[pure-pursuit, "constant:13"]').replace(
+            "{lateral_m: [0.0, 0.3]}", "{}"
+        ),
+    )
+    result = run_campaign(plan, executor=LocalPool(2, task=crashing_execute))
+    status = {r.policy: r.status for r in result.rows}
+    assert status == {"pure-pursuit": "done", "constant:13": "crashed"}
+    crashed = next(r for r in result.rows if r.status == "crashed")
+    log = (result.folder / "logs" / f"{crashed.spec_id}.log").read_text()
+    assert "the worker process died during the run" in log
+
+
+def test_the_campaign_command_prints_the_summary(tmp_path: Path) -> None:
+    plan = write_campaign(tmp_path, PLAN.replace("{lateral_m: [0.0, 0.3]}", "{}"))
+    out = CliRunner().invoke(app, ["campaign", str(plan), "--workers", "1"])
+    assert out.exit_code == 0, out.output
+    assert "campaign summary" in out.output
+    assert "1 of 1 runs done now (0 failed" in out.output
+    bad = write_campaign(tmp_path, "workspaces: [ws]\nseed: [1]\n", name="bad")
+    out = CliRunner().invoke(app, ["campaign", str(bad)])
+    assert out.exit_code == 1
+    assert "seed: unknown key (did you mean 'seeds'?)" in out.output
+
+
+def test_a_run_stuck_where_the_timeout_signal_cannot_reach_is_killed(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    killed = threading.Event()
+    monkeypatch.setattr(worker, "HARD_LIMIT_GRACE_S", 0.05)
+    monkeypatch.setattr(worker, "_kill", lambda seconds: killed.set())
+    monkeypatch.setattr(signal, "setitimer", lambda *_: None)  # as if stuck in native code
+    with worker._deadline(0.01):
+        assert killed.wait(10)
+
+
+def test_one_campaign_folder_serves_one_process_at_a_time(tmp_path: Path) -> None:
+    plan = write_campaign(tmp_path)
+    with campaign_lock(tmp_path / "plan-campaign"), pytest.raises(StageError, match="another"):
+        run_campaign(plan, executor=LocalPool(1))
