@@ -9,8 +9,11 @@ import numpy as np
 import pytest
 
 from cam2sim.core import frames
+from cam2sim.core.config import Config, RecordingConfig
+from cam2sim.core.workspace import Workspace
 from cam2sim.recording.bagwriter import BagFormat, BagWriter
 from cam2sim.recording.image import image_message_fields
+from cam2sim.scenario.synthetic import StreetSpec, synthetic_street
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 REFERENCE_DRIVES = SHARED_DATA / "reference-drives"
@@ -175,3 +178,25 @@ def write_drive_bag(
 @pytest.fixture
 def cloud_factory():
     return _cloud
+
+
+def street_workspace(root: Path, spec: StreetSpec | None = None) -> Workspace:
+    """A workspace holding a synthetic street's map and scenario (ready for drives)."""
+    ws = Workspace.create(root, Config(recording=RecordingConfig(bags=[str(root / "none")])))
+    scenario, xodr = synthetic_street(spec)
+    ws.map_dir.mkdir(parents=True, exist_ok=True)
+    (ws.map_dir / "map.xodr").write_text(xodr, encoding="utf-8")
+    ws.scenario_dir.mkdir(parents=True, exist_ok=True)
+    scenario.save(ws.scenario_dir / "scenario.json")
+    return ws
+
+
+def has_egl() -> bool:
+    """Whether a headless OpenGL context (EGL) can be made here (the raster renderer's)."""
+    try:
+        import moderngl
+
+        moderngl.create_context(standalone=True, backend="egl").release()  # type: ignore[arg-type]
+    except Exception:  # noqa: BLE001 - any failure means no headless GL here
+        return False
+    return True

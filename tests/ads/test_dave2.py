@@ -186,6 +186,22 @@ def test_training_lowers_validation_loss(trained: Workspace) -> None:
     assert trained.stage_record("ads_train").state == "done"  # type: ignore[union-attr]
 
 
+def test_keep_last_trains_every_epoch_and_keeps_the_last(tmp_path: Path) -> None:
+    from cam2sim.ads.train import TrainOptions
+    from cam2sim.stages.ads import train_ads
+
+    ws = make_drive(tmp_path / "ws")
+    # keep="last" never stops early (patience is moot) and ends with the last epoch's model.
+    options = TrainOptions(
+        epochs=3, batch_size=16, patience=1, learning_rate=0.5, keep="last", device="cpu"
+    )
+    train_ads(ws, options=options)
+    report = json.loads((ws.ads_dir / "train_report.json").read_text())
+    assert [e["epoch"] for e in report["epochs"]] == [1, 2, 3]
+    assert report["best_epoch"] == 3
+    assert report["val_mse"] == pytest.approx(report["epochs"][-1]["val_loss"], rel=1e-5)
+
+
 def test_export_parity_and_policy_crop(trained: Workspace) -> None:
     import onnx
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
@@ -27,6 +28,8 @@ CHROMIUM_ARGS = [
     "--disable-component-update",
     "--disable-sync",
 ]
+#: Where the Chromium test keeps its full-page screenshot (CI uploads ``test-artifacts/``).
+SCREENSHOT_ENV = "CAM2SIM_REPORT_SCREENSHOT"
 # Attributes that make a browser fetch something; every value must be a data URI or a fragment.
 RESOURCE = re.compile(r"""\b(?:src|href|poster|data|action)\s*=\s*["']?([^"'\s>]*)""")
 
@@ -130,13 +133,23 @@ def _app() -> typer.Typer:
     return app
 
 
+def _screenshot_path(config: pytest.Config) -> Path:
+    """``$CAM2SIM_REPORT_SCREENSHOT``, else ``test-artifacts/report.png`` in the repository."""
+    given = os.environ.get(SCREENSHOT_ENV)
+    return Path(given) if given else config.rootpath / "test-artifacts" / "report.png"
+
+
 def test_report_renders_in_headless_chromium(
-    built: tuple[Workspace, Path, bool], tmp_path: Path
+    built: tuple[Workspace, Path, bool], request: pytest.FixtureRequest
 ) -> None:
     if not CHROMIUM.is_file():
         pytest.skip(f"{CHROMIUM} not installed")
     sync_api = pytest.importorskip("playwright.sync_api")
     _, path, _ = built
+    shot = _screenshot_path(request.config)
+    shot.parent.mkdir(parents=True, exist_ok=True)
+    shot.unlink(missing_ok=True)
+    sizes: dict[str, float] = {}
     errors: list[str] = []
     requests: list[str] = []
     with sync_api.sync_playwright() as pw:
@@ -148,7 +161,11 @@ def test_report_renders_in_headless_chromium(
             page.on("request", lambda r: requests.append(r.url))
             page.goto(path.as_uri(), wait_until="load")
             for sid in SECTION_IDS:
-                assert page.locator(f"section#{sid}").is_visible(), sid
+                section = page.locator(f"section#{sid}")
+                section.scroll_into_view_if_needed()
+                assert section.is_visible(), sid
+                box = section.bounding_box()
+                sizes[sid] = 0.0 if box is None else box["width"] * box["height"]
             loaded = page.evaluate(
                 "Array.from(document.images).every(i => i.complete && i.naturalWidth > 0)"
             )
@@ -159,10 +176,17 @@ def test_report_renders_in_headless_chromium(
                     ".every(v => v.readyState >= 1 && v.videoWidth > 0)",
                     timeout=10_000,
                 )
-            page.screenshot(path=str(tmp_path / "report.png"), full_page=True)
+            page.screenshot(path=str(shot), full_page=True)
+            height = page.evaluate("document.documentElement.scrollHeight")
         finally:
             browser.close()
     assert errors == []
     assert loaded
     assert all(u.startswith(("file:", "data:")) for u in requests), requests
-    assert (tmp_path / "report.png").stat().st_size > 10_000
+    assert all(area > 1000 for area in sizes.values()), sizes  # every section takes room
+    assert shot.stat().st_size > 10_000
+    import cv2
+
+    image = cv2.imread(str(shot), cv2.IMREAD_COLOR)
+    assert image is not None
+    assert image.shape[0] >= height - 1  # the whole page, not the first screen

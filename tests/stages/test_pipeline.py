@@ -29,6 +29,7 @@ from cam2sim.map.convert import has_carla
 from cam2sim.recording.bagwriter import BagWriter
 from cam2sim.recording.pointcloud import pointcloud_message_fields
 from cam2sim.stages.pipeline import PipelineOptions, PipelineResult, run_pipeline
+from conftest import has_egl
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -241,3 +242,38 @@ def test_run_command_prints_the_summary_and_exits_1_on_failure(
     assert "failed" in text
     assert "run the same command again to resume" in text
     assert (tmp_path / "ws" / "workspace.json").is_file()
+
+
+@pytest.mark.skipif(not has_egl(), reason="no headless OpenGL (EGL) here")
+def test_a_ground_truth_world_adds_real_runs_and_the_reconstruction_metrics(
+    tmp_path: Path, recording: tuple[Path, Path]
+) -> None:
+    from cam2sim.metrics.drive_quality import DriveMetrics
+    from cam2sim.metrics.semantic import SemanticResult
+    from cam2sim.render.truth import TruthCar, TruthWorld, truth_world_path
+    from cam2sim.scenario.synthetic import StreetSpec, synthetic_street
+
+    bag, osm = recording
+    ws = Workspace.create(tmp_path / "ws", _config(bag))
+    _, xodr = synthetic_street(StreetSpec(length_m=60.0, parked=()))
+    cars = tuple(
+        TruthCar(x=x, y=y, yaw=yaw, length=4.5, width=1.85, height=1.5) for x, y, yaw in CARS
+    )
+    TruthWorld(crs=UTM32N, origin=(E0, N0), xodr=xodr, cars=cars).save(truth_world_path(ws.root))
+    options = PipelineOptions(
+        osm=osm, steps=FAST, runs=2, policy="pure-pursuit", steering_noise_std=0.05
+    )
+    result = run_pipeline(ws, options=options)
+    assert not result.failed, [o for o in result.outcomes if o.state == "failed"]
+    assert "camera truth, raster" in result.outcome("drive").message
+    metrics = DriveMetrics.load(ws.report_dir / "drive" / "metrics.json")
+    real = next(m for m in metrics.methods if m.method == "real")
+    assert real.runs == 3  # the recorded drive and the two runs in the ground-truth world
+    truth_runs = [r for r in metrics.runs if r.method == "real" and r.name != "real/recorded"]
+    assert len({r.min_frechet_m for r in truth_runs}) == 2  # seeded noise: the runs differ
+    assert "| metric | Real | Sim |" in (ws.report_dir / "drive" / "behaviour.md").read_text()
+    # 4x4 frames are too small for SSIM: the step says so and the drive metrics stand.
+    assert "image quality not computed" in result.outcome("evaluate").message
+    assert not (ws.report_dir / "images").exists()
+    semantic = SemanticResult.load(ws.report_dir / "semantic" / "semantic.json")
+    assert semantic.frames

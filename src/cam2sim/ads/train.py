@@ -24,7 +24,7 @@ import logging
 import math
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Final
+from typing import TYPE_CHECKING, Final, Literal
 
 import cv2
 import numpy as np
@@ -85,6 +85,10 @@ class TrainOptions:
         val_fraction: Share of the drive, at its end, held out for validation.
         gap_s: Training frames this close (seconds) before the validation part are dropped.
         patience: Stop after this many epochs without a better validation loss.
+        keep: ``best``: the epoch of the lowest validation loss (early stopping with
+            ``patience``); ``last``: train every epoch and keep the last one, for a drive too
+            short for its held-out tail to stand for it (the demo's: a straight, which says
+            nothing about a bend).
         augment: Augment training batches (brightness, shadow, shift; flip if ``flip``).
         shift_px: Largest horizontal shift, network-input pixels.
         shift_steering_per_px: Steering correction per pixel of shift (content moved right by
@@ -106,6 +110,7 @@ class TrainOptions:
     val_fraction: float = 0.2
     gap_s: float = 1.0
     patience: int = 5
+    keep: Literal["best", "last"] = "best"
     augment: bool = True
     shift_px: int = 10
     shift_steering_per_px: float | None = None
@@ -501,7 +506,7 @@ def _fit(
         )
         logger.info("epoch %d: train %.4g, val %.4g", epoch, records[-1].train_loss, val_loss)
         progress("training DAVE-2", epoch, opts.epochs)
-        if val_loss < best[0]:
+        if val_loss < best[0] or opts.keep == "last":
             best = (val_loss, epoch, {k: v.clone() for k, v in model.state_dict().items()})
         elif epoch - best[1] >= opts.patience:
             logger.info("validation loss stalled for %d epochs; stopping", opts.patience)

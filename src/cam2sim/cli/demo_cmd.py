@@ -13,7 +13,10 @@ from rich.markup import escape
 from cam2sim.cli.display import console, error_console, progress_bars
 from cam2sim.core.errors import Cam2SimError
 
-__all__ = ["demo"]
+__all__ = ["DEMO_STEERING_NOISE", "demo"]
+
+DEMO_STEERING_NOISE = 0.05
+"""Steering noise of the demo's drives (steering units, each simulator step, seeded per run)."""
 
 
 def demo(
@@ -29,19 +32,23 @@ def demo(
         str | None,
         typer.Option(help="Comma-separated steps not to run, e.g. splat,ads."),
     ] = None,
-    runs: Annotated[int, typer.Option(min=1, help="Drive runs per camera.")] = 1,
+    runs: Annotated[int, typer.Option(min=1, help="Drive runs per camera.")] = 3,
     seed: Annotated[int, typer.Option(help="Seed of the demo world and its noise.")] = 0,
 ) -> None:
     """Build a demo recording (an L-shaped street near Munich) and run every stage on it.
 
     Needs no GPU, no CARLA server and no network. The recording (a ROS2 MCAP bag, an OSM file
-    and a config) goes to OUT once; the workspace is OUT/ws. Re-run to resume.
+    and a config) goes to OUT once; the workspace is OUT/ws, with the demo's ground-truth world
+    in OUT/ws/truth/world.json: DAVE-2 drives RUNS times each in it (Real), with splat images
+    and with simulator images. Re-run to resume.
 
     Example: cam2sim demo -o /tmp/demo
     """
     from cam2sim.ads.train import TrainOptions  # noqa: PLC0415
     from cam2sim.cli.run_pipeline_cmd import _finish, _workspace  # noqa: PLC0415
+    from cam2sim.core.files import write_bytes_atomic  # noqa: PLC0415
     from cam2sim.demo.world import build_demo_recording, load_demo_recording  # noqa: PLC0415
+    from cam2sim.render.truth import truth_world_path  # noqa: PLC0415
     from cam2sim.stages.pipeline import (  # noqa: PLC0415
         STEPS,
         PipelineOptions,
@@ -72,11 +79,19 @@ def demo(
                 steps=options.steps,
                 skip=options.skip,
                 runs=runs,
+                replay_every=6,  # 20 Hz camera: 76 replayed frames
+                steering_noise_std=DEMO_STEERING_NOISE,
                 splat=demo_splat_options(),
                 splat_on_cpu=True,
-                ads=TrainOptions(epochs=30, batch_size=32, patience=5),
+                # 23 s of driving: the held-out tail (the last straight) cannot choose the
+                # epoch, so all 30 are trained and the last is kept (docs/benchmarks.md).
+                ads=TrainOptions(epochs=30, batch_size=32, keep="last"),
             )
             ws = _workspace(out / "ws", [], recording.config)
+            truth = recording.truth_world.read_bytes()
+            target = truth_world_path(ws.root)
+            if not target.is_file() or target.read_bytes() != truth:
+                write_bytes_atomic(target, truth)
             result = run_pipeline(ws, options=options, progress=sink)
     except Cam2SimError as err:
         error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)

@@ -26,7 +26,16 @@ if TYPE_CHECKING:
 
     from rich.table import Table
 
-__all__ = ["console", "error_console", "print_table", "progress_bars", "setup_logging"]
+    from cam2sim.metrics.drive_quality import DriveMetrics
+
+__all__ = [
+    "console",
+    "error_console",
+    "print_behaviour",
+    "print_table",
+    "progress_bars",
+    "setup_logging",
+]
 
 console = Console()
 error_console = Console(stderr=True)
@@ -98,3 +107,19 @@ class ProgressSink:
             tid = self._bars.add_task(task, total=total)
             self._tasks[task] = tid
         self._bars.update(tid, completed=completed, total=total)
+
+
+def print_behaviour(metrics: DriveMetrics) -> None:
+    """Print the behaviour table in the paper's layout (Real / splat / Sim columns)."""
+    from rich.table import Table  # noqa: PLC0415
+
+    from cam2sim.metrics.behaviour import behaviour_table  # noqa: PLC0415
+
+    paper = behaviour_table(metrics)
+    table = Table(title="Behaviour (averages over successful runs; jitter over all runs)")
+    table.add_column("metric")
+    for column in paper.columns:
+        table.add_column(column, justify="right")
+    for name, values in paper.rows:
+        table.add_row(name, *values)
+    print_table(table)

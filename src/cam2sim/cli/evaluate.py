@@ -11,7 +11,13 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from cam2sim.cli.display import console, error_console, print_table, progress_bars
+from cam2sim.cli.display import (
+    console,
+    error_console,
+    print_behaviour,
+    print_table,
+    progress_bars,
+)
 from cam2sim.core.errors import Cam2SimError
 
 if TYPE_CHECKING:
@@ -234,17 +240,20 @@ def drive(
 ) -> None:
     """Score simulated drives against real ones: completion, Min-Frechet, corridor, jitter.
 
+    Runs driven in a ground-truth world (run.json method "real") join the real group.
+
     Example: cam2sim evaluate drive --real ../shared/data/reference-drives --sim ws/runs -o eval/
     """
+    from cam2sim.metrics.behaviour import evaluate_with_real_runs  # noqa: PLC0415
     from cam2sim.metrics.drive_io import load_runs  # noqa: PLC0415
-    from cam2sim.metrics.drive_quality import DriveOptions, Segment, evaluate_drives  # noqa: PLC0415
+    from cam2sim.metrics.drive_quality import DriveOptions, Segment  # noqa: PLC0415
     from cam2sim.report.drive_figures import write_drive_figures  # noqa: PLC0415
 
     try:
         real_runs = load_runs(real, real=True, crs=real_crs)
         sim_runs = load_runs(sim, real=False, xodr=xodr) if sim else []
         seg = Segment.load(segment) if segment else None
-        ev = evaluate_drives(
+        ev = evaluate_with_real_runs(  # runs in a ground-truth world (method real) are real
             real_runs, sim_runs, segment=seg, options=DriveOptions(frechet_points=frechet_points)
         )
         out.mkdir(parents=True, exist_ok=True)
@@ -291,6 +300,7 @@ def drive(
             f"{ft['out_of_road']}-{ft['collision']}-{ft['oversteer']}-{ft['understeer']}",
         )
     print_table(table)
+    print_behaviour(m)
     failed = [r for r in m.runs if r.failure]
     for r in failed:
         detail = f", {r.steering_error}" if r.steering_error else ""

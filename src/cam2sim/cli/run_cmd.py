@@ -22,6 +22,7 @@ class ReplayCamera(StrEnum):
     RASTER = "raster"
     SPLAT = "splat"
     BOTH = "both"
+    TRUTH = "truth"
     CARLA = "carla"
 
 
@@ -37,6 +38,7 @@ class DriveCamera(StrEnum):
 
     RASTER = "raster"
     SPLAT = "splat"
+    TRUTH = "truth"
     CARLA = "carla"
     NONE = "none"
 

@@ -10,7 +10,13 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from cam2sim.cli.display import console, error_console, print_table, progress_bars
+from cam2sim.cli.display import (
+    console,
+    error_console,
+    print_behaviour,
+    print_table,
+    progress_bars,
+)
 from cam2sim.core.errors import Cam2SimError
 
 if TYPE_CHECKING:
@@ -97,8 +103,9 @@ def run(
     camera: Annotated[
         list[str] | None,
         typer.Option(
-            help="Camera for replay and drive, repeatable: raster, splat, none "
-            "(default: raster, plus splat when splat models exist)."
+            help="Camera for replay and drive, repeatable: raster, splat, truth, none "
+            "(default: raster, plus splat when splat models exist, plus truth for drives when "
+            "the workspace has a ground-truth world)."
         ),
     ] = None,
     detect_model: Annotated[
@@ -148,6 +155,13 @@ def run(
 def _finish(ws: Workspace, result: PipelineResult, total_s: float) -> None:
     """Print the summary table, the total and the report; exit 1 when a step failed."""
     print_table(_summary(result))
+    from cam2sim.stages.pipeline import DRIVE_EVAL_DIR  # noqa: PLC0415
+
+    metrics = ws.report_dir / DRIVE_EVAL_DIR / "metrics.json"
+    if metrics.is_file() and result.outcome("evaluate").state in ("done", "up_to_date"):
+        from cam2sim.metrics.drive_quality import DriveMetrics  # noqa: PLC0415
+
+        print_behaviour(DriveMetrics.load(metrics))
     console.print(f"workspace {ws.root}; {total_s:.0f} s in all", highlight=False)
     if result.report is not None:
         console.print(f"report: {result.report}", highlight=False)

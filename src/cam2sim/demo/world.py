@@ -11,28 +11,36 @@ sides along the straights and buildings line both sidewalks.
 
 * ``demo.osm``: the street as a ``highway=residential`` way (``lanes=2``, ``width``) and the
   buildings as closed ``building=yes`` ways with ``building:levels``, in WGS84;
-* ``recording/bag``: a ROS2 MCAP bag of a drive along the route at :data:`SPEED_MPS`, with a
-  JPEG camera (:data:`CAMERA_SIZE` at 10 Hz, rendered by the raster renderer and made to look
+* ``recording/bag``: a ROS2 MCAP bag of a drive along the route at :data:`SPEED_MPS`, weaving
+  gently about the lane centre (:func:`weave`, as a human driver does), with a
+  JPEG camera (:data:`CAMERA_SIZE` at 20 Hz, rendered by the raster renderer and made to look
   photographic by :func:`photographic_look`), its camera info, odometry in UTM 32N with the
   reference car's axes (x to the left, y forward) at 50 Hz, a LiDAR ray-cast from the scene at
   5 Hz and the steering signal at 50 Hz (curvature / :data:`CURVATURE_PER_STEERING`);
 * ``config.yaml``: the cam2sim config of that recording (topics, intrinsics, mounts, pose CRS
   and axis convention);
-* ``truth.json``: the parked cars (ground-truth boxes) and buildings in the local frame.
+* ``truth.json``: the parked cars (ground-truth boxes) and buildings in the local frame;
+* ``truth_world.json``: the same world as a :class:`~cam2sim.render.truth.TruthWorld` (street,
+  cars, buildings, the photographic look and its seed), which ``cam2sim demo`` copies to
+  ``WS/truth/world.json`` for the ``truth`` camera (closed-loop drives in the ground truth).
+
+The camera's sensor noise is drawn per frame from the seed and the camera pose
+(:func:`~cam2sim.render.look.frame_noise_rng`), so the truth camera renders a recorded pose as
+the recording has it (before JPEG).
 """
 
 from __future__ import annotations
 
-import functools
 import json
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Final
+from typing import TYPE_CHECKING, Final
 
 import numpy as np
 
 from cam2sim.core.files import atomic_folder, write_text_atomic
+from cam2sim.render.look import photographic_look
 from cam2sim.scenario.synthetic import lane_section_xml
 
 if TYPE_CHECKING:
@@ -41,8 +49,8 @@ if TYPE_CHECKING:
     from cam2sim.core.config import Config
     from cam2sim.core.progress import ProgressCallback
     from cam2sim.detect.synthetic import StreetScene
-    from cam2sim.recording.bagwriter import BagWriter
     from cam2sim.render.raster import RasterScene
+    from cam2sim.render.truth import TruthWorld
 
 __all__ = [
     "CAMERA_SIZE",
@@ -58,9 +66,11 @@ __all__ = [
     "build_demo_recording",
     "camera_matrix",
     "demo_world",
+    "drive_points",
     "load_demo_recording",
     "photographic_look",
     "route_points",
+    "weave",
 ]
 
 CRS: Final = "EPSG:32632"
@@ -72,6 +82,11 @@ STRAIGHT1_M: Final = 60.0
 RADIUS_M: Final = 40.0
 STRAIGHT2_M: Final = 60.0
 LEAD_M: Final = 30.0
+WEAVE_M: Final = 0.35
+"""Amplitude of the reference driver's weave about the lane centre, metres."""
+WEAVE_PERIOD_M: Final = 40.0
+"""Wavelength of the weave: the driver drifts and corrects every 2.5 s at 8 m/s."""
+_WEAVE_RAMP_M: Final = 10.0
 """Street before the route's start and after its end."""
 LANE_M: Final = 3.5
 PARKING_M: Final = 2.5
@@ -82,7 +97,7 @@ CAMERA_SIZE: Final = (320, 200)
 CAMERA_FOCAL_PX: Final = 200.0
 CAMERA_MOUNT: Final = (1.6, 0.0, 1.4)
 LIDAR_MOUNT: Final = (1.0, 0.0, 1.9)
-CAMERA_HZ: Final = 10
+CAMERA_HZ: Final = 20
 ODOM_HZ: Final = 50
 LIDAR_HZ: Final = 5
 LIDAR_BEAMS: Final = 16
@@ -94,9 +109,9 @@ TOPICS: Final = {
     "lidar": "/lidar/points",
     "steering": "/vehicle/steering",
 }
-_T0_NS: Final = 1_717_000_000_000_000_000
 _MARKER: Final = "demo.json"
-_VERSION: Final = 1
+_TRUTH_WORLD: Final = "truth_world.json"
+_VERSION: Final = 3
 # Optical camera axes (x right, y down, z forward) in the body frame (x forward, y left, z up).
 _R_BODY_OPTICAL: Final = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
@@ -138,6 +153,7 @@ class DemoRecording:
         config: The cam2sim config of the bag.
         truth: The parked cars (local frame; add :data:`ORIGIN_UTM` for UTM 32N).
         buildings: The buildings (local frame).
+        truth_world: The :class:`~cam2sim.render.truth.TruthWorld` file of the world.
         camera_frames: Camera images in the bag.
         duration_s: Length of the drive.
     """
@@ -148,6 +164,7 @@ class DemoRecording:
     config: Path
     truth: tuple[ParkedCar, ...]
     buildings: tuple[DemoBuilding, ...]
+    truth_world: Path
     camera_frames: int
     duration_s: float
 
@@ -162,9 +179,11 @@ def route_length_m() -> float:
 
 
 def route_points(
-    s: npt.ArrayLike, lateral: float = 0.0
+    s: npt.ArrayLike, lateral: float | npt.NDArray[np.float64] = 0.0
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """Positions ``(N, 2)`` and headings ``(N,)`` at route stations ``s``, ``lateral`` to the left.
+
+    ``lateral`` is one offset or one per station.
 
     Stations before 0 or past :func:`route_length_m` continue the straights.
     """
@@ -192,6 +211,45 @@ def route_curvature(s: npt.ArrayLike) -> npt.NDArray[np.float64]:
     return out
 
 
+def weave(s: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """The driver's lateral offset (m, left) from the lane centre at stations ``s``.
+
+    A sine of :data:`WEAVE_M` and :data:`WEAVE_PERIOD_M`, eased in from 10 m to 30 m (so the
+    drive starts on the lane centre, straight): a human driver never holds the centre exactly,
+    and the drift-and-correct is what teaches DAVE-2 to steer back towards it.
+    """
+    st = np.asarray(s, dtype=np.float64)
+    ramp = np.clip((st - _WEAVE_RAMP_M) / (2.0 * _WEAVE_RAMP_M), 0.0, 1.0)
+    out: npt.NDArray[np.float64] = (
+        WEAVE_M * np.sin(2.0 * math.pi * st / WEAVE_PERIOD_M) * ramp * ramp * (3.0 - 2.0 * ramp)
+    )
+    return out
+
+
+def drive_points(
+    s: npt.ArrayLike,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Positions ``(N, 2)`` and headings ``(N,)`` of the driven path (the route plus the weave)."""
+    st = np.atleast_1d(np.asarray(s, dtype=np.float64))
+    xy, _ = route_points(st, weave(st))
+    ds = 0.01
+    a, _ = route_points(st - ds, weave(st - ds))
+    b, _ = route_points(st + ds, weave(st + ds))
+    heading: npt.NDArray[np.float64] = np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
+    return xy, heading
+
+
+def drive_curvature(s: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Curvature (1/m, positive left) of the driven path at stations ``s``."""
+    st = np.atleast_1d(np.asarray(s, dtype=np.float64))
+    ds = 0.05
+    a, ha = drive_points(st - ds)
+    b, hb = drive_points(st + ds)
+    turn = np.remainder(hb - ha + math.pi, 2.0 * math.pi) - math.pi
+    out: npt.NDArray[np.float64] = turn / np.maximum(np.hypot(*(b - a).T), 1e-9)
+    return out
+
+
 def camera_matrix() -> npt.NDArray[np.float64]:
     """The demo camera's ``(3, 3)`` intrinsics."""
     w, h = CAMERA_SIZE
@@ -200,7 +258,7 @@ def camera_matrix() -> npt.NDArray[np.float64]:
     )
 
 
-def _body_pose(xy: npt.NDArray[np.float64], heading: float) -> npt.NDArray[np.float64]:
+def body_pose(xy: npt.NDArray[np.float64], heading: float) -> npt.NDArray[np.float64]:
     c, s = math.cos(heading), math.sin(heading)
     pose = np.eye(4)
     pose[:2, :2] = [[c, -s], [s, c]]
@@ -209,9 +267,9 @@ def _body_pose(xy: npt.NDArray[np.float64], heading: float) -> npt.NDArray[np.fl
 
 
 def camera_pose(station: float) -> npt.NDArray[np.float64]:
-    """``T_world_cam`` (optical axes) of the demo camera with the rear axle at ``station``."""
-    xy, heading = route_points([station])
-    body = _body_pose(xy[0], float(heading[0]))
+    """``T_world_cam`` (optical axes) of the demo camera with the car at ``station``."""
+    xy, heading = drive_points([station])
+    body = body_pose(xy[0], float(heading[0]))
     mount = np.eye(4)
     mount[:3, :3] = _R_BODY_OPTICAL
     mount[:3, 3] = CAMERA_MOUNT
@@ -330,26 +388,27 @@ class DemoWorld:
         ground = Ground(road_half_width_m=1e9, kerb_height_m=0.0)
         return StreetScene(ground=ground, cars=cars, structures=tuple(structures))
 
+    def truth_world(self, *, seed: int = 0) -> TruthWorld:
+        """The world as the workspace's ground truth (the truth camera's world, UTM 32N)."""
+        from cam2sim.render.truth import (  # noqa: PLC0415
+            TruthBuilding,
+            TruthCar,
+            TruthLook,
+            TruthWorld,
+        )
+
+        return TruthWorld(
+            crs=CRS,
+            origin=ORIGIN_UTM,
+            xodr=self.xodr(),
+            cars=tuple(TruthCar(**asdict(c)) for c in self.cars),
+            buildings=tuple(TruthBuilding(xy=b.xy, height_m=b.height_m) for b in self.buildings),
+            look=TruthLook(kind="photographic", seed=seed),
+        )
+
     def raster_scene(self) -> RasterScene:
         """The scene the camera renders (the raster renderer's meshes)."""
-        from cam2sim.map.query import RoadMap  # noqa: PLC0415
-        from cam2sim.render.raster import BuildingFootprint, RasterScene  # noqa: PLC0415
-        from cam2sim.scenario.model import ScenarioVehicle  # noqa: PLC0415
-
-        vehicles = [
-            ScenarioVehicle(
-                id=f"pv_{k:03d}",
-                position=(c.x, c.y, 0.0),
-                heading=c.yaw,
-                size=(c.length, c.width, c.height),
-                size_class="medium",
-                side=c.side,
-                orientation="parallel",
-            )
-            for k, c in enumerate(self.cars)
-        ]
-        buildings = [BuildingFootprint(np.asarray(b.xy), b.height_m) for b in self.buildings]
-        return RasterScene(RoadMap.from_xodr(self.xodr()), vehicles, buildings)
+        return self.truth_world().raster_scene()
 
 
 def _cars(rng: np.random.Generator) -> tuple[ParkedCar, ...]:
@@ -417,240 +476,6 @@ def demo_world(seed: int = 0) -> DemoWorld:
     return DemoWorld(cars=_cars(rng), buildings=_buildings(rng))
 
 
-# -- the photographic look -------------------------------------------------------------------
-@dataclass(frozen=True)
-class _Textures:
-    fine: npt.NDArray[np.float32]
-    coarse: npt.NDArray[np.float32]
-
-
-@functools.lru_cache(maxsize=4)
-def _textures(seed: int, size: int = 256) -> _Textures:
-    import cv2  # noqa: PLC0415
-
-    rng = np.random.default_rng(seed)
-
-    def noise(sigma: float) -> npt.NDArray[np.float32]:
-        pad = int(4 * sigma) + 1  # blur a wrapped copy so the tile repeats seamlessly
-        wrapped = np.pad(rng.normal(size=(size, size)).astype(np.float32), pad, mode="wrap")
-        tile = np.asarray(cv2.GaussianBlur(wrapped, (0, 0), sigma), np.float32)[pad:-pad, pad:-pad]
-        out: npt.NDArray[np.float32] = (tile - tile.mean()) / (tile.std() + 1e-6)
-        return out
-
-    return _Textures(fine=noise(0.7), coarse=noise(8.0))
-
-
-def _lookup(tile: npt.NDArray[np.float32], u: npt.NDArray[Any], v: npt.NDArray[Any]) -> Any:
-    n = tile.shape[0]
-    return tile[np.floor(v).astype(np.int64) % n, np.floor(u).astype(np.int64) % n]
-
-
-def photographic_look(
-    rgb: npt.NDArray[np.uint8],
-    labels: npt.NDArray[np.uint8],
-    T_world_cam: npt.NDArray[np.float64],
-    K: npt.NDArray[np.float64],
-    *,
-    rng: np.random.Generator,
-    seed: int = 0,
-) -> npt.NDArray[np.uint8]:
-    """Turn a raster frame into a photograph-like one.
-
-    Textures anchored in the world (asphalt grain and patches on the road, paving joints on the
-    sidewalks, grass on the verge, clouds in the sky), plaster-coloured facades, warm colour
-    grading, vignetting, a slight lens blur and sensor noise.
-
-    Args:
-        rgb: ``(H, W, 3)`` raster colours.
-        labels: ``(H, W)`` raster labels (:class:`~cam2sim.render.meshes.Label`).
-        T_world_cam: The camera pose (optical axes).
-        K: The intrinsics.
-        rng: Draws the sensor noise.
-        seed: Seeds the world textures (keep it fixed over a recording).
-    """
-    import cv2  # noqa: PLC0415
-
-    from cam2sim.render.meshes import Label  # noqa: PLC0415
-
-    tex = _textures(seed)
-    h, w = labels.shape
-    img = rgb.astype(np.float32) / 255.0
-    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    pix = np.stack([u, v, np.ones_like(u)], axis=-1)
-    rays = pix @ (T_world_cam[:3, :3] @ np.linalg.inv(K)).T
-    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
-    cam = T_world_cam[:3, 3]
-    down = rays[..., 2] < -1e-3
-    dist = np.where(down, -cam[2] / np.where(down, rays[..., 2], -1.0), 1e3)
-    gx = cam[0] + dist * rays[..., 0]
-    gy = cam[1] + dist * rays[..., 1]
-    near = np.clip(10.0 / dist, 0.15, 1.0).astype(np.float32)  # fine grain fades with range
-
-    road = labels == Label.ROAD
-    grain = _lookup(tex.fine, gx / 0.03, gy / 0.03) * near
-    patches = _lookup(tex.coarse, gx / 0.25, gy / 0.25)
-    asphalt = 1.0 + 0.15 * grain + 0.12 * patches
-    img[road] *= (asphalt[road, None] * np.array([1.03, 1.0, 0.96], np.float32)).astype(np.float32)
-
-    walk = labels == Label.SIDEWALK
-    fx, fy = np.abs((gx / 0.4) % 1.0 - 0.5), np.abs((gy / 0.4) % 1.0 - 0.5)
-    joints = np.where((np.maximum(fx, fy) > 0.46) & (near > 0.3), 0.75, 1.0)
-    paving = joints * (1.0 + 0.08 * grain)
-    img[walk] *= paving[walk, None].astype(np.float32)
-
-    verge = labels == Label.BACKGROUND
-    grass = 1.0 + 0.35 * grain + 0.15 * patches
-    img[verge] = (np.array([0.33, 0.40, 0.22], np.float32) * grass[verge, None]).astype(np.float32)
-
-    facade = labels == Label.BUILDING
-    shade = img[..., :].mean(axis=-1, keepdims=True) / (138.0 / 255.0)
-    plaster = np.array([0.80, 0.70, 0.57], np.float32) * shade
-    plaster *= 1.0 + 0.05 * _lookup(tex.fine, u * 1.5, v * 1.5)[..., None]
-    img[facade] = 0.3 * img[facade] + 0.7 * plaster[facade]
-
-    sky = labels == Label.SKY
-    elev = np.clip(rays[..., 2], 0.0, 1.0)
-    azim = np.arctan2(rays[..., 1], rays[..., 0])
-    base = (1 - np.sqrt(elev))[..., None] * np.array([0.87, 0.90, 0.94]) + np.sqrt(elev)[
-        ..., None
-    ] * np.array([0.33, 0.53, 0.84])
-    cloud = _lookup(tex.coarse, azim * 60.0, elev * 120.0)
-    cover = np.clip((cloud - 0.2) / 0.8, 0.0, 1.0)[..., None]
-    sky_rgb = (1 - 0.8 * cover) * base + 0.8 * cover * np.array([0.95, 0.95, 0.96])
-    img[sky] = sky_rgb[sky].astype(np.float32)
-
-    # Lens and sensor: blur, warm grade with a soft S-curve, vignetting, noise.
-    img = np.asarray(cv2.GaussianBlur(img, (0, 0), 0.6), np.float32)
-    img = np.clip(img * 1.05, 0.0, 1.0) ** 0.9
-    img = 0.5 + (img - 0.5) * 1.12
-    img *= np.array([1.05, 1.0, 0.93], np.float32)
-    r2 = ((u - w / 2) / (w / 2)) ** 2 + ((v - h / 2) / (h / 2)) ** 2
-    img *= (1.0 - 0.18 * r2)[..., None].astype(np.float32)
-    img += rng.normal(0.0, 0.015, img.shape).astype(np.float32)
-    out: npt.NDArray[np.uint8] = np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
-    return out
-
-
-# -- the recording ---------------------------------------------------------------------------
-def _quat_z(yaw: float) -> dict[str, float]:
-    return {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2.0), "w": math.cos(yaw / 2.0)}
-
-
-def _lidar_fields(w: BagWriter, points: npt.NDArray[np.float32]) -> dict[str, Any]:
-    from cam2sim.recording.pointcloud import pointcloud_message_fields  # noqa: PLC0415
-
-    cloud = np.zeros(
-        points.shape[0], dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")]
-    )
-    for k, name in enumerate(("x", "y", "z", "intensity")):
-        cloud[name] = points[:, k]
-    fields: dict[str, Any] = dict(pointcloud_message_fields(cloud))
-    fields["fields"] = [w.message("sensor_msgs/msg/PointField", f) for f in fields["fields"]]
-    return fields
-
-
-def _steering(t: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """The driver's steering at times ``t``: the route's curvature, eased over 1 s."""
-    fine = np.arange(-1.0, t[-1] + 1.0, 0.01)
-    kappa = route_curvature(SPEED_MPS * fine)
-    window = np.ones(101) / 101.0
-    smooth = np.convolve(kappa, window, mode="same")
-    out: npt.NDArray[np.float64] = np.interp(t, fine, smooth) / CURVATURE_PER_STEERING
-    return out
-
-
-def _camera_info(stamp: int) -> dict[str, Any]:
-    k = camera_matrix()
-    w, h = CAMERA_SIZE
-    return {
-        "header": {"stamp": stamp, "frame_id": "camera_optical"},
-        "height": h,
-        "width": w,
-        "distortion_model": "plumb_bob",
-        "d": np.zeros(5),
-        "k": k.ravel(),
-        "r": np.eye(3).ravel(),
-        "p": np.column_stack([k, np.zeros(3)]).ravel(),
-    }
-
-
-def _write_bag(path: Path, world: DemoWorld, *, seed: int, progress: ProgressCallback) -> int:
-    from cam2sim.core.frames import Pose  # noqa: PLC0415
-    from cam2sim.detect.synthetic import LidarModel, scan_scene  # noqa: PLC0415
-    from cam2sim.recording.bagwriter import BagWriter  # noqa: PLC0415
-    from cam2sim.recording.image import compressed_image_fields  # noqa: PLC0415
-    from cam2sim.render.raster import RasterRenderer  # noqa: PLC0415
-
-    duration = route_length_m() / SPEED_MPS
-    odom_t = np.arange(0.0, duration, 1.0 / ODOM_HZ)
-    cam_t = np.arange(0.05, duration, 1.0 / CAMERA_HZ)
-    lidar_t = np.arange(0.02, duration, 1.0 / LIDAR_HZ)
-    steer = _steering(odom_t)
-    events = [(float(t), 0, "odom", i) for i, t in enumerate(odom_t)]
-    events += [(float(t), 1, "lidar", i) for i, t in enumerate(lidar_t)]
-    events += [(float(t), 2, "camera", i) for i, t in enumerate(cam_t)]
-    events.sort()
-    scene = world.lidar_scene()
-    lidar = LidarModel(beams=LIDAR_BEAMS, azimuths=LIDAR_AZIMUTHS)
-    k = camera_matrix()
-    rng = np.random.default_rng(seed)
-    width, height = CAMERA_SIZE
-    with RasterRenderer(world.raster_scene()) as renderer, BagWriter(path, "mcap") as bag:
-        for t, _, kind, i in events:
-            stamp = _T0_NS + round(t * 1e9)
-            station = SPEED_MPS * t
-            if kind == "odom":
-                xy, heading = route_points([station])
-                pose = {
-                    "position": {"x": ORIGIN_UTM[0] + xy[0, 0], "y": ORIGIN_UTM[1] + xy[0, 1]},
-                    # The reference car's axes: x to the left, so yaw = heading + 90 degrees.
-                    "orientation": _quat_z(float(heading[0]) + math.pi / 2.0),
-                }
-                twist = {"linear": {"y": SPEED_MPS}}
-                odom = {
-                    "header": {"stamp": stamp, "frame_id": "utm"},
-                    "child_frame_id": "base_link",
-                    "pose": {"pose": pose},
-                    "twist": {"twist": twist},
-                }
-                bag.write_fields(TOPICS["pose"], "nav_msgs/msg/Odometry", odom, receive_ns=stamp)
-                value = {"data": float(steer[i])}
-                bag.write_fields(
-                    TOPICS["steering"], "std_msgs/msg/Float64", value, receive_ns=stamp
-                )
-            elif kind == "lidar":
-                xy, heading = route_points([station])
-                body = _body_pose(xy[0], float(heading[0]))
-                position = body[:3, :3] @ np.asarray(LIDAR_MOUNT) + body[:3, 3]
-                q = _quat_z(float(heading[0]))
-                sensor = Pose(position, np.array([q["x"], q["y"], q["z"], q["w"]]))
-                points = scan_scene(scene, sensor, lidar=lidar, seed=seed * 100_003 + i).points
-                cloud = {"header": {"stamp": stamp, "frame_id": "lidar"}}
-                cloud.update(_lidar_fields(bag, points))
-                bag.write_fields(
-                    TOPICS["lidar"], "sensor_msgs/msg/PointCloud2", cloud, receive_ns=stamp
-                )
-            else:
-                pose_cam = camera_pose(station)
-                frame = renderer.render(pose_cam, k, width, height)
-                image = photographic_look(frame.rgb, frame.labels, pose_cam, k, rng=rng, seed=seed)
-                msg: dict[str, object] = {
-                    "header": {"stamp": stamp, "frame_id": "camera_optical"},
-                    **compressed_image_fields(image, "jpeg", quality=88),
-                }
-                bag.write_fields(
-                    TOPICS["camera"], "sensor_msgs/msg/CompressedImage", msg, receive_ns=stamp
-                )
-                bag.write_fields(
-                    TOPICS["camera_info"],
-                    "sensor_msgs/msg/CameraInfo",
-                    _camera_info(stamp),
-                    receive_ns=stamp,
-                )
-                progress("demo frames", i + 1, len(cam_t))
-    return len(cam_t)
-
-
 def demo_config(bag: Path) -> Config:
     """The cam2sim config of the demo bag."""
     from cam2sim.core.config import (  # noqa: PLC0415
@@ -701,7 +526,9 @@ def load_demo_recording(out_dir: Path) -> DemoRecording | None:
     root = Path(out_dir)
     marker = root / _MARKER
     bag, osm, config, truth = _paths(root)
-    if not (marker.is_file() and bag.is_dir() and osm.is_file() and config.is_file()):
+    truth_world = root / _TRUTH_WORLD
+    files = (marker, osm, config, truth_world)
+    if not (bag.is_dir() and all(f.is_file() for f in files)):
         return None
     try:
         meta = json.loads(marker.read_text(encoding="utf-8"))
@@ -720,6 +547,7 @@ def load_demo_recording(out_dir: Path) -> DemoRecording | None:
             config=config,
             truth=cars,
             buildings=buildings,
+            truth_world=truth_world,
             camera_frames=int(meta["camera_frames"]),
             duration_s=float(meta["duration_s"]),
         )
@@ -741,6 +569,7 @@ def build_demo_recording(
     """
     from cam2sim.core.config import save_config  # noqa: PLC0415
     from cam2sim.core.progress import no_progress  # noqa: PLC0415
+    from cam2sim.demo.bag import write_bag  # noqa: PLC0415
 
     root = Path(out_dir)
     root.mkdir(parents=True, exist_ok=True)
@@ -748,7 +577,7 @@ def build_demo_recording(
     bag, osm, config, truth = _paths(root)
     write_text_atomic(osm, world.osm_xml())
     with atomic_folder(bag.parent) as tmp:
-        frames = _write_bag(tmp / bag.name, world, seed=seed, progress=progress or no_progress)
+        frames = write_bag(tmp / bag.name, world, seed=seed, progress=progress or no_progress)
     save_config(demo_config(bag), config, comment="The cam2sim demo recording (cam2sim demo)")
     data = {
         "crs": CRS,
@@ -757,6 +586,7 @@ def build_demo_recording(
         "buildings": [{"xy": [list(p) for p in b.xy], "levels": b.levels} for b in world.buildings],
     }
     write_text_atomic(truth, json.dumps(data, indent=1) + "\n")
+    world.truth_world(seed=seed).save(root / _TRUTH_WORLD)
     duration = route_length_m() / SPEED_MPS
     meta = {"version": _VERSION, "seed": seed, "camera_frames": frames, "duration_s": duration}
     write_text_atomic(root / _MARKER, json.dumps(meta, indent=1) + "\n")
@@ -767,6 +597,7 @@ def build_demo_recording(
         config=config,
         truth=world.cars,
         buildings=world.buildings,
+        truth_world=root / _TRUTH_WORLD,
         camera_frames=frames,
         duration_s=duration,
     )

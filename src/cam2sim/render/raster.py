@@ -422,6 +422,12 @@ class RasterRenderer:
         if self._ctx is None:
             msg = "the raster renderer is closed"
             raise RuntimeError(msg)
+        with self._ctx:  # current while drawing: several renderers may be open at once
+            return self._draw(pose, k, width, height)
+
+    def _draw(
+        self, pose: npt.NDArray[np.float64], k: npt.NDArray[np.float64], width: int, height: int
+    ) -> RasterResult:
         import moderngl  # noqa: PLC0415
 
         local = pose.copy()

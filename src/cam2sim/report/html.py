@@ -151,34 +151,26 @@ def _gather(ctx: _Context) -> None:
 
 def _real_drives(ctx: _Context, real_runs: Sequence[Path], real_crs: str) -> list[DriveRun]:
     """The real reference drives: given, found in ``WS/real/``, or the scenario's recording."""
-    from cam2sim.metrics.drive_io import DriveRun, load_runs  # noqa: PLC0415
+    from cam2sim.metrics.drive_io import load_runs  # noqa: PLC0415
 
     sources = list(real_runs) or ([ctx.ws.root / "real"] if (ctx.ws.root / "real").is_dir() else [])
     if sources:
         return load_runs(sources, real=True, crs=real_crs)
     if ctx.scenario is None:
         return []
-    tr = ctx.scenario.trajectory
-    ctx.warnings.append(
-        "no real drives given (--real or WS/real/): the scenario's recorded trajectory is the "
-        "only reference, so the corridor has zero width"
-    )
-    return [
-        DriveRun(
-            name="recorded/scenario",
-            method="recorded",
-            real=True,
-            t=np.asarray(tr.t, dtype=np.float64),
-            xy=np.asarray(tr.reference, dtype=np.float64)[:, :2],
-            crs=ctx.scenario.world.proj_string,
-            source=str(ctx.ws.scenario_dir / "scenario.json"),
+    from cam2sim.metrics.behaviour import REAL_METHOD, recorded_drive  # noqa: PLC0415
+
+    if not any(d.method == REAL_METHOD for d in ctx.drives.values()):
+        ctx.warnings.append(
+            "no real drives given (--real or WS/real/) and no run in the ground-truth world: the "
+            "scenario's recorded trajectory is the only reference, so the corridor has zero width"
         )
-    ]
+    return [recorded_drive(ctx.scenario, source=str(ctx.ws.scenario_dir / "scenario.json"))]
 
 
 def _evaluate(ctx: _Context, real_runs: Sequence[Path], real_crs: str) -> str | None:
     """Evaluate the closed-loop runs; return why not, or None when done."""
-    from cam2sim.metrics.drive_quality import evaluate_drives  # noqa: PLC0415
+    from cam2sim.metrics.behaviour import evaluate_with_real_runs  # noqa: PLC0415
 
     sims = [ctx.drives[p.name] for p in ctx.runs if ctx.meta[p.name].get("kind") != "replay"]
     if not sims:
@@ -187,7 +179,7 @@ def _evaluate(ctx: _Context, real_runs: Sequence[Path], real_crs: str) -> str | 
         real = _real_drives(ctx, real_runs, real_crs)
         if not real:
             return "no real drive and no scenario"
-        ctx.evaluation = evaluate_drives(real, sims)
+        ctx.evaluation = evaluate_with_real_runs(real, sims)
     except Cam2SimError as err:
         ctx.warnings.append(f"drive evaluation failed: {err}")
         return f"drive evaluation failed ({err});"
@@ -300,7 +292,17 @@ def _behaviour(ctx: _Context, why: str | None) -> str:
     ev = ctx.evaluation
     if ev is None:
         return _na(f"Behaviour metrics ({why or 'no runs'}):", f"cam2sim drive {ctx.ws.root}")
+    from cam2sim.metrics.behaviour import behaviour_table  # noqa: PLC0415
+
     m = ev.metrics
+    paper = behaviour_table(m)
+    parts = [
+        _table(
+            ["metric", *paper.columns],
+            [(name, *values) for name, values in paper.rows],
+            "Behaviour (the paper's layout)",
+        )
+    ]
     rows = []
     for s in m.methods:
         ft = s.failure_types
@@ -320,10 +322,13 @@ def _behaviour(ctx: _Context, why: str | None) -> str:
     note = (
         f'<p class="note">Segment {m.segment.length_m:.1f} m '
         f"(reference {_e(m.segment.reference_run)}), corridor mean width "
-        f"{m.corridor_mean_width_m:.2f} m. Averages over successful runs; "
-        "jitter over all runs. OR out of road, CC collision, OS oversteer, US understeer.</p>"
+        f"{m.corridor_mean_width_m:.2f} m. Real: the recorded drive and the closed-loop runs in "
+        "the ground-truth world (completed ones are references, scored leave-one-out). "
+        "Averages over successful runs; jitter over all runs. OR out of road, CC collision, "
+        "OS oversteer, US understeer.</p>"
     )
-    return _table(headers, rows, "Drive behaviour per method") + note
+    parts += [_table(headers, rows, "Drive behaviour per method"), note]
+    return "".join(parts)
 
 
 def _runs(ctx: _Context, tmp: Path) -> str:
@@ -474,6 +479,12 @@ def _semantic(ctx: _Context) -> str:
         rows.append(("mIoU", s.miou, ".4f"))
         caption = f"{path.relative_to(ctx.ws.root)}: {len(res.frames)} segmentation pairs"
         parts.append(_table(["metric", "mean", "std", "n"], _stats_rows(rows), caption))
+        if (path.parent / "real").is_dir() and (path.parent / "sim").is_dir():
+            parts.append(
+                '<p class="note">Labels of the ground-truth world (real) against the simulated '
+                "world built from the recording (map, detected parked cars, OSM buildings), "
+                "both rendered at recorded poses.</p>"
+            )
     if not parts:
         return _na(
             "Semantic IoU", f"cam2sim evaluate semantic REAL SIM -o {ctx.ws.report_dir}/semantic"
@@ -482,26 +493,54 @@ def _semantic(ctx: _Context) -> str:
 
 
 def _images(ctx: _Context) -> str:
-    from cam2sim.metrics.image_quality import ImageQualityResult  # noqa: PLC0415
+    from cam2sim.metrics.image_quality import PSNR_CAP_DB, ImageQualityResult  # noqa: PLC0415
 
-    parts = []
+    results = []
     for path in _found(ctx, "images.json"):
         try:
-            res = ImageQualityResult.load(path)
+            results.append((path, ImageQualityResult.load(path)))
         except Cam2SimError as err:
             ctx.warnings.append(f"{path}: {err}")
-            continue
-        s = res.summary
-        rows = [("PSNR dB", s["psnr_db"], ".2f"), ("SSIM", s["ssim"], ".4f")]
-        if res.lpips_net is not None and "lpips" in s:
-            rows.append((f"LPIPS {res.lpips_net}", s["lpips"], ".4f"))
-        caption = f"{path.relative_to(ctx.ws.root)}: {len(res.images)} image pairs"
-        parts.append(_table(["metric", "mean", "std", "n"], _stats_rows(rows), caption))
-    if not parts:
+    if not results:
         return _na(
             "Image quality", f"cam2sim evaluate images REAL SIM -o {ctx.ws.report_dir}/images"
         )
+    rank = list(_IMAGE_COLUMNS)  # splat before the simulator, as the paper's columns
+    results.sort(key=lambda r: rank.index(f) if (f := r[0].parent.name) in rank else len(rank))
+    names = [_image_column(path, ctx.ws.report_dir) for path, _ in results]
+    nets = sorted({res.lpips_net for _, res in results if res.lpips_net})
+    lpips = f"LPIPS ({', '.join(nets)})" if nets else "LPIPS"
+    metrics = [("PSNR dB", "psnr_db", ".2f"), ("SSIM", "ssim", ".4f"), (lpips, "lpips", ".4f")]
+    rows: list[list[str]] = []
+    for label, key, spec in metrics:
+        cells = [
+            _stats_cell(res.summary.get(key), spec) if key != "lpips" or res.lpips_net else "-"
+            for _, res in results
+        ]
+        rows.append([label, *cells])
+    rows.append(["image pairs", *(str(len(res.images)) for _, res in results)])
+    parts = [_table(["metric (mean ± std)", *names], rows, "Against the recorded frames")]
+    if not any(res.lpips_net for _, res in results):
+        parts.append('<p class="note">LPIPS skipped: its weights are not on this machine.</p>')
+    where = ", ".join(str(path.relative_to(ctx.ws.root)) for path, _ in results)
+    cap = f"PSNR is capped at {PSNR_CAP_DB:g} dB"
+    parts.append(f'<p class="note">From {_e(where)}; {cap}.</p>')
     return "".join(parts)
+
+
+#: Column names of the image-quality table, by the folder name of the compared images.
+_IMAGE_COLUMNS = {"splat": "splat", "raster": "Sim (raster)", "carla": "Sim (CARLA)"}
+
+
+def _image_column(path: Path, report_dir: Path) -> str:
+    folder = path.parent.name if path.parent != report_dir / "images" else "images"
+    return _IMAGE_COLUMNS.get(folder, folder)
+
+
+def _stats_cell(stats: MetricStats | None, spec: str) -> str:
+    if stats is None or stats.mean is None:
+        return "-"
+    return f"{format(stats.mean, spec)} ± {_fmt(stats.std, spec)}"
 
 
 # -- the page -----------------------------------------------------------------------------------

@@ -16,16 +16,16 @@ import json
 import logging
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, Literal
 
-from cam2sim.core.errors import ConfigError, StageError
+from cam2sim.core.errors import Cam2SimError, ConfigError, StageError
 from cam2sim.core.files import write_text_atomic
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.workspace import hash_inputs
 
 if TYPE_CHECKING:
     from collections.abc import Callable
-    from pathlib import Path
 
     from cam2sim.core.workspace import Workspace
     from cam2sim.stages.runs import CameraName
@@ -73,8 +73,14 @@ class PipelineOptions:
         policy: Drive policy; None: the DAVE-2 ONNX of the ads step when there is one, else
             ``pure-pursuit``.
         cameras: Cameras for replay and drive; None: ``raster``, plus ``splat`` when splat
-            models exist. ``("none",)`` renders nothing (fast; pure-pursuit only).
-        runs: Drive runs per camera.
+            models exist, plus (drive only) ``truth`` when the workspace has a ground-truth world
+            (``WS/truth/world.json``; its runs are real-world runs). ``("none",)`` renders
+            nothing (fast; pure-pursuit only).
+        runs: Drive runs per camera (seeds 0, 1, ...).
+        replay_every: Replay every n-th recorded frame (the report's frames and the image
+            quality are computed on them).
+        steering_noise_std: Steering noise of the builtin simulator (steering units per step,
+            seeded per run), so that repeated runs of a deterministic policy differ.
         splat: Splat options; None: the defaults on CUDA, :func:`small_splat_options` on CPU.
         splat_on_cpu: Train splats without a GPU (slow even with the small preset); False makes
             ``splat`` not applicable there.
@@ -91,6 +97,8 @@ class PipelineOptions:
     policy: str | None = None
     cameras: tuple[CameraName, ...] | None = None
     runs: int = 3
+    replay_every: int = 1
+    steering_noise_std: float = 0.0
     splat: SplatStageOptions | None = None
     splat_on_cpu: bool = True
     steering_signal: str | None = None
@@ -102,12 +110,12 @@ class PipelineOptions:
         if unknown:
             msg = f"unknown step(s) {', '.join(unknown)}; choose from {', '.join(STEPS)}"
             raise ConfigError(msg)
-        cameras = sorted(set(self.cameras or ()) - {"raster", "splat", "carla", "none"})
+        cameras = sorted(set(self.cameras or ()) - {"raster", "splat", "truth", "carla", "none"})
         if cameras:
-            msg = f"unknown camera(s) {', '.join(cameras)}; choose from raster, splat, none"
+            msg = f"unknown camera(s) {', '.join(cameras)}; choose from raster, splat, truth, none"
             raise ConfigError(msg)
-        if self.runs < 1:
-            msg = f"runs must be >= 1, got {self.runs}"
+        if self.runs < 1 or self.replay_every < 1:
+            msg = f"runs and replay_every must be >= 1, got {self.runs}, {self.replay_every}"
             raise ConfigError(msg)
 
     def wants(self, step: str) -> bool:
@@ -262,6 +270,27 @@ class _Pipeline:
         has_splat = models.is_dir() and any(models.glob("chunk_*.pt"))
         return ("raster", "splat") if has_splat else ("raster",)
 
+    def _drive_cameras(self) -> tuple[CameraName, ...]:
+        """The replay cameras, after the truth camera when there is a ground-truth world."""
+        from cam2sim.render.truth import truth_world_path  # noqa: PLC0415
+
+        cams = self._cameras()
+        if self.options.cameras is None and truth_world_path(self.ws.root).is_file():
+            return ("truth", *(c for c in cams if c != "truth"))
+        return cams
+
+    def _sim_options(self) -> Any:
+        """Builtin simulator options with the steering noise (None: the drive defaults)."""
+        if not self.options.steering_noise_std:
+            return None
+        from cam2sim.scenario.model import Scenario  # noqa: PLC0415
+        from cam2sim.sim.builtin import BuiltinOptions  # noqa: PLC0415
+
+        sc = Scenario.load(self.ws.scenario_dir / "scenario.json")
+        return BuiltinOptions(
+            calibration=sc.steering_calibration, steering_noise_std=self.options.steering_noise_std
+        )
+
     # -- steps ------------------------------------------------------------------------------
     def extract(self, step: _Step) -> None:
         from cam2sim.stages.extract import extract  # noqa: PLC0415
@@ -359,7 +388,9 @@ class _Pipeline:
     def replay(self, step: _Step) -> None:
         from cam2sim.stages.runs import ReplayOptions, replay  # noqa: PLC0415
 
-        opts = ReplayOptions(cameras=self._cameras())
+        opts = ReplayOptions(
+            cameras=self._cameras(), frames=(None, None, self.options.replay_every)
+        )
         inputs = hash_inputs({"scenario": self._scenario_hash(), "options": repr(opts)})
         runs = self._runs_current("replay", inputs)
         if runs is not None:
@@ -372,15 +403,23 @@ class _Pipeline:
         step.message = result.run_id
 
     def drive(self, step: _Step) -> None:
+        from cam2sim.core.files import file_fingerprint  # noqa: PLC0415
         from cam2sim.stages.runs import DriveOptions, drive  # noqa: PLC0415
 
         policy = self._policy()
+        sim = self._sim_options()
         all_opts = [
-            DriveOptions(policy=policy, camera=cam, runs=self.options.runs)
-            for cam in self._cameras()
+            DriveOptions(policy=policy, camera=cam, runs=self.options.runs, sim=sim)
+            for cam in self._drive_cameras()
         ]
+        model = Path(policy)
         inputs = hash_inputs(
-            {"scenario": self._scenario_hash(), "options": [repr(o) for o in all_opts]}
+            {
+                "scenario": self._scenario_hash(),
+                "options": [repr(o) for o in all_opts],
+                # A retrained model at the same path makes new runs.
+                "model": file_fingerprint(model) if model.is_file() else None,
+            }
         )
         runs = self._runs_current("drive", inputs)
         if runs is None:
@@ -393,7 +432,7 @@ class _Pipeline:
             self._save_state()
         else:
             step.up_to_date = True
-        cams = ", ".join(self._cameras())
+        cams = ", ".join(self._drive_cameras())
         step.message = f"{len(runs)} run(s), policy {policy}, camera {cams}"
 
     def evaluate(self, step: _Step) -> None:
@@ -402,7 +441,8 @@ class _Pipeline:
             msg = "no drive runs to evaluate; the drive step must run first"
             raise StageError(msg)
         out = self.ws.report_dir / DRIVE_EVAL_DIR
-        inputs = hash_inputs({"scenario": self._scenario_hash(), "runs": runs})
+        replay = [str(r) for r in self.state.get("replay", {}).get("runs", [])]
+        inputs = hash_inputs({"scenario": self._scenario_hash(), "runs": runs, "replay": replay})
         if (
             self.state.get("evaluate", {}).get("inputs") == inputs
             and (out / "metrics.json").is_file()
@@ -411,9 +451,41 @@ class _Pipeline:
             step.message = str(out / "metrics.json")
             return
         evaluate_workspace_drives(self.ws, runs, out)
+        notes = self._evaluate_reconstruction(replay)
         self.state["evaluate"] = {"inputs": inputs}
         self._save_state()
-        step.message = str(out / "metrics.json")
+        step.message = "; ".join([str(out / "metrics.json"), *notes])
+
+    def _evaluate_reconstruction(self, replay: list[str]) -> list[str]:
+        """Image quality of the replay's cameras and semantic IoU of the world, where possible."""
+        from cam2sim.render.truth import truth_world_path  # noqa: PLC0415
+        from cam2sim.stages.reconstruction import (  # noqa: PLC0415
+            evaluate_replay_images,
+            evaluate_world_semantics,
+        )
+
+        notes = []
+        folder = self.ws.runs_dir / replay[0] if replay else None
+        if folder is None or not (folder / "frames").is_dir():
+            notes.append("no replay frames: image quality not computed")
+        else:
+            try:
+                _, note = evaluate_replay_images(
+                    self.ws, folder, self.ws.report_dir / "images", progress=self.progress
+                )
+                notes += [note] if note else []
+            except Cam2SimError as err:  # the drive metrics stand without it
+                notes.append(f"image quality not computed: {err}")
+        if not truth_world_path(self.ws.root).is_file():
+            notes.append("no ground-truth world: semantic IoU not computed")
+            return notes
+        try:
+            evaluate_world_semantics(
+                self.ws, self.ws.report_dir / "semantic", progress=self.progress
+            )
+        except Cam2SimError as err:
+            notes.append(f"semantic IoU not computed: {err}")
+        return notes
 
     def report_step(self, step: _Step) -> None:
         try:
@@ -431,14 +503,19 @@ def evaluate_workspace_drives(ws: Workspace, run_ids: list[str], out: Path) -> P
     """Score drive runs against the recorded drive; write ``out/metrics.json`` and figures.
 
     The recorded drive is the scenario's reference trajectory (the point runs are recorded at).
+    Runs in the ground-truth world (method ``real``) join it in the Real group
+    (:func:`~cam2sim.metrics.behaviour.evaluate_with_real_runs`); ``out/behaviour.md`` is the
+    behaviour table in the paper's layout.
 
     Returns:
         The ``metrics.json`` path.
     """
-    import numpy as np  # noqa: PLC0415
-
-    from cam2sim.metrics.drive_io import DriveRun, load_run_dir  # noqa: PLC0415
-    from cam2sim.metrics.drive_quality import evaluate_drives  # noqa: PLC0415
+    from cam2sim.metrics.behaviour import (  # noqa: PLC0415
+        behaviour_table,
+        evaluate_with_real_runs,
+        recorded_drive,
+    )
+    from cam2sim.metrics.drive_io import load_run_dir  # noqa: PLC0415
     from cam2sim.report.drive_figures import write_drive_figures  # noqa: PLC0415
     from cam2sim.scenario.model import Scenario  # noqa: PLC0415
 
@@ -446,22 +523,13 @@ def evaluate_workspace_drives(ws: Workspace, run_ids: list[str], out: Path) -> P
     if not path.is_file():
         msg = f"{ws.root} has no scenario; run `cam2sim scenario {ws.root}` first"
         raise StageError(msg)
-    sc = Scenario.load(path)
-    tr = sc.trajectory
-    real = DriveRun(
-        name="real/recorded",
-        method="real",
-        real=True,
-        t=np.asarray(tr.t, dtype=np.float64),
-        xy=np.asarray(tr.reference, dtype=np.float64)[:, :2],
-        crs=sc.world.proj_string,
-        source=str(path),
-    )
-    sims = [load_run_dir(ws.runs_dir / r) for r in run_ids]
-    ev = evaluate_drives([real], sims)
+    real = recorded_drive(Scenario.load(path), source=str(path))
+    runs = [load_run_dir(ws.runs_dir / r) for r in run_ids]
+    ev = evaluate_with_real_runs([real], runs)
     out.mkdir(parents=True, exist_ok=True)
     ev.metrics.save(out / "metrics.json")
     ev.metrics.segment.save(out / "segment.json")
+    write_text_atomic(out / "behaviour.md", behaviour_table(ev.metrics).markdown())
     write_drive_figures(ev, out)
     return out / "metrics.json"
 

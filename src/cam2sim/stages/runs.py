@@ -24,7 +24,7 @@ import json
 import logging
 import time
 from dataclasses import asdict, dataclass, field
-from typing import TYPE_CHECKING, Any, Literal, Self
+from typing import TYPE_CHECKING, Any, Final, Literal, Self
 
 import numpy as np
 
@@ -42,10 +42,20 @@ if TYPE_CHECKING:
     from cam2sim.map.query import RoadMap
     from cam2sim.scenario.model import Scenario
 
-__all__ = ["CameraName", "DriveOptions", "ReplayOptions", "RunResult", "drive", "replay"]
+__all__ = [
+    "TRUTH_CAMERA",
+    "CameraName",
+    "DriveOptions",
+    "ReplayOptions",
+    "RunResult",
+    "drive",
+    "replay",
+]
 
 logger = logging.getLogger(__name__)
-CameraName = Literal["raster", "splat", "carla", "none"]
+CameraName = Literal["raster", "splat", "truth", "carla", "none"]
+#: The camera of closed-loop drives in the ground-truth world; their runs are method ``real``.
+TRUTH_CAMERA: Final = "truth"
 SimulatorName = Literal["builtin", "carla"]
 
 
@@ -55,7 +65,8 @@ class ReplayOptions:
 
     Attributes:
         cameras: Cameras to render (``raster``, ``splat``; both for a side by side).
-        frames: ``(first, stop)`` trajectory samples to replay (Python slice bounds).
+        frames: ``(first, stop)`` or ``(first, stop, step)`` trajectory samples to replay
+            (Python slice bounds).
         image_size: ``(width, height)`` of rendered frames; None keeps the calibrated size.
         save_frames: Write every rendered frame (PNG) and the side-by-side images.
         video: Write ``video.mp4`` of the side-by-side images.
@@ -66,7 +77,7 @@ class ReplayOptions:
     """
 
     cameras: tuple[CameraName, ...] = ("raster",)
-    frames: tuple[int | None, int | None] = (None, None)
+    frames: tuple[int | None, ...] = (None, None)
     image_size: tuple[int, int] | None = None
     save_frames: bool = True
     video: bool = True
@@ -99,6 +110,8 @@ class DriveOptions:
         simulator: ``builtin`` (embedded) or ``carla`` (a running CARLA server).
         carla: CARLA backend options (host, port, mesh, blueprints...); None: defaults.
         carla_client_factory: Builds the ``carla.Client`` (tests and embedding; None: connect).
+        start_offset: ``(lateral_m, heading_deg)`` moved from the recorded hero start (lateral:
+            left of the start heading; heading: counter-clockwise); ``(0, 0)`` keeps it.
     """
 
     policy: str = "pure-pursuit"
@@ -115,6 +128,7 @@ class DriveOptions:
     simulator: SimulatorName = "builtin"
     carla: Any = field(default=None)
     carla_client_factory: Any = field(default=None)
+    start_offset: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         if self.runs < 1 or self.policy_every < 1 or self.max_steps < 1:
@@ -207,6 +221,11 @@ class _Cameras:
                 buildings = [BuildingFootprint(b.xy, b.height_m) for b in load_buildings(ctx.ws)]
                 scene = RasterScene(ctx.road_map, ctx.scenario.parked, buildings)
                 self.renderers[name] = RasterRenderer(scene)
+            elif name == TRUTH_CAMERA:  # the ground-truth world (WS/truth/world.json)
+                from cam2sim.render.truth import TruthRenderer  # noqa: PLC0415
+
+                proj = ctx.scenario.world.proj_string
+                self.renderers[name] = TruthRenderer.open(ctx.ws.root, proj)
             elif name == "carla":
                 continue  # rendered by the CARLA server through the simulator
             elif name == "splat":
@@ -242,12 +261,17 @@ def _new_run_dir(ws: Workspace, kind: str, label: str) -> tuple[str, Path]:
     base = f"{stamp}-{kind}-{label}".replace("/", "_").replace(":", "_")
     ws.runs_dir.mkdir(parents=True, exist_ok=True)
     run_id, n = base, 1
-    while (ws.runs_dir / run_id).exists() or (ws.runs_dir / f".tmp-{run_id}").exists():
+    while True:
+        tmp = ws.runs_dir / f".tmp-{run_id}"
+        if not (ws.runs_dir / run_id).exists():
+            try:
+                tmp.mkdir()  # atomic: of concurrent runs (a campaign) one gets each name
+            except FileExistsError:
+                pass
+            else:
+                return run_id, tmp
         n += 1
         run_id = f"{base}-{n}"
-    tmp = ws.runs_dir / f".tmp-{run_id}"
-    tmp.mkdir()
-    return run_id, tmp
 
 
 def _finish_run(ws: Workspace, run_id: str, tmp: Path) -> Path:
@@ -424,10 +448,11 @@ def _replay_frames(
     K, w, h = _intrinsics(ctx.scenario, opts.image_size)
     tr = ctx.scenario.trajectory
     ground = ref[:, 2] - ctx.scenario.vehicle.reference_xyz[2]
-    # The raster world's road is z = 0; the splat models live at the recorded heights.
-    z_of = {"raster": ref[:, 2] - ground, "splat": ref[:, 2]}
+    # The raster and truth worlds' road is z = 0; the splat models live at the recorded heights.
+    z_of = {"raster": ref[:, 2] - ground, TRUTH_CAMERA: ref[:, 2] - ground, "splat": ref[:, 2]}
     poses = {name: _camera_poses(ctx.scenario, ref[:, :2], heading, z_of[name]) for name in z_of}
-    fps = 1.0 / max(float(np.median(np.diff(tr.t))), 1e-3) if len(tr.t) > 1 else 10.0
+    t = np.asarray(tr.t, dtype=np.float64)[idx]
+    fps = 1.0 / max(float(np.median(np.diff(t))), 1e-3) if len(t) > 1 else 10.0
     video = _Video(folder / "video.mp4", fps) if opts.video else None
     real_frame = _real_frames(ctx.ws)
     try:
@@ -569,7 +594,7 @@ def _drive_loop(  # noqa: PLR0913, PLR0915, PLR0917 - one run: setup, step loop,
     from cam2sim.sim.interface import Control  # noqa: PLC0415
 
     sc = ctx.scenario
-    state = sim.reset()
+    state = sim.reset(_start_pose(sc, opts.start_offset))
     policy.reset()
     cam_name = "carla" if opts.camera == "carla" else next(iter(cameras.renderers), None)
     K, w, h = _intrinsics(sc, opts.image_size) if cam_name else (np.eye(3), 0, 0)
@@ -654,7 +679,8 @@ def _drive_meta(
     seconds = timing["seconds"]
     return {
         "kind": "drive",
-        "method": f"drive-{cam_name or 'none'}",
+        # Drives in the ground-truth world are real-world runs (the Real group of the metrics).
+        "method": "real" if cam_name == TRUTH_CAMERA else f"drive-{cam_name or 'none'}",
         "camera": cam_name or "none",
         "policy": policy,
         "seed": seed,
@@ -670,6 +696,21 @@ def _drive_meta(
             if k not in ("sim", "carla", "carla_client_factory")
         },
     }
+
+
+def _start_pose(sc: Scenario, offset: tuple[float, float]) -> Any:
+    """The hero start moved by ``offset = (lateral_m, heading_deg)``; None when not moved."""
+    import math  # noqa: PLC0415
+
+    from cam2sim.sim.interface import Pose  # noqa: PLC0415
+
+    lateral, heading_deg = offset
+    if lateral == 0.0 and heading_deg == 0.0:
+        return None
+    s = sc.hero_start
+    x = s.position[0] - lateral * math.sin(s.heading)
+    y = s.position[1] + lateral * math.cos(s.heading)
+    return Pose(x, y, s.heading + math.radians(heading_deg), s.speed)
 
 
 def _record(rows: dict[str, list[float]], state: Any, ref_xyz: tuple[float, float, float]) -> None:

@@ -1,0 +1,153 @@
+"""The photographic look: turn a raster frame into a photograph-like one.
+
+:func:`photographic_look` post-processes a :class:`~cam2sim.render.raster.RasterRenderer` frame
+(colours and labels of one pass) into textured asphalt, paving, grass, plaster facades, a cloudy
+sky, lens blur, colour grading, vignetting and sensor noise. The demo recording is rendered with
+it, and so is the ``truth`` camera (:mod:`cam2sim.render.truth`), so closed-loop runs in the
+ground-truth world see exactly the recording's look.
+
+Determinism: the world textures depend on ``seed`` only; the sensor noise is drawn from the
+``rng`` given. :func:`frame_noise_rng` derives that generator from the seed and the camera pose,
+so one pose renders the same image every time, in the recording and in a closed-loop run.
+"""
+
+from __future__ import annotations
+
+import functools
+import zlib
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+__all__ = ["frame_noise_rng", "photographic_look"]
+
+_POSE_DECIMALS = 3
+"""Poses are rounded to millimetres (and 1e-3 of rotation) before they seed the noise."""
+
+
+def frame_noise_rng(seed: int, T_world_cam: npt.NDArray[np.float64]) -> np.random.Generator:
+    """The sensor-noise generator of one frame: from the look's seed and the camera pose.
+
+    The same seed and pose (to a millimetre) give the same noise; any other pose gives
+    independent noise.
+    """
+    pose = np.round(np.asarray(T_world_cam, dtype=np.float64)[:3], _POSE_DECIMALS) + 0.0
+    return np.random.default_rng([int(seed) & 0xFFFFFFFF, zlib.crc32(pose.tobytes())])
+
+
+@dataclass(frozen=True)
+class _Textures:
+    fine: npt.NDArray[np.float32]
+    coarse: npt.NDArray[np.float32]
+
+
+@functools.lru_cache(maxsize=4)
+def _textures(seed: int, size: int = 256) -> _Textures:
+    import cv2  # noqa: PLC0415
+
+    rng = np.random.default_rng(seed)
+
+    def noise(sigma: float) -> npt.NDArray[np.float32]:
+        pad = int(4 * sigma) + 1  # blur a wrapped copy so the tile repeats seamlessly
+        wrapped = np.pad(rng.normal(size=(size, size)).astype(np.float32), pad, mode="wrap")
+        tile = np.asarray(cv2.GaussianBlur(wrapped, (0, 0), sigma), np.float32)[pad:-pad, pad:-pad]
+        out: npt.NDArray[np.float32] = (tile - tile.mean()) / (tile.std() + 1e-6)
+        return out
+
+    return _Textures(fine=noise(0.7), coarse=noise(8.0))
+
+
+def _lookup(tile: npt.NDArray[np.float32], u: npt.NDArray[Any], v: npt.NDArray[Any]) -> Any:
+    n = tile.shape[0]
+    return tile[np.floor(v).astype(np.int64) % n, np.floor(u).astype(np.int64) % n]
+
+
+def photographic_look(
+    rgb: npt.NDArray[np.uint8],
+    labels: npt.NDArray[np.uint8],
+    T_world_cam: npt.NDArray[np.float64],
+    K: npt.NDArray[np.float64],
+    *,
+    rng: np.random.Generator,
+    seed: int = 0,
+) -> npt.NDArray[np.uint8]:
+    """Turn a raster frame into a photograph-like one.
+
+    Textures anchored in the world (asphalt grain and patches on the road, paving joints on the
+    sidewalks, grass on the verge, clouds in the sky), plaster-coloured facades, warm colour
+    grading, vignetting, a slight lens blur and sensor noise.
+
+    Args:
+        rgb: ``(H, W, 3)`` raster colours.
+        labels: ``(H, W)`` raster labels (:class:`~cam2sim.render.meshes.Label`).
+        T_world_cam: The camera pose (optical axes).
+        K: The intrinsics.
+        rng: Draws the sensor noise.
+        seed: Seeds the world textures (keep it fixed over a recording).
+    """
+    import cv2  # noqa: PLC0415
+
+    from cam2sim.render.meshes import Label  # noqa: PLC0415
+
+    tex = _textures(seed)
+    h, w = labels.shape
+    img = rgb.astype(np.float32) / 255.0
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    pix = np.stack([u, v, np.ones_like(u)], axis=-1)
+    rays = pix @ (T_world_cam[:3, :3] @ np.linalg.inv(K)).T
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    cam = T_world_cam[:3, 3]
+    down = rays[..., 2] < -1e-3
+    # Range to the ground plane (floored: a camera at or below the road sees it at 1 mm).
+    dist = np.where(down, np.maximum(-cam[2] / np.where(down, rays[..., 2], -1.0), 1e-3), 1e3)
+    gx = cam[0] + dist * rays[..., 0]
+    gy = cam[1] + dist * rays[..., 1]
+    near = np.clip(10.0 / dist, 0.15, 1.0).astype(np.float32)  # fine grain fades with range
+
+    road = labels == Label.ROAD
+    grain = _lookup(tex.fine, gx / 0.03, gy / 0.03) * near
+    patches = _lookup(tex.coarse, gx / 0.25, gy / 0.25)
+    asphalt = 1.0 + 0.15 * grain + 0.12 * patches
+    img[road] *= (asphalt[road, None] * np.array([1.03, 1.0, 0.96], np.float32)).astype(np.float32)
+
+    walk = labels == Label.SIDEWALK
+    fx, fy = np.abs((gx / 0.4) % 1.0 - 0.5), np.abs((gy / 0.4) % 1.0 - 0.5)
+    joints = np.where((np.maximum(fx, fy) > 0.46) & (near > 0.3), 0.75, 1.0)
+    paving = joints * (1.0 + 0.08 * grain)
+    img[walk] *= paving[walk, None].astype(np.float32)
+
+    verge = labels == Label.BACKGROUND
+    grass = 1.0 + 0.35 * grain + 0.15 * patches
+    img[verge] = (np.array([0.33, 0.40, 0.22], np.float32) * grass[verge, None]).astype(np.float32)
+
+    facade = labels == Label.BUILDING
+    shade = img[..., :].mean(axis=-1, keepdims=True) / (138.0 / 255.0)
+    plaster = np.array([0.80, 0.70, 0.57], np.float32) * shade
+    plaster *= 1.0 + 0.05 * _lookup(tex.fine, u * 1.5, v * 1.5)[..., None]
+    img[facade] = 0.3 * img[facade] + 0.7 * plaster[facade]
+
+    sky = labels == Label.SKY
+    elev = np.clip(rays[..., 2], 0.0, 1.0)
+    azim = np.arctan2(rays[..., 1], rays[..., 0])
+    base = (1 - np.sqrt(elev))[..., None] * np.array([0.87, 0.90, 0.94]) + np.sqrt(elev)[
+        ..., None
+    ] * np.array([0.33, 0.53, 0.84])
+    cloud = _lookup(tex.coarse, azim * 60.0, elev * 120.0)
+    cover = np.clip((cloud - 0.2) / 0.8, 0.0, 1.0)[..., None]
+    sky_rgb = (1 - 0.8 * cover) * base + 0.8 * cover * np.array([0.95, 0.95, 0.96])
+    img[sky] = sky_rgb[sky].astype(np.float32)
+
+    # Lens and sensor: blur, warm grade with a soft S-curve, vignetting, noise.
+    img = np.asarray(cv2.GaussianBlur(img, (0, 0), 0.6), np.float32)
+    img = np.clip(img * 1.05, 0.0, 1.0) ** 0.9
+    img = 0.5 + (img - 0.5) * 1.12
+    img *= np.array([1.05, 1.0, 0.93], np.float32)
+    r2 = ((u - w / 2) / (w / 2)) ** 2 + ((v - h / 2) / (h / 2)) ** 2
+    img *= (1.0 - 0.18 * r2)[..., None].astype(np.float32)
+    img += rng.normal(0.0, 0.015, img.shape).astype(np.float32)
+    out: npt.NDArray[np.uint8] = np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    return out

@@ -1,0 +1,217 @@
+"""The ground-truth world and its camera: closed-loop drives "in the real world".
+
+A :class:`TruthWorld` describes the world a recording was made in, as far as it is known
+exactly: the street (OpenDRIVE text), the parked cars (boxes), the buildings (footprints and
+heights) and the look the camera had, all in a local metric frame anchored at a point of a
+named CRS. It lives in the workspace at ``WS/truth/world.json`` (:func:`truth_world_path`); the
+demo writes it for its synthetic recording (``cam2sim demo``), and anyone who has an exact model
+of a recording's world can write one.
+
+:class:`TruthRenderer` is the ``truth`` camera of ``cam2sim drive`` and ``cam2sim replay``: it
+takes camera poses in the workspace world frame, moves them into the truth frame (a rigid
+transform fitted through the two projections) and renders the truth scene with the raster
+renderer and, for ``look.kind == "photographic"``, :func:`~cam2sim.render.look.photographic_look`
+with per-pose noise (:func:`~cam2sim.render.look.frame_noise_rng`): the very pipeline that made
+the demo recording, so a pose renders as the recording would have seen it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal, Self
+
+import numpy as np
+import pydantic
+
+from cam2sim.core.errors import StageError
+from cam2sim.core.schema import Artifact
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    from cam2sim.render.raster import RasterRenderer, RasterResult, RasterScene
+
+__all__ = [
+    "TRUTH_WORLD_FILE",
+    "TruthBuilding",
+    "TruthCar",
+    "TruthLook",
+    "TruthRenderer",
+    "TruthWorld",
+    "truth_world_path",
+]
+
+TRUTH_WORLD_FILE = Path("truth") / "world.json"
+"""Where a workspace keeps its ground-truth world, relative to the workspace root."""
+_FIT_HALF_M = 500.0
+"""Half extent of the grid the truth frame -> world frame transform is fitted on."""
+
+
+class TruthCar(pydantic.BaseModel):
+    """A parked car: bottom centre, heading (rad) and size (m) in the truth frame."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+    x: float
+    y: float
+    yaw: float
+    length: float = pydantic.Field(gt=0)
+    width: float = pydantic.Field(gt=0)
+    height: float = pydantic.Field(gt=0)
+    side: str = "right"
+
+
+class TruthBuilding(pydantic.BaseModel):
+    """A building: footprint ring (truth frame, metres) and height."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+    xy: tuple[tuple[float, float], ...] = pydantic.Field(min_length=3)
+    height_m: float = pydantic.Field(gt=0)
+
+
+class TruthLook(pydantic.BaseModel):
+    """How the truth camera looks: ``photographic`` (textures and noise) or plain ``raster``."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+    kind: Literal["photographic", "raster"] = "photographic"
+    seed: int = 0
+
+
+class TruthWorld(Artifact):
+    """``WS/truth/world.json``: the ground-truth world of a recording.
+
+    Attributes:
+        crs: pyproj CRS the frame's origin is given in (e.g. ``EPSG:32632``).
+        origin: ``(x, y)`` of the truth frame's origin in ``crs``; the frame's axes are the
+            CRS grid's (x east, y north), z up from the road surface.
+        xodr: The street as OpenDRIVE text, in the truth frame.
+        cars: Parked cars.
+        buildings: Buildings.
+        look: The camera's look (and the seed of its textures and noise).
+    """
+
+    crs: str
+    origin: tuple[float, float]
+    xodr: str
+    cars: tuple[TruthCar, ...] = ()
+    buildings: tuple[TruthBuilding, ...] = ()
+    look: TruthLook = TruthLook()
+
+    def raster_scene(self) -> RasterScene:
+        """The scene the raster renderer draws (street, cars, buildings)."""
+        from cam2sim.map.query import RoadMap  # noqa: PLC0415
+        from cam2sim.render.raster import BuildingFootprint, RasterScene  # noqa: PLC0415
+        from cam2sim.scenario.model import ScenarioVehicle  # noqa: PLC0415
+
+        vehicles = [
+            ScenarioVehicle(
+                id=f"pv_{k:03d}",
+                position=(c.x, c.y, 0.0),
+                heading=c.yaw,
+                size=(c.length, c.width, c.height),
+                size_class="medium",
+                side=c.side,
+                orientation="parallel",
+            )
+            for k, c in enumerate(self.cars)
+        ]
+        buildings = [BuildingFootprint(np.asarray(b.xy), b.height_m) for b in self.buildings]
+        return RasterScene(RoadMap.from_xodr(self.xodr), vehicles, buildings)
+
+
+def truth_world_path(root: Path) -> Path:
+    """Where the workspace at ``root`` keeps its ground-truth world."""
+    return Path(root) / TRUTH_WORLD_FILE
+
+
+def _rigid_fit(
+    src: npt.NDArray[np.float64], dst: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """The ``(4, 4)`` rotation about z plus translation that best maps ``src`` xy onto ``dst``."""
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    u, _, vt = np.linalg.svd((src - cs).T @ (dst - cd))
+    rot = (u @ vt).T
+    if np.linalg.det(rot) < 0:
+        vt[-1] *= -1.0
+        rot = (u @ vt).T
+    out = np.eye(4)
+    out[:2, :2] = rot
+    out[:2, 3] = cd - rot @ cs
+    return out
+
+
+def truth_from_world(world: TruthWorld, proj_string: str | None) -> npt.NDArray[np.float64]:
+    """``(4, 4)`` transform from the workspace world frame (``proj_string``) to the truth frame.
+
+    Without a projection (a workspace that is not geo-referenced) the frames are taken to be
+    the same.
+    """
+    if proj_string is None:
+        return np.eye(4)
+    from pyproj import Transformer  # noqa: PLC0415
+
+    g = np.linspace(-_FIT_HALF_M, _FIT_HALF_M, 5)
+    local = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)
+    to_world = Transformer.from_crs(world.crs, proj_string, always_xy=True)
+    x, y = to_world.transform(local[:, 0] + world.origin[0], local[:, 1] + world.origin[1])
+    scene = np.column_stack([np.asarray(x, np.float64), np.asarray(y, np.float64)])
+    if not np.isfinite(scene).all():
+        msg = f"cannot project the truth frame ({world.crs}) into the world frame {proj_string}"
+        raise StageError(msg)
+    return np.asarray(np.linalg.inv(_rigid_fit(local, scene)), dtype=np.float64)
+
+
+class TruthRenderer:
+    """The ``truth`` camera: renders the ground-truth world at world-frame camera poses."""
+
+    def __init__(self, world: TruthWorld, proj_string: str | None) -> None:
+        """Build the truth scene and the transform from the world frame (``proj_string``)."""
+        from cam2sim.render.raster import RasterRenderer  # noqa: PLC0415
+
+        self.world = world
+        self.T_truth_world = truth_from_world(world, proj_string)
+        self._raster: RasterRenderer = RasterRenderer(world.raster_scene())
+
+    @classmethod
+    def open(cls, root: Path, proj_string: str | None) -> Self:
+        """The truth camera of the workspace at ``root``.
+
+        Raises:
+            StageError: The workspace has no ``truth/world.json``.
+        """
+        path = truth_world_path(root)
+        if not path.is_file():
+            msg = (
+                f"{root} has no ground-truth world ({TRUTH_WORLD_FILE}); the truth camera needs "
+                "one (cam2sim demo writes it; see docs/architecture.md for the format)"
+            )
+            raise StageError(msg)
+        return cls(TruthWorld.load(path), proj_string)
+
+    def render(
+        self, T_world_cam: npt.NDArray[np.float64], K: npt.NDArray[np.float64], w: int, h: int
+    ) -> RasterResult:
+        """RGB (with the world's look) and labels of a camera at a world-frame pose."""
+        from cam2sim.render.look import frame_noise_rng, photographic_look  # noqa: PLC0415
+        from cam2sim.render.raster import RasterResult  # noqa: PLC0415
+
+        T = self.T_truth_world @ np.asarray(T_world_cam, dtype=np.float64)
+        frame = self._raster.render(T, K, w, h)
+        look = self.world.look
+        if look.kind == "raster":
+            return frame
+        rng = frame_noise_rng(look.seed, T)
+        rgb = photographic_look(frame.rgb, frame.labels, T, K, rng=rng, seed=look.seed)
+        return RasterResult(rgb=rgb, labels=frame.labels)
+
+    def close(self) -> None:
+        """Release the raster renderer."""
+        self._raster.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,131 @@
+"""Reconstruction quality: rendered images and the simulated world against the real ones.
+
+Two comparisons at recorded poses, written under ``WS/report/`` where the report finds them:
+
+- **image quality** (:func:`evaluate_replay_images`): every camera of a replay run (``splat``,
+  ``raster`` = the simulator's images) against the recorded frames, paired by frame number, with
+  PSNR, SSIM and, when its weights are on the machine, LPIPS (skipped with a note otherwise);
+  ``images/<camera>/images.json`` and ``images.csv``;
+- **semantic IoU** (:func:`evaluate_world_semantics`): at every ``every``-th recorded pose, the
+  labels of the ground-truth world (``truth`` camera, ``WS/truth/world.json``) against the labels
+  of the simulated world the pipeline built (map, detected parked cars, OSM buildings; the
+  raster renderer draws labels in the same pass as colours), per class and mIoU;
+  ``semantic/semantic.json``, the label images and comparison images.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from cam2sim.core.errors import Cam2SimError, StageError
+from cam2sim.core.progress import ProgressCallback, no_progress
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from cam2sim.core.workspace import Workspace
+    from cam2sim.metrics.lpips import Lpips
+
+__all__ = ["evaluate_replay_images", "evaluate_world_semantics"]
+
+logger = logging.getLogger(__name__)
+
+
+def _lpips() -> tuple[Lpips | None, str]:
+    """The LPIPS network from the local cache, or None and why (it is never downloaded here)."""
+    from cam2sim.metrics.lpips import load_lpips  # noqa: PLC0415
+
+    try:
+        return load_lpips("alex", download=False), ""
+    except (Cam2SimError, OSError, RuntimeError) as err:
+        return None, f"LPIPS skipped: its weights are not on this machine ({err})"
+
+
+def evaluate_replay_images(
+    ws: Workspace, replay_run: Path, out: Path, *, progress: ProgressCallback | None = None
+) -> tuple[list[Path], str]:
+    """Score every camera folder of a replay run against the recorded frames.
+
+    Returns:
+        The ``images.json`` paths written (one per camera) and a note (LPIPS skipped, or "").
+    """
+    from cam2sim.core.workspace import dataset_paths  # noqa: PLC0415
+    from cam2sim.metrics.image_quality import (  # noqa: PLC0415
+        ImageQualityOptions,
+        evaluate_image_folders,
+        write_image_quality,
+    )
+
+    real_dir = dataset_paths(ws.dataset_dir).frames_dir
+    cameras = sorted(p for p in (replay_run / "frames").glob("*") if p.is_dir())
+    if not cameras:
+        msg = f"replay run {replay_run.name} saved no frames; replay with save_frames"
+        raise StageError(msg)
+    model, note = _lpips()
+    options = ImageQualityOptions(lpips_net=None)
+    written = []
+    for cam in cameras:
+        result = evaluate_image_folders(
+            real_dir, cam, options=options, lpips_model=model, progress=progress or no_progress
+        )
+        written.append(write_image_quality(result, out / cam.name)[0])
+    if note:
+        logger.info("%s", note)
+    return written, note
+
+
+def evaluate_world_semantics(
+    ws: Workspace, out: Path, *, every: int = 10, progress: ProgressCallback | None = None
+) -> Path:
+    """Semantic IoU of the simulated world against the ground-truth world at recorded poses.
+
+    Returns:
+        The ``semantic.json`` path.
+
+    Raises:
+        StageError: No scenario, or no ground-truth world (``WS/truth/world.json``).
+    """
+    from cam2sim.metrics.semantic import (  # noqa: PLC0415
+        SemanticOptions,
+        evaluate_semantic_folders,
+    )
+    from cam2sim.render.raster import raster_palette  # noqa: PLC0415
+    from cam2sim.stages.runs import (  # noqa: PLC0415
+        TRUTH_CAMERA,
+        _camera_poses,
+        _Cameras,
+        _intrinsics,
+        _load,
+        _write_png,
+    )
+
+    report = progress or no_progress
+    ctx = _load(ws)
+    sc = ctx.scenario
+    tr = sc.trajectory
+    idx = np.arange(0, len(tr.frame), max(every, 1))
+    ref = np.asarray(tr.reference, dtype=np.float64)[idx]
+    heading = np.asarray(tr.heading, dtype=np.float64)[idx]
+    # Both worlds' road is z = 0: the camera stands at its mount height above it.
+    z = np.full(idx.size, sc.vehicle.reference_xyz[2])
+    poses = _camera_poses(sc, ref[:, :2], heading, z)
+    K, w, h = _intrinsics(sc, None)
+    with _Cameras(ctx, ("raster", TRUTH_CAMERA)) as cameras:
+        sim, truth = cameras.renderers["raster"], cameras.renderers[TRUTH_CAMERA]
+        for k, i in enumerate(idx.tolist()):
+            stem = f"{tr.frame[i]:06d}.png"
+            _write_png(out / "real" / stem, truth.render(poses[k], K, w, h).semantic_rgb())
+            _write_png(out / "sim" / stem, sim.render(poses[k], K, w, h).semantic_rgb())
+            report("semantic frames", k + 1, int(idx.size))
+    result = evaluate_semantic_folders(
+        out / "real",
+        out / "sim",
+        options=SemanticOptions(palette=raster_palette()),
+        comparison_dir=out / "comparison",
+        progress=report,
+    )
+    result.save(out / "semantic.json")
+    return out / "semantic.json"

@@ -1,0 +1,65 @@
+"""The ground-truth world: its frame, its look's per-pose noise, the demo's world as truth."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pytest
+
+from cam2sim.core.frames.projection import WorldFrame
+from cam2sim.render.look import frame_noise_rng
+from cam2sim.render.truth import TruthWorld, truth_from_world
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+UTM = "EPSG:32632"
+ORIGIN = (691_000.0, 5_336_000.0)
+
+
+def _world() -> TruthWorld:
+    return TruthWorld(crs=UTM, origin=ORIGIN, xodr="<OpenDRIVE/>")
+
+
+def test_the_truth_frame_transform_follows_the_projections() -> None:
+    from pyproj import Transformer
+
+    frame = WorldFrame.at_crs_point(UTM, ORIGIN[0] + 40.0, ORIGIN[1] - 25.0)
+    T = truth_from_world(_world(), frame.proj_string)
+    to_world = Transformer.from_crs(UTM, frame.proj_string, always_xy=True)
+    local = np.array([[0.0, 0.0], [150.0, 20.0], [-60.0, 120.0]])
+    x, y = to_world.transform(local[:, 0] + ORIGIN[0], local[:, 1] + ORIGIN[1])
+    world = np.column_stack([x, y, np.zeros(3), np.ones(3)])
+    back = (T @ world.T).T[:, :2]
+    assert np.abs(back - local).max() < 0.02
+    # UTM grid north is not true north here: the transform rotates (grid convergence).
+    assert abs(np.arctan2(T[1, 0], T[0, 0])) > np.radians(1.0)
+    assert np.allclose(truth_from_world(_world(), None), np.eye(4))
+
+
+def test_noise_depends_on_the_seed_and_the_pose_only() -> None:
+    pose = np.eye(4)
+    pose[:3, 3] = [1.0, 2.0, 1.4]
+    moved = pose.copy()
+    moved[0, 3] += 0.01
+
+    def draw(seed: int, T: np.ndarray) -> np.ndarray:
+        return frame_noise_rng(seed, T).normal(size=8)
+
+    assert np.array_equal(draw(0, pose), draw(0, pose.copy()))
+    assert not np.array_equal(draw(0, pose), draw(0, moved))
+    assert not np.array_equal(draw(0, pose), draw(1, pose))
+
+
+def test_the_demo_world_round_trips_as_truth(tmp_path: Path) -> None:
+    from cam2sim.demo.world import demo_world
+
+    world = demo_world(3)
+    truth = world.truth_world(seed=3)
+    truth.save(tmp_path / "world.json")
+    loaded = TruthWorld.load(tmp_path / "world.json")
+    assert loaded == truth
+    assert len(loaded.cars) == len(world.cars) > 10
+    assert loaded.look.seed == 3
+    assert loaded.cars[0].x == pytest.approx(world.cars[0].x)
