@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -200,3 +201,15 @@ def has_egl() -> bool:
     except Exception:  # noqa: BLE001 - any failure means no headless GL here
         return False
     return True
+
+
+@pytest.fixture(scope="module")
+def one_torch_thread() -> Iterator[None]:
+    """Run torch single-threaded in a module (and its spawned workers, which take the parent's
+    count on CPU): on a shared 2-core machine, two threads run slower."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

@@ -14,8 +14,9 @@ from cam2sim.cli.report_cmd import report
 from cam2sim.core.config import Config, RecordingConfig
 from cam2sim.core.workspace import Workspace
 from cam2sim.report.html import SECTION_IDS, write_report
-from cam2sim.scenario.synthetic import StreetSpec, synthetic_street
+from cam2sim.scenario.synthetic import StreetSpec
 from cam2sim.stages.runs import DriveOptions, ReplayOptions, drive, replay
+from conftest import has_egl, street_workspace
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = [
@@ -34,24 +35,8 @@ SCREENSHOT_ENV = "CAM2SIM_REPORT_SCREENSHOT"
 RESOURCE = re.compile(r"""\b(?:src|href|poster|data|action)\s*=\s*["']?([^"'\s>]*)""")
 
 
-def _egl() -> bool:
-    try:
-        import moderngl
-
-        moderngl.create_context(standalone=True, backend="egl").release()  # type: ignore[arg-type]
-    except Exception:  # noqa: BLE001 - any failure means no headless GL here
-        return False
-    return True
-
-
 def _workspace(root: Path) -> Workspace:
-    ws = Workspace.create(root, Config(recording=RecordingConfig(bags=[str(root / "none")])))
-    scenario, xodr = synthetic_street(StreetSpec(length_m=30.0, radius_m=60.0))
-    ws.map_dir.mkdir(parents=True, exist_ok=True)
-    (ws.map_dir / "map.xodr").write_text(xodr, encoding="utf-8")
-    ws.scenario_dir.mkdir(parents=True, exist_ok=True)
-    scenario.save(ws.scenario_dir / "scenario.json")
-    return ws
+    return street_workspace(root, StreetSpec(length_m=30.0, radius_m=60.0))
 
 
 def _image_metrics(ws: Workspace, frames: Path) -> None:
@@ -72,7 +57,7 @@ def _image_metrics(ws: Workspace, frames: Path) -> None:
 def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspace, Path, bool]:
     ws = _workspace(tmp_path_factory.mktemp("report") / "ws")
     drive(ws, options=DriveOptions(camera="none", runs=2))
-    rendered = _egl()
+    rendered = has_egl()
     if rendered:
         run = replay(ws, options=ReplayOptions(cameras=("raster",), image_size=(160, 100)))
         _image_metrics(ws, run.folder / "frames" / "raster")

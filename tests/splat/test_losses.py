@@ -7,8 +7,6 @@ torch SH and gsplat's own ``DefaultStrategy`` bookkeeping; run them on a GPU mac
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import pytest
 
 pytest.importorskip("torch")
@@ -19,14 +17,7 @@ from cam2sim.splat import losses, profiling
 from cam2sim.splat import model as gm
 from cam2sim.splat.raster import RasterOutput, has_gsplat
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread() -> Iterator[None]:
-    """Run torch single-threaded: on a shared 2-core machine, two threads run slower."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _images(seed: int, h: int = 40, w: int = 52) -> tuple[torch.Tensor, torch.Tensor]:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import multiprocessing
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -26,13 +25,7 @@ from cam2sim.splat.train import SceneTrainResult, TrainOptions, train_scene
 TINY = {"n_frames": 8, "chunks": ((0, 5), (3, 8), (1, 6)), "size": (32, 24)}
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread() -> Iterator[None]:
-    """One torch thread here and in the workers (they take the parent's count on CPU)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _options(**changes: object) -> TrainOptions:

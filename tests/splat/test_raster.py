@@ -7,7 +7,6 @@ The ``requires_cuda`` tests compare it with gsplat's CUDA kernels; run them on a
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -24,13 +23,7 @@ from cam2sim.splat.raster_torch import rasterization, rgb_from_sh
 W, H = 32, 24
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread() -> Iterator[None]:
-    """Run torch single-threaded: on a shared 2-core machine, two threads run slower."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _cuda_gsplat() -> bool:

@@ -8,7 +8,6 @@ surfaces with noisy colours. Everything runs on the CPU with the torch rasterize
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -37,13 +36,7 @@ WALL_Y, WALL_TOP = 9.0, 3.0
 STEP_M = 0.25
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread() -> Iterator[None]:
-    """Run torch single-threaded: on a shared 2-core machine, two threads run slower."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def ground_rgb(x: np.ndarray, y: np.ndarray) -> np.ndarray:

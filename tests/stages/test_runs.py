@@ -16,23 +16,18 @@ from cam2sim.core.errors import ConfigError, StageError
 from cam2sim.core.table import read_table
 from cam2sim.core.workspace import Workspace
 from cam2sim.metrics.drive_io import load_run_dir
-from cam2sim.scenario.synthetic import StreetSpec, synthetic_street
+from cam2sim.scenario.model import Scenario
+from cam2sim.scenario.synthetic import StreetSpec
 from cam2sim.stages.runs import DriveOptions, ReplayOptions, drive, replay
+from conftest import street_workspace
 
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from cam2sim.scenario.model import Scenario
-
 
 def _workspace(root: Path, spec: StreetSpec) -> tuple[Workspace, Scenario]:
-    ws = Workspace.create(root, Config(recording=RecordingConfig(bags=[str(root / "none")])))
-    scenario, xodr = synthetic_street(spec)
-    ws.map_dir.mkdir(parents=True, exist_ok=True)
-    (ws.map_dir / "map.xodr").write_text(xodr, encoding="utf-8")
-    ws.scenario_dir.mkdir(parents=True, exist_ok=True)
-    scenario.save(ws.scenario_dir / "scenario.json")
-    return ws, scenario
+    ws = street_workspace(root, spec)
+    return ws, Scenario.load(ws.scenario_dir / "scenario.json")
 
 
 def _egl() -> bool:

@@ -19,8 +19,8 @@ from pathlib import Path
 from typing import Any, Literal
 
 import pydantic
-import yaml
 
+from cam2sim.core.config import read_yaml
 from cam2sim.core.errors import ConfigError
 
 __all__ = ["DriveSettings", "Perturbation", "Plan", "RunSpec", "expand", "load_plan"]
@@ -197,14 +197,7 @@ def load_plan(path: Path) -> Plan:
             file, the key and the fix.
     """
     path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        msg = f"{path} does not exist; write a campaign plan (see the README's example)"
-        raise ConfigError(msg) from None
-    except yaml.YAMLError as err:
-        msg = f"{path}: not valid YAML ({err}); fix the syntax at the line shown"
-        raise ConfigError(msg) from None
+    raw = read_yaml(path, missing="write a campaign plan (see the README's example)")
     if not isinstance(raw, dict):
         msg = f"{path}: expected a mapping with at least `workspaces:`, found {type(raw).__name__}"
         raise ConfigError(msg)

@@ -36,6 +36,7 @@ __all__ = [
     "TopicsConfig",
     "config_to_yaml",
     "load_config",
+    "read_yaml",
     "save_config",
 ]
 
@@ -304,6 +305,23 @@ def _error_message(err: pydantic.ValidationError, source: str) -> str:
     return f"{source}: invalid config: " + "; ".join(parts)
 
 
+def read_yaml(path: Path, *, missing: str) -> Any:
+    """The YAML document in ``path`` (None when it is empty).
+
+    Raises:
+        ConfigError: The file is missing (the message ends with ``missing``, what to do) or is
+            not YAML (the message points at the line).
+    """
+    try:
+        return yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        msg = f"{path} does not exist; {missing}"
+        raise ConfigError(msg) from None
+    except yaml.YAMLError as err:
+        msg = f"{path}: not valid YAML ({err}); fix the syntax at the line shown"
+        raise ConfigError(msg) from None
+
+
 def load_config(path: Path) -> Config:
     """Read and validate a ``config.yaml``.
 
@@ -312,14 +330,7 @@ def load_config(path: Path) -> Config:
             key and the fix.
     """
     path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        msg = f"{path} does not exist; create the workspace with `cam2sim init WS --bag BAG`"
-        raise ConfigError(msg) from None
-    except yaml.YAMLError as err:
-        msg = f"{path}: not valid YAML ({err}); fix the syntax at the line shown"
-        raise ConfigError(msg) from None
+    raw = read_yaml(path, missing="create the workspace with `cam2sim init WS --bag BAG`")
     if raw is None:
         raw = {}
     if not isinstance(raw, dict):
