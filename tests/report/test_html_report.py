@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import re
 from pathlib import Path
@@ -15,6 +16,7 @@ from cam2sim.core.config import Config, RecordingConfig
 from cam2sim.core.workspace import Workspace
 from cam2sim.report.html import SECTION_IDS, write_report
 from cam2sim.scenario.synthetic import StreetSpec
+from cam2sim.stages.pipeline import STATE_FILE, STEPS_KEY
 from cam2sim.stages.runs import DriveOptions, ReplayOptions, drive, replay
 from conftest import has_egl, street_workspace
 
@@ -110,6 +112,25 @@ def test_a_bare_workspace_says_what_to_run_in_every_section(tmp_path: Path) -> N
     for sid, body in sections[1:]:
         assert "not available: run <code>cam2sim " in body, sid
     _no_external_resources(html)
+
+
+def test_the_latest_pipeline_steps_are_listed_and_a_failed_one_is_a_warning(
+    tmp_path: Path,
+) -> None:
+    ws = Workspace.create(tmp_path / "ws", Config(recording=RecordingConfig(bags=["x.bag"])))
+    ws.runs_dir.mkdir(parents=True, exist_ok=True)
+    steps = {
+        "replay": {"state": "done", "seconds": 18.7, "finished": "2026-11-22T06:22:45"},
+        "drive": {"state": "failed", "seconds": 2.0, "message": "policy missing", "finished": "x"},
+    }
+    (ws.runs_dir / STATE_FILE).write_text(json.dumps({STEPS_KEY: steps}), encoding="utf-8")
+    html = write_report(ws).read_text(encoding="utf-8")
+    summary = re.search(r'<section id="summary">(.*?)</section>', html, re.DOTALL)
+    assert summary is not None
+    body = summary.group(1)
+    assert "Pipeline steps" in body
+    assert "<td>replay</td><td>done</td><td>2026-11-22 06:22:45</td><td>18.7</td>" in body
+    assert "step drive failed: policy missing" in body
 
 
 def _app() -> typer.Typer:

@@ -187,6 +187,28 @@ def _evaluate(ctx: _Context, real_runs: Sequence[Path], real_crs: str) -> str | 
 
 
 # -- sections -----------------------------------------------------------------------------------
+def _pipeline_steps(ctx: _Context) -> list[tuple[str, ...]]:
+    """Each step's latest outcome from ``cam2sim run``'s state file; failures become warnings."""
+    from cam2sim.stages.pipeline import STATE_FILE, STEPS_KEY  # noqa: PLC0415
+
+    path = ctx.ws.runs_dir / STATE_FILE
+    try:
+        steps = json.loads(path.read_text(encoding="utf-8")).get(STEPS_KEY, {})
+    except (OSError, ValueError, AttributeError):
+        return []
+    rows: list[tuple[str, ...]] = []
+    for name, rec in steps.items():
+        if not isinstance(rec, dict):
+            continue
+        state = str(rec.get("state", "?"))
+        finished = str(rec.get("finished", "")).replace("T", " ")
+        seconds = f"{float(rec.get('seconds', 0.0)):.1f}"
+        rows.append((name, state, finished, seconds, str(rec.get("message", ""))))
+        if state == "failed":
+            ctx.warnings.insert(0, f"step {name} failed: {rec.get('message') or 'no message'}")
+    return rows
+
+
 def _summary(ctx: _Context) -> str:
     manifest = ctx.ws.read_manifest()
     created = manifest.created.strftime("%Y-%m-%d %H:%M UTC")
@@ -219,6 +241,10 @@ def _summary(ctx: _Context) -> str:
         parts.append(_table(["stage", "state", "started", "seconds", "message"], rows, "Stages"))
     else:
         parts.append(_na("Stage timings", f"cam2sim extract {ctx.ws.root}"))
+    steps = _pipeline_steps(ctx)
+    if steps:
+        parts.append(_table(["step", "state", "finished", "seconds", "message"], steps,
+                            "Pipeline steps (the latest cam2sim run)"))  # fmt: skip
     if ctx.scenario is not None:
         ctx.warnings += [f"left out {r.id}: {'; '.join(r.reasons)}" for r in ctx.scenario.rejected]
     if ctx.warnings:

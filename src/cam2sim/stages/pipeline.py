@@ -5,12 +5,15 @@ drive, evaluate, report) with defaults. Stages that record themselves in the man
 their own when up to date; the pipeline notices (their record did not change) and reports them
 ``up_to_date``. Replay and drive write a new run folder each time, so the pipeline remembers the
 runs it made in ``WS/runs/pipeline.json`` with the inputs they were made from, and makes them
-again only when the scenario or the options changed (or a run folder disappeared).
+again only when the scenario or the options changed (or a run folder disappeared). The same
+file keeps the latest outcome of every step that ran (state, seconds, message), which the
+report's summary lists.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import datetime as dt
 import importlib
 import json
 import logging
@@ -32,7 +35,9 @@ if TYPE_CHECKING:
     from cam2sim.stages.splat import SplatStageOptions
 
 __all__ = [
+    "STATE_FILE",
     "STEPS",
+    "STEPS_KEY",
     "PipelineOptions",
     "PipelineResult",
     "StepOutcome",
@@ -57,6 +62,8 @@ STEPS: Final = (
 )
 StepState = Literal["done", "skipped", "up_to_date", "failed", "not_applicable"]
 STATE_FILE: Final = "pipeline.json"
+STEPS_KEY: Final = "steps"
+"""Key of the state file holding each step's latest outcome (state, seconds, message, finished)."""
 DRIVE_EVAL_DIR: Final = "drive"
 
 
@@ -239,6 +246,17 @@ class _Pipeline:
     def _save_state(self) -> None:
         self.ws.runs_dir.mkdir(parents=True, exist_ok=True)
         write_text_atomic(self._state_path(), json.dumps(self.state, indent=1) + "\n")
+
+    def record(self, outcome: StepOutcome) -> None:
+        """Keep a step's latest outcome in the state file (the report's step timings)."""
+        steps = self.state.setdefault(STEPS_KEY, {})
+        steps[outcome.name] = {
+            "state": outcome.state,
+            "seconds": round(outcome.seconds, 3),
+            "message": outcome.message,
+            "finished": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        }
+        self._save_state()
 
     def _runs_current(self, key: str, inputs: str) -> list[str] | None:
         entry = self.state.get(key)
@@ -579,6 +597,7 @@ def run_pipeline(
             continue
         outcomes.append(_run_step(name, handlers[name]))
         logger.info("step %s: %s", name, outcomes[-1].state)
+        pipe.record(outcomes[-1])
         if outcomes[-1].state == "failed" and not opts.continue_on_error:
             stopped = name
     report("pipeline", len(STEPS), len(STEPS))

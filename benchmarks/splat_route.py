@@ -1,0 +1,455 @@
+"""A 400 m residential route as a prepared splat scene: the 1,500-frame speed figure of issue 4.
+
+Builds a ~400 m street (straight, a left bend, straight, a right bend, straight; a driving,
+parking and sidewalk lane each way; cars parked on both sides; buildings on both sidewalks) in
+the demo's frame (UTM 32N at the demo's origin), drives it on the right lane with the demo
+driver's weave, renders a frame every ``--spacing`` metres with the truth camera's pipeline
+(raster renderer + the photographic look with per-pose sensor noise, JPEG as a recording has
+it) and ray-casts the demo's 16-beam LiDAR every ``--lidar-every`` metres. It writes what
+``cam2sim splat`` preparation would (``scene.json``, ``images/``, ``masks/``, ``sky/``,
+``points.npz``) straight into ``--out``:
+
+* frames: the rendered poses (the recording's metric poses), every 8th held out, chunks along
+  the route by distance with overlap (:func:`cam2sim.splat.geometry.chunks_by_distance`);
+* masks: all pixels used (the synthetic camera has no hood); sky masks by the classical
+  fallback (:func:`cam2sim.splat.masks.sky_mask_classical`), as preparation without SegFormer;
+* points: the LiDAR scans in the world frame, coloured from the nearest frame and
+  voxel-downsampled, as preparation does with a recording's LiDAR (no triangulation: the
+  images are JPEG so the folder stays small enough to carry to a GPU machine).
+
+Images are JPEG (``--quality``); ``benchmarks/splat_gpu.py --resize WxH`` turns them into the
+PNGs the trainer reads. Usage::
+
+    PYTHONPATH=src python benchmarks/splat_route.py --out .carry/route400
+    PYTHONPATH=src python benchmarks/splat_gpu.py --prep .carry/route400 --resize 480x300 ...
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from cam2sim.demo.world import CRS, ORIGIN_UTM, weave
+from cam2sim.scenario.synthetic import lane_section_xml
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    from cam2sim.detect.synthetic import StreetScene
+    from cam2sim.render.truth import TruthWorld
+
+LANE_M = 3.5
+PARKING_M = 2.5
+SIDEWALK_M = 2.0
+LEAD_M = 30.0
+CAMERA_MOUNT = (1.6, 0.0, 1.4)
+LIDAR_MOUNT = (1.0, 0.0, 1.9)
+# Optical camera axes (x right, y down, z forward) in the body frame (x forward, y left, z up).
+R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+# The route: (length m, curvature 1/m, positive left) pieces, starting at the origin heading east.
+PIECES: tuple[tuple[float, float], ...] = (
+    (110.0, 0.0),
+    (40.0 * math.pi / 2.0, 1.0 / 40.0),
+    (90.0, 0.0),
+    (50.0 * math.pi / 3.0, -1.0 / 50.0),
+    (85.0, 0.0),
+)
+SPEED_MPS = 8.0
+_GREY = 128
+
+
+@dataclass(frozen=True)
+class Route:
+    """A piecewise line/arc route; stations before 0 or past the end continue the straights."""
+
+    pieces: tuple[tuple[float, float], ...] = PIECES
+
+    @property
+    def length_m(self) -> float:
+        """Length of the route."""
+        return sum(p[0] for p in self.pieces)
+
+    def _starts(self) -> list[tuple[float, float, float, float]]:
+        """``(s, x, y, heading)`` at the start of each piece."""
+        out = []
+        s = x = y = h = 0.0
+        for length, k in self.pieces:
+            out.append((s, x, y, h))
+            if k == 0.0:
+                x, y = x + length * math.cos(h), y + length * math.sin(h)
+            else:
+                h1 = h + k * length
+                x, y = x + (math.sin(h1) - math.sin(h)) / k, y - (math.cos(h1) - math.cos(h)) / k
+                h = h1
+            s += length
+        return out
+
+    def points(
+        self, s: npt.ArrayLike, lateral: float | npt.NDArray[np.float64] = 0.0
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """Positions ``(N, 2)`` and headings ``(N,)`` at stations ``s``, ``lateral`` to the left."""
+        st = np.atleast_1d(np.asarray(s, dtype=np.float64))
+        starts = self._starts()
+        idx = np.clip(np.searchsorted([a[0] for a in starts], st, side="right") - 1, 0, None)
+        xy = np.zeros((len(st), 2))
+        hd = np.zeros(len(st))
+        for j, (s0, x0, y0, h0) in enumerate(starts):
+            sel = idx == j
+            ds = st[sel] - s0
+            k = self.pieces[j][1]  # the first and last pieces are straight
+            if k == 0.0:
+                xy[sel, 0] = x0 + ds * math.cos(h0)
+                xy[sel, 1] = y0 + ds * math.sin(h0)
+                hd[sel] = h0
+            else:
+                h = h0 + k * ds
+                xy[sel, 0] = x0 + (np.sin(h) - math.sin(h0)) / k
+                xy[sel, 1] = y0 - (np.cos(h) - math.cos(h0)) / k
+                hd[sel] = h
+        lat = np.broadcast_to(np.asarray(lateral, dtype=np.float64), st.shape)
+        out = np.column_stack([xy[:, 0] - lat * np.sin(hd), xy[:, 1] + lat * np.cos(hd)])
+        return out, hd
+
+    def in_bend(self, s: float, margin: float) -> bool:
+        """Whether station ``s`` is within ``margin`` of an arc."""
+        return any(
+            a[0] - margin < s < a[0] + length + margin
+            for a, (length, k) in zip(self._starts(), self.pieces, strict=True)
+            if k != 0.0
+        )
+
+    def xodr(self) -> str:
+        """OpenDRIVE text; the reference line runs between the driving lanes (half a lane left)."""
+        half = LANE_M / 2.0
+        parts = []
+        s_ref = 0.0
+        xy, h = self.points([-LEAD_M], half)
+        lead = [(LEAD_M, 0.0, xy[0], h[0])]
+        for (s0, _, _, _), (length, k) in zip(self._starts(), self.pieces, strict=True):
+            p, hh = self.points([s0], half)
+            lead.append((length, k, p[0], hh[0]))
+        last_len, last_k, last_p, last_h = lead[-1]
+        lead[-1] = (last_len + LEAD_M, last_k, last_p, last_h) if last_k == 0.0 else lead[-1]
+        for length, k, p, hh in lead:
+            if k == 0.0:
+                ref_len, shape = length, "<line/>"
+            else:
+                radius = 1.0 / abs(k) - math.copysign(half, k)
+                ref_len = radius * abs(k) * length
+                shape = f'<arc curvature="{math.copysign(1.0 / radius, k)}"/>'
+            parts.append(
+                f'<geometry s="{s_ref}" x="{p[0]}" y="{p[1]}" hdg="{hh}" length="{ref_len}">'
+                f"{shape}</geometry>"
+            )
+            s_ref += ref_len
+        return f"""<?xml version="1.0"?>
+<OpenDRIVE><header revMajor="1" revMinor="4"/>
+  <road name="Routenstraße" length="{s_ref}" id="1" junction="-1">
+    <planView>{"".join(parts)}</planView>
+    <lanes><laneSection s="0">{lane_section_xml(LANE_M, PARKING_M, SIDEWALK_M)}
+    </laneSection></lanes>
+  </road>
+</OpenDRIVE>
+"""
+
+
+def _cars(route: Route, rng: np.random.Generator) -> list[dict[str, Any]]:
+    right = -LANE_M / 2.0 - PARKING_M / 2.0
+    left = LANE_M / 2.0 + LANE_M + PARKING_M / 2.0
+    out: list[dict[str, Any]] = []
+    for lateral, side in ((right, "right"), (left, "left")):
+        s = -LEAD_M + 3.0 + rng.uniform(0.0, 2.0)
+        while s < route.length_m + LEAD_M - 8.0:
+            length = rng.uniform(4.0, 4.8)
+            if not route.in_bend(s + length / 2.0, 8.0) and rng.random() < 0.65:
+                xy, heading = route.points([s + length / 2.0], lateral)
+                flip = math.pi if side == "left" and rng.random() < 0.5 else 0.0
+                out.append(
+                    {
+                        "x": float(xy[0, 0]),
+                        "y": float(xy[0, 1]),
+                        "yaw": float(heading[0] + flip + rng.normal(0.0, 0.02)),
+                        "length": float(length),
+                        "width": float(rng.uniform(1.75, 1.9)),
+                        "height": float(rng.uniform(1.45, 1.6)),
+                        "side": side,
+                    }
+                )
+            s += length + rng.uniform(1.0, 3.0)
+    return out
+
+
+def _buildings(route: Route, rng: np.random.Generator) -> list[dict[str, Any]]:
+    kerb = LANE_M + PARKING_M + SIDEWALK_M
+    length, depth, setback = 16.0, 10.0, 1.5
+    out: list[dict[str, Any]] = []
+    for sign in (1.0, -1.0):
+        lateral = LANE_M / 2.0 + sign * (kerb + setback + depth / 2.0)
+        for s in np.arange(-LEAD_M + 10.0, route.length_m + LEAD_M - 8.0, 21.0):
+            if route.in_bend(float(s), 12.0):
+                continue  # the bends stay open (no overlapping footprints)
+            c, h = route.points([s], lateral)
+            t = np.array([math.cos(h[0]), math.sin(h[0])])
+            n = np.array([-t[1], t[0]])
+            ring = [
+                c[0] + a * length / 2.0 * t + b * depth / 2.0 * n
+                for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))
+            ]
+            out.append(
+                {
+                    "xy": tuple((float(p[0]), float(p[1])) for p in ring),
+                    "height_m": 3.0 * int(rng.integers(2, 6)),
+                }
+            )
+    return out
+
+
+def build_world(route: Route, seed: int) -> TruthWorld:
+    """The route's street, parked cars and buildings as a truth world (photographic look)."""
+    from cam2sim.render.truth import TruthBuilding, TruthCar, TruthLook, TruthWorld
+
+    rng = np.random.default_rng(seed)
+    return TruthWorld(
+        crs=CRS,
+        origin=ORIGIN_UTM,
+        xodr=route.xodr(),
+        cars=tuple(TruthCar(**c) for c in _cars(route, rng)),
+        buildings=tuple(TruthBuilding(**b) for b in _buildings(route, rng)),
+        look=TruthLook(kind="photographic", seed=seed),
+    )
+
+
+def lidar_scene(world: TruthWorld) -> StreetScene:
+    """What the LiDAR scans: flat ground, car boxes, building boxes (as the demo's)."""
+    from cam2sim.detect.synthetic import Ground, SceneBox, StreetScene
+
+    cars = tuple(
+        SceneBox((c.x, c.y, c.height / 2.0), (c.length, c.width, c.height), c.yaw)
+        for c in world.cars
+    )
+    structures = []
+    for b in world.buildings:
+        ring = np.asarray(b.xy)
+        edge = ring[1] - ring[0]
+        centre = ring.mean(axis=0)
+        h = b.height_m
+        structures.append(
+            SceneBox(
+                (float(centre[0]), float(centre[1]), (h - 3.0) / 2.0),
+                (float(np.linalg.norm(edge)), float(np.linalg.norm(ring[2] - ring[1])), h + 3.0),
+                math.atan2(edge[1], edge[0]),
+            )
+        )
+    ground = Ground(road_half_width_m=1e9, kerb_height_m=0.0)
+    return StreetScene(ground=ground, cars=cars, structures=tuple(structures))
+
+
+def drive(route: Route, s: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """``(N, 4, 4)`` body poses (x forward, z up) on the driven path (route plus weave)."""
+    xy, _ = route.points(s, weave(s))
+    a, _ = route.points(s - 0.01, weave(s - 0.01))
+    b, _ = route.points(s + 0.01, weave(s + 0.01))
+    heading = np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
+    out = np.tile(np.eye(4), (len(s), 1, 1))
+    c, sn = np.cos(heading), np.sin(heading)
+    out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1] = c, -sn, sn, c
+    out[:, :2, 3] = xy
+    return out
+
+
+def colour_from_view(
+    xyz: npt.NDArray[np.float64],
+    T_world_cam: npt.NDArray[np.float64],
+    K: npt.NDArray[np.float64],
+    image: npt.NDArray[np.uint8],
+) -> npt.NDArray[np.uint8]:
+    """Colours of world points seen in one view; grey where not visible (as preparation)."""
+    T_cam_world = np.linalg.inv(T_world_cam)
+    cam = xyz @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    z = cam[:, 2]
+    safe = np.where(z > 0.1, z, 1.0)
+    u = np.round(K[0, 0] * cam[:, 0] / safe + K[0, 2]).astype(np.int64)
+    v = np.round(K[1, 1] * cam[:, 1] / safe + K[1, 2]).astype(np.int64)
+    h, w = image.shape[:2]
+    seen = (z > 0.1) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    rgb = np.full((xyz.shape[0], 3), _GREY, np.uint8)
+    rgb[seen] = image[v[seen], u[seen]]
+    return rgb
+
+
+def render_frames(
+    args: argparse.Namespace, world: TruthWorld, poses: npt.NDArray[np.float64], K: Any
+) -> list[npt.NDArray[np.uint8]]:
+    """Render, look and JPEG-encode every frame into ``out/images``; sky masks into ``out/sky``."""
+    import cv2
+
+    from cam2sim.render.truth import TruthRenderer
+    from cam2sim.splat.masks import sky_mask_classical
+
+    out = Path(args.out)
+    w, h = args.width, args.height
+    full = np.full((h, w), 255, np.uint8)
+    cv2.imwrite(str(out / "mask.png"), full)
+    decoded = []
+    t0 = time.perf_counter()
+    with TruthRenderer(world, None) as camera:
+        for i, pose in enumerate(poses):
+            rgb = camera.render(pose, K, w, h).rgb
+            ok, jpeg = cv2.imencode(
+                ".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, args.quality]
+            )
+            if not ok:
+                msg = f"JPEG encoding failed at frame {i}"
+                raise RuntimeError(msg)
+            (out / "images" / f"{i:06d}.jpg").write_bytes(jpeg.tobytes())
+            image = cv2.cvtColor(cv2.imdecode(jpeg, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+            sky = sky_mask_classical(image)
+            cv2.imwrite(str(out / "sky" / f"{i:06d}.png"), np.where(sky, 255, 0).astype(np.uint8))
+            shutil.copyfile(out / "mask.png", out / "masks" / f"{i:06d}.png")
+            decoded.append(image)
+            if i % 100 == 0:
+                print(f"frame {i}/{len(poses)} {time.perf_counter() - t0:.0f} s", flush=True)
+    (out / "mask.png").unlink()
+    return decoded
+
+
+def lidar_points(
+    args: argparse.Namespace,
+    world: TruthWorld,
+    route: Route,
+    frame_s: npt.NDArray[np.float64],
+    cams: npt.NDArray[np.float64],
+    K: Any,
+    images: list[npt.NDArray[np.uint8]],
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uint8]]:
+    """Ray-cast scans along the drive, in the world frame, coloured, voxel-downsampled."""
+    from cam2sim.core.frames import Pose
+    from cam2sim.detect.synthetic import LidarModel, scan_scene
+    from cam2sim.splat.geometry import voxel_downsample
+
+    scene = lidar_scene(world)
+    lidar = LidarModel(beams=16, azimuths=720)
+    stations = np.arange(0.0, route.length_m, args.lidar_every)
+    xyz_all, rgb_all = [np.zeros((0, 3))], [np.zeros((0, 3), np.uint8)]
+    for i, body in enumerate(drive(route, stations)):
+        position = body[:3, :3] @ np.asarray(LIDAR_MOUNT) + body[:3, 3]
+        yaw = math.atan2(body[1, 0], body[0, 0])
+        q = np.array([0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0)])
+        local = scan_scene(scene, Pose(position, q), lidar=lidar, seed=i).points[:, :3]
+        local = local[np.linalg.norm(local, axis=1) > 1.0].astype(np.float64)
+        world_xyz = local @ body[:3, :3].T + position
+        j = int(np.argmin(np.abs(frame_s - stations[i])))
+        rgb = colour_from_view(world_xyz, cams[j], K, images[j])
+        xyz_d, rgb_d = voxel_downsample(world_xyz, rgb, args.voxel)
+        xyz_all.append(xyz_d)
+        rgb_all.append(rgb_d)
+    return voxel_downsample(np.concatenate(xyz_all), np.concatenate(rgb_all), args.voxel)
+
+
+def main() -> int:
+    """Build the world, render, scan and write the prepared scene."""
+    from cam2sim.splat.geometry import chunks_by_distance
+    from cam2sim.splat.scene import FrameRecord, SceneRecord, save_points
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", required=True, help="prepared scene folder to write")
+    parser.add_argument("--frames", type=int, default=1500)
+    parser.add_argument("--spacing", type=float, default=0.27, help="metres between frames")
+    parser.add_argument("--width", type=int, default=480)
+    parser.add_argument("--height", type=int, default=300)
+    parser.add_argument("--focal", type=float, default=300.0)
+    parser.add_argument("--quality", type=int, default=92, help="JPEG quality")
+    parser.add_argument("--lidar-every", type=float, default=1.6, help="metres between scans")
+    parser.add_argument("--voxel", type=float, default=0.1, help="LiDAR voxel edge, metres")
+    parser.add_argument("--chunk-length", type=float, default=115.0)
+    parser.add_argument("--overlap", type=float, default=20.0)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+
+    t0 = time.perf_counter()
+    route = Route()
+    world = build_world(route, args.seed)
+    out = Path(args.out)
+    if out.exists():
+        shutil.rmtree(out)
+    for sub in ("images", "masks", "sky"):
+        (out / sub).mkdir(parents=True)
+    world.save(out / "truth_world.json")
+    frame_s = args.spacing * np.arange(args.frames)
+    mount = np.eye(4)
+    mount[:3, :3] = R_BODY_OPTICAL
+    mount[:3, 3] = CAMERA_MOUNT
+    cams = drive(route, frame_s) @ mount
+    w, h = args.width, args.height
+    K = np.array([[args.focal, 0.0, w / 2.0], [0.0, args.focal, h / 2.0], [0.0, 0.0, 1.0]])
+    images = render_frames(args, world, cams, K)
+    t_render = time.perf_counter() - t0
+    xyz, rgb = lidar_points(args, world, route, frame_s, cams, K, images)
+    t_lidar = time.perf_counter() - t0 - t_render
+    save_points(
+        out / "points.npz", xyz.astype(np.float32), rgb, np.ones(len(xyz), np.uint8)
+    )
+    chunks = chunks_by_distance(
+        frame_s, cams[:, :3, 3], chunk_length_m=args.chunk_length, overlap_m=args.overlap
+    )
+    member: dict[int, list[int]] = {}
+    for chunk in chunks:
+        for i in chunk.frames:
+            member.setdefault(i, []).append(chunk.id)
+    frames = [
+        FrameRecord(
+            index=i,
+            dataset_frame=i,
+            stamp_ns=round(1e9 * frame_s[i] / SPEED_MPS),
+            T_world_cam=cams[i].tolist(),
+            fx=float(K[0, 0]),
+            fy=float(K[1, 1]),
+            cx=float(K[0, 2]),
+            cy=float(K[1, 2]),
+            width=w,
+            height=h,
+            held_out=i % 8 == 0,
+            chunks=member.get(i, []),
+            progress_m=float(frame_s[i]),
+        )
+        for i in range(args.frames)
+    ]
+    notes = [
+        f"benchmarks/splat_route.py: {route.length_m:.0f} m route, {len(world.cars)} parked cars, "
+        f"{len(world.buildings)} buildings; LiDAR every {args.lidar_every} m, {args.voxel} m voxels"
+    ]
+    SceneRecord(frames=frames, chunks=chunks, pose_source="recording", notes=notes).save(
+        out / "scene.json"
+    )
+    size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
+    summary = {
+        "route_m": route.length_m,
+        "driven_m": float(frame_s[-1]),
+        "frames": args.frames,
+        "held_out": sum(f.held_out for f in frames),
+        "size": [w, h],
+        "cars": len(world.cars),
+        "buildings": len(world.buildings),
+        "points": len(xyz),
+        "chunks": [{"id": c.id, "start_m": c.start_m, "end_m": c.end_m, "frames": len(c.frames)}
+                   for c in chunks],  # fmt: skip
+        "render_s": t_render,
+        "lidar_s": t_lidar,
+        "total_s": time.perf_counter() - t0,
+        "folder_mib": size / 2**20,
+    }
+    (out / "route.json").write_text(json.dumps(summary, indent=1) + "\n")
+    print(json.dumps(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
