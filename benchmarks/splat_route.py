@@ -11,7 +11,8 @@ it) and ray-casts the demo's 16-beam LiDAR every ``--lidar-every`` metres. It wr
 
 * frames: the rendered poses (the recording's metric poses), every 8th held out, chunks along
   the route by distance with overlap (:func:`cam2sim.splat.geometry.chunks_by_distance`);
-* masks: all pixels used (the synthetic camera has no hood); sky masks by the classical
+* masks: none written (the synthetic camera has no hood; the trainer then uses every pixel); sky
+  masks by the classical
   fallback (:func:`cam2sim.splat.masks.sky_mask_classical`), as preparation without SegFormer;
 * points: the LiDAR scans in the world frame, coloured from the nearest frame and
   voxel-downsampled, as preparation does with a recording's LiDAR (no triangulation: the
@@ -296,8 +297,6 @@ def render_frames(
 
     out = Path(args.out)
     w, h = args.width, args.height
-    full = np.full((h, w), 255, np.uint8)
-    cv2.imwrite(str(out / "mask.png"), full)
     decoded = []
     t0 = time.perf_counter()
     with TruthRenderer(world, None) as camera:
@@ -313,11 +312,9 @@ def render_frames(
             image = cv2.cvtColor(cv2.imdecode(jpeg, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
             sky = sky_mask_classical(image)
             cv2.imwrite(str(out / "sky" / f"{i:06d}.png"), np.where(sky, 255, 0).astype(np.uint8))
-            shutil.copyfile(out / "mask.png", out / "masks" / f"{i:06d}.png")
             decoded.append(image)
             if i % 100 == 0:
                 print(f"frame {i}/{len(poses)} {time.perf_counter() - t0:.0f} s", flush=True)
-    (out / "mask.png").unlink()
     return decoded
 
 
@@ -344,7 +341,8 @@ def lidar_points(
         yaw = math.atan2(body[1, 0], body[0, 0])
         q = np.array([0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0)])
         local = scan_scene(scene, Pose(position, q), lidar=lidar, seed=i).points[:, :3]
-        local = local[np.linalg.norm(local, axis=1) > 1.0].astype(np.float64)
+        reach = np.linalg.norm(local, axis=1)
+        local = local[(reach > 1.0) & (reach <= args.max_range)].astype(np.float64)
         world_xyz = local @ body[:3, :3].T + position
         j = int(np.argmin(np.abs(frame_s - stations[i])))
         rgb = colour_from_view(world_xyz, cams[j], K, images[j])
@@ -357,7 +355,7 @@ def lidar_points(
 def main() -> int:
     """Build the world, render, scan and write the prepared scene."""
     from cam2sim.splat.geometry import chunks_by_distance
-    from cam2sim.splat.scene import FrameRecord, SceneRecord, save_points
+    from cam2sim.splat.scene import FrameRecord, SceneRecord
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", required=True, help="prepared scene folder to write")
@@ -366,9 +364,10 @@ def main() -> int:
     parser.add_argument("--width", type=int, default=480)
     parser.add_argument("--height", type=int, default=300)
     parser.add_argument("--focal", type=float, default=300.0)
-    parser.add_argument("--quality", type=int, default=92, help="JPEG quality")
+    parser.add_argument("--quality", type=int, default=80, help="JPEG quality")
     parser.add_argument("--lidar-every", type=float, default=1.6, help="metres between scans")
-    parser.add_argument("--voxel", type=float, default=0.1, help="LiDAR voxel edge, metres")
+    parser.add_argument("--voxel", type=float, default=0.2, help="LiDAR voxel edge, metres")
+    parser.add_argument("--max-range", type=float, default=30.0, help="LiDAR returns kept, m")
     parser.add_argument("--chunk-length", type=float, default=115.0)
     parser.add_argument("--overlap", type=float, default=20.0)
     parser.add_argument("--seed", type=int, default=0)
@@ -380,7 +379,7 @@ def main() -> int:
     out = Path(args.out)
     if out.exists():
         shutil.rmtree(out)
-    for sub in ("images", "masks", "sky"):
+    for sub in ("images", "sky"):
         (out / sub).mkdir(parents=True)
     world.save(out / "truth_world.json")
     frame_s = args.spacing * np.arange(args.frames)
@@ -394,8 +393,9 @@ def main() -> int:
     t_render = time.perf_counter() - t0
     xyz, rgb = lidar_points(args, world, route, frame_s, cams, K, images)
     t_lidar = time.perf_counter() - t0 - t_render
-    save_points(
-        out / "points.npz", xyz.astype(np.float32), rgb, np.ones(len(xyz), np.uint8)
+    # save_points's layout, compressed (np.load reads both)
+    np.savez_compressed(
+        out / "points.npz", xyz=xyz.astype(np.float32), rgb=rgb, source=np.ones(len(xyz), np.uint8)
     )
     chunks = chunks_by_distance(
         frame_s, cams[:, :3, 3], chunk_length_m=args.chunk_length, overlap_m=args.overlap

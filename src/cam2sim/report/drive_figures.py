@@ -89,8 +89,13 @@ def _lateral(ev: DriveEvaluation, path: Path) -> None:
     ax.set_xlabel("progress along the segment (m)")
     ax.set_ylabel("lateral offset, + left (m)")
     ax.set_title("Lateral offset from the reference path")
-    ax.legend(fontsize=7, ncol=3)
+    _legend_below(ax)
     _save(fig, path)
+
+
+def _legend_below(ax: Any) -> None:
+    """One legend entry per run, below the axes, so no curve is hidden behind it."""
+    ax.legend(fontsize=7, ncol=3, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
 
 
 def _steering(ev: DriveEvaluation, path: Path) -> None:
@@ -108,7 +113,7 @@ def _steering(ev: DriveEvaluation, path: Path) -> None:
     ax.set_xlabel("progress along the segment (m)")
     ax.set_ylabel("steering command (model units)")
     ax.set_title("Steering against progress")
-    ax.legend(fontsize=7, ncol=3)
+    _legend_below(ax)
     _save(fig, path)
 
 
