@@ -364,9 +364,9 @@ def main() -> int:
     parser.add_argument("--width", type=int, default=480)
     parser.add_argument("--height", type=int, default=300)
     parser.add_argument("--focal", type=float, default=300.0)
-    parser.add_argument("--quality", type=int, default=80, help="JPEG quality")
+    parser.add_argument("--quality", type=int, default=75, help="JPEG quality")
     parser.add_argument("--lidar-every", type=float, default=1.6, help="metres between scans")
-    parser.add_argument("--voxel", type=float, default=0.2, help="LiDAR voxel edge, metres")
+    parser.add_argument("--voxel", type=float, default=0.25, help="LiDAR voxel edge, metres")
     parser.add_argument("--max-range", type=float, default=30.0, help="LiDAR returns kept, m")
     parser.add_argument("--chunk-length", type=float, default=115.0)
     parser.add_argument("--overlap", type=float, default=20.0)
@@ -426,9 +426,8 @@ def main() -> int:
         f"benchmarks/splat_route.py: {route.length_m:.0f} m route, {len(world.cars)} parked cars, "
         f"{len(world.buildings)} buildings; LiDAR every {args.lidar_every} m, {args.voxel} m voxels"
     ]
-    SceneRecord(frames=frames, chunks=chunks, pose_source="recording", notes=notes).save(
-        out / "scene.json"
-    )
+    record = SceneRecord(frames=frames, chunks=chunks, pose_source="recording", notes=notes)
+    (out / "scene.json").write_text(record.model_dump_json() + "\n")  # compact: it travels
     size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
     summary = {
         "route_m": route.length_m,

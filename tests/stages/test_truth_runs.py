@@ -94,3 +94,29 @@ def test_semantic_iou_is_high_for_the_same_world_and_drops_without_its_cars(
     car = worse.summary.classes["car"].mean
     assert car is not None
     assert car < 0.5
+
+
+@needs_gl
+def test_campaign_runs_in_the_ground_truth_world_are_scored_like_the_others(
+    tmp_path: Path,
+) -> None:
+    from cam2sim.campaign.executors import LocalPool
+    from cam2sim.campaign.runner import run_campaign
+
+    _with_truth(tmp_path / "ws", look="raster")
+    plan = tmp_path / "plan.yaml"
+    plan.write_text(
+        "workspaces: [ws]\npolicies: [pure-pursuit]\ncameras: [truth]\nseeds: [0]\n"
+        "drive: {image_size: [32, 24]}\n",
+        encoding="utf-8",
+    )
+    result = run_campaign(plan, executor=LocalPool(1))
+    assert (result.specs, result.ran, result.failed) == (1, 1, 0)
+    # Scored like any run (before, real-world runs were left out of the summary's metrics).
+    (row,) = result.rows
+    assert row.camera == "truth"
+    assert row.completion is not None
+    assert row.completion > 0.8
+    (summary,) = result.summary
+    assert summary.camera == "truth"
+    assert summary.completion_mean == pytest.approx(row.completion)

@@ -25,7 +25,7 @@ from cam2sim.core.errors import ConfigError
 
 __all__ = ["DriveSettings", "Perturbation", "Plan", "RunSpec", "expand", "load_plan"]
 
-CampaignCamera = Literal["raster", "splat", "none"]
+CampaignCamera = Literal["raster", "splat", "truth", "none"]
 
 
 class _Model(pydantic.BaseModel):

@@ -112,7 +112,8 @@ def score_runs(
         except Cam2SimError as err:
             logger.warning("%s: the runs could not be scored: %s", name, err)
             continue
-        by_run = {m.name.rsplit("/", 1)[-1]: m for m in metrics.runs if not m.real}
+        # Every run, real-world (truth camera) runs included: the recorded drive has no run id.
+        by_run = {m.name.rsplit("/", 1)[-1]: m for m in metrics.runs}
         scored |= {sid: by_run[rid] for sid, rid in run_of.items() if rid in by_run}
     return scored
 
