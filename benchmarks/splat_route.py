@@ -368,7 +368,7 @@ def main() -> int:
     parser.add_argument("--lidar-every", type=float, default=1.6, help="metres between scans")
     parser.add_argument("--voxel", type=float, default=0.25, help="LiDAR voxel edge, metres")
     parser.add_argument("--max-range", type=float, default=30.0, help="LiDAR returns kept, m")
-    parser.add_argument("--chunk-length", type=float, default=115.0)
+    parser.add_argument("--chunk-length", type=float, default=117.0)
     parser.add_argument("--overlap", type=float, default=20.0)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()

@@ -20,8 +20,14 @@ import numpy as np
 import numpy.typing as npt
 import pydantic
 
-from cam2sim.core.errors import ConfigError, StageError
-from cam2sim.sim.control import EventLog, RouteTracker, SpeedPid, limit_wheel_angle
+from cam2sim.core.errors import StageError
+from cam2sim.sim.control import (
+    EventLog,
+    RouteTracker,
+    SpeedPid,
+    limit_wheel_angle,
+    wanted_wheel_angle,
+)
 from cam2sim.sim.interface import (
     Control,
     EventKind,
@@ -243,18 +249,12 @@ class BuiltinSimulator:
     def _steer_toward(self, control: Control) -> None:
         """Move the wheel angle toward the command within the angle and rate limits."""
         o = self.options
-        if control.wheel_angle is not None:
-            want = control.wheel_angle
-            self._steer = math.nan
-        else:
-            cmd = control.steering
-            if o.steering_noise_std:
-                cmd += o.steering_noise_std * float(self._rng.standard_normal())
-            self._steer = cmd
-            want = o.calibration.wheel_angle(cmd, self._wheelbase)
-        if not (math.isfinite(want) and math.isfinite(self._target)):
-            msg = f"control {control!r} is not finite; send finite steering and speed"
-            raise ConfigError(msg)
+        noise = 0.0
+        if control.wheel_angle is None and o.steering_noise_std:
+            noise = o.steering_noise_std * float(self._rng.standard_normal())
+        self._steer, want = wanted_wheel_angle(
+            control, o.calibration, self._wheelbase, self._target, noise=noise
+        )
         self._delta = limit_wheel_angle(
             self._delta,
             want,

@@ -59,7 +59,13 @@ from cam2sim.core.frames.carla import (
 )
 from cam2sim.core.frames.pose import Pose as FramePose
 from cam2sim.core.frames.rotation import quat_from_yaw, yaw_from_quat
-from cam2sim.sim.control import EventLog, RouteTracker, SpeedPid, limit_wheel_angle
+from cam2sim.sim.control import (
+    EventLog,
+    RouteTracker,
+    SpeedPid,
+    limit_wheel_angle,
+    wanted_wheel_angle,
+)
 from cam2sim.sim.interface import (
     Control,
     EventKind,
@@ -725,15 +731,9 @@ class CarlaSimulator:
     def _steer_toward(self, control: Control) -> None:
         """Move the wheel angle toward the command within the angle and rate limits."""
         o = self.options
-        if control.wheel_angle is not None:
-            want = control.wheel_angle
-            self._steer = math.nan
-        else:
-            self._steer = control.steering
-            want = self._calibration.wheel_angle(control.steering, self._wheelbase)
-        if not (math.isfinite(want) and math.isfinite(self._target)):
-            msg = f"control {control!r} is not finite; send finite steering and speed"
-            raise ConfigError(msg)
+        self._steer, want = wanted_wheel_angle(
+            control, self._calibration, self._wheelbase, self._target
+        )
         self._delta = limit_wheel_angle(
             self._delta,
             want,

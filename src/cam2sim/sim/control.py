@@ -6,17 +6,19 @@ that runs on either compare; the code lives here once.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from cam2sim.core.errors import ConfigError
 from cam2sim.sim.interface import SimEvent
 
 if TYPE_CHECKING:
     import numpy.typing as npt
 
-    from cam2sim.sim.interface import EventKind
+    from cam2sim.sim.interface import Control, EventKind, SteeringCalibration
 
 __all__ = [
     "EpisodeRules",
@@ -25,6 +27,7 @@ __all__ = [
     "SpeedGains",
     "SpeedPid",
     "limit_wheel_angle",
+    "wanted_wheel_angle",
 ]
 
 _PROJECT_BACK = 4  # route segments searched behind the last foot point
@@ -217,3 +220,30 @@ def limit_wheel_angle(
     want = min(max_angle, max(-max_angle, want))
     step = max_rate * dt
     return current + min(step, max(-step, want - current))
+
+
+def wanted_wheel_angle(
+    control: Control,
+    calibration: SteeringCalibration,
+    wheelbase: float,
+    target_speed: float,
+    *,
+    noise: float = 0.0,
+) -> tuple[float, float]:
+    """The command as applied (NaN for a direct wheel angle) and the wheel angle it asks for.
+
+    ``noise`` is added to a steering command (not to a direct wheel angle), in the command's
+    unit, before the calibration maps it to a wheel angle.
+
+    Raises:
+        ConfigError: The command or the target speed is not finite.
+    """
+    if control.wheel_angle is not None:
+        steer, want = math.nan, control.wheel_angle
+    else:
+        steer = control.steering + noise
+        want = calibration.wheel_angle(steer, wheelbase)
+    if not (math.isfinite(want) and math.isfinite(target_speed)):
+        msg = f"control {control!r} is not finite; send finite steering and speed"
+        raise ConfigError(msg)
+    return steer, want
