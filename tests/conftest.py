@@ -127,22 +127,8 @@ def write_drive_bag(
         for stamp, kind, i in events:
             receive = stamp + 1_000_000
             if kind == "odom":
-                q = quats[i]
-                w.write_fields(
-                    "/odom",
-                    "nav_msgs/msg/Odometry",
-                    {
-                        "header": {"stamp": stamp, "frame_id": "utm"},
-                        "child_frame_id": "base_link",
-                        "pose": {
-                            "pose": {
-                                "position": {"x": drive.easting[i], "y": drive.northing[i]},
-                                "orientation": dict(zip("xyzw", q.tolist(), strict=True)),
-                            }
-                        },
-                    },
-                    receive_ns=receive,
-                )
+                position = (drive.easting[i], drive.northing[i])
+                w.write_odometry("/odom", stamp, position, quats[i], receive_ns=receive)
             elif kind == "cam":
                 image = _image(i, *size)
                 images.append(image)
@@ -154,17 +140,8 @@ def write_drive_bag(
                     receive_ns=receive,
                 )
             elif kind == "lidar":
-                from cam2sim.recording.pointcloud import pointcloud_message_fields
-
-                fields = dict(pointcloud_message_fields(_cloud(i)))
-                fields["fields"] = [
-                    w.message("sensor_msgs/msg/PointField", f) for f in fields["fields"]
-                ]
-                w.write_fields(
-                    "/velodyne_points",
-                    "sensor_msgs/msg/PointCloud2",
-                    {"header": {"stamp": stamp, "frame_id": "velodyne"}, **fields},
-                    receive_ns=receive,
+                w.write_point_cloud(
+                    "/velodyne_points", stamp, _cloud(i), receive_ns=receive, frame_id="velodyne"
                 )
             else:
                 w.write_fields(

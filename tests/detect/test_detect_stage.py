@@ -27,7 +27,6 @@ from cam2sim.core.workspace import Workspace
 from cam2sim.detect.synthetic import Ground, LidarModel, SceneBox, StreetScene, scan_scene
 from cam2sim.detect.vehicles import ParkedVehicles
 from cam2sim.recording.bagwriter import BagWriter
-from cam2sim.recording.pointcloud import pointcloud_message_fields
 from cam2sim.stages.detect import DetectOptions, run_detect
 from cam2sim.stages.extract import extract
 
@@ -81,42 +80,13 @@ def _write_bag(path: Path) -> None:
         for stamp, kind, i in events:
             t = (stamp - t0) / 1e9
             if kind == "odom":
-                w.write_fields(
-                    "/odom",
-                    "nav_msgs/msg/Odometry",
-                    {
-                        "header": {"stamp": stamp, "frame_id": "utm"},
-                        "child_frame_id": "base_link",
-                        "pose": {
-                            "pose": {
-                                "position": {"x": E0 + SPEED * t, "y": N0},
-                                "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
-                            }
-                        },
-                    },
-                    receive_ns=stamp,
-                )
+                w.write_odometry("/odom", stamp, (E0 + SPEED * t, N0))
             elif kind == "lidar":
                 sensor = Pose(
                     np.array([SPEED * t + MOUNT[0], MOUNT[1], MOUNT[2]]), np.array([0, 0, 0, 1.0])
                 )
                 pts = scan_scene(scene, sensor, lidar=lidar, seed=i).points
-                cloud = np.zeros(
-                    pts.shape[0],
-                    dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")],
-                )
-                for k, name in enumerate(("x", "y", "z", "intensity")):
-                    cloud[name] = pts[:, k]
-                fields = dict(pointcloud_message_fields(cloud))
-                fields["fields"] = [
-                    w.message("sensor_msgs/msg/PointField", f) for f in fields["fields"]
-                ]
-                w.write_fields(
-                    "/lidar",
-                    "sensor_msgs/msg/PointCloud2",
-                    {"header": {"stamp": stamp, "frame_id": "lidar"}, **fields},
-                    receive_ns=stamp,
-                )
+                w.write_point_cloud("/lidar", stamp, pts)
             else:
                 w.write_fields(
                     "/camera/image_raw",

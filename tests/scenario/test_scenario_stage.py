@@ -47,21 +47,7 @@ def _write_bag(path: Path) -> None:
         for i, (stamp, kind) in enumerate(sorted(odom + cam)):
             t = (stamp - t0) / 1e9
             if kind == "odom":
-                w.write_fields(
-                    "/odom",
-                    "nav_msgs/msg/Odometry",
-                    {
-                        "header": {"stamp": stamp, "frame_id": "utm"},
-                        "child_frame_id": "base_link",
-                        "pose": {
-                            "pose": {
-                                "position": {"x": E0 + SPEED * t, "y": N0},
-                                "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
-                            }
-                        },
-                    },
-                    receive_ns=stamp,
-                )
+                w.write_odometry("/odom", stamp, (E0 + SPEED * t, N0))
             else:
                 w.write_fields(
                     "/camera/image_raw",

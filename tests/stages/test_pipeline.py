@@ -27,7 +27,6 @@ from cam2sim.core.workspace import Workspace
 from cam2sim.detect.synthetic import Ground, LidarModel, SceneBox, StreetScene, scan_scene
 from cam2sim.map.convert import has_carla
 from cam2sim.recording.bagwriter import BagWriter
-from cam2sim.recording.pointcloud import pointcloud_message_fields
 from cam2sim.stages.pipeline import (
     STATE_FILE,
     STEPS,
@@ -54,17 +53,9 @@ CARS = np.array([[14.0, -3.9, 0.0], [24.0, -3.9, 0.03], [32.0, -4.0, -0.02]])
 FAST = ("extract", "map", "detect", "scenario", "replay", "drive", "evaluate")
 
 
-def _lidar_cloud(w: BagWriter, scene: StreetScene, t: float, i: int) -> dict[str, object]:
+def _lidar_points(scene: StreetScene, t: float, i: int) -> np.ndarray:
     sensor = Pose(np.array([SPEED * t + MOUNT[0], MOUNT[1], MOUNT[2]]), np.array([0, 0, 0, 1.0]))
-    pts = scan_scene(scene, sensor, lidar=LidarModel(beams=16, azimuths=600), seed=i).points
-    cloud = np.zeros(
-        pts.shape[0], dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")]
-    )
-    for k, name in enumerate(("x", "y", "z", "intensity")):
-        cloud[name] = pts[:, k]
-    fields: dict[str, Any] = dict(pointcloud_message_fields(cloud))
-    fields["fields"] = [w.message("sensor_msgs/msg/PointField", f) for f in fields["fields"]]
-    return fields
+    return scan_scene(scene, sensor, lidar=LidarModel(beams=16, azimuths=600), seed=i).points
 
 
 def _write_bag(path: Path) -> None:
@@ -87,16 +78,9 @@ def _write_bag(path: Path) -> None:
             t = (stamp - t0) / 1e9
             header = {"stamp": stamp, "frame_id": kind}
             if kind == "odom":
-                position = {"x": E0 + SPEED * t, "y": N0}
-                pose = {
-                    "position": position,
-                    "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
-                }
-                fields = {"header": header, "child_frame_id": "base_link", "pose": {"pose": pose}}
-                w.write_fields("/odom", "nav_msgs/msg/Odometry", fields, receive_ns=stamp)
+                w.write_odometry("/odom", stamp, (E0 + SPEED * t, N0), frame_id="odom")
             elif kind == "lidar":
-                cloud = {"header": header, **_lidar_cloud(w, scene, t, i)}
-                w.write_fields("/lidar", "sensor_msgs/msg/PointCloud2", cloud, receive_ns=stamp)
+                w.write_point_cloud("/lidar", stamp, _lidar_points(scene, t, i))
             elif kind == "steer":
                 value = {"data": float(np.sin(t))}
                 w.write_fields("/steering", "std_msgs/msg/Float64", value, receive_ns=stamp)

@@ -41,7 +41,6 @@ if TYPE_CHECKING:
 
     from cam2sim.core.progress import ProgressCallback
     from cam2sim.demo.world import DemoWorld
-    from cam2sim.recording.bagwriter import BagWriter
 
 __all__ = ["write_bag"]
 
@@ -50,19 +49,6 @@ _T0_NS: Final = 1_717_000_000_000_000_000
 
 def _quat_z(yaw: float) -> dict[str, float]:
     return {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2.0), "w": math.cos(yaw / 2.0)}
-
-
-def _lidar_fields(w: BagWriter, points: npt.NDArray[np.float32]) -> dict[str, Any]:
-    from cam2sim.recording.pointcloud import pointcloud_message_fields  # noqa: PLC0415
-
-    cloud = np.zeros(
-        points.shape[0], dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")]
-    )
-    for k, name in enumerate(("x", "y", "z", "intensity")):
-        cloud[name] = points[:, k]
-    fields: dict[str, Any] = dict(pointcloud_message_fields(cloud))
-    fields["fields"] = [w.message("sensor_msgs/msg/PointField", f) for f in fields["fields"]]
-    return fields
 
 
 def _steering(t: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
@@ -142,11 +128,7 @@ def write_bag(path: Path, world: DemoWorld, *, seed: int, progress: ProgressCall
                 q = _quat_z(float(heading[0]))
                 sensor = Pose(position, np.array([q["x"], q["y"], q["z"], q["w"]]))
                 points = scan_scene(scene, sensor, lidar=lidar, seed=seed * 100_003 + i).points
-                cloud = {"header": {"stamp": stamp, "frame_id": "lidar"}}
-                cloud.update(_lidar_fields(bag, points))
-                bag.write_fields(
-                    TOPICS["lidar"], "sensor_msgs/msg/PointCloud2", cloud, receive_ns=stamp
-                )
+                bag.write_point_cloud(TOPICS["lidar"], stamp, points)
             else:
                 pose_cam = camera_pose(station)
                 frame = renderer.render(pose_cam, k, width, height)

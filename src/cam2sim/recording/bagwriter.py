@@ -15,8 +15,10 @@ import numpy as np
 from cam2sim.core.errors import RecordingError
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping
+    from collections.abc import Mapping, Sequence
     from types import TracebackType
+
+    import numpy.typing as npt
 
 __all__ = ["BagFormat", "BagWriter", "stamp_fields"]
 
@@ -37,6 +39,10 @@ _NUMPY_BASE = {
     "float32": np.float32,
     "float64": np.float64,
 }
+
+
+def _receive(stamp_ns: int, receive_ns: int | None) -> int:
+    return stamp_ns if receive_ns is None else receive_ns
 
 
 def stamp_fields(stamp_ns: int) -> dict[str, int]:
@@ -112,6 +118,65 @@ class BagWriter:
     ) -> None:
         """Build a message from ``fields`` and write it (see :meth:`message`)."""
         self.write(topic, self.message(msgtype, fields), receive_ns=receive_ns)
+
+    def write_odometry(
+        self,
+        topic: str,
+        stamp_ns: int,
+        position: Sequence[float],
+        quat_xyzw: Sequence[float] = (0.0, 0.0, 0.0, 1.0),
+        *,
+        receive_ns: int | None = None,
+        frame_id: str = "utm",
+        child_frame_id: str = "base_link",
+    ) -> None:
+        """Write a ``nav_msgs/Odometry`` pose (``position`` x, y[, z]) stamped ``stamp_ns``."""
+        xyz = dict(zip("xyz", (float(v) for v in position), strict=False))
+        quat = dict(zip("xyzw", (float(v) for v in quat_xyzw), strict=True))
+        fields = {
+            "header": {"stamp": stamp_ns, "frame_id": frame_id},
+            "child_frame_id": child_frame_id,
+            "pose": {"pose": {"position": xyz, "orientation": quat}},
+        }
+        self.write_fields(
+            topic, "nav_msgs/msg/Odometry", fields, receive_ns=_receive(stamp_ns, receive_ns)
+        )
+
+    def write_point_cloud(
+        self,
+        topic: str,
+        stamp_ns: int,
+        points: npt.NDArray[Any],
+        *,
+        receive_ns: int | None = None,
+        frame_id: str = "lidar",
+    ) -> None:
+        """Write a ``sensor_msgs/PointCloud2``.
+
+        Args:
+            topic: Topic name.
+            stamp_ns: Header stamp.
+            points: ``(N,)`` structured array (its fields become the cloud's), or ``(N, 4)``
+                x, y, z, intensity (float32 fields).
+            receive_ns: Bag time; None: the stamp.
+            frame_id: Header frame.
+        """
+        from cam2sim.recording.pointcloud import pointcloud_message_fields  # noqa: PLC0415
+
+        cloud = points
+        if points.dtype.names is None:
+            names = ("x", "y", "z", "intensity")
+            cloud = np.zeros(points.shape[0], dtype=[(n, "<f4") for n in names])
+            for k, name in enumerate(names):
+                cloud[name] = points[:, k]
+        fields: dict[str, Any] = dict(pointcloud_message_fields(cloud))
+        fields["fields"] = [self.message("sensor_msgs/msg/PointField", f) for f in fields["fields"]]
+        self.write_fields(
+            topic,
+            "sensor_msgs/msg/PointCloud2",
+            {"header": {"stamp": stamp_ns, "frame_id": frame_id}, **fields},
+            receive_ns=_receive(stamp_ns, receive_ns),
+        )
 
     # -- message construction ---------------------------------------------------------------
     def _build(self, msgtype: str, fields: dict[str, Any]) -> Any:
