@@ -6,20 +6,22 @@ the demo's frame (UTM 32N at the demo's origin), drives it on the right lane wit
 driver's weave, renders a frame every ``--spacing`` metres with the truth camera's pipeline
 (raster renderer + the photographic look with per-pose sensor noise, JPEG as a recording has
 it) and ray-casts the demo's 16-beam LiDAR every ``--lidar-every`` metres. It writes what
-``cam2sim splat`` preparation would (``scene.json``, ``images/``, ``masks/``, ``sky/``,
-``points.npz``) straight into ``--out``:
+``cam2sim splat`` preparation would (``scene.json``, ``images/``, ``sky/``, ``points.npz``;
+also ``truth_world.json`` and a summary ``route.json``) straight into ``--out``:
 
 * frames: the rendered poses (the recording's metric poses), every 8th held out, chunks along
   the route by distance with overlap (:func:`cam2sim.splat.geometry.chunks_by_distance`);
-* masks: none written (the synthetic camera has no hood; the trainer then uses every pixel); sky
-  masks by the classical
-  fallback (:func:`cam2sim.splat.masks.sky_mask_classical`), as preparation without SegFormer;
-* points: the LiDAR scans in the world frame, coloured from the nearest frame and
-  voxel-downsampled, as preparation does with a recording's LiDAR (no triangulation: the
-  images are JPEG so the folder stays small enough to carry to a GPU machine).
+* masks: no ``masks/`` (the synthetic camera has no hood; the trainer then uses every pixel);
+  sky masks by the classical fallback (:func:`cam2sim.splat.masks.sky_mask_classical`), as
+  preparation without SegFormer;
+* points: the LiDAR scans (range <= ``--max-range``) in the world frame, coloured from the
+  nearest frame and voxel-downsampled (``--voxel``), as preparation does with a recording's
+  LiDAR; no known-pose triangulation. ``points.npz`` is compressed and ``scene.json`` compact,
+  and the images are JPEG at ``--quality`` 75, so that the folder (about 31 MiB for 1,500
+  frames) fits the 64 MiB a GPU call carries.
 
-Images are JPEG (``--quality``); ``benchmarks/splat_gpu.py --resize WxH`` turns them into the
-PNGs the trainer reads. Usage::
+The trainer reads PNG images; ``benchmarks/splat_gpu.py --resize WxH`` (the same size is fine)
+writes them. Usage (docs/benchmarks.md has the full GPU command)::
 
     PYTHONPATH=src python benchmarks/splat_route.py --out .carry/route400
     PYTHONPATH=src python benchmarks/splat_gpu.py --prep .carry/route400 --resize 480x300 ...
@@ -36,16 +38,21 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import cv2
 import numpy as np
 
+from cam2sim.core.frames import Pose
 from cam2sim.demo.world import CRS, ORIGIN_UTM, weave
+from cam2sim.detect.synthetic import Ground, LidarModel, SceneBox, StreetScene, scan_scene
+from cam2sim.render.truth import TruthBuilding, TruthCar, TruthLook, TruthRenderer, TruthWorld
 from cam2sim.scenario.synthetic import lane_section_xml
+from cam2sim.splat.geometry import chunks_by_distance, voxel_downsample
+from cam2sim.splat.masks import sky_mask_classical
+from cam2sim.splat.scene import FrameRecord, SceneRecord
 
 if TYPE_CHECKING:
     import numpy.typing as npt
 
-    from cam2sim.detect.synthetic import StreetScene
-    from cam2sim.render.truth import TruthWorld
 
 LANE_M = 3.5
 PARKING_M = 2.5
@@ -215,7 +222,6 @@ def _buildings(route: Route, rng: np.random.Generator) -> list[dict[str, Any]]:
 
 def build_world(route: Route, seed: int) -> TruthWorld:
     """The route's street, parked cars and buildings as a truth world (photographic look)."""
-    from cam2sim.render.truth import TruthBuilding, TruthCar, TruthLook, TruthWorld
 
     rng = np.random.default_rng(seed)
     return TruthWorld(
@@ -230,7 +236,6 @@ def build_world(route: Route, seed: int) -> TruthWorld:
 
 def lidar_scene(world: TruthWorld) -> StreetScene:
     """What the LiDAR scans: flat ground, car boxes, building boxes (as the demo's)."""
-    from cam2sim.detect.synthetic import Ground, SceneBox, StreetScene
 
     cars = tuple(
         SceneBox((c.x, c.y, c.height / 2.0), (c.length, c.width, c.height), c.yaw)
@@ -290,10 +295,6 @@ def render_frames(
     args: argparse.Namespace, world: TruthWorld, poses: npt.NDArray[np.float64], K: Any
 ) -> list[npt.NDArray[np.uint8]]:
     """Render, look and JPEG-encode every frame into ``out/images``; sky masks into ``out/sky``."""
-    import cv2
-
-    from cam2sim.render.truth import TruthRenderer
-    from cam2sim.splat.masks import sky_mask_classical
 
     out = Path(args.out)
     w, h = args.width, args.height
@@ -303,7 +304,9 @@ def render_frames(
         for i, pose in enumerate(poses):
             rgb = camera.render(pose, K, w, h).rgb
             ok, jpeg = cv2.imencode(
-                ".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, args.quality]
+                ".jpg",
+                cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR),
+                [cv2.IMWRITE_JPEG_QUALITY, args.quality],
             )
             if not ok:
                 msg = f"JPEG encoding failed at frame {i}"
@@ -328,9 +331,6 @@ def lidar_points(
     images: list[npt.NDArray[np.uint8]],
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uint8]]:
     """Ray-cast scans along the drive, in the world frame, coloured, voxel-downsampled."""
-    from cam2sim.core.frames import Pose
-    from cam2sim.detect.synthetic import LidarModel, scan_scene
-    from cam2sim.splat.geometry import voxel_downsample
 
     scene = lidar_scene(world)
     lidar = LidarModel(beams=16, azimuths=720)
@@ -354,8 +354,6 @@ def lidar_points(
 
 def main() -> int:
     """Build the world, render, scan and write the prepared scene."""
-    from cam2sim.splat.geometry import chunks_by_distance
-    from cam2sim.splat.scene import FrameRecord, SceneRecord
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", required=True, help="prepared scene folder to write")
@@ -422,10 +420,11 @@ def main() -> int:
         )
         for i in range(args.frames)
     ]
-    notes = [
+    note = (
         f"benchmarks/splat_route.py: {route.length_m:.0f} m route, {len(world.cars)} parked cars, "
         f"{len(world.buildings)} buildings; LiDAR every {args.lidar_every} m, {args.voxel} m voxels"
-    ]
+    )
+    notes = [note]
     record = SceneRecord(frames=frames, chunks=chunks, pose_source="recording", notes=notes)
     (out / "scene.json").write_text(record.model_dump_json() + "\n")  # compact: it travels
     size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
@@ -438,8 +437,10 @@ def main() -> int:
         "cars": len(world.cars),
         "buildings": len(world.buildings),
         "points": len(xyz),
-        "chunks": [{"id": c.id, "start_m": c.start_m, "end_m": c.end_m, "frames": len(c.frames)}
-                   for c in chunks],  # fmt: skip
+        "chunks": [
+            {"id": c.id, "start_m": c.start_m, "end_m": c.end_m, "frames": len(c.frames)}
+            for c in chunks
+        ],
         "render_s": t_render,
         "lidar_s": t_lidar,
         "total_s": time.perf_counter() - t0,
