@@ -11,6 +11,7 @@ import typer
 from rich.markup import escape
 
 from cam2sim.cli.display import console, error_console, progress_bars
+from cam2sim.cli.options import SkipOption, StepsOption, comma_list
 from cam2sim.core.errors import Cam2SimError
 
 __all__ = ["DEMO_STEERING_NOISE", "demo"]
@@ -24,14 +25,8 @@ def demo(
     out: Annotated[
         Path, typer.Option("--out", "-o", help="Folder for the recording and the workspace.")
     ] = Path("cam2sim-demo"),
-    steps: Annotated[
-        str | None,
-        typer.Option(help="Comma-separated steps to run (default: all)."),
-    ] = None,
-    skip: Annotated[
-        str | None,
-        typer.Option(help="Comma-separated steps not to run, e.g. splat,ads."),
-    ] = None,
+    steps: StepsOption = None,
+    skip: SkipOption = None,
     runs: Annotated[int, typer.Option(min=1, help="Drive runs per camera.")] = 3,
     seed: Annotated[int, typer.Option(help="Seed of the demo world and its noise.")] = 0,
 ) -> None:
@@ -56,12 +51,11 @@ def demo(
         run_pipeline,
     )
 
-    def names(text: str | None) -> tuple[str, ...]:
-        return tuple(s.strip() for s in (text or "").split(",") if s.strip())
-
     started = time.perf_counter()
     try:
-        options = PipelineOptions(steps=names(steps) or STEPS, skip=names(skip), runs=runs)
+        options = PipelineOptions(
+            steps=comma_list(steps) or STEPS, skip=comma_list(skip), runs=runs
+        )
         with progress_bars(enabled=sys.stderr.isatty()) as sink:
             recording = load_demo_recording(out)
             if recording is None:

@@ -11,6 +11,7 @@ import typer
 from rich.markup import escape
 
 from cam2sim.cli.display import console, error_console, progress_bars
+from cam2sim.cli.options import comma_list
 from cam2sim.core.errors import Cam2SimError
 from cam2sim.map.overpass import DEFAULT_URL
 
@@ -25,9 +26,7 @@ class SidewalkChoice(StrEnum):
 
 
 def _road_types(text: str | None) -> tuple[str, ...] | None:
-    if text is None:
-        return None
-    return tuple(t.strip() for t in text.split(",") if t.strip())
+    return None if text is None else comma_list(text)
 
 
 def map_(

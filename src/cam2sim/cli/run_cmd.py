@@ -11,6 +11,12 @@ import typer
 from rich.markup import escape
 
 from cam2sim.cli.display import console, error_console, progress_bars
+from cam2sim.cli.options import (
+    CarlaHostOption,
+    CarlaPortOption,
+    SimChoice,
+    SimOption,
+)
 from cam2sim.core.errors import Cam2SimError
 
 __all__ = ["drive", "replay"]
@@ -23,13 +29,6 @@ class ReplayCamera(StrEnum):
     SPLAT = "splat"
     BOTH = "both"
     TRUTH = "truth"
-    CARLA = "carla"
-
-
-class SimChoice(StrEnum):
-    """Which simulator runs."""
-
-    BUILTIN = "builtin"
     CARLA = "carla"
 
 
@@ -104,15 +103,9 @@ def replay(
         str | None, typer.Option(help="Render size WIDTHxHEIGHT (default: the calibrated one).")
     ] = None,
     video: Annotated[bool, typer.Option("--video/--no-video", help="Write video.mp4.")] = True,
-    sim: Annotated[
-        SimChoice, typer.Option(help="builtin, or carla (a running CARLA server).")
-    ] = SimChoice.BUILTIN,
-    carla_host: Annotated[
-        str | None, typer.Option("--carla-host", help="CARLA host (default: config carla.host).")
-    ] = None,
-    carla_port: Annotated[
-        int | None, typer.Option("--carla-port", help="CARLA port (default: config carla.port).")
-    ] = None,
+    sim: SimOption = SimChoice.BUILTIN,
+    carla_host: CarlaHostOption = None,
+    carla_port: CarlaPortOption = None,
 ) -> None:
     """Replay the recorded trajectory exactly: frames per camera, side by side with the real one.
 
@@ -166,15 +159,9 @@ def drive(
     ] = None,
     save_frames: Annotated[bool, typer.Option("--save-frames", help="Write the frames.")] = False,
     video: Annotated[bool, typer.Option("--video", help="Write video.mp4.")] = False,
-    sim: Annotated[
-        SimChoice, typer.Option(help="builtin, or carla (a running CARLA server).")
-    ] = SimChoice.BUILTIN,
-    carla_host: Annotated[
-        str | None, typer.Option("--carla-host", help="CARLA host (default: config carla.host).")
-    ] = None,
-    carla_port: Annotated[
-        int | None, typer.Option("--carla-port", help="CARLA port (default: config carla.port).")
-    ] = None,
+    sim: SimOption = SimChoice.BUILTIN,
+    carla_host: CarlaHostOption = None,
+    carla_port: CarlaPortOption = None,
 ) -> None:
     """Closed-loop runs in the builtin simulator (or CARLA); each run ends on an event.
 

@@ -17,6 +17,7 @@ from cam2sim.cli.display import (
     print_table,
     progress_bars,
 )
+from cam2sim.cli.options import SkipOption, StepsOption, comma_list
 from cam2sim.core.errors import Cam2SimError
 
 if TYPE_CHECKING:
@@ -88,14 +89,8 @@ def run(
         Path | None,
         typer.Option(help="OSM file for the map (default: download from the Overpass API)."),
     ] = None,
-    steps: Annotated[
-        str | None,
-        typer.Option(help="Comma-separated steps to run (default: all)."),
-    ] = None,
-    skip: Annotated[
-        str | None,
-        typer.Option(help="Comma-separated steps not to run, e.g. splat,ads."),
-    ] = None,
+    steps: StepsOption = None,
+    skip: SkipOption = None,
     policy: Annotated[
         str | None,
         typer.Option(help="Drive policy (default: the trained DAVE-2, else pure-pursuit)."),
@@ -128,14 +123,11 @@ def run(
     """
     from cam2sim.stages.pipeline import STEPS, PipelineOptions, run_pipeline  # noqa: PLC0415
 
-    def names(text: str | None) -> tuple[str, ...]:
-        return tuple(s.strip() for s in (text or "").split(",") if s.strip())
-
     try:
         options = PipelineOptions(
             osm=osm,
-            steps=names(steps) or STEPS,
-            skip=names(skip),
+            steps=comma_list(steps) or STEPS,
+            skip=comma_list(skip),
             detect_model=detect_model,
             policy=policy,
             cameras=tuple(camera) if camera else None,  # type: ignore[arg-type]
