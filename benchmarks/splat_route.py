@@ -43,11 +43,12 @@ import numpy as np
 
 from cam2sim.core.frames import Pose
 from cam2sim.demo.world import CRS, ORIGIN_UTM, weave
-from cam2sim.detect.synthetic import Ground, LidarModel, SceneBox, StreetScene, scan_scene
+from cam2sim.detect.synthetic import LidarModel, scan_scene
 from cam2sim.render.truth import TruthBuilding, TruthCar, TruthLook, TruthRenderer, TruthWorld
 from cam2sim.scenario.synthetic import lane_section_xml
 from cam2sim.splat.geometry import chunks_by_distance, voxel_downsample
 from cam2sim.splat.masks import sky_mask_classical
+from cam2sim.splat.prepare import colour_from_view
 from cam2sim.splat.scene import FrameRecord, SceneRecord
 
 if TYPE_CHECKING:
@@ -71,7 +72,6 @@ PIECES: tuple[tuple[float, float], ...] = (
     (85.0, 0.0),
 )
 SPEED_MPS = 8.0
-_GREY = 128
 
 
 @dataclass(frozen=True)
@@ -234,30 +234,6 @@ def build_world(route: Route, seed: int) -> TruthWorld:
     )
 
 
-def lidar_scene(world: TruthWorld) -> StreetScene:
-    """What the LiDAR scans: flat ground, car boxes, building boxes (as the demo's)."""
-
-    cars = tuple(
-        SceneBox((c.x, c.y, c.height / 2.0), (c.length, c.width, c.height), c.yaw)
-        for c in world.cars
-    )
-    structures = []
-    for b in world.buildings:
-        ring = np.asarray(b.xy)
-        edge = ring[1] - ring[0]
-        centre = ring.mean(axis=0)
-        h = b.height_m
-        structures.append(
-            SceneBox(
-                (float(centre[0]), float(centre[1]), (h - 3.0) / 2.0),
-                (float(np.linalg.norm(edge)), float(np.linalg.norm(ring[2] - ring[1])), h + 3.0),
-                math.atan2(edge[1], edge[0]),
-            )
-        )
-    ground = Ground(road_half_width_m=1e9, kerb_height_m=0.0)
-    return StreetScene(ground=ground, cars=cars, structures=tuple(structures))
-
-
 def drive(route: Route, s: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """``(N, 4, 4)`` body poses (x forward, z up) on the driven path (route plus weave)."""
     xy, _ = route.points(s, weave(s))
@@ -269,26 +245,6 @@ def drive(route: Route, s: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1] = c, -sn, sn, c
     out[:, :2, 3] = xy
     return out
-
-
-def colour_from_view(
-    xyz: npt.NDArray[np.float64],
-    T_world_cam: npt.NDArray[np.float64],
-    K: npt.NDArray[np.float64],
-    image: npt.NDArray[np.uint8],
-) -> npt.NDArray[np.uint8]:
-    """Colours of world points seen in one view; grey where not visible (as preparation)."""
-    T_cam_world = np.linalg.inv(T_world_cam)
-    cam = xyz @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
-    z = cam[:, 2]
-    safe = np.where(z > 0.1, z, 1.0)
-    u = np.round(K[0, 0] * cam[:, 0] / safe + K[0, 2]).astype(np.int64)
-    v = np.round(K[1, 1] * cam[:, 1] / safe + K[1, 2]).astype(np.int64)
-    h, w = image.shape[:2]
-    seen = (z > 0.1) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    rgb = np.full((xyz.shape[0], 3), _GREY, np.uint8)
-    rgb[seen] = image[v[seen], u[seen]]
-    return rgb
 
 
 def render_frames(
@@ -332,7 +288,7 @@ def lidar_points(
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uint8]]:
     """Ray-cast scans along the drive, in the world frame, coloured, voxel-downsampled."""
 
-    scene = lidar_scene(world)
+    scene = world.lidar_scene()
     lidar = LidarModel(beams=16, azimuths=720)
     stations = np.arange(0.0, route.length_m, args.lidar_every)
     xyz_all, rgb_all = [np.zeros((0, 3))], [np.zeros((0, 3), np.uint8)]

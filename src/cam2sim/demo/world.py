@@ -364,29 +364,7 @@ class DemoWorld:
 
     def lidar_scene(self) -> StreetScene:
         """The scene the LiDAR scans: flat ground, car boxes, building boxes."""
-        from cam2sim.detect.synthetic import Ground, SceneBox, StreetScene  # noqa: PLC0415
-
-        cars = tuple(
-            SceneBox((c.x, c.y, c.height / 2.0), (c.length, c.width, c.height), c.yaw)
-            for c in self.cars
-        )
-        structures = []
-        for b in self.buildings:
-            ring = np.asarray(b.xy)
-            centre = ring.mean(axis=0)
-            edge = ring[1] - ring[0]
-            depth = float(np.linalg.norm(ring[2] - ring[1]))
-            yaw = math.atan2(edge[1], edge[0])
-            h = b.height_m
-            structures.append(
-                SceneBox(
-                    (float(centre[0]), float(centre[1]), (h - 3.0) / 2.0),
-                    (float(np.linalg.norm(edge)), depth, h + 3.0),
-                    yaw,
-                )
-            )
-        ground = Ground(road_half_width_m=1e9, kerb_height_m=0.0)
-        return StreetScene(ground=ground, cars=cars, structures=tuple(structures))
+        return self.truth_world().lidar_scene()
 
     def truth_world(self, *, seed: int = 0) -> TruthWorld:
         """The world as the workspace's ground truth (the truth camera's world, UTM 32N)."""

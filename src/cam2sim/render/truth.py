@@ -17,6 +17,7 @@ the demo recording, so a pose renders as the recording would have seen it.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal, Self
 
@@ -29,6 +30,7 @@ from cam2sim.core.schema import Artifact
 if TYPE_CHECKING:
     import numpy.typing as npt
 
+    from cam2sim.detect.synthetic import StreetScene
     from cam2sim.render.raster import RasterRenderer, RasterResult, RasterScene
 
 __all__ = [
@@ -98,6 +100,35 @@ class TruthWorld(Artifact):
     cars: tuple[TruthCar, ...] = ()
     buildings: tuple[TruthBuilding, ...] = ()
     look: TruthLook = TruthLook()
+
+    def lidar_scene(self) -> StreetScene:
+        """The scene a ray-cast LiDAR scans: flat ground, car boxes, building boxes.
+
+        A building is a box over its footprint's first two edges, reaching 3 m below the road
+        (so no ray passes under it) up to its height.
+        """
+        from cam2sim.detect.synthetic import Ground, SceneBox, StreetScene  # noqa: PLC0415
+
+        cars = tuple(
+            SceneBox((c.x, c.y, c.height / 2.0), (c.length, c.width, c.height), c.yaw)
+            for c in self.cars
+        )
+        structures = []
+        for b in self.buildings:
+            ring = np.asarray(b.xy)
+            edge = ring[1] - ring[0]
+            centre = ring.mean(axis=0)
+            h = b.height_m
+            size = (float(np.linalg.norm(edge)), float(np.linalg.norm(ring[2] - ring[1])), h + 3.0)
+            structures.append(
+                SceneBox(
+                    (float(centre[0]), float(centre[1]), (h - 3.0) / 2.0),
+                    size,
+                    math.atan2(edge[1], edge[0]),
+                )
+            )
+        ground = Ground(road_half_width_m=1e9, kerb_height_m=0.0)
+        return StreetScene(ground=ground, cars=cars, structures=tuple(structures))
 
     def raster_scene(self) -> RasterScene:
         """The scene the raster renderer draws (street, cars, buildings)."""

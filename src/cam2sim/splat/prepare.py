@@ -75,6 +75,7 @@ __all__ = [
     "Undistorter",
     "camera_poses",
     "chunks_by_distance",
+    "colour_from_view",
     "distance_travelled",
     "prepare_scene",
     "select_by_distance",
@@ -325,14 +326,18 @@ class _Points:
         )
 
 
-def _colour_from_view(
+def colour_from_view(
     xyz: npt.NDArray[np.float64],
     T_world_cam: npt.NDArray[np.float64],
     K: npt.NDArray[np.float64],
     image: npt.NDArray[np.uint8],
-    mask: npt.NDArray[np.uint8],
+    mask: npt.NDArray[np.uint8] | None = None,
 ) -> npt.NDArray[np.uint8]:
-    """Colours of world points seen in one view; grey where not visible."""
+    """Colours ``(N, 3)`` of world points seen in one view; grey where unseen or masked out.
+
+    The view is a pinhole camera ``K`` at ``T_world_cam`` (optical axes); ``mask`` (0 = not
+    used) limits the pixels that colour points.
+    """
     T_cam_world = np.linalg.inv(T_world_cam)
     cam = xyz @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
     z = cam[:, 2]
@@ -341,7 +346,8 @@ def _colour_from_view(
     v = np.round(K[1, 1] * cam[:, 1] / safe + K[1, 2]).astype(np.int64)
     h, w = image.shape[:2]
     seen = (z > 0.1) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    seen[seen] &= mask[v[seen], u[seen]] > 0
+    if mask is not None:
+        seen[seen] &= mask[v[seen], u[seen]] > 0
     rgb = np.full((xyz.shape[0], 3), _GREY, np.uint8)
     rgb[seen] = image[v[seen], u[seen]]
     return rgb
@@ -378,7 +384,7 @@ def _lidar_points(
         j = int(nearest[i])
         if cached is None or cached[0] != j:
             cached = (j, _read_rgb(views.images[j]), _read_mask(views.masks[j]))
-        rgb = _colour_from_view(world, poses[j], K, cached[1], cached[2])
+        rgb = colour_from_view(world, poses[j], K, cached[1], cached[2])
         xyz_d, rgb_d = voxel_downsample(world, rgb, opts.lidar_voxel_m)
         acc = acc + _Points(xyz_d, rgb_d, np.ones(len(xyz_d), np.uint8))
         if i % _LIDAR_COMPACT_EVERY == _LIDAR_COMPACT_EVERY - 1 or i == n - 1:
