@@ -190,3 +190,29 @@ def one_torch_thread() -> Iterator[None]:
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(before)
+
+
+CHROMIUM = Path("/usr/bin/chromium")
+"""Debian's Chromium, which the browser tests drive through Playwright (`.ci/run` installs it)."""
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+
+
+def playwright_with_chromium():
+    """``playwright.sync_api``; skips the test when it or Debian's Chromium is missing."""
+    if not CHROMIUM.is_file():
+        pytest.skip(f"{CHROMIUM} not installed")
+    return pytest.importorskip("playwright.sync_api")
+
+
+def launch_chromium(pw):
+    """A headless, offline-quiet Chromium browser from a running ``sync_playwright()``."""
+    return pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)

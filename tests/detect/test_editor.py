@@ -21,6 +21,7 @@ from cam2sim.core.errors import ConfigError, WorkspaceError
 from cam2sim.core.workspace import Workspace
 from cam2sim.detect.editor import EditorServer, serve_editor
 from cam2sim.detect.vehicles import ParkedVehicles, parked_vehicles_path
+from conftest import launch_chromium, playwright_with_chromium
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
@@ -30,17 +31,6 @@ if TYPE_CHECKING:
 JSON = Any  # decoded JSON of the editor's API
 
 EMPTY_SAVE = '{"vehicles": []}'
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
 
 
 @pytest.fixture
@@ -392,13 +382,11 @@ def _failed_save_and_leaving_warn(page: Page, path: Path) -> None:
 def test_page_moves_rotates_inserts_deletes_undoes_and_saves(
     server: EditorServer, ws: Workspace, tmp_path: Path
 ) -> None:
-    if not CHROMIUM.is_file():
-        pytest.skip(f"{CHROMIUM} not installed")
-    sync_api = pytest.importorskip("playwright.sync_api")
+    sync_api = playwright_with_chromium()
     path = parked_vehicles_path(ws.detections_dir)
     before = path.read_bytes()
     with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        browser = launch_chromium(pw)
         try:
             page = browser.new_page(viewport={"width": 1280, "height": 800})
             errors: list[str] = []

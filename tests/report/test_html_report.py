@@ -18,19 +18,8 @@ from cam2sim.report.html import SECTION_IDS, write_report
 from cam2sim.scenario.synthetic import StreetSpec
 from cam2sim.stages.pipeline import STATE_FILE, STEPS_KEY
 from cam2sim.stages.runs import DriveOptions, ReplayOptions, drive, replay
-from conftest import has_egl, street_workspace
+from conftest import has_egl, launch_chromium, playwright_with_chromium, street_workspace
 
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
 #: Where the Chromium test keeps its full-page screenshot (CI uploads ``test-artifacts/``).
 SCREENSHOT_ENV = "CAM2SIM_REPORT_SCREENSHOT"
 # Attributes that make a browser fetch something; every value must be a data URI or a fragment.
@@ -148,9 +137,7 @@ def _screenshot_path(config: pytest.Config) -> Path:
 def test_report_renders_in_headless_chromium(
     built: tuple[Workspace, Path, bool], request: pytest.FixtureRequest
 ) -> None:
-    if not CHROMIUM.is_file():
-        pytest.skip(f"{CHROMIUM} not installed")
-    sync_api = pytest.importorskip("playwright.sync_api")
+    sync_api = playwright_with_chromium()
     _, path, _ = built
     shot = _screenshot_path(request.config)
     shot.parent.mkdir(parents=True, exist_ok=True)
@@ -159,7 +146,7 @@ def test_report_renders_in_headless_chromium(
     errors: list[str] = []
     requests: list[str] = []
     with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        browser = launch_chromium(pw)
         try:
             page = browser.new_page(viewport={"width": 1280, "height": 900})
             page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
