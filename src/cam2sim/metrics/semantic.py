@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Final
 import numpy as np
 import yaml
 
-from cam2sim.core.errors import ConfigError, WorkspaceError
+from cam2sim.core.errors import ConfigError
 from cam2sim.core.files import write_bytes_atomic
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.schema import Artifact
@@ -367,13 +367,9 @@ def comparison_image(
 
 def write_comparison_image(path: Path, image: npt.NDArray[np.uint8]) -> None:
     """Write an RGB image as PNG atomically."""
-    import cv2  # noqa: PLC0415
+    from cam2sim.recording.image import encode_image_file  # noqa: PLC0415
 
-    ok, data = cv2.imencode(".png", cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
-    if not ok:
-        msg = f"cannot encode the comparison image {path}"
-        raise WorkspaceError(msg)
-    write_bytes_atomic(Path(path), data.tobytes())
+    write_bytes_atomic(Path(path), encode_image_file(image, "png"))
 
 
 def _frame(

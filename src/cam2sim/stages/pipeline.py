@@ -31,7 +31,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from cam2sim.core.workspace import Workspace
-    from cam2sim.stages.runs import CameraName
+    from cam2sim.stages.cameras import CameraName
     from cam2sim.stages.splat import SplatStageOptions
 
 __all__ = [

@@ -93,17 +93,17 @@ def evaluate_world_semantics(
         evaluate_semantic_folders,
     )
     from cam2sim.render.raster import raster_palette  # noqa: PLC0415
-    from cam2sim.stages.runs import (  # noqa: PLC0415
+    from cam2sim.stages.cameras import (  # noqa: PLC0415
         TRUTH_CAMERA,
-        _camera_poses,
-        _Cameras,
-        _intrinsics,
-        _load,
-        _write_png,
+        Cameras,
+        camera_poses,
+        load_run_context,
+        scaled_intrinsics,
+        write_png,
     )
 
     report = progress or no_progress
-    ctx = _load(ws)
+    ctx = load_run_context(ws)
     sc = ctx.scenario
     tr = sc.trajectory
     idx = np.arange(0, len(tr.frame), max(every, 1))
@@ -111,14 +111,14 @@ def evaluate_world_semantics(
     heading = np.asarray(tr.heading, dtype=np.float64)[idx]
     # Both worlds' road is z = 0: the camera stands at its mount height above it.
     z = np.full(idx.size, sc.vehicle.reference_xyz[2])
-    poses = _camera_poses(sc, ref[:, :2], heading, z)
-    K, w, h = _intrinsics(sc, None)
-    with _Cameras(ctx, ("raster", TRUTH_CAMERA)) as cameras:
+    poses = camera_poses(sc, ref[:, :2], heading, z)
+    K, w, h = scaled_intrinsics(sc, None)
+    with Cameras(ctx, ("raster", TRUTH_CAMERA)) as cameras:
         sim, truth = cameras.renderers["raster"], cameras.renderers[TRUTH_CAMERA]
         for k, i in enumerate(idx.tolist()):
             stem = f"{tr.frame[i]:06d}.png"
-            _write_png(out / "real" / stem, truth.render(poses[k], K, w, h).semantic_rgb())
-            _write_png(out / "sim" / stem, sim.render(poses[k], K, w, h).semantic_rgb())
+            write_png(out / "real" / stem, truth.render(poses[k], K, w, h).semantic_rgb())
+            write_png(out / "sim" / stem, sim.render(poses[k], K, w, h).semantic_rgb())
             report("semantic frames", k + 1, int(idx.size))
     result = evaluate_semantic_folders(
         out / "real",

@@ -24,13 +24,23 @@ import json
 import logging
 import time
 from dataclasses import asdict, dataclass, field
-from typing import TYPE_CHECKING, Any, Final, Literal, Self
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
 from cam2sim.core.errors import Cam2SimError, ConfigError, StageError
 from cam2sim.core.files import write_text_atomic
 from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.stages.cameras import (
+    TRUTH_CAMERA,
+    CameraName,
+    Cameras,
+    RunContext,
+    camera_poses,
+    load_run_context,
+    scaled_intrinsics,
+    write_png,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -39,7 +49,6 @@ if TYPE_CHECKING:
     import numpy.typing as npt
 
     from cam2sim.core.workspace import Workspace
-    from cam2sim.map.query import RoadMap
     from cam2sim.scenario.model import Scenario
 
 __all__ = [
@@ -53,9 +62,6 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
-CameraName = Literal["raster", "splat", "truth", "carla", "none"]
-#: The camera of closed-loop drives in the ground-truth world; their runs are method ``real``.
-TRUTH_CAMERA: Final = "truth"
 SimulatorName = Literal["builtin", "carla"]
 
 
@@ -150,112 +156,6 @@ class RunResult:
     seconds: float
 
 
-# -- shared pieces -------------------------------------------------------------------------------
-@dataclass
-class _Context:
-    ws: Workspace
-    scenario: Scenario
-    road_map: RoadMap
-
-
-def _load(ws: Workspace) -> _Context:
-    from cam2sim.scenario.model import Scenario  # noqa: PLC0415
-    from cam2sim.stages.map import load_road_map  # noqa: PLC0415
-
-    path = ws.scenario_dir / "scenario.json"
-    if not path.is_file():
-        msg = f"{ws.root} has no scenario; run `cam2sim scenario {ws.root}` first"
-        raise StageError(msg)
-    return _Context(ws, Scenario.load(path), load_road_map(ws))
-
-
-def _intrinsics(
-    scenario: Scenario, size: tuple[int, int] | None
-) -> tuple[npt.NDArray[np.float64], int, int]:
-    cam = scenario.camera
-    if cam is None:
-        msg = "the scenario has no camera intrinsics; set camera.intrinsics in config.yaml"
-        raise StageError(msg)
-    K = np.asarray(cam.K, dtype=np.float64)
-    if size is None:
-        return K, cam.width, cam.height
-    w, h = size
-    S = np.diag([w / cam.width, h / cam.height, 1.0])
-    K2 = S @ K
-    # Pixel-centre convention: centres at integer coordinates.
-    K2[0, 2] = (K[0, 2] + 0.5) * w / cam.width - 0.5
-    K2[1, 2] = (K[1, 2] + 0.5) * h / cam.height - 0.5
-    return K2, w, h
-
-
-def _camera_poses(
-    scenario: Scenario, reference_xy: npt.NDArray[np.float64], heading: npt.NDArray[np.float64],
-    reference_z: npt.NDArray[np.float64],
-) -> npt.NDArray[np.float64]:  # fmt: skip
-    """``(N, 4, 4)`` camera (optical) -> world from reference-point poses and the mount."""
-    from cam2sim.core import frames as fr  # noqa: PLC0415
-
-    mount = scenario.camera_mount
-    T_ref_cam = fr.Pose(np.asarray(mount.translation_m), np.asarray(mount.quat_xyzw)).as_matrix()
-    n = reference_xy.shape[0]
-    T = np.tile(np.eye(4), (n, 1, 1))
-    c, s = np.cos(heading), np.sin(heading)
-    T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = c, -s, s, c
-    T[:, 0, 3], T[:, 1, 3], T[:, 2, 3] = reference_xy[:, 0], reference_xy[:, 1], reference_z
-    out: npt.NDArray[np.float64] = T @ T_ref_cam
-    return out
-
-
-class _Cameras:
-    """The run's renderers by name, opened once and closed at the end."""
-
-    def __init__(self, ctx: _Context, names: tuple[CameraName, ...]) -> None:
-        self.renderers: dict[str, Any] = {}
-        self.carla: Any = None  # a CarlaSimulator whose hero is teleported (replay)
-        for name in names:
-            if name == "raster":
-                from cam2sim.render.meshes import BuildingFootprint  # noqa: PLC0415
-                from cam2sim.render.raster import RasterRenderer, RasterScene  # noqa: PLC0415
-                from cam2sim.stages.map import load_buildings  # noqa: PLC0415
-
-                buildings = [BuildingFootprint(b.xy, b.height_m) for b in load_buildings(ctx.ws)]
-                scene = RasterScene(ctx.road_map, ctx.scenario.parked, buildings)
-                self.renderers[name] = RasterRenderer(scene)
-            elif name == TRUTH_CAMERA:  # the ground-truth world (WS/truth/world.json)
-                from cam2sim.render.truth import TruthRenderer  # noqa: PLC0415
-
-                proj = ctx.scenario.world.proj_string
-                self.renderers[name] = TruthRenderer.open(ctx.ws.root, proj)
-            elif name == "carla":
-                continue  # rendered by the CARLA server through the simulator
-            elif name == "splat":
-                from cam2sim.splat.render import SplatRenderer  # noqa: PLC0415
-
-                models = ctx.ws.splat_dir / "models"
-                if not models.is_dir():
-                    msg = f"{ctx.ws.root} has no splat models; run `cam2sim splat {ctx.ws.root}`"
-                    raise StageError(msg)
-                self.renderers[name] = SplatRenderer(models)
-
-    def render(
-        self, name: str, T: npt.NDArray[np.float64], K: npt.NDArray[np.float64], w: int, h: int
-    ) -> npt.NDArray[np.uint8]:
-        rgb: npt.NDArray[np.uint8] = self.renderers[name].render(T, K, w, h).rgb
-        return rgb
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def close(self) -> None:
-        for r in self.renderers.values():
-            r.close()
-        if self.carla is not None:
-            self.carla.close()
-
-
 def _new_run_dir(ws: Workspace, kind: str, label: str) -> tuple[str, Path]:
     stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%d-%H%M%S")
     base = f"{stamp}-{kind}-{label}".replace("/", "_").replace(":", "_")
@@ -278,19 +178,6 @@ def _finish_run(ws: Workspace, run_id: str, tmp: Path) -> Path:
     final = ws.runs_dir / run_id
     tmp.rename(final)  # same folder: atomic; the name was checked to be free
     return final
-
-
-def _write_png(path: Path, rgb: npt.NDArray[np.uint8]) -> None:
-    import cv2  # noqa: PLC0415
-
-    from cam2sim.core.files import write_bytes_atomic  # noqa: PLC0415
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    ok, buf = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-    if not ok:
-        msg = f"could not encode {path.name}"
-        raise StageError(msg)
-    write_bytes_atomic(path, buf.tobytes())
 
 
 class _Video:
@@ -354,7 +241,7 @@ def replay(
     """Replay the recorded trajectory exactly and render it with the chosen cameras."""
     opts = options or ReplayOptions()
     report = progress or no_progress
-    ctx = _load(ws)
+    ctx = load_run_context(ws)
     tr = ctx.scenario.trajectory
     sel = slice(*opts.frames)
     idx = np.arange(len(tr.frame))[sel]
@@ -368,7 +255,7 @@ def replay(
     run_id, tmp = _new_run_dir(ws, "replay", label)
     started = time.perf_counter()
     try:
-        with _Cameras(ctx, cams) as cameras:
+        with Cameras(ctx, cams) as cameras:
             if "carla" in cams:
                 cameras.carla = _open_carla(
                     ctx, _carla_options(opts.carla, ctx.scenario, 0, ws), opts.carla_client_factory
@@ -434,9 +321,9 @@ def _real_frames(ws: Workspace) -> Callable[[int], npt.NDArray[np.uint8] | None]
 
 
 def _replay_frames(
-    ctx: _Context,
+    ctx: RunContext,
     opts: ReplayOptions,
-    cameras: _Cameras,
+    cameras: Cameras,
     idx: npt.NDArray[np.int64],
     ref: npt.NDArray[np.float64],
     heading: npt.NDArray[np.float64],
@@ -445,12 +332,12 @@ def _replay_frames(
 ) -> int:
     if not (cameras.renderers or cameras.carla) or not (opts.save_frames or opts.video):
         return 0
-    K, w, h = _intrinsics(ctx.scenario, opts.image_size)
+    K, w, h = scaled_intrinsics(ctx.scenario, opts.image_size)
     tr = ctx.scenario.trajectory
     ground = ref[:, 2] - ctx.scenario.vehicle.reference_xyz[2]
     # The raster and truth worlds' road is z = 0; the splat models live at the recorded heights.
     z_of = {"raster": ref[:, 2] - ground, TRUTH_CAMERA: ref[:, 2] - ground, "splat": ref[:, 2]}
-    poses = {name: _camera_poses(ctx.scenario, ref[:, :2], heading, z_of[name]) for name in z_of}
+    poses = {name: camera_poses(ctx.scenario, ref[:, :2], heading, z_of[name]) for name in z_of}
     t = np.asarray(tr.t, dtype=np.float64)[idx]
     fps = 1.0 / max(float(np.median(np.diff(t))), 1e-3) if len(t) > 1 else 10.0
     video = _Video(folder / "video.mp4", fps) if opts.video else None
@@ -466,8 +353,8 @@ def _replay_frames(
             sbs = side_by_side(([real] if real is not None else []) + views)
             if opts.save_frames:
                 for name, im in zip(names, views, strict=True):
-                    _write_png(folder / "frames" / name / f"{tr.frame[i]:06d}.png", im)
-                _write_png(folder / "side_by_side" / f"{tr.frame[i]:06d}.png", sbs)
+                    write_png(folder / "frames" / name / f"{tr.frame[i]:06d}.png", im)
+                write_png(folder / "side_by_side" / f"{tr.frame[i]:06d}.png", sbs)
             if video is not None:
                 video.add(sbs)
             report("replay frames", k + 1, int(idx.size))
@@ -498,7 +385,7 @@ def drive(
     from cam2sim.ads.policy import load_policy  # noqa: PLC0415
 
     opts = options or DriveOptions()
-    ctx = _load(ws)
+    ctx = load_run_context(ws)
     sc = ctx.scenario
     policy = load_policy(
         opts.policy,
@@ -509,7 +396,7 @@ def drive(
     results: list[RunResult] = []
     try:
         cams: tuple[CameraName, ...] = () if opts.camera == "none" else (opts.camera,)
-        with _Cameras(ctx, cams) as cameras:
+        with Cameras(ctx, cams) as cameras:
             results.extend(
                 _drive_one(ctx, opts, policy, cameras, opts.seed + r, progress or no_progress)
                 for r in range(opts.runs)
@@ -520,10 +407,10 @@ def drive(
 
 
 def _drive_one(
-    ctx: _Context,
+    ctx: RunContext,
     opts: DriveOptions,
     policy: Any,
-    cameras: _Cameras,
+    cameras: Cameras,
     seed: int,
     report: ProgressCallback,
 ) -> RunResult:
@@ -567,7 +454,7 @@ def _carla_options(options: Any, sc: Scenario, seed: int, ws: Workspace | None =
     return base.model_copy(update=update)
 
 
-def _open_carla(ctx: _Context, options: Any, client_factory: Any) -> Any:
+def _open_carla(ctx: RunContext, options: Any, client_factory: Any) -> Any:
     from cam2sim.sim.carla_backend import CarlaSimulator  # noqa: PLC0415
 
     sim = CarlaSimulator(options, workspace_root=ctx.ws.root, client_factory=client_factory)
@@ -580,10 +467,10 @@ def _open_carla(ctx: _Context, options: Any, client_factory: Any) -> Any:
 
 
 def _drive_loop(  # noqa: PLR0913, PLR0915, PLR0917 - one run: setup, step loop, writing
-    ctx: _Context,
+    ctx: RunContext,
     opts: DriveOptions,
     policy: Any,
-    cameras: _Cameras,
+    cameras: Cameras,
     sim: Any,
     sim_opts: Any,
     target: float | None,
@@ -597,7 +484,7 @@ def _drive_loop(  # noqa: PLR0913, PLR0915, PLR0917 - one run: setup, step loop,
     state = sim.reset(_start_pose(sc, opts.start_offset))
     policy.reset()
     cam_name = "carla" if opts.camera == "carla" else next(iter(cameras.renderers), None)
-    K, w, h = _intrinsics(sc, opts.image_size) if cam_name else (np.eye(3), 0, 0)
+    K, w, h = scaled_intrinsics(sc, opts.image_size) if cam_name else (np.eye(3), 0, 0)
     run_id, tmp = _new_run_dir(ctx.ws, "drive", f"{policy.name}-{cam_name or 'none'}-s{seed}")
     rows: dict[str, list[float]] = {
         k: [] for k in ("t", "x", "y", "z", "heading", "speed", "steering", "wheel_angle")
@@ -733,7 +620,7 @@ def _keep_frame(
 ) -> None:
     """Write a rendered frame as PNG (on request) and add it to the video (if one is made)."""
     if save:
-        _write_png(folder / f"{index:06d}.png", image)
+        write_png(folder / f"{index:06d}.png", image)
     if video is not None:
         video.add(image)
 
@@ -741,7 +628,7 @@ def _keep_frame(
 def _vehicle_view(
     sc: Scenario,
     state: Any,
-    cameras: _Cameras,
+    cameras: Cameras,
     cam_name: str,
     camera: tuple[npt.NDArray[np.float64], int, int],
 ) -> npt.NDArray[np.uint8]:
@@ -752,7 +639,7 @@ def _vehicle_view(
     ref_now = body_point_positions(
         [[state.x, state.y, 0.0]], [state.heading], (0.0, 0.0, 0.0), ref_xyz
     )[0]
-    T = _camera_poses(
+    T = camera_poses(
         sc,
         ref_now[None, :2],
         np.array([state.heading]),

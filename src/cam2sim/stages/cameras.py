@@ -1,0 +1,164 @@
+"""The cameras of runs: renderers by name, camera poses and intrinsics from a scenario.
+
+Shared by replay and drive (:mod:`cam2sim.stages.runs`) and by the reconstruction metrics
+(:mod:`cam2sim.stages.reconstruction`). A camera is ``raster`` (the simulator's style),
+``splat`` (the Gaussian splats), ``truth`` (the ground-truth world, ``WS/truth/world.json``),
+``carla`` (rendered by a CARLA server through the simulator) or ``none``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Final, Literal, Self
+
+import numpy as np
+
+from cam2sim.core.errors import StageError
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    import numpy.typing as npt
+
+    from cam2sim.core.workspace import Workspace
+    from cam2sim.map.query import RoadMap
+    from cam2sim.scenario.model import Scenario
+
+__all__ = [
+    "TRUTH_CAMERA",
+    "CameraName",
+    "Cameras",
+    "RunContext",
+    "camera_poses",
+    "load_run_context",
+    "scaled_intrinsics",
+    "write_png",
+]
+
+CameraName = Literal["raster", "splat", "truth", "carla", "none"]
+#: The camera of closed-loop drives in the ground-truth world; their runs are method ``real``.
+TRUTH_CAMERA: Final = "truth"
+
+
+def write_png(path: Path, rgb: npt.NDArray[np.uint8]) -> None:
+    """Write an RGB image as PNG, atomically (the folder is created)."""
+    from cam2sim.core.files import write_bytes_atomic  # noqa: PLC0415
+    from cam2sim.recording.image import encode_image_file  # noqa: PLC0415
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_bytes_atomic(path, encode_image_file(rgb, "png"))
+
+
+@dataclass
+class RunContext:
+    """What a run needs of a workspace: the workspace, its scenario and its road map."""
+
+    ws: Workspace
+    scenario: Scenario
+    road_map: RoadMap
+
+
+def load_run_context(ws: Workspace) -> RunContext:
+    """The workspace's scenario and road map.
+
+    Raises:
+        StageError: The workspace has no scenario yet.
+    """
+    from cam2sim.scenario.model import Scenario  # noqa: PLC0415
+    from cam2sim.stages.map import load_road_map  # noqa: PLC0415
+
+    path = ws.scenario_dir / "scenario.json"
+    if not path.is_file():
+        msg = f"{ws.root} has no scenario; run `cam2sim scenario {ws.root}` first"
+        raise StageError(msg)
+    return RunContext(ws, Scenario.load(path), load_road_map(ws))
+
+
+def scaled_intrinsics(
+    scenario: Scenario, size: tuple[int, int] | None
+) -> tuple[npt.NDArray[np.float64], int, int]:
+    """The scenario camera's ``K``, width and height, scaled to ``size`` (None: calibrated)."""
+    cam = scenario.camera
+    if cam is None:
+        msg = "the scenario has no camera intrinsics; set camera.intrinsics in config.yaml"
+        raise StageError(msg)
+    K = np.asarray(cam.K, dtype=np.float64)
+    if size is None:
+        return K, cam.width, cam.height
+    w, h = size
+    S = np.diag([w / cam.width, h / cam.height, 1.0])
+    K2 = S @ K
+    # Pixel-centre convention: centres at integer coordinates.
+    K2[0, 2] = (K[0, 2] + 0.5) * w / cam.width - 0.5
+    K2[1, 2] = (K[1, 2] + 0.5) * h / cam.height - 0.5
+    return K2, w, h
+
+
+def camera_poses(
+    scenario: Scenario, reference_xy: npt.NDArray[np.float64], heading: npt.NDArray[np.float64],
+    reference_z: npt.NDArray[np.float64],
+) -> npt.NDArray[np.float64]:  # fmt: skip
+    """``(N, 4, 4)`` camera (optical) -> world from reference-point poses and the mount."""
+    from cam2sim.core import frames as fr  # noqa: PLC0415
+
+    mount = scenario.camera_mount
+    T_ref_cam = fr.Pose(np.asarray(mount.translation_m), np.asarray(mount.quat_xyzw)).as_matrix()
+    n = reference_xy.shape[0]
+    T = np.tile(np.eye(4), (n, 1, 1))
+    c, s = np.cos(heading), np.sin(heading)
+    T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = c, -s, s, c
+    T[:, 0, 3], T[:, 1, 3], T[:, 2, 3] = reference_xy[:, 0], reference_xy[:, 1], reference_z
+    out: npt.NDArray[np.float64] = T @ T_ref_cam
+    return out
+
+
+class Cameras:
+    """The run's renderers by name, opened once and closed at the end."""
+
+    def __init__(self, ctx: RunContext, names: tuple[CameraName, ...]) -> None:
+        self.renderers: dict[str, Any] = {}
+        self.carla: Any = None  # a CarlaSimulator whose hero is teleported (replay)
+        for name in names:
+            if name == "raster":
+                from cam2sim.render.meshes import BuildingFootprint  # noqa: PLC0415
+                from cam2sim.render.raster import RasterRenderer, RasterScene  # noqa: PLC0415
+                from cam2sim.stages.map import load_buildings  # noqa: PLC0415
+
+                buildings = [BuildingFootprint(b.xy, b.height_m) for b in load_buildings(ctx.ws)]
+                scene = RasterScene(ctx.road_map, ctx.scenario.parked, buildings)
+                self.renderers[name] = RasterRenderer(scene)
+            elif name == TRUTH_CAMERA:  # the ground-truth world (WS/truth/world.json)
+                from cam2sim.render.truth import TruthRenderer  # noqa: PLC0415
+
+                proj = ctx.scenario.world.proj_string
+                self.renderers[name] = TruthRenderer.open(ctx.ws.root, proj)
+            elif name == "carla":
+                continue  # rendered by the CARLA server through the simulator
+            elif name == "splat":
+                from cam2sim.splat.render import SplatRenderer  # noqa: PLC0415
+
+                models = ctx.ws.splat_dir / "models"
+                if not models.is_dir():
+                    msg = f"{ctx.ws.root} has no splat models; run `cam2sim splat {ctx.ws.root}`"
+                    raise StageError(msg)
+                self.renderers[name] = SplatRenderer(models)
+
+    def render(
+        self, name: str, T: npt.NDArray[np.float64], K: npt.NDArray[np.float64], w: int, h: int
+    ) -> npt.NDArray[np.uint8]:
+        """RGB of camera ``name`` at ``T`` (camera -> world, optical axes), ``K``, ``w`` x ``h``."""
+        rgb: npt.NDArray[np.uint8] = self.renderers[name].render(T, K, w, h).rgb
+        return rgb
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close every renderer (and the CARLA simulator a replay teleports)."""
+        for r in self.renderers.values():
+            r.close()
+        if self.carla is not None:
+            self.carla.close()
