@@ -28,6 +28,12 @@ __all__ = ["frame_noise_rng", "photographic_look"]
 _POSE_DECIMALS = 3
 """Poses are rounded to millimetres (and 1e-3 of rotation) before they seed the noise."""
 
+_GRAIN_M = 0.03
+"""Texel of the fine grain (asphalt, paving, grass), metres."""
+
+_PATCH_M = 0.25
+"""Texel of the coarse patches (asphalt repairs, grass tufts), metres."""
+
 
 def frame_noise_rng(seed: int, T_world_cam: npt.NDArray[np.float64]) -> np.random.Generator:
     """The sensor-noise generator of one frame: from the look's seed and the camera pose.
@@ -39,10 +45,31 @@ def frame_noise_rng(seed: int, T_world_cam: npt.NDArray[np.float64]) -> np.rando
     return np.random.default_rng([int(seed) & 0xFFFFFFFF, zlib.crc32(pose.tobytes())])
 
 
+_MIP_LEVELS = 8
+"""Pre-filtered copies of each texture tile: level ``k`` is averaged over ``2**k`` texels."""
+
+
 @dataclass(frozen=True)
 class _Textures:
-    fine: npt.NDArray[np.float32]
-    coarse: npt.NDArray[np.float32]
+    fine: tuple[npt.NDArray[np.float32], ...]
+    coarse: tuple[npt.NDArray[np.float32], ...]
+
+
+def _pyramid(tile: npt.NDArray[np.float32]) -> tuple[npt.NDArray[np.float32], ...]:
+    """``tile`` low-passed for footprints of 1, 2, 4, ... texels (a Gaussian of 0.4 footprint).
+
+    Blurred as a wrapped copy, so every level still tiles seamlessly.
+    """
+    import cv2  # noqa: PLC0415
+
+    levels = [tile]
+    for k in range(1, _MIP_LEVELS):
+        sigma = 0.4 * 2.0**k
+        pad = min(int(3 * sigma) + 1, tile.shape[0])
+        wrapped = np.pad(tile, pad, mode="wrap")
+        blurred = np.asarray(cv2.GaussianBlur(wrapped, (0, 0), sigma), np.float32)
+        levels.append(blurred[pad:-pad, pad:-pad])
+    return tuple(levels)
 
 
 @functools.lru_cache(maxsize=4)
@@ -58,12 +85,35 @@ def _textures(seed: int, size: int = 256) -> _Textures:
         out: npt.NDArray[np.float32] = (tile - tile.mean()) / (tile.std() + 1e-6)
         return out
 
-    return _Textures(fine=noise(0.7), coarse=noise(8.0))
+    return _Textures(fine=_pyramid(noise(0.7)), coarse=_pyramid(noise(8.0)))
 
 
 def _lookup(tile: npt.NDArray[np.float32], u: npt.NDArray[Any], v: npt.NDArray[Any]) -> Any:
     n = tile.shape[0]
     return tile[np.floor(v).astype(np.int64) % n, np.floor(u).astype(np.int64) % n]
+
+
+def _filtered(
+    levels: tuple[npt.NDArray[np.float32], ...],
+    u: npt.NDArray[Any],
+    v: npt.NDArray[Any],
+    footprint: npt.NDArray[Any],
+) -> npt.NDArray[np.float32]:
+    """Texture at texel coordinates ``(u, v)`` averaged over ``footprint`` texels per pixel.
+
+    Blends the two pyramid levels around ``log2(footprint)`` (trilinear mip-mapping without
+    the bilinear part), as a camera integrates what one pixel sees: a texture far away or at a
+    grazing angle averages out instead of aliasing into a pattern that changes with every pose.
+    """
+    level = np.clip(np.log2(np.maximum(footprint, 1.0)), 0.0, len(levels) - 1.0)
+    low = np.floor(level).astype(np.int64)
+    high = np.minimum(low + 1, len(levels) - 1)
+    t = (level - low).astype(np.float32)
+    n = levels[0].shape[0]
+    iu, iv = np.floor(u).astype(np.int64) % n, np.floor(v).astype(np.int64) % n
+    stack = np.stack(levels)
+    out: npt.NDArray[np.float32] = (1.0 - t) * stack[low, iv, iu] + t * stack[high, iv, iu]
+    return out
 
 
 def photographic_look(
@@ -79,7 +129,10 @@ def photographic_look(
 
     Textures anchored in the world (asphalt grain and patches on the road, paving joints on the
     sidewalks, grass on the verge, clouds in the sky), plaster-coloured facades, warm colour
-    grading, vignetting, a slight lens blur and sensor noise.
+    grading, vignetting, a slight lens blur and sensor noise. Ground textures are averaged over
+    each pixel's footprint (mip-mapped), as a camera integrates them: the same road seen from
+    two nearby poses looks the same, with no aliasing pattern that changes from frame to frame
+    (only the sensor noise does).
 
     Args:
         rgb: ``(H, W, 3)`` raster colours.
@@ -89,8 +142,6 @@ def photographic_look(
         rng: Draws the sensor noise.
         seed: Seeds the world textures (keep it fixed over a recording).
     """
-    import cv2  # noqa: PLC0415
-
     from cam2sim.render.meshes import Label  # noqa: PLC0415
 
     tex = _textures(seed)
@@ -107,16 +158,23 @@ def photographic_look(
     gx = cam[0] + dist * rays[..., 0]
     gy = cam[1] + dist * rays[..., 1]
     near = np.clip(10.0 / dist, 0.15, 1.0).astype(np.float32)  # fine grain fades with range
+    # Ground seen by one pixel, metres: its angular size times the range, stretched by the
+    # grazing angle (the long axis of the pixel's footprint on the road).
+    focal = 0.5 * (K[0, 0] + K[1, 1])
+    footprint = dist / (focal * np.maximum(np.abs(rays[..., 2]), 0.02))
 
     road = labels == Label.ROAD
-    grain = _lookup(tex.fine, gx / 0.03, gy / 0.03) * near
-    patches = _lookup(tex.coarse, gx / 0.25, gy / 0.25)
+    grain = _filtered(tex.fine, gx / _GRAIN_M, gy / _GRAIN_M, footprint / _GRAIN_M) * near
+    patches = _filtered(tex.coarse, gx / _PATCH_M, gy / _PATCH_M, footprint / _PATCH_M)
     asphalt = 1.0 + 0.15 * grain + 0.12 * patches
     img[road] *= (asphalt[road, None] * np.array([1.03, 1.0, 0.96], np.float32)).astype(np.float32)
 
     walk = labels == Label.SIDEWALK
     fx, fy = np.abs((gx / 0.4) % 1.0 - 0.5), np.abs((gy / 0.4) % 1.0 - 0.5)
-    joints = np.where((np.maximum(fx, fy) > 0.46) & (near > 0.3), 0.75, 1.0)
+    joints = np.where(np.maximum(fx, fy) > 0.46, 0.75, 1.0)
+    # Joints thinner than a pixel blend into their average shade (8 % of a 0.4 m slab each way).
+    blend = np.clip(footprint / (0.08 * 0.4), 0.0, 1.0)
+    joints = (1.0 - blend) * joints + blend * (1.0 - 0.25 * (1.0 - 0.92**2))
     paving = joints * (1.0 + 0.08 * grain)
     img[walk] *= paving[walk, None].astype(np.float32)
 
@@ -127,21 +185,40 @@ def photographic_look(
     facade = labels == Label.BUILDING
     shade = img[..., :].mean(axis=-1, keepdims=True) / (138.0 / 255.0)
     plaster = np.array([0.80, 0.70, 0.57], np.float32) * shade
-    plaster *= 1.0 + 0.05 * _lookup(tex.fine, u * 1.5, v * 1.5)[..., None]
     img[facade] = 0.3 * img[facade] + 0.7 * plaster[facade]
 
     sky = labels == Label.SKY
+    img[sky] = _sky(rays, tex)[sky].astype(np.float32)
+    img = _lens_and_sensor(img, u, v, rng)
+    out: npt.NDArray[np.uint8] = np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    return out
+
+
+def _sky(rays: npt.NDArray[np.float64], tex: _Textures) -> npt.NDArray[np.float64]:
+    """Sky colours along ``rays``: a blue gradient with clouds anchored in direction."""
     elev = np.clip(rays[..., 2], 0.0, 1.0)
     azim = np.arctan2(rays[..., 1], rays[..., 0])
     base = (1 - np.sqrt(elev))[..., None] * np.array([0.87, 0.90, 0.94]) + np.sqrt(elev)[
         ..., None
     ] * np.array([0.33, 0.53, 0.84])
-    cloud = _lookup(tex.coarse, azim * 60.0, elev * 120.0)
+    cloud = _lookup(tex.coarse[0], azim * 60.0, elev * 120.0)
     cover = np.clip((cloud - 0.2) / 0.8, 0.0, 1.0)[..., None]
-    sky_rgb = (1 - 0.8 * cover) * base + 0.8 * cover * np.array([0.95, 0.95, 0.96])
-    img[sky] = sky_rgb[sky].astype(np.float32)
+    out: npt.NDArray[np.float64] = (1 - 0.8 * cover) * base + 0.8 * cover * np.array(
+        [0.95, 0.95, 0.96]
+    )
+    return out
 
-    # Lens and sensor: blur, warm grade with a soft S-curve, vignetting, noise.
+
+def _lens_and_sensor(
+    img: npt.NDArray[np.float32],
+    u: npt.NDArray[np.float64],
+    v: npt.NDArray[np.float64],
+    rng: np.random.Generator,
+) -> npt.NDArray[np.float32]:
+    """Lens and sensor: blur, warm grade with a soft S-curve, vignetting, noise."""
+    import cv2  # noqa: PLC0415
+
+    h, w = img.shape[:2]
     img = np.asarray(cv2.GaussianBlur(img, (0, 0), 0.6), np.float32)
     img = np.clip(img * 1.05, 0.0, 1.0) ** 0.9
     img = 0.5 + (img - 0.5) * 1.12
@@ -149,5 +226,4 @@ def photographic_look(
     r2 = ((u - w / 2) / (w / 2)) ** 2 + ((v - h / 2) / (h / 2)) ** 2
     img *= (1.0 - 0.18 * r2)[..., None].astype(np.float32)
     img += rng.normal(0.0, 0.015, img.shape).astype(np.float32)
-    out: npt.NDArray[np.uint8] = np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
-    return out
+    return img
