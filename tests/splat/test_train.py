@@ -27,6 +27,7 @@ from cam2sim.splat.train import (
     LearningRates,
     SceneTrainResult,
     TrainOptions,
+    plateau_reached,
     train_chunk,
     train_scene,
 )
@@ -253,12 +254,19 @@ def test_plateau_stops_training(tmp_path: Path) -> None:
     prep = make_prepared_scene(tmp_path, n_frames=4, chunks=((0, 4),), size=(32, 24))
     scene = SceneRecord.load(prep / "scene.json")
     options = fast_options(
-        max_steps=100, min_steps=4, val_every=2, patience=2, min_delta_db=50.0, sky_points=0
+        max_steps=100,
+        min_steps=4,
+        val_every=2,
+        patience=2,
+        min_gain_db=1e6,  # per 1,000 steps: unreachable in 2-step intervals
+        min_gain_ssim=1e6,
+        sky_points=0,
     )
     result = train_chunk(scene, 0, prep, options, models_dir=tmp_path / "models")
     assert result.stopped == "plateau"
     assert result.steps == 6
-    assert [s for s, _ in result.val_history] == [2, 4, 6]
+    assert [s for s, *_ in result.val_history] == [2, 4, 6]
+    assert all(0.0 < q <= 1.0 for *_, q in result.val_history)  # held-in SSIM
     assert (tmp_path / "models" / "chunk_00.json").is_file()
 
 
@@ -364,3 +372,30 @@ def test_gsplat_training_densifies_and_resets(tmp_path: Path) -> None:
         header = gm.load_chunk_header(chunk.model_path)
         assert header.n_gaussians == chunk.n_gaussians
     assert result.peak_memory_bytes is not None
+
+
+def test_plateau_follows_the_trend_of_psnr_and_ssim() -> None:
+    rising_ssim = [(1000, 28.0, 0.80), (2000, 28.6, 0.81), (3000, 28.1, 0.82), (4000, 28.3, 0.83)]
+    # PSNR zig-zags with no trend, but SSIM still gains 0.01 per 1,000 steps: not a plateau.
+    assert not plateau_reached(rising_ssim, 3, 0.05, 0.002)
+    flat = [
+        (s, 28.0 + (0.4 if i % 2 else 0.0), 0.85) for i, s in enumerate(range(1000, 6000, 1000))
+    ]
+    assert plateau_reached(flat, 4, 0.05, 0.002)
+    # A steady PSNR gain of 0.2 dB per 1,000 steps under the swings is progress.
+    steady = [
+        (s, 28.0 + 0.2 * i + (0.3 if i % 2 else -0.3), 0.85)
+        for i, s in enumerate(range(1000, 7000, 1000))
+    ]
+    assert not plateau_reached(steady, 5, 0.05, 0.002)
+    assert not plateau_reached(flat[:4], 4, 0.05, 0.002)  # too few validations for a trend
+
+
+def test_absgrad_needs_the_gsplat_rasterizer(tmp_path: Path) -> None:
+    prep = make_prepared_scene(tmp_path, n_frames=4, chunks=((0, 4),), size=(32, 24))
+    scene = SceneRecord.load(prep / "scene.json")
+    options = fast_options(
+        max_steps=2, densify=DensifyOptions(absgrad=True), backend="torch", device="cpu"
+    )
+    with pytest.raises(StageError, match="absgrad needs the gsplat rasterizer"):
+        train_chunk(scene, 0, prep, options, models_dir=tmp_path / "models")

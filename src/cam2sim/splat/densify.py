@@ -11,6 +11,10 @@ ones), transparent and (after the first reset) huge ones are pruned. Two variant
   its host-device synchronisation on every step;
 - simple: the same rules with :mod:`cam2sim.splat.model`'s operations (any device).
 
+With ``absgrad`` the statistics are the absolute per-pixel gradients that gsplat accumulates
+into ``means2d.absgrad`` (AbsGS), not the gradients' norm: textured surfaces whose per-pixel
+gradients cancel out still grow Gaussians.
+
 Both reset opacities themselves (gsplat 1.5.3's strategy never does). torch is imported at module
 level: only the trainer imports this module, inside a function.
 """
@@ -54,6 +58,7 @@ class Densifier:
                 refine_stop_iter=options.refine_stop,
                 reset_every=options.reset_every,
                 refine_every=options.refine_every,
+                absgrad=options.absgrad,
             )
             self.state = self.strategy.initialize_state(scene_scale=scene_scale)
 
@@ -87,8 +92,10 @@ class Densifier:
 
     def _accumulate(self, out: RasterOutput, n_street: int, n: int) -> None:
         """Add this step's normalised 2-D gradient norms and visibility counts (no sync)."""
-        assert out.means2d.grad is not None
-        grads = out.means2d.grad[:, :n_street]
+        # gsplat adds ``absgrad`` to means2d in its backward when rasterized with absgrad=True.
+        source = getattr(out.means2d, "absgrad", None) if self.options.absgrad else out.means2d.grad
+        assert source is not None
+        grads = source[:, :n_street]
         n_cameras = out.info["n_cameras"]
         key = (out.info["width"], out.info["height"], n_cameras, grads.device, grads.dtype)
         if self._grad_scale is None or self._grad_scale[0] != key:

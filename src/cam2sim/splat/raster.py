@@ -164,6 +164,7 @@ def rasterize(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's signa
     sh_degree: int | None = None,
     backgrounds: torch.Tensor | None = None,
     backend: RasterBackend = "auto",
+    absgrad: bool = False,
 ) -> RasterOutput:
     """Render Gaussians into ``C`` images with the chosen backend.
 
@@ -184,15 +185,20 @@ def rasterize(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's signa
         sh_degree: SH degree to evaluate, or None for plain colours.
         backgrounds: ``[C, D]`` colour behind the Gaussians, or None (zeros).
         backend: ``"auto"``, ``"gsplat"`` or ``"torch"``.
+        absgrad: Also accumulate the absolute per-pixel gradients of the projected centres
+            into ``means2d.absgrad`` during ``backward()`` (AbsGS densification; gsplat only).
 
     Returns:
         The images and per-Gaussian screen-space data.
 
     Raises:
-        ValueError: Inconsistent shapes, or unknown backend.
+        ValueError: Inconsistent shapes, unknown backend, or ``absgrad`` on the torch backend.
         BackendUnavailableError: ``"gsplat"`` asked for where it cannot run.
     """
     chosen = resolve_backend(backend, means.device)
+    if absgrad and chosen == "torch":
+        msg = "absgrad needs the gsplat backend (CUDA); the torch rasterizer has none"
+        raise ValueError(msg)
     args = (means, quats, scales, opacities, colors, viewmats, Ks, width, height)
     options = {
         "near_plane": near_plane,
@@ -211,6 +217,7 @@ def rasterize(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's signa
         **options,
         packed=False,
         rasterize_mode="classic",
+        absgrad=absgrad,
     )
     return RasterOutput(
         colors=render_colors,

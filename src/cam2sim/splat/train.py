@@ -15,9 +15,13 @@ Reads ``WS/splat/prep/`` (:mod:`cam2sim.splat.scene`), writes ``WS/splat/models/
 - **Densification** (:class:`cam2sim.splat.densify.Densifier`): gsplat's ``DefaultStrategy``
   with the gsplat backend, a simple densifier of the same rules otherwise; opacities are reset
   here every ``reset_every`` steps, as gsplat 1.5.3's strategy never does it.
-- **Stopping**: every ``val_every`` steps the PSNR of up to ``n_val_views`` training views
-  spread along the chunk (held-in validation) is measured; after ``min_steps``, training stops
-  when it has not improved by ``min_delta_db`` for ``patience`` checks, else at ``max_steps``.
+- **Stopping**: every ``val_every`` steps the PSNR and SSIM of up to ``n_val_views`` training
+  views spread along the chunk (held-in validation) are measured. After ``min_steps``, training
+  stops on a plateau: when the least-squares trend of the last ``patience + 1`` validations
+  rises by less than ``min_gain_db`` dB and less than ``min_gain_ssim`` SSIM per 1,000 steps;
+  else at ``max_steps``. A trend over several validations, and SSIM beside PSNR, keep one noisy
+  validation (PSNR swings of ±0.5 dB between checks are common) from ending training while the
+  fine structure still improves.
 
 :func:`train_scene` trains several chunks at a time on one device, each in its own worker
 process (``concurrent_chunks``, by default 2 on CUDA; :mod:`cam2sim.splat.parallel`), or, with
@@ -51,6 +55,7 @@ __all__ = [
     "SceneTrainResult",
     "TrainOptions",
     "TrainResult",
+    "plateau_reached",
     "train_chunk",
     "train_scene",
 ]
@@ -93,6 +98,9 @@ class DensifyOptions:
         refine_every: Steps between refinements.
         reset_every: Steps between opacity resets (to twice ``prune_opacity``).
         grow_grad2d: Mean 2-D gradient (normalised screen units) above which a Gaussian grows.
+        absgrad: Accumulate the absolute per-pixel gradients instead (AbsGS: finer detail on
+            textured surfaces from fewer Gaussians; gsplat backend only; raise ``grow_grad2d``
+            about 3-4x with it, gsplat's examples use 8e-4).
         grow_scale3d: Largest scale (times scene scale) up to which growing clones, above splits.
         prune_opacity: Gaussians below this opacity are removed.
         prune_scale3d: Gaussians larger than this (times scene scale) are removed after the
@@ -107,6 +115,7 @@ class DensifyOptions:
     refine_every: int = 100
     reset_every: int = 3000
     grow_grad2d: float = 2e-4
+    absgrad: bool = False
     grow_scale3d: float = 0.01
     prune_opacity: float = 0.005
     prune_scale3d: float = 0.1
@@ -121,8 +130,9 @@ class TrainOptions:
         max_steps: Step cap per chunk.
         min_steps: No plateau stop before this step.
         val_every: Steps between held-in validations.
-        patience: Validations without improvement before stopping.
-        min_delta_db: Smallest PSNR gain that counts as improvement.
+        patience: Validation intervals in the plateau trend (``patience + 1`` validations).
+        min_gain_db: Held-in PSNR trend, dB per 1,000 steps, below which PSNR has plateaued.
+        min_gain_ssim: Held-in SSIM trend per 1,000 steps below which SSIM has plateaued.
         n_val_views: Training views used for validation (spread along the chunk).
         ssim_weight: Weight ``w`` of ``1 - SSIM`` in the photometric loss.
         sh_degree: Highest SH degree of the street model (0-3).
@@ -152,8 +162,9 @@ class TrainOptions:
     min_steps: int = 7_000
     val_every: int = 1_000
     patience: int = 3
-    min_delta_db: float = 0.05
-    n_val_views: int = 8
+    min_gain_db: float = 0.05
+    min_gain_ssim: float = 0.002
+    n_val_views: int = 16
     ssim_weight: float = 0.2
     sh_degree: int = 3
     sh_degree_interval: int = 1_000
@@ -207,7 +218,7 @@ class TrainResult:
         n_sky: Sky Gaussians.
         n_train_views: Views trained on.
         best_val_psnr_db: Best held-in validation PSNR, dB.
-        val_history: ``(step, psnr_db)`` of every validation.
+        val_history: ``(step, psnr_db, ssim)`` of every validation.
         train_seconds: Wall time spent in this chunk's steps and validations.
         backend: Rasterizer that ran.
         device: torch device.
@@ -224,7 +235,7 @@ class TrainResult:
     n_sky: int
     n_train_views: int
     best_val_psnr_db: float | None
-    val_history: tuple[tuple[int, float], ...]
+    val_history: tuple[tuple[int, float, float], ...]
     train_seconds: float
     backend: str
     device: str
@@ -250,6 +261,35 @@ class SceneTrainResult:
 # --------------------------------------------------------------------------------- trainer
 
 
+def plateau_reached(
+    history: list[tuple[int, float, float]],
+    patience: int,
+    min_gain_db: float,
+    min_gain_ssim: float,
+) -> bool:
+    """Whether held-in quality has plateaued: the stopping rule of training.
+
+    Args:
+        history: ``(step, psnr_db, ssim)`` of the validations so far, in order.
+        patience: Validation intervals in the trend; fewer than ``patience + 1`` validations
+            never plateau.
+        min_gain_db: PSNR trend (least-squares slope, dB per 1,000 steps) that still counts as
+            progress.
+        min_gain_ssim: SSIM trend per 1,000 steps that still counts as progress.
+
+    Returns:
+        True when neither the PSNR nor the SSIM trend over the last ``patience + 1``
+        validations reaches its minimum gain.
+    """
+    window = history[-(patience + 1) :]
+    if len(window) < max(patience + 1, 2):  # a trend needs two points
+        return False
+    steps = np.array([w[0] for w in window], dtype=np.float64) / 1000.0
+    psnr_trend = float(np.polyfit(steps, [w[1] for w in window], 1)[0])
+    ssim_trend = float(np.polyfit(steps, [w[2] for w in window], 1)[0])
+    return psnr_trend < min_gain_db and ssim_trend < min_gain_ssim
+
+
 class _ChunkTrainer:
     """Training state of one chunk; :meth:`step` runs one optimisation step."""
 
@@ -269,6 +309,13 @@ class _ChunkTrainer:
         self.options = options
         self.device = device
         self.backend = backend
+        if options.densify.enabled and options.densify.absgrad and backend != "gsplat":
+            msg = (
+                "DensifyOptions.absgrad needs the gsplat rasterizer (CUDA); on this machine "
+                f"the {backend} rasterizer runs: turn absgrad off"
+            )
+            raise StageError(msg)
+        self.absgrad = options.densify.enabled and options.densify.absgrad
         by_index = {f.index: f for f in scene.frames}
         missing = [i for i in chunk.frames if i not in by_index]
         if missing:
@@ -311,9 +358,8 @@ class _ChunkTrainer:
             [[*options.background, 0.0]], dtype=torch.float32, device=device
         )
         self.step_no = 0
-        self.history: list[tuple[int, float]] = []
+        self.history: list[tuple[int, float, float]] = []
         self.best: float | None = None
-        self.since_best = 0
         self.done = False
         self.stopped: Literal["plateau", "max_steps"] = "max_steps"
         self.seconds = 0.0
@@ -397,7 +443,9 @@ class _ChunkTrainer:
         self.means_lr = rates["means"]
 
     # -- steps -------------------------------------------------------------------------------
-    def _render(self, view: int, degree: int) -> tuple[RasterOutput, torch.Tensor, torch.Tensor]:
+    def _render(
+        self, view: int, degree: int, *, absgrad: bool = False
+    ) -> tuple[RasterOutput, torch.Tensor, torch.Tensor]:
         """Render training view ``view``: (raster output, [H, W, 3] rgb, [H, W] sky share)."""
         from cam2sim.splat.losses import apply_affine  # noqa: PLC0415
         from cam2sim.splat.model import gather_splats  # noqa: PLC0415
@@ -419,6 +467,7 @@ class _ChunkTrainer:
             v.height,
             backgrounds=self.background,
             backend=self.backend,
+            absgrad=absgrad,
         )
         image = out.colors[0]
         rgb = image[..., :3]
@@ -474,7 +523,7 @@ class _ChunkTrainer:
         opts = self.options
         view = self._next_view()
         degree = min(opts.sh_degree, self.step_no // opts.sh_degree_interval)
-        out, rgb, sky_share = self._render(view, degree)
+        out, rgb, sky_share = self._render(view, degree, absgrad=self.absgrad)
         if self.densifier is not None and out.means2d.requires_grad:
             out.means2d.retain_grad()
         timer.mark("render")
@@ -502,34 +551,41 @@ class _ChunkTrainer:
     def _validate(self) -> None:
         import torch  # noqa: PLC0415
 
-        from cam2sim.splat.losses import masked_psnr  # noqa: PLC0415
+        from cam2sim.splat.losses import masked_psnr, ssim  # noqa: PLC0415
 
         opts = self.options
         degree = min(opts.sh_degree, self.step_no // opts.sh_degree_interval)
         with torch.no_grad():
-            values = []
+            psnrs, ssims = [], []
             for view in self.val_views:
                 _, rgb, _ = self._render(view, degree)
                 target = self.views.images[view].float() / 255.0
-                values.append(masked_psnr(rgb, target, self.views.masks[view]))
-        psnr = float(np.mean(values))
-        self.history.append((self.step_no, psnr))
-        if self.best is None or psnr > self.best + opts.min_delta_db:
+                mask = self.views.masks[view]
+                psnrs.append(masked_psnr(rgb, target, mask))
+                # SSIM as in the loss: excluded pixels copied from the target.
+                shown = torch.where(mask[..., None], rgb.clamp(0.0, 1.0), target)
+                ssims.append(ssim(shown, target))
+            ssim_mean = float(torch.stack(ssims).mean())
+        psnr = float(np.mean(psnrs))
+        self.history.append((self.step_no, psnr, ssim_mean))
+        if self.best is None or psnr > self.best:
             self.best = psnr
-            self.since_best = 0
-        else:
-            self.since_best += 1
         _log.info(
-            "chunk %d step %d: held-in PSNR %.2f dB, %d Gaussians",
+            "chunk %d step %d: held-in PSNR %.2f dB, SSIM %.4f, %d Gaussians",
             self.chunk.id,
             self.step_no,
             psnr,
+            ssim_mean,
             len(self.street),
         )
-        if self.step_no >= opts.min_steps and self.since_best >= opts.patience:
+        if self.step_no >= opts.min_steps and self._plateaued():
             self.done, self.stopped = True, "plateau"
         elif self.step_no >= opts.max_steps:
             self.done, self.stopped = True, "max_steps"
+
+    def _plateaued(self) -> bool:
+        opts = self.options
+        return plateau_reached(self.history, opts.patience, opts.min_gain_db, opts.min_gain_ssim)
 
     # -- output ------------------------------------------------------------------------------
     def save(self, models_dir: Path) -> TrainResult:
