@@ -399,3 +399,15 @@ def test_absgrad_needs_the_gsplat_rasterizer(tmp_path: Path) -> None:
     )
     with pytest.raises(StageError, match="absgrad needs the gsplat rasterizer"):
         train_chunk(scene, 0, prep, options, models_dir=tmp_path / "models")
+
+
+def test_coarse_to_fine_training_learns_and_validates_at_full_size(tmp_path: Path) -> None:
+    prep = make_prepared_scene(tmp_path, n_frames=8, chunks=((0, 8),), size=(48, 32))
+    scene = SceneRecord.load(prep / "scene.json")
+    options = fast_options(coarse_levels=1, coarse_every=20)
+    result = train_chunk(scene, 0, prep, options, models_dir=tmp_path / "models")
+    assert result.steps == 40
+    first, last = result.val_history[0][1], result.val_history[-1][1]
+    assert last > first + 2.0, result.val_history
+    with pytest.raises(ValueError, match="coarse_levels"):
+        TrainOptions(coarse_levels=-1)

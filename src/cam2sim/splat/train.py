@@ -145,6 +145,12 @@ class TrainOptions:
         max_init_points: Random subset of the chunk's points to start from; None = all.
         background: RGB in ``[0, 1]`` behind everything.
         downscale: Integer image downscale for training (1 = full size).
+        coarse_levels: Coarse-to-fine training: the first ``coarse_every`` steps see the views
+            at ``1/2**coarse_levels`` of their size, each further ``coarse_every`` steps at
+            twice the size, up to full size (nerfstudio's splatfacto does 2 levels every 3,000
+            steps). Coarse steps cost a fraction of a full one and settle the geometry first;
+            validation is always at full size. 0 = full size throughout.
+        coarse_every: Steps per coarse level.
         lr: Learning rates.
         densify: Densification settings.
         device: ``"auto"`` (CUDA when available), ``"cpu"``, ``"cuda"``, ``"cuda:1"``, ...
@@ -176,6 +182,8 @@ class TrainOptions:
     max_init_points: int | None = None
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     downscale: int = 1
+    coarse_levels: int = 0
+    coarse_every: int = 3_000
     lr: LearningRates = field(default_factory=LearningRates)
     densify: DensifyOptions = field(default_factory=DensifyOptions)
     device: str = "auto"
@@ -195,6 +203,11 @@ class TrainOptions:
             problems.append(f"ssim_weight={self.ssim_weight} (need 0-1)")
         if self.downscale < 1:
             problems.append(f"downscale={self.downscale} (need >= 1)")
+        if self.coarse_levels < 0 or self.coarse_every < 1:
+            problems.append(
+                f"coarse_levels={self.coarse_levels}, coarse_every={self.coarse_every} "
+                "(need >= 0 and >= 1)"
+            )
         if self.concurrent_chunks is not None and self.concurrent_chunks < 1:
             problems.append(f"concurrent_chunks={self.concurrent_chunks} (need >= 1 or None)")
         if self.val_every < 1 or self.patience < 1 or self.n_val_views < 1:
@@ -330,10 +343,19 @@ class _ChunkTrainer:
             raise StageError(msg)
         from cam2sim.splat.densify import Densifier  # noqa: PLC0415
         from cam2sim.splat.profiling import PhaseTimer, profiling_requested  # noqa: PLC0415
-        from cam2sim.splat.views import load_views, loss_constants  # noqa: PLC0415
+        from cam2sim.splat.views import (  # noqa: PLC0415
+            downsample_views,
+            load_views,
+            loss_constants,
+        )
 
         self.views = load_views(prep_dir, frames, options.downscale, device)
         self.loss_constants = loss_constants(self.views)
+        # Level k: the views at 1/2**k size with their loss constants (level 0 = full size).
+        self.levels = [(self.views, self.loss_constants)]
+        for k in range(1, options.coarse_levels + 1):
+            coarse = downsample_views(self.views, 2**k)
+            self.levels.append((coarse, loss_constants(coarse)))
         self.timer = PhaseTimer(enabled=profiling_requested(options.profile), device=device)
         self.generator = torch.Generator(device=device).manual_seed(options.seed + chunk.id)
         self.cpu_generator = torch.Generator().manual_seed(options.seed + chunk.id)
@@ -443,15 +465,19 @@ class _ChunkTrainer:
         self.means_lr = rates["means"]
 
     # -- steps -------------------------------------------------------------------------------
+    def _level(self) -> int:
+        """The resolution level of this step (0 = full size, see ``coarse_levels``)."""
+        return max(0, self.options.coarse_levels - self.step_no // self.options.coarse_every)
+
     def _render(
-        self, view: int, degree: int, *, absgrad: bool = False
+        self, view: int, degree: int, *, absgrad: bool = False, level: int = 0
     ) -> tuple[RasterOutput, torch.Tensor, torch.Tensor]:
         """Render training view ``view``: (raster output, [H, W, 3] rgb, [H, W] sky share)."""
         from cam2sim.splat.losses import apply_affine  # noqa: PLC0415
         from cam2sim.splat.model import gather_splats  # noqa: PLC0415
         from cam2sim.splat.raster import rasterize  # noqa: PLC0415
 
-        v = self.views
+        v = self.levels[level][0]
         inputs = gather_splats(
             self.street, self.sky, v.campos[view : view + 1], degree, backend=self.backend
         )
@@ -475,10 +501,12 @@ class _ChunkTrainer:
             rgb = apply_affine(rgb, self.appearance[view])
         return out, rgb, image[..., 3]
 
-    def _loss(self, view: int, rgb: torch.Tensor, sky_share: torch.Tensor) -> torch.Tensor:
+    def _loss(
+        self, view: int, rgb: torch.Tensor, sky_share: torch.Tensor, level: int
+    ) -> torch.Tensor:
         from cam2sim.splat.losses import photometric_loss  # noqa: PLC0415
 
-        v, opts, c = self.views, self.options, self.loss_constants
+        (v, c), opts = self.levels[level], self.options
         sky = None
         if (
             c.sky_pixels is not None
@@ -523,11 +551,12 @@ class _ChunkTrainer:
         opts = self.options
         view = self._next_view()
         degree = min(opts.sh_degree, self.step_no // opts.sh_degree_interval)
-        out, rgb, sky_share = self._render(view, degree, absgrad=self.absgrad)
+        level = self._level()
+        out, rgb, sky_share = self._render(view, degree, absgrad=self.absgrad, level=level)
         if self.densifier is not None and out.means2d.requires_grad:
             out.means2d.retain_grad()
         timer.mark("render")
-        loss = self._loss(view, rgb, sky_share)
+        loss = self._loss(view, rgb, sky_share, level)
         timer.mark("loss")
         torch.autograd.backward(loss)
         timer.mark("backward")

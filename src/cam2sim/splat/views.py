@@ -23,7 +23,14 @@ if TYPE_CHECKING:
 
     from cam2sim.splat.scene import FrameRecord
 
-__all__ = ["LossConstants", "TrainViews", "load_views", "loss_constants", "sky_colour"]
+__all__ = [
+    "LossConstants",
+    "TrainViews",
+    "downsample_views",
+    "load_views",
+    "loss_constants",
+    "sky_colour",
+]
 
 
 @dataclass(frozen=True)
@@ -109,6 +116,54 @@ def load_views(
         campos=torch.tensor(
             np.stack([f.T()[:3, 3] for f in frames]), dtype=torch.float32, device=device
         ),
+        width=w,
+        height=h,
+    )
+
+
+def downsample_views(views: TrainViews, factor: int, *, batch: int = 64) -> TrainViews:
+    """``views`` at ``1/factor`` of their size, on their device (coarse training steps).
+
+    Images are averaged over ``factor x factor`` blocks (a right or bottom remainder is cut
+    off, which leaves the intrinsics of the kept pixels exact: ``f' = f / factor``,
+    ``c' = c / factor``); a coarse pixel is used only where all its pixels are, and is sky
+    where most of them are.
+    """
+    import torch  # noqa: PLC0415
+    import torch.nn.functional as F  # noqa: N812, PLC0415
+
+    if factor < 1:
+        msg = f"downsample factor {factor} (need >= 1)"
+        raise ValueError(msg)
+    if factor == 1:
+        return views
+    w, h = views.width // factor, views.height // factor
+    if w < 1 or h < 1:
+        msg = f"{views.width}x{views.height} views cannot be downsampled {factor}x"
+        raise StageError(msg)
+
+    def pool(stack: torch.Tensor) -> torch.Tensor:
+        # [M, H, W, C] -> [M, h, w, C] block means, in batches to bound the float copy.
+        parts = []
+        for start in range(0, stack.shape[0], batch):
+            chunk = stack[start : start + batch, : h * factor, : w * factor].float()
+            pooled = F.avg_pool2d(chunk.permute(0, 3, 1, 2), factor)
+            parts.append(pooled.permute(0, 2, 3, 1))
+        return torch.cat(parts)
+
+    images = pool(views.images).round().clamp(0, 255).to(torch.uint8)
+    masks = pool(views.masks[..., None])[..., 0] > 1.0 - 1e-6
+    sky = None if views.sky is None else pool(views.sky[..., None])[..., 0] > 0.5
+    ks = views.Ks.clone()
+    ks[:, :2] /= factor
+    return TrainViews(
+        frames=views.frames,
+        images=images,
+        masks=masks,
+        sky=sky,
+        viewmats=views.viewmats,
+        Ks=ks,
+        campos=views.campos,
         width=w,
         height=h,
     )
