@@ -147,6 +147,7 @@ def run_setting(  # noqa: PLR0913, PLR0917 -- one process's whole job
         "train_options": dataclasses.asdict(options),
         "load_s": load_s,
         "n_initial": trainer.n_initial,
+        "scene_scale": trainer.scene_scale,
         "n_views": len(trainer.views.frames),
         "evals": [],
     }

@@ -144,6 +144,10 @@ class TrainOptions:
         init_opacity: Opacity of new street Gaussians.
         max_init_points: Random subset of the chunk's points to start from; None = all.
         background: RGB in ``[0, 1]`` behind everything.
+        scene_scale: Metres that scale the means' learning rate and densification's size
+            thresholds (``grow_scale3d``, ``prune_scale3d``); None = the spread of the chunk's
+            cameras (gsplat's rule, made for cameras around an object). Along a street the
+            spread grows with the chunk's length while detail stays at the viewing distance.
         downscale: Integer image downscale for training (1 = full size).
         coarse_levels: Coarse-to-fine training: the first ``coarse_every`` steps see the views
             at ``1/2**coarse_levels`` of their size, each further ``coarse_every`` steps at
@@ -181,6 +185,7 @@ class TrainOptions:
     init_opacity: float = 0.1
     max_init_points: int | None = None
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    scene_scale: float | None = None
     downscale: int = 1
     coarse_levels: int = 0
     coarse_every: int = 3_000
@@ -203,6 +208,8 @@ class TrainOptions:
             problems.append(f"ssim_weight={self.ssim_weight} (need 0-1)")
         if self.downscale < 1:
             problems.append(f"downscale={self.downscale} (need >= 1)")
+        if self.scene_scale is not None and self.scene_scale <= 0:
+            problems.append(f"scene_scale={self.scene_scale} (need > 0 or None)")
         if self.coarse_levels < 0 or self.coarse_every < 1:
             problems.append(
                 f"coarse_levels={self.coarse_levels}, coarse_every={self.coarse_every} "
@@ -414,7 +421,8 @@ class _ChunkTrainer:
             raise StageError(msg)
         self.street, self.sky = seeded.street, seeded.sky
         self.n_initial = len(self.street)
-        self.scene_scale, self.sky_radius = seeded.scene_scale, seeded.sky_radius_m
+        self.scene_scale = opts.scene_scale or seeded.scene_scale
+        self.sky_radius = seeded.sky_radius_m
         _log.info(
             "chunk %d: %d training views (%dx%d), %d street Gaussians from points, %d sky "
             "Gaussians at %.1f m, scene scale %.2f m",
