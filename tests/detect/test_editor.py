@@ -7,6 +7,7 @@ import http.client
 import json
 import math
 import re
+import signal
 import threading
 import urllib.error
 import urllib.request
@@ -297,6 +298,16 @@ def test_editor_refuses_to_listen_beyond_this_machine(ws: Workspace, host: str, 
         EditorServer(ws, host=host, port=port)
 
 
+@pytest.fixture
+def ctrl_c_raises() -> Iterator[None]:
+    """Python's own Ctrl-C handler for the test: a background shell starts jobs with SIGINT
+    ignored, and then ``interrupt_main()`` does nothing and the server never stops."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+@pytest.mark.usefixtures("ctrl_c_raises")
 def test_serve_editor_blocks_until_ctrl_c(ws: Workspace) -> None:
     urls: list[str] = []
     scenes: list[object] = []
