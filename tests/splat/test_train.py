@@ -23,6 +23,7 @@ from cam2sim.splat import model as gm
 from cam2sim.splat.evaluate import EvalOptions, SplatEval, evaluate_splat
 from cam2sim.splat.scene import ChunkRecord, FrameRecord, SceneRecord, save_points
 from cam2sim.splat.train import (
+    STREET_SCALE_M,
     DensifyOptions,
     LearningRates,
     SceneTrainResult,
@@ -411,3 +412,23 @@ def test_coarse_to_fine_training_learns_and_validates_at_full_size(tmp_path: Pat
     assert last > first + 2.0, result.val_history
     with pytest.raises(ValueError, match="coarse_levels"):
         TrainOptions(coarse_levels=-1)
+
+
+def test_scene_scale_is_metric_for_recordings_and_the_camera_spread_for_sfm(
+    tmp_path: Path,
+) -> None:
+    prep = make_prepared_scene(tmp_path, n_frames=4, chunks=((0, 4),), size=(32, 24))
+    scene = SceneRecord.load(prep / "scene.json")
+    models = tmp_path / "models"
+
+    def scale_of(scene: SceneRecord, **changes: object) -> float:
+        options = fast_options(max_steps=2, **changes)
+        result = train_chunk(scene, 0, prep, options, models_dir=models)
+        return gm.load_chunk_header(result.model_path).scene_scale
+
+    assert scale_of(scene) == STREET_SCALE_M
+    assert scale_of(scene, scene_scale=3.5) == 3.5
+    sfm = scene.model_copy(update={"scale_ambiguous": True, "pose_source": "sfm"})
+    spread = scale_of(sfm)
+    # Three training views 0.25 m apart: the spread rule, not the metric constant.
+    assert 0.0 < spread < 1.0

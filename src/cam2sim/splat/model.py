@@ -544,7 +544,9 @@ class ChunkHeader(Artifact):
     sh_degree: int
     n_gaussians: int
     n_sky: int
-    scene_scale: float = pydantic.Field(description="Spread of the training cameras, metres")
+    scene_scale: float = pydantic.Field(
+        description="Scale of the learning rate and densification (TrainOptions.scene_scale)"
+    )
     sky_radius_m: float
     background: list[float] = pydantic.Field(description="RGB behind everything, [0, 1]")
     train_views: list[ViewRecord] = pydantic.Field(
