@@ -51,11 +51,11 @@ _MIP_LEVELS = 8
 
 @dataclass(frozen=True)
 class _Textures:
-    fine: tuple[npt.NDArray[np.float32], ...]
-    coarse: tuple[npt.NDArray[np.float32], ...]
+    fine: npt.NDArray[np.float32]  # [levels, n, n], see _pyramid
+    coarse: npt.NDArray[np.float32]
 
 
-def _pyramid(tile: npt.NDArray[np.float32]) -> tuple[npt.NDArray[np.float32], ...]:
+def _pyramid(tile: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
     """``tile`` low-passed for footprints of 1, 2, 4, ... texels (a Gaussian of 0.4 footprint).
 
     Blurred as a wrapped copy, so every level still tiles seamlessly.
@@ -69,7 +69,7 @@ def _pyramid(tile: npt.NDArray[np.float32]) -> tuple[npt.NDArray[np.float32], ..
         wrapped = np.pad(tile, pad, mode="wrap")
         blurred = np.asarray(cv2.GaussianBlur(wrapped, (0, 0), sigma), np.float32)
         levels.append(blurred[pad:-pad, pad:-pad])
-    return tuple(levels)
+    return np.stack(levels)
 
 
 @functools.lru_cache(maxsize=4)
@@ -94,7 +94,7 @@ def _lookup(tile: npt.NDArray[np.float32], u: npt.NDArray[Any], v: npt.NDArray[A
 
 
 def _filtered(
-    levels: tuple[npt.NDArray[np.float32], ...],
+    levels: npt.NDArray[np.float32],
     u: npt.NDArray[Any],
     v: npt.NDArray[Any],
     footprint: npt.NDArray[Any],
@@ -111,8 +111,7 @@ def _filtered(
     t = (level - low).astype(np.float32)
     n = levels[0].shape[0]
     iu, iv = np.floor(u).astype(np.int64) % n, np.floor(v).astype(np.int64) % n
-    stack = np.stack(levels)
-    out: npt.NDArray[np.float32] = (1.0 - t) * stack[low, iv, iu] + t * stack[high, iv, iu]
+    out: npt.NDArray[np.float32] = (1.0 - t) * levels[low, iv, iu] + t * levels[high, iv, iu]
     return out
 
 
@@ -164,12 +163,18 @@ def photographic_look(
     footprint = dist / (focal * np.maximum(np.abs(rays[..., 2]), 0.02))
 
     road = labels == Label.ROAD
-    grain = _filtered(tex.fine, gx / _GRAIN_M, gy / _GRAIN_M, footprint / _GRAIN_M) * near
-    patches = _filtered(tex.coarse, gx / _PATCH_M, gy / _PATCH_M, footprint / _PATCH_M)
+    walk = labels == Label.SIDEWALK
+    verge = labels == Label.BACKGROUND
+    ground = road | walk | verge  # textures are looked up only where they are drawn
+    grain = np.zeros((h, w), np.float32)
+    patches = np.zeros((h, w), np.float32)
+    g_x, g_y, g_foot = gx[ground], gy[ground], footprint[ground]
+    grain[ground] = _filtered(tex.fine, g_x / _GRAIN_M, g_y / _GRAIN_M, g_foot / _GRAIN_M)
+    grain *= near
+    patches[ground] = _filtered(tex.coarse, g_x / _PATCH_M, g_y / _PATCH_M, g_foot / _PATCH_M)
     asphalt = 1.0 + 0.15 * grain + 0.12 * patches
     img[road] *= (asphalt[road, None] * np.array([1.03, 1.0, 0.96], np.float32)).astype(np.float32)
 
-    walk = labels == Label.SIDEWALK
     fx, fy = np.abs((gx / 0.4) % 1.0 - 0.5), np.abs((gy / 0.4) % 1.0 - 0.5)
     joints = np.where(np.maximum(fx, fy) > 0.46, 0.75, 1.0)
     # Joints thinner than a pixel blend into their average shade (8 % of a 0.4 m slab each way).
@@ -178,7 +183,6 @@ def photographic_look(
     paving = joints * (1.0 + 0.08 * grain)
     img[walk] *= paving[walk, None].astype(np.float32)
 
-    verge = labels == Label.BACKGROUND
     grass = 1.0 + 0.35 * grain + 0.15 * patches
     img[verge] = (np.array([0.33, 0.40, 0.22], np.float32) * grass[verge, None]).astype(np.float32)
 

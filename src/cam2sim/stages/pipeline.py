@@ -185,6 +185,7 @@ def demo_splat_options() -> SplatStageOptions:
         max_steps=300,
         min_steps=300,
         val_every=100,
+        n_val_views=8,  # a fixed step count: validation only logs progress
         downscale=2,
         max_init_points=40_000,
         sky_points=2_000,
