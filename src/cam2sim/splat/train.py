@@ -66,9 +66,9 @@ _log = logging.getLogger(__name__)
 STREET_SCALE_M = 10.0
 """Scene scale of metric street scenes, metres (see ``TrainOptions.scene_scale``): Gaussians
 above 10 cm split rather than clone, above 1 m are pruned after the first opacity reset, and
-centres start moving 1.6 mm a step. On the 400 m route it raised held-out SSIM from 0.891 to
-0.914 and cut LPIPS from 0.219 to 0.175 at 8,000 steps against the cameras' spread (about 59 m;
-``docs/benchmarks.md``)."""
+centres start moving 1.6 mm a step. On a chunk of the 400 m route it raised held-out SSIM from
+0.891 to 0.914 and cut LPIPS from 0.219 to 0.175 at 8,000 steps against the cameras' spread
+(about 59 m); another chunk gained less (``docs/benchmarks.md``)."""
 
 
 @dataclass(frozen=True)
@@ -163,8 +163,10 @@ class TrainOptions:
         coarse_levels: Coarse-to-fine training: the first ``coarse_every`` steps see the views
             at ``1/2**coarse_levels`` of their size, each further ``coarse_every`` steps at
             twice the size, up to full size (nerfstudio's splatfacto does 2 levels every 3,000
-            steps). Coarse steps cost a fraction of a full one and settle the geometry first;
-            validation is always at full size. 0 = full size throughout.
+            steps); validation is always at full size. 0 = full size throughout. Coarse steps
+            are cheaper on the torch rasterizer and on large images; with gsplat on small ones
+            they can cost more (one thread block per 16x16 tile: 1/4 of 480x300 leaves the GPU
+            idle; ``docs/benchmarks.md``).
         coarse_every: Steps per coarse level.
         lr: Learning rates.
         densify: Densification settings.
