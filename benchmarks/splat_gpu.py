@@ -413,6 +413,8 @@ class StepClock:
         if self.every and (not self.marks or done // self.every > self.marks[-1][0] // self.every):
             torch.cuda.synchronize()
             self.marks.append((done, time.perf_counter()))
+            # A line per mark: a call cut off by its time limit still shows how far it got.
+            print(f"{self.label}: {done} steps at {self.marks[-1][1] - self.marks[0][1]:.0f} s")
         if self.window is None:
             return
         if done == self.window[0] and self.profiler is None:
@@ -647,6 +649,9 @@ def run_pipeline(args: argparse.Namespace, prep: Path, work: Path) -> dict[str, 
         prep, options=options, models_dir=models, chunk_ids=chunk_ids, progress=clock
     )
     train_s = time.perf_counter() - t0
+    partial = {"train_seconds": train_s, "chunks": [dataclasses.asdict(c) for c in trained.chunks]}
+    # Written before the evaluation, so a call cut off there keeps the training figures.
+    Path(args.out).write_text(json.dumps({"training_only": partial}, indent=2, default=str) + "\n")
     for c in trained.chunks:
         print(
             f"chunk {c.chunk_id}: {c.steps} steps ({c.stopped}), {c.n_gaussians} Gaussians, "
