@@ -42,11 +42,11 @@ import cv2
 import numpy as np
 
 from cam2sim.core.frames import Pose
-from cam2sim.demo.world import CRS, ORIGIN_UTM, weave
+from cam2sim.demo.world import CRS, ORIGIN_UTM, footprint_ring, weave
 from cam2sim.detect.synthetic import LidarModel, scan_scene
 from cam2sim.render.truth import TruthBuilding, TruthCar, TruthLook, TruthRenderer, TruthWorld
 from cam2sim.scenario.synthetic import lane_section_xml
-from cam2sim.splat.geometry import chunks_by_distance, voxel_downsample
+from cam2sim.splat.geometry import chunk_membership, chunks_by_distance, voxel_downsample
 from cam2sim.splat.masks import sky_mask_classical
 from cam2sim.splat.prepare import colour_from_view
 from cam2sim.splat.scene import FrameRecord, SceneRecord
@@ -205,15 +205,9 @@ def _buildings(route: Route, rng: np.random.Generator) -> list[dict[str, Any]]:
             if route.in_bend(float(s), 12.0):
                 continue  # the bends stay open (no overlapping footprints)
             c, h = route.points([s], lateral)
-            t = np.array([math.cos(h[0]), math.sin(h[0])])
-            n = np.array([-t[1], t[0]])
-            ring = [
-                c[0] + a * length / 2.0 * t + b * depth / 2.0 * n
-                for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))
-            ]
             out.append(
                 {
-                    "xy": tuple((float(p[0]), float(p[1])) for p in ring),
+                    "xy": footprint_ring(c[0], float(h[0]), length, depth),
                     "height_m": 3.0 * int(rng.integers(2, 6)),
                 }
             )
@@ -354,10 +348,7 @@ def main() -> int:
     chunks = chunks_by_distance(
         frame_s, cams[:, :3, 3], chunk_length_m=args.chunk_length, overlap_m=args.overlap
     )
-    member: dict[int, list[int]] = {}
-    for chunk in chunks:
-        for i in chunk.frames:
-            member.setdefault(i, []).append(chunk.id)
+    member = chunk_membership(chunks)
     frames = [
         FrameRecord(
             index=i,

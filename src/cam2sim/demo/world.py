@@ -67,6 +67,7 @@ __all__ = [
     "camera_matrix",
     "demo_world",
     "drive_points",
+    "footprint_ring",
     "load_demo_recording",
     "photographic_look",
     "route_points",
@@ -421,6 +422,20 @@ def _cars(rng: np.random.Generator) -> tuple[ParkedCar, ...]:
     return tuple(cars)
 
 
+def footprint_ring(
+    centre: npt.ArrayLike, heading: float, length: float, depth: float
+) -> tuple[tuple[float, float], ...]:
+    """Corners of a ``length`` x ``depth`` rectangle at ``centre``, long side along ``heading``."""
+    t = np.array([math.cos(heading), math.sin(heading)])
+    n = np.array([-t[1], t[0]])
+    c = np.asarray(centre, dtype=np.float64)[:2]
+    ring = [
+        c + a * length / 2.0 * t + b * depth / 2.0 * n
+        for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))
+    ]
+    return tuple((float(p[0]), float(p[1])) for p in ring)
+
+
 def _buildings(rng: np.random.Generator) -> tuple[DemoBuilding, ...]:
     half = LANE_M / 2.0
     kerb = LANE_M + PARKING_M + SIDEWALK_M  # from the reference line
@@ -433,15 +448,9 @@ def _buildings(rng: np.random.Generator) -> tuple[DemoBuilding, ...]:
             if sign > 0 and corner[0] < s < corner[1]:
                 continue  # the inside of the bend stays open
             c, h = route_points([s], lateral)
-            t = np.array([math.cos(h[0]), math.sin(h[0])])
-            n = np.array([-t[1], t[0]])
-            ring = [
-                c[0] + a * length / 2.0 * t + b * depth / 2.0 * n
-                for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))
-            ]
             out.append(
                 DemoBuilding(
-                    xy=tuple((float(p[0]), float(p[1])) for p in ring),
+                    xy=footprint_ring(c[0], float(h[0]), length, depth),
                     levels=int(rng.integers(2, 6)),
                 )
             )

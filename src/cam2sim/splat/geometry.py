@@ -23,6 +23,7 @@ __all__ = [
     "Undistorter",
     "apply_similarity",
     "camera_poses",
+    "chunk_membership",
     "chunks_by_distance",
     "distance_travelled",
     "select_by_distance",
@@ -123,6 +124,15 @@ def chunks_by_distance(
             )
         )
     return chunks
+
+
+def chunk_membership(chunks: list[ChunkRecord]) -> dict[int, list[int]]:
+    """Frame index -> the ids of the chunks it belongs to (overlapping chunks share frames)."""
+    member: dict[int, list[int]] = {}
+    for chunk in chunks:
+        for i in chunk.frames:
+            member.setdefault(i, []).append(chunk.id)
+    return member
 
 
 def camera_poses(

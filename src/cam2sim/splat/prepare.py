@@ -45,6 +45,7 @@ from cam2sim.core.workspace import DatasetPaths
 from cam2sim.splat.geometry import (
     Undistorter,
     camera_poses,
+    chunk_membership,
     chunks_by_distance,
     distance_travelled,
     select_by_distance,
@@ -678,10 +679,7 @@ def _scene_record(posed: _Posed, notes: list[str], opts: PrepareOptions) -> Scen
         chunks = chunks_by_distance(
             posed.progress_m, centres, chunk_length_m=opts.chunk_length_m, overlap_m=opts.overlap_m
         )
-    member: dict[int, list[int]] = {}
-    for chunk in chunks:
-        for i in chunk.frames:
-            member.setdefault(i, []).append(chunk.id)
+    member = chunk_membership(chunks)
     K = posed.K_new
     w, h = posed.size
     frame_records = [
