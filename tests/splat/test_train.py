@@ -20,7 +20,9 @@ import torch
 
 from cam2sim.core.errors import StageError
 from cam2sim.splat import model as gm
+from cam2sim.splat.densify import Densifier
 from cam2sim.splat.evaluate import EvalOptions, SplatEval, evaluate_splat
+from cam2sim.splat.raster import RasterOutput
 from cam2sim.splat.scene import ChunkRecord, FrameRecord, SceneRecord, save_points
 from cam2sim.splat.train import (
     STREET_SCALE_M,
@@ -330,6 +332,63 @@ def test_opacity_reset_clamps_and_clears_moments() -> None:
     assert torch.sigmoid(model.params["opacities"]).max() <= 0.01 + 1e-6
     state = opts["opacities"].state[model.params["opacities"]]
     assert state["exp_avg"].abs().sum() == 0
+
+
+def _views_of_two_gaussians(
+    grads: list[tuple[float, float]],
+    radii: list[tuple[int, int]],
+    depths: list[tuple[float, float]],
+) -> list[RasterOutput]:
+    """One fake raster output per view: two Gaussians with these gradients (normalised screen
+    units), screen radii (pixels, square boxes) and depths (metres)."""
+    views = []
+    for g, r, d in zip(grads, radii, depths, strict=True):
+        means2d = torch.zeros(1, 2, 2, requires_grad=True)
+        # grad * (width / 2) is the normalised gradient the statistics use (width = height = 2)
+        means2d.grad = torch.tensor([[[g[0], 0.0], [g[1], 0.0]]])
+        views.append(
+            RasterOutput(
+                colors=torch.zeros(1, 2, 2, 3),
+                alphas=torch.zeros(1, 2, 2, 1),
+                means2d=means2d,
+                radii=torch.tensor([[[r[0], r[0]], [r[1], r[1]]]], dtype=torch.int32),
+                depths=torch.tensor([d]),
+                info={"width": 2, "height": 2, "n_cameras": 1},
+                backend="torch",
+            )
+        )
+    return views
+
+
+@pytest.mark.parametrize(
+    ("pixel_weighted", "near_damping_m", "grown"),
+    [(False, 0.0, 0), (True, 0.0, 1), (True, 20.0, 0)],
+)
+def test_pixel_weighted_statistics_grow_gaussians_seen_large_in_few_views(
+    pixel_weighted: bool, near_damping_m: float, grown: int
+) -> None:
+    # Gaussian 0: large (20 px) with a high gradient in one view at 5 m, one pixel with none in
+    # nine views from afar; Gaussian 1: one pixel and a middling gradient everywhere.
+    grads = [(1e-3, 1e-4)] + [(0.0, 1e-4)] * 9
+    radii = [(20, 1)] + [(1, 1)] * 9
+    depths = [(5.0, 30.0)] + [(40.0, 30.0)] * 9
+    options = DensifyOptions(
+        strategy="simple",
+        refine_start=0,
+        refine_every=10,
+        grow_grad2d=2e-4,
+        grow_scale3d=100.0,  # clone, never split: the count says how many grew
+        pixel_weighted=pixel_weighted,
+        near_damping_m=near_damping_m,
+    )
+    densifier = Densifier(options, scene_scale=1.0, use_gsplat=False)
+    model, opts = _model_and_adam(2)
+    for step, out in enumerate(_views_of_two_gaussians(grads, radii, depths), start=1):
+        densifier.post_backward(step, model, opts, out, 2, torch.Generator())
+    # plain mean of Gaussian 0: 1e-4 (not grown); weighted: 400e-3 / 409 (grown) unless the
+    # view that saw it large is damped by (5 m / 20 m)^2
+    assert len(model) == 2 + grown
+    _check_aligned(model, opts)
 
 
 def test_sky_sphere_points_lie_on_the_sphere() -> None:

@@ -13,7 +13,8 @@ ones), transparent and (after the first reset) huge ones are pruned. Two variant
 
 With ``absgrad`` the statistics are the absolute per-pixel gradients that gsplat accumulates
 into ``means2d.absgrad`` (AbsGS), not the gradients' norm: textured surfaces whose per-pixel
-gradients cancel out still grow Gaussians.
+gradients cancel out still grow Gaussians. With ``pixel_weighted`` each view's gradient counts by
+the Gaussian's screen footprint in that view (Pixel-GS), optionally damped near the camera.
 
 Both reset opacities themselves (gsplat 1.5.3's strategy never does). torch is imported at module
 level: only the trainer imports this module, inside a function.
@@ -105,11 +106,22 @@ class Densifier:
                 device=grads.device,
             )
             self._grad_scale = (key, scale)
-        seen = (out.radii[:, :n_street] > 0).all(dim=-1)
+        radii = out.radii[:, :n_street]
+        seen = (radii > 0).all(dim=-1)
         if self.state["grad2d"] is None:
             self.state["grad2d"] = torch.zeros(n, device=grads.device)
             self.state["count"] = torch.zeros(n, device=grads.device)
         norms = torch.linalg.vector_norm(grads * self._grad_scale[1], dim=-1)
+        if self.options.pixel_weighted:
+            # Weight = the screen box's area (radii are 0 where culled); the mean
+            # sum(w * g) / sum(w) is what _grow_gs and _refine compute from the two sums.
+            weight = radii.to(norms.dtype).prod(dim=-1)
+            if self.options.near_damping_m > 0:
+                depth = out.depths[:, :n_street].to(norms.dtype)
+                norms = norms * (depth / self.options.near_damping_m).clamp(0.0, 1.0) ** 2
+            self.state["grad2d"] += (norms * weight).sum(dim=0)
+            self.state["count"] += weight.sum(dim=0)
+            return
         self.state["grad2d"] += torch.where(seen, norms, 0.0).sum(dim=0)
         self.state["count"] += seen.sum(dim=0)
 

@@ -109,6 +109,14 @@ class DensifyOptions:
         absgrad: Accumulate the absolute per-pixel gradients instead (AbsGS: finer detail on
             textured surfaces from fewer Gaussians; gsplat backend only; raise ``grow_grad2d``
             about 3-4x with it, gsplat's examples use 8e-4).
+        pixel_weighted: Average the 2-D gradients over the views weighted by the Gaussian's
+            screen footprint (Pixel-GS, Zhang et al. 2024) instead of counting every view
+            alike. Driving forward, a Gaussian on the road near the camera is seen small from
+            far away in most of its views, so its plain mean gradient stays low and it is never
+            split; weighted, the views where it covers many pixels decide.
+        near_damping_m: With ``pixel_weighted``: a Gaussian's gradient in a view is scaled by
+            ``min(1, depth / near_damping_m) ** 2`` for these statistics, so large Gaussians
+            right in front of the camera do not grow into floaters (0 = no damping).
         grow_scale3d: Largest scale (times scene scale) up to which growing clones, above splits.
         prune_opacity: Gaussians below this opacity are removed.
         prune_scale3d: Gaussians larger than this (times scene scale) are removed after the
@@ -124,6 +132,8 @@ class DensifyOptions:
     reset_every: int = 3000
     grow_grad2d: float = 2e-4
     absgrad: bool = False
+    pixel_weighted: bool = False
+    near_damping_m: float = 0.0
     grow_scale3d: float = 0.01
     prune_opacity: float = 0.005
     prune_scale3d: float = 0.1
@@ -228,6 +238,8 @@ class TrainOptions:
                 f"coarse_levels={self.coarse_levels}, coarse_every={self.coarse_every} "
                 "(need >= 0 and >= 1)"
             )
+        if self.densify.near_damping_m < 0:
+            problems.append(f"densify.near_damping_m={self.densify.near_damping_m} (need >= 0)")
         if self.concurrent_chunks is not None and self.concurrent_chunks < 1:
             problems.append(f"concurrent_chunks={self.concurrent_chunks} (need >= 1 or None)")
         if self.val_every < 1 or self.patience < 1 or self.n_val_views < 1:
