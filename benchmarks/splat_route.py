@@ -16,7 +16,9 @@ also ``truth_world.json`` and a summary ``route.json``) straight into ``--out``:
   preparation without SegFormer;
 * points: the LiDAR scans (range <= ``--max-range``) in the world frame, coloured from the
   nearest frame and voxel-downsampled (``--voxel``), as preparation does with a recording's
-  LiDAR; no known-pose triangulation. ``points.npz`` is compressed and ``scene.json`` compact,
+  LiDAR, plus SIFT points triangulated with the known poses from the training frames (not the
+  held-out ones) as preparation's :func:`~cam2sim.splat.sfm.triangulate_known_poses` does
+  (``--no-triangulate`` to leave them out). ``points.npz`` is compressed and ``scene.json`` compact,
   and the images are JPEG at ``--quality`` 75, so that the folder (about 31 MiB for 1,500
   frames) fits the 64 MiB a GPU call carries.
 
@@ -50,6 +52,7 @@ from cam2sim.splat.geometry import chunk_membership, chunks_by_distance, voxel_d
 from cam2sim.splat.masks import sky_mask_classical
 from cam2sim.splat.prepare import colour_from_view
 from cam2sim.splat.scene import FrameRecord, SceneRecord
+from cam2sim.splat.sfm import FeatureOptions, KnownView, triangulate_known_poses
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -72,6 +75,7 @@ PIECES: tuple[tuple[float, float], ...] = (
     (85.0, 0.0),
 )
 SPEED_MPS = 8.0
+HELD_OUT_EVERY = 8
 
 
 @dataclass(frozen=True)
@@ -302,9 +306,26 @@ def lidar_points(
     return voxel_downsample(np.concatenate(xyz_all), np.concatenate(rgb_all), args.voxel)
 
 
-def main() -> int:
-    """Build the world, render, scan and write the prepared scene."""
+def triangulated_points(
+    out: Path, cams: npt.NDArray[np.float64], K: npt.NDArray[np.float64], train: list[int]
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uint8]]:
+    """SIFT points of the training frames triangulated with their known poses (pycolmap)."""
+    result = triangulate_known_poses(
+        [out / "images" / f"{i:06d}.jpg" for i in train],
+        [KnownView(K, cams[i]) for i in train],
+        window=20,
+        features=FeatureOptions(window=20, first_octave=0),  # preparation's settings
+    )
+    print(
+        f"triangulated {len(result.points)} points "
+        f"({result.mean_reprojection_error_px:.2f} px mean error)",
+        flush=True,
+    )
+    return result.points.xyz, result.points.rgb
 
+
+def _parser() -> argparse.ArgumentParser:
+    """The command line."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", required=True, help="prepared scene folder to write")
     parser.add_argument("--frames", type=int, default=1500)
@@ -319,7 +340,16 @@ def main() -> int:
     parser.add_argument("--chunk-length", type=float, default=117.0)
     parser.add_argument("--overlap", type=float, default=20.0)
     parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
+    parser.add_argument(
+        "--no-triangulate", action="store_true", help="LiDAR points only (no SIFT points)"
+    )
+    return parser
+
+
+def main() -> int:
+    """Build the world, render, scan and write the prepared scene."""
+
+    args = _parser().parse_args()
 
     t0 = time.perf_counter()
     route = Route()
@@ -341,10 +371,16 @@ def main() -> int:
     t_render = time.perf_counter() - t0
     xyz, rgb = lidar_points(args, world, route, frame_s, cams, K, images)
     t_lidar = time.perf_counter() - t0 - t_render
+    source = np.ones(len(xyz), np.uint8)  # save_points's codes: 1 = LiDAR, 0 = triangulated
+    if not args.no_triangulate:
+        train = [i for i in range(args.frames) if i % HELD_OUT_EVERY != 0]
+        tri_xyz, tri_rgb = triangulated_points(out, cams, K, train)
+        xyz, rgb = np.concatenate((xyz, tri_xyz)), np.concatenate((rgb, tri_rgb))
+        source = np.concatenate((source, np.zeros(len(tri_xyz), np.uint8)))
+    n_triangulated = int((source == 0).sum())
+    t_triangulate = time.perf_counter() - t0 - t_render - t_lidar
     # save_points's layout, compressed (np.load reads both)
-    np.savez_compressed(
-        out / "points.npz", xyz=xyz.astype(np.float32), rgb=rgb, source=np.ones(len(xyz), np.uint8)
-    )
+    np.savez_compressed(out / "points.npz", xyz=xyz.astype(np.float32), rgb=rgb, source=source)
     chunks = chunks_by_distance(
         frame_s, cams[:, :3, 3], chunk_length_m=args.chunk_length, overlap_m=args.overlap
     )
@@ -361,7 +397,7 @@ def main() -> int:
             cy=float(K[1, 2]),
             width=w,
             height=h,
-            held_out=i % 8 == 0,
+            held_out=i % HELD_OUT_EVERY == 0,
             chunks=member.get(i, []),
             progress_m=float(frame_s[i]),
         )
@@ -369,7 +405,8 @@ def main() -> int:
     ]
     note = (
         f"benchmarks/splat_route.py: {route.length_m:.0f} m route, {len(world.cars)} parked cars, "
-        f"{len(world.buildings)} buildings; LiDAR every {args.lidar_every} m, {args.voxel} m voxels"
+        f"{len(world.buildings)} buildings; LiDAR every {args.lidar_every} m, "
+        f"{args.voxel} m voxels; {n_triangulated} triangulated points"
     )
     notes = [note]
     record = SceneRecord(frames=frames, chunks=chunks, pose_source="recording", notes=notes)
@@ -384,12 +421,14 @@ def main() -> int:
         "cars": len(world.cars),
         "buildings": len(world.buildings),
         "points": len(xyz),
+        "triangulated_points": n_triangulated,
         "chunks": [
             {"id": c.id, "start_m": c.start_m, "end_m": c.end_m, "frames": len(c.frames)}
             for c in chunks
         ],
         "render_s": t_render,
         "lidar_s": t_lidar,
+        "triangulation_s": t_triangulate,
         "total_s": time.perf_counter() - t0,
         "folder_mib": size / 2**20,
     }

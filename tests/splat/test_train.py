@@ -361,11 +361,11 @@ def _views_of_two_gaussians(
 
 
 @pytest.mark.parametrize(
-    ("pixel_weighted", "near_damping_m", "grown"),
-    [(False, 0.0, 0), (True, 0.0, 1), (True, 20.0, 0)],
+    ("pixel_weighted", "near_damping", "grown"),
+    [(False, 0.0, 0), (True, 0.0, 1), (True, 2.0, 0)],
 )
 def test_pixel_weighted_statistics_grow_gaussians_seen_large_in_few_views(
-    pixel_weighted: bool, near_damping_m: float, grown: int
+    pixel_weighted: bool, near_damping: float, grown: int
 ) -> None:
     # Gaussian 0: large (20 px) with a high gradient in one view at 5 m, one pixel with none in
     # nine views from afar; Gaussian 1: one pixel and a middling gradient everywhere.
@@ -379,14 +379,14 @@ def test_pixel_weighted_statistics_grow_gaussians_seen_large_in_few_views(
         grow_grad2d=2e-4,
         grow_scale3d=100.0,  # clone, never split: the count says how many grew
         pixel_weighted=pixel_weighted,
-        near_damping_m=near_damping_m,
+        near_damping=near_damping,
     )
-    densifier = Densifier(options, scene_scale=1.0, use_gsplat=False)
+    densifier = Densifier(options, scene_scale=10.0, use_gsplat=False)
     model, opts = _model_and_adam(2)
     for step, out in enumerate(_views_of_two_gaussians(grads, radii, depths), start=1):
         densifier.post_backward(step, model, opts, out, 2, torch.Generator())
     # plain mean of Gaussian 0: 1e-4 (not grown); weighted: 400e-3 / 409 (grown) unless the
-    # view that saw it large is damped by (5 m / 20 m)^2
+    # view that saw it large is damped by (5 m / (2 x 10 m))^2
     assert len(model) == 2 + grown
     _check_aligned(model, opts)
 

@@ -116,9 +116,10 @@ class Densifier:
             # Weight = the screen box's area (radii are 0 where culled); the mean
             # sum(w * g) / sum(w) is what _grow_gs and _refine compute from the two sums.
             weight = radii.to(norms.dtype).prod(dim=-1)
-            if self.options.near_damping_m > 0:
+            if self.options.near_damping > 0:
+                near = self.options.near_damping * self.scene_scale
                 depth = out.depths[:, :n_street].to(norms.dtype)
-                norms = norms * (depth / self.options.near_damping_m).clamp(0.0, 1.0) ** 2
+                norms = norms * (depth / near).clamp(0.0, 1.0) ** 2
             self.state["grad2d"] += (norms * weight).sum(dim=0)
             self.state["count"] += weight.sum(dim=0)
             return
