@@ -391,6 +391,19 @@ def test_pixel_weighted_statistics_grow_gaussians_seen_large_in_few_views(
     _check_aligned(model, opts)
 
 
+@pytest.mark.parametrize(("max_steps", "reset"), [(None, True), (6000, True), (5999, False)])
+def test_no_opacity_reset_too_close_to_the_end(max_steps: int | None, reset: bool) -> None:
+    options = DensifyOptions(strategy="simple", refine_start=10_000, reset_every=3000)
+    densifier = Densifier(options, scene_scale=10.0, use_gsplat=False, max_steps=max_steps)
+    model, opts = _model_and_adam(2)
+    with torch.no_grad():
+        model.params["opacities"][:] = 3.0
+    out = _views_of_two_gaussians([(0.0, 0.0)], [(1, 1)], [(5.0, 5.0)])[0]
+    densifier.post_backward(3000, model, opts, out, 2, torch.Generator())
+    opacity = float(torch.sigmoid(model.params["opacities"].detach()).max())
+    assert (opacity < 0.02) is reset
+
+
 def test_sky_sphere_points_lie_on_the_sphere() -> None:
     pts = gm.sky_sphere_points(np.array([1.0, 2.0, 3.0]), 50.0, 500)
     np.testing.assert_allclose(np.linalg.norm(pts - [1.0, 2.0, 3.0], axis=1), 50.0)

@@ -41,8 +41,17 @@ _log = logging.getLogger(__name__)
 class Densifier:
     """Clone/split/prune by accumulated 2-D gradients, and reset opacities (see the module doc)."""
 
-    def __init__(self, options: DensifyOptions, scene_scale: float, *, use_gsplat: bool) -> None:
+    def __init__(
+        self,
+        options: DensifyOptions,
+        scene_scale: float,
+        *,
+        use_gsplat: bool,
+        max_steps: int | None = None,
+    ) -> None:
         self.options = options
+        # No opacity reset within reset_every steps of the end: too little time to recover.
+        self.last_reset = None if max_steps is None else max_steps - options.reset_every
         self.scene_scale = scene_scale
         self.strategy: Any = None  # Any: gsplat ships no type information
         self.state: dict[str, Any] = {"grad2d": None, "count": None}
@@ -88,7 +97,8 @@ class Densifier:
             due = step > opts.refine_start and step % opts.refine_every == 0
             if due:
                 self._refine(step, model, optimizers, generator)
-        if step > 0 and step % opts.reset_every == 0:
+        last = self.last_reset
+        if step > 0 and step % opts.reset_every == 0 and (last is None or step <= last):
             reset_opacity(model, optimizers, 2.0 * opts.prune_opacity)
 
     def _accumulate(self, out: RasterOutput, n_street: int, n: int) -> None:
