@@ -636,27 +636,10 @@ def run_plain(args: argparse.Namespace, prep: Path) -> dict[str, Any]:
     return out
 
 
-def run_pipeline(args: argparse.Namespace, prep: Path, work: Path) -> dict[str, Any]:
-    models = Path(args.models) if args.models else work / "models"
-    if models.exists() and not args.keep_models:
-        shutil.rmtree(models)
-    options = train_options(args)
-    torch.cuda.reset_peak_memory_stats()
-    t0 = time.perf_counter()
-    chunk_ids = tuple(int(c) for c in args.chunks.split(",")) if args.chunks else None
-    clock = _clock(args, args.label)
-    trained = train_scene(
-        prep, options=options, models_dir=models, chunk_ids=chunk_ids, progress=clock
-    )
-    train_s = time.perf_counter() - t0
-    partial = {"train_seconds": train_s, "chunks": [dataclasses.asdict(c) for c in trained.chunks]}
-    # Written before the evaluation, so a call cut off there keeps the training figures.
-    Path(args.out).write_text(json.dumps({"training_only": partial}, indent=2, default=str) + "\n")
-    for c in trained.chunks:
-        print(
-            f"chunk {c.chunk_id}: {c.steps} steps ({c.stopped}), {c.n_gaussians} Gaussians, "
-            f"held-in {c.best_val_psnr_db:.2f} dB, {c.train_seconds:.0f} s"
-        )
+def evaluate_models(
+    args: argparse.Namespace, prep: Path, models: Path, work: Path
+) -> dict[str, Any]:
+    """Held-out scores (and offsets, rendering speed) of the chunk models in ``models``."""
     evaluation = evaluate_splat(
         prep,
         models,
@@ -686,6 +669,37 @@ def run_pipeline(args: argparse.Namespace, prep: Path, work: Path) -> dict[str, 
         "fps_800x503": fps is not None and fps >= TARGETS["fps_800x503"],
     }
     return {
+        "held_out": summary,
+        "offsets": ev["offsets"],
+        "rendering": rendering,
+        "targets": TARGETS,
+        "meets_targets": checks,
+    }
+
+
+def run_pipeline(args: argparse.Namespace, prep: Path, work: Path) -> dict[str, Any]:
+    models = Path(args.models) if args.models else work / "models"
+    if models.exists() and not args.keep_models:
+        shutil.rmtree(models)
+    options = train_options(args)
+    torch.cuda.reset_peak_memory_stats()
+    t0 = time.perf_counter()
+    chunk_ids = tuple(int(c) for c in args.chunks.split(",")) if args.chunks else None
+    clock = _clock(args, args.label)
+    trained = train_scene(
+        prep, options=options, models_dir=models, chunk_ids=chunk_ids, progress=clock
+    )
+    train_s = time.perf_counter() - t0
+    partial = {"train_seconds": train_s, "chunks": [dataclasses.asdict(c) for c in trained.chunks]}
+    # Written before the evaluation, so a call cut off there keeps the training figures.
+    Path(args.out).write_text(json.dumps({"training_only": partial}, indent=2, default=str) + "\n")
+    for c in trained.chunks:
+        print(
+            f"chunk {c.chunk_id}: {c.steps} steps ({c.stopped}), {c.n_gaussians} Gaussians, "
+            f"held-in {c.best_val_psnr_db:.2f} dB, {c.train_seconds:.0f} s"
+        )
+    scores = evaluate_models(args, prep, models, work)
+    return {
         "train_options": dataclasses.asdict(options),
         "training": {
             "seconds": train_s,
@@ -707,11 +721,7 @@ def run_pipeline(args: argparse.Namespace, prep: Path, work: Path) -> dict[str, 
             "clock": clock.summary(),
             "phase_ms": [getattr(c, "phase_ms", None) for c in trained.chunks],
         },
-        "held_out": summary,
-        "offsets": ev["offsets"],
-        "rendering": rendering,
-        "targets": TARGETS,
-        "meets_targets": checks,
+        **scores,
     }
 
 
@@ -737,7 +747,8 @@ def _prepared(args: argparse.Namespace, work: Path) -> Path | None:
     return prep
 
 
-def main() -> int:
+def _parser() -> argparse.ArgumentParser:
+    """The command line."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--prep", help="prepared scene folder (WS/splat/prep)")
     parser.add_argument("--synthetic", action="store_true", help="use a synthetic scene")
@@ -763,12 +774,23 @@ def main() -> int:
     parser.add_argument("--set", action="append", help="TrainOptions override KEY=VALUE")
     parser.add_argument("--no-offsets", action="store_true", help="skip the lateral offsets")
     parser.add_argument("--no-train", action="store_true", help="skip our trainer")
+    parser.add_argument(
+        "--eval-only",
+        action="store_true",
+        help="score the models already in --models (a call cut off by its time limit after "
+        "training; /tmp survives between calls on a warm machine)",
+    )
     parser.add_argument("--plain-steps", type=int, default=0, help="plain gsplat control steps")
     parser.add_argument("--plain-affine", action="store_true")
     parser.add_argument("--plain-affine-lr", type=float, default=1e-3)
     parser.add_argument("--plain-sky", type=int, default=0)
     parser.add_argument("--out", default="splat_gpu.json")
     _add_profile_args(parser)
+    return parser
+
+
+def main() -> int:
+    parser = _parser()
     args = parser.parse_args()
 
     if args.concurrency:
@@ -793,7 +815,11 @@ def main() -> int:
     if prep is not None:
         if args.plain_steps:
             results["plain_gsplat"] = run_plain(args, prep)
-        if not args.no_train:
+        if args.eval_only:
+            if not args.models:
+                parser.error("--eval-only needs --models (the folder training wrote)")
+            results["pipeline"] = evaluate_models(args, prep, Path(args.models), work)
+        elif not args.no_train:
             results["pipeline"] = run_pipeline(args, prep, work)
     Path(args.out).write_text(json.dumps(results, indent=2, default=str) + "\n")
     print(f"results -> {args.out}")
