@@ -357,26 +357,37 @@ def _parse_value(text: str) -> Any:
         return text
 
 
-def train_options(args: argparse.Namespace) -> TrainOptions:
-    """``TrainOptions`` of the run: the defaults, the CLI's steps and ``--set`` overrides."""
-    top: dict[str, Any] = {}
+def options_from(settings: dict[str, Any], **base: Any) -> TrainOptions:
+    """``TrainOptions`` of ``base`` fields with ``settings`` applied over them (``densify.X`` /
+    ``lr.X`` for the nested fields)."""
+    top = dict(base)
     nested: dict[str, dict[str, Any]] = {"lr": {}, "densify": {}}
-    for item in args.set or []:
-        key, _, value = item.partition("=")
+    for key, value in settings.items():
         group, _, name = key.partition(".")
         if name:
-            nested[group][name] = _parse_value(value)
+            nested[group][name] = value
         else:
-            top[key] = _parse_value(value)
+            top[key] = value
     return TrainOptions(
+        **top,
+        lr=LearningRates(**nested["lr"]),
+        densify=DensifyOptions(**nested["densify"]),
+    )
+
+
+def train_options(args: argparse.Namespace) -> TrainOptions:
+    """``TrainOptions`` of the run: the defaults, the CLI's steps and ``--set`` overrides."""
+    settings = {}
+    for item in args.set or []:
+        key, _, value = item.partition("=")
+        settings[key] = _parse_value(value)
+    return options_from(
+        settings,
         max_steps=args.max_steps,
         min_steps=min(args.min_steps, args.max_steps),
         device=args.device,
         backend="gsplat" if args.device.startswith("cuda") else "torch",
         downscale=args.downscale,
-        lr=dataclasses.replace(LearningRates(), **nested["lr"]),
-        densify=dataclasses.replace(DensifyOptions(), **nested["densify"]),
-        **top,
     )
 
 

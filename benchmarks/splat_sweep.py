@@ -38,8 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 from cam2sim.core.files import write_text_atomic
 from cam2sim.splat.scene import SceneRecord
-from cam2sim.splat.train import DensifyOptions, LearningRates, TrainOptions
-from splat_gpu import _environment, _parse_value, resize_prep
+from splat_gpu import _environment, _parse_value, options_from, resize_prep
 
 
 def chunk_scene(prep: Path, chunk_id: int, dst: Path) -> Path:
@@ -60,23 +59,6 @@ def chunk_scene(prep: Path, chunk_id: int, dst: Path) -> Path:
             (dst / name).symlink_to((prep / name).resolve())
     scene.model_copy(update={"frames": frames, "chunks": [chunk]}).save(dst / "scene.json")
     return dst
-
-
-def options_from(settings: dict[str, Any], steps: int) -> TrainOptions:
-    """TrainOptions with ``settings`` applied (``densify.X`` / ``lr.X`` for nested fields)."""
-    top: dict[str, Any] = {"max_steps": steps, "min_steps": steps}
-    nested: dict[str, dict[str, Any]] = {"densify": {}, "lr": {}}
-    for key, value in settings.items():
-        head, _, rest = key.partition(".")
-        if rest:
-            nested[head][rest] = value
-        else:
-            top[key] = value
-    return TrainOptions(
-        **top,
-        densify=DensifyOptions(**nested["densify"]),
-        lr=LearningRates(**nested["lr"]),
-    )
 
 
 def parse_config(text: str) -> tuple[str, dict[str, Any]]:
@@ -131,7 +113,7 @@ def run_setting(  # noqa: PLR0913, PLR0917 -- one process's whole job
 
     sub_dir, out = Path(sub), Path(out_dir)
     scene = SceneRecord.load(sub_dir / "scene.json")
-    options = options_from(settings, steps)
+    options = options_from(settings, max_steps=steps, min_steps=steps)
     cuda = device.startswith("cuda")
     sync = torch.cuda.synchronize if cuda else (lambda: None)
     xyz, rgb, _ = load_points(sub_dir / "points.npz")

@@ -117,24 +117,23 @@ class Densifier:
             )
             self._grad_scale = (key, scale)
         radii = out.radii[:, :n_street]
-        seen = (radii > 0).all(dim=-1)
         if self.state["grad2d"] is None:
             self.state["grad2d"] = torch.zeros(n, device=grads.device)
             self.state["count"] = torch.zeros(n, device=grads.device)
         norms = torch.linalg.vector_norm(grads * self._grad_scale[1], dim=-1)
+        # Each view's weight: 1 where the Gaussian is seen, or with pixel_weighted its screen
+        # box's area (radii are 0 where culled); _grow_gs and _refine take the mean
+        # sum(w * g) / sum(w) from the two sums.
         if self.options.pixel_weighted:
-            # Weight = the screen box's area (radii are 0 where culled); the mean
-            # sum(w * g) / sum(w) is what _grow_gs and _refine compute from the two sums.
             weight = radii.to(norms.dtype).prod(dim=-1)
             if self.options.near_damping > 0:
                 near = self.options.near_damping * self.scene_scale
                 depth = out.depths[:, :n_street].to(norms.dtype)
                 norms = norms * (depth / near).clamp(0.0, 1.0) ** 2
-            self.state["grad2d"] += (norms * weight).sum(dim=0)
-            self.state["count"] += weight.sum(dim=0)
-            return
-        self.state["grad2d"] += torch.where(seen, norms, 0.0).sum(dim=0)
-        self.state["count"] += seen.sum(dim=0)
+        else:
+            weight = (radii > 0).all(dim=-1).to(norms.dtype)
+        self.state["grad2d"] += (norms * weight).sum(dim=0)
+        self.state["count"] += weight.sum(dim=0)
 
     def _gsplat_refine(
         self, step: int, model: GaussianModel, optimizers: dict[str, torch.optim.Optimizer]

@@ -387,9 +387,8 @@ class _ChunkTrainer:
         )
 
         self.views = load_views(prep_dir, frames, options.downscale, device)
-        self.loss_constants = loss_constants(self.views)
         # Level k: the views at 1/2**k size with their loss constants (level 0 = full size).
-        self.levels = [(self.views, self.loss_constants)]
+        self.levels = [(self.views, loss_constants(self.views))]
         for k in range(1, options.coarse_levels + 1):
             coarse = downsample_views(self.views, 2**k)
             self.levels.append((coarse, loss_constants(coarse)))
