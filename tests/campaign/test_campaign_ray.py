@@ -73,7 +73,9 @@ def test_splat_chunks_train_as_ray_tasks_into_the_same_models_folder(
     from cam2sim.splat.distributed import train_scene_on_ray
 
     prep = make_prepared_scene(tmp_path / "ws", n_frames=6, chunks=((0, 4), (2, 6)), size=(32, 24))
-    options = fast_options(max_steps=4, min_steps=4, val_every=2, sky_points=20)
+    options = fast_options(
+        max_steps=4, min_steps=4, val_every=2, sky_points=20, time_budget_s=600.0
+    )
     seen: list[tuple[int, int | None]] = []
     result = train_scene_on_ray(
         prep, options=options, progress=lambda _task, done, total: seen.append((done, total))

@@ -20,6 +20,7 @@ def test_splat_command_prepares_trains_and_records_the_stage(tmp_path: Path) -> 
     ws.record_stage("extract", state="done", started=dt.datetime.now(dt.UTC), inputs_hash="x")
     args = ["--no-progress", "splat", str(ws.root), "--device", "cpu", "--max-steps", "20"]
     args += ["--min-steps", "20", "--downscale", "2", "--chunk-length", "10", "--no-eval"]
+    args += ["--time-budget", "600"]  # ample: the 20 steps end it
     result = CliRunner().invoke(app, args, env={"COLUMNS": "200"})
     assert result.exit_code == 0, result.output
     assert sorted(p.name for p in (ws.splat_dir / "models").glob("chunk_*.pt")) == ["chunk_00.pt"]
@@ -37,3 +38,11 @@ def test_splat_command_without_a_dataset_says_to_extract_first(tmp_path: Path) -
     result = CliRunner().invoke(app, ["--no-progress", "splat", str(ws.root)])
     assert result.exit_code == 1
     assert "cam2sim extract" in result.stderr
+
+
+def test_splat_command_refuses_a_time_budget_of_zero(tmp_path: Path) -> None:
+    result = CliRunner().invoke(
+        app, ["--no-progress", "splat", str(tmp_path), "--time-budget", "0"]
+    )
+    assert result.exit_code == 1
+    assert "time_budget_s=0" in result.stderr

@@ -8,6 +8,7 @@ surfaces with noisy colours. Everything runs on the CPU with the torch rasterize
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import cv2
@@ -31,6 +32,8 @@ from cam2sim.splat.train import (
     SceneTrainResult,
     TrainOptions,
     plateau_reached,
+    steps_that_fit,
+    time_share,
     train_chunk,
     train_scene,
 )
@@ -273,6 +276,43 @@ def test_plateau_stops_training(tmp_path: Path) -> None:
     assert (tmp_path / "models" / "chunk_00.json").is_file()
 
 
+@pytest.mark.parametrize(
+    ("n_chunks", "slots", "share"),
+    [(1, 2, 600.0), (4, 1, 150.0), (4, 2, 300.0), (3, 2, 300.0), (4, 4, 600.0), (2, 8, 600.0)],
+)
+def test_time_share_divides_the_budget_by_the_rounds(
+    n_chunks: int, slots: int, share: float
+) -> None:
+    assert time_share(600.0, n_chunks, slots) == pytest.approx(share)
+    assert time_share(None, n_chunks, slots) is None
+
+
+def test_steps_that_fit_follow_the_recent_pace() -> None:
+    # 0.1 s a step since the start; 200 s left -> 2,000 more steps.
+    assert steps_that_fit(1000, 100.0, 300.0, (0, 0.0)) == 3000
+    # Since the last validation 500 steps took 40 s (0.08 s a step) -> 2,500 more.
+    assert steps_that_fit(1000, 100.0, 300.0, (500, 60.0)) == 3500
+    # A spent share, or no interval to measure: one more step, then the caller stops.
+    assert steps_that_fit(1000, 310.0, 300.0, (500, 60.0)) == 1001
+    assert steps_that_fit(1000, 100.0, 300.0, (1000, 100.0)) == 1001
+
+
+def test_time_budget_ends_training_with_a_last_validation(tmp_path: Path) -> None:
+    prep = make_prepared_scene(tmp_path, n_frames=4, chunks=((0, 4),), size=(32, 24))
+    scene = SceneRecord.load(prep / "scene.json")
+    # Neither the step cap nor the plateau can end this run: only the 1.5 s budget.
+    options = fast_options(
+        max_steps=1_000_000, min_steps=1_000_000, val_every=2, sky_points=0, time_budget_s=1.5
+    )
+    result = train_chunk(scene, 0, prep, options, models_dir=tmp_path / "models")
+    assert result.stopped == "time"
+    assert 2 < result.steps < 1_000_000
+    assert result.val_history[-1][0] == result.steps  # scored where it stopped
+    assert len(result.val_history) >= 2
+    header = json.loads((tmp_path / "models" / "chunk_00.json").read_text())
+    assert header["stopped"] == "time"
+
+
 def test_unknown_chunk_is_refused(tmp_path: Path) -> None:
     prep = make_prepared_scene(tmp_path, n_frames=4, chunks=((0, 4),), size=(32, 24))
     with pytest.raises(StageError, match=r"no chunk \[7\]"):
@@ -282,6 +322,8 @@ def test_unknown_chunk_is_refused(tmp_path: Path) -> None:
 def test_invalid_options_are_refused() -> None:
     with pytest.raises(ValueError, match="sh_degree=4"):
         TrainOptions(sh_degree=4)
+    with pytest.raises(ValueError, match="time_budget_s=0"):
+        TrainOptions(time_budget_s=0)
 
 
 # --------------------------------------------------------------------- densification surgery

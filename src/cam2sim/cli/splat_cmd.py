@@ -23,6 +23,12 @@ def splat(
     ] = None,
     max_steps: Annotated[int, typer.Option(help="Training step cap per chunk.")] = 30_000,
     min_steps: Annotated[int, typer.Option(help="No plateau stop before this step.")] = 7_000,
+    time_budget: Annotated[
+        float | None,
+        typer.Option(
+            help="Seconds of training for all chunks; each fits its step cap to its share."
+        ),
+    ] = None,
     device: Annotated[str, typer.Option(help="auto, cuda or cpu.")] = "auto",
     downscale: Annotated[int, typer.Option(help="Train on images downscaled by N.")] = 1,
     segformer: Annotated[
@@ -61,7 +67,11 @@ def splat(
                 sfm=SfmOptions(mapper=mapper),  # type: ignore[arg-type]
             ),
             train=TrainOptions(
-                max_steps=max_steps, min_steps=min_steps, device=device, downscale=downscale
+                max_steps=max_steps,
+                min_steps=min_steps,
+                device=device,
+                downscale=downscale,
+                time_budget_s=time_budget,
             ),
             evaluate=not no_eval,
             lpips_weights=lpips_weights,

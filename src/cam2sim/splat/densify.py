@@ -50,8 +50,9 @@ class Densifier:
         max_steps: int | None = None,
     ) -> None:
         self.options = options
-        # No opacity reset within reset_every steps of the end: too little time to recover.
-        self.last_reset = None if max_steps is None else max_steps - options.reset_every
+        self.last_reset: int | None = None
+        if max_steps is not None:
+            self.end_at(max_steps)
         self.scene_scale = scene_scale
         self.strategy: Any = None  # Any: gsplat ships no type information
         self.state: dict[str, Any] = {"grad2d": None, "count": None}
@@ -71,6 +72,13 @@ class Densifier:
                 absgrad=options.absgrad,
             )
             self.state = self.strategy.initialize_state(scene_scale=scene_scale)
+
+    def end_at(self, max_steps: int) -> None:
+        """Training ends at ``max_steps``: no opacity reset within ``reset_every`` steps of it.
+
+        The model needs about that long to recover from a reset.
+        """
+        self.last_reset = max_steps - self.options.reset_every
 
     def post_backward(
         self,

@@ -13,6 +13,7 @@ do. Failures are collected and reported as there (:class:`cam2sim.splat.parallel
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from pathlib import Path
@@ -76,6 +77,7 @@ def train_scene_on_ray(
     """
     from cam2sim.splat.parallel import ChunkOutcomes  # noqa: PLC0415
     from cam2sim.splat.scene import SceneRecord  # noqa: PLC0415
+    from cam2sim.splat.train import time_share  # noqa: PLC0415
 
     start = time.perf_counter()
     prep_dir = Path(prep_dir).resolve()
@@ -95,6 +97,11 @@ def train_scene_on_ray(
             msg += "add GPU nodes, or train on CPU workers with --device cpu"
             raise StageError(msg)
         task = ray.remote(_train_one).options(num_gpus=gpus, num_cpus=1, max_retries=0)
+        if options is not None and options.time_budget_s is not None:
+            # Each chunk's share of the budget: as many run at once as the cluster has room for.
+            slots = int(have // gpus) if gpus > 0 else int(ray.cluster_resources().get("CPU", 1))
+            share = time_share(options.time_budget_s, len(ids), slots)
+            options = dataclasses.replace(options, time_budget_s=share)
         pending: dict[Any, int] = {
             task.remote(scene, c, str(prep_dir), options, str(models)): c for c in ids
         }

@@ -22,6 +22,12 @@ Reads ``WS/splat/prep/`` (:mod:`cam2sim.splat.scene`), writes ``WS/splat/models/
   else at ``max_steps``. A trend over several validations, and SSIM beside PSNR, keep one noisy
   validation (PSNR swings of ±0.5 dB between checks are common) from ending training while the
   fine structure still improves.
+- **Time budget** (``time_budget_s``, optional): the chunks of one call share the seconds, each
+  getting the budget divided by the rounds in which they train (:func:`time_share`). At every
+  validation a chunk measures its pace over the last interval and moves its step cap to the step
+  its share runs out at (never above ``max_steps``): the means' learning rate is re-aimed to
+  reach its final value there and no opacity reset falls within ``reset_every`` steps of it. A
+  chunk whose share is spent stops at once after a last validation (``stopped == "time"``).
 
 :func:`train_scene` trains several chunks at a time on one device, each in its own worker
 process (``concurrent_chunks``, by default 2 on CUDA; :mod:`cam2sim.splat.parallel`), or, with
@@ -57,11 +63,16 @@ __all__ = [
     "TrainOptions",
     "TrainResult",
     "plateau_reached",
+    "steps_that_fit",
+    "time_share",
     "train_chunk",
     "train_scene",
 ]
 
 _log = logging.getLogger(__name__)
+
+Stop = Literal["plateau", "max_steps", "time"]
+"""Why a chunk's training ended (``TrainResult.stopped``)."""
 
 STREET_SCALE_M = 10.0
 """Scene scale of metric street scenes, metres (see ``TrainOptions.scene_scale``): Gaussians
@@ -76,7 +87,8 @@ class LearningRates:
     """Adam learning rates (gsplat ``simple_trainer`` defaults).
 
     Attributes:
-        means: Times the scene scale; decays exponentially to 1 % at ``max_steps``.
+        means: Times the scene scale; decays exponentially to 1 % at ``max_steps`` (or at the
+            step cap fitted to the time budget).
         scales: Log scales.
         quats: Quaternions.
         opacities: Opacity logits.
@@ -194,6 +206,10 @@ class TrainOptions:
         concurrent_chunks: Chunks trained at a time by :func:`train_scene`, each in its own
             worker process on the one device; 1 = all in one interleaved loop in this process;
             None = 2 on CUDA (two processes overlap on one GPU), 1 elsewhere.
+        time_budget_s: Seconds of training for all the chunks of one call (their steps and
+            validations; not loading them, nor gsplat's one-time build), shared out by
+            :func:`time_share`; each chunk fits its step cap to its share (module doc).
+            None = no budget: the plateau or ``max_steps`` ends training.
     """
 
     max_steps: int = 30_000
@@ -225,6 +241,7 @@ class TrainOptions:
     seed: int = 0
     profile: bool = False
     concurrent_chunks: int | None = None
+    time_budget_s: float | None = None
 
     def __post_init__(self) -> None:
         problems = []
@@ -247,6 +264,8 @@ class TrainOptions:
             problems.append(f"densify.near_damping={self.densify.near_damping} (need >= 0)")
         if self.concurrent_chunks is not None and self.concurrent_chunks < 1:
             problems.append(f"concurrent_chunks={self.concurrent_chunks} (need >= 1 or None)")
+        if self.time_budget_s is not None and not self.time_budget_s > 0:
+            problems.append(f"time_budget_s={self.time_budget_s} (need > 0 or None)")
         if self.val_every < 1 or self.patience < 1 or self.n_val_views < 1:
             problems.append("val_every, patience and n_val_views must be >= 1")
         if problems:
@@ -262,7 +281,7 @@ class TrainResult:
         chunk_id: The chunk.
         model_path: The written ``chunk_XX.pt``.
         steps: Steps run.
-        stopped: ``"plateau"`` or ``"max_steps"``.
+        stopped: ``"plateau"``, ``"max_steps"`` or ``"time"`` (the time budget ended it).
         n_gaussians: Street Gaussians at the end.
         n_initial_gaussians: Street Gaussians at the start (one per visible point).
         n_sky: Sky Gaussians.
@@ -279,7 +298,7 @@ class TrainResult:
     chunk_id: int
     model_path: Path
     steps: int
-    stopped: Literal["plateau", "max_steps"]
+    stopped: Stop
     n_gaussians: int
     n_initial_gaussians: int
     n_sky: int
@@ -340,6 +359,45 @@ def plateau_reached(
     return psnr_trend < min_gain_db and ssim_trend < min_gain_ssim
 
 
+def time_share(budget_s: float | None, n_chunks: int, slots: int) -> float | None:
+    """Seconds each of ``n_chunks`` chunks may train so that all end within ``budget_s``.
+
+    The chunks train ``slots`` at a time, a new one starting when one ends; with chunks of about
+    equal cost they run in ``ceil(n_chunks / slots)`` rounds, and each gets one round's share.
+
+    Args:
+        budget_s: Seconds for all of them, or None (no budget).
+        n_chunks: Chunks to train.
+        slots: Chunks trained at the same time (1 = one after another or interleaved).
+
+    Returns:
+        Each chunk's seconds, or None without a budget.
+    """
+    if budget_s is None:
+        return None
+    rounds = -(-max(1, n_chunks) // max(1, min(slots, n_chunks)))
+    return budget_s / rounds
+
+
+def steps_that_fit(step: int, seconds: float, share_s: float, mark: tuple[int, float]) -> int:
+    """The step at which a chunk's time share runs out, at its pace since ``mark``.
+
+    Args:
+        step: Steps done.
+        seconds: Seconds spent in them.
+        share_s: The chunk's time share.
+        mark: ``(step, seconds)`` at the start of the interval that sets the pace (the last
+            validation): the pace of a step grows with the Gaussians, so the recent one counts.
+
+    Returns:
+        The last step that fits (at least ``step + 1``; the caller stops on a spent share).
+    """
+    steps, spent = step - mark[0], seconds - mark[1]
+    if steps <= 0 or spent <= 0:
+        return step + 1
+    return step + max(1, int((share_s - seconds) * steps / spent))
+
+
 class _ChunkTrainer:
     """Training state of one chunk; :meth:`step` runs one optimisation step."""
 
@@ -352,6 +410,7 @@ class _ChunkTrainer:
         options: TrainOptions,
         device: str,
         backend: Literal["gsplat", "torch"],
+        time_share_s: float | None = None,
     ) -> None:
         import torch  # noqa: PLC0415
 
@@ -421,8 +480,11 @@ class _ChunkTrainer:
         self.history: list[tuple[int, float, float]] = []
         self.best: float | None = None
         self.done = False
-        self.stopped: Literal["plateau", "max_steps"] = "max_steps"
+        self.stopped: Stop = "max_steps"
         self.seconds = 0.0
+        self.cap = options.max_steps  # the step cap, fitted to the time share when one is set
+        self.time_share = time_share_s
+        self._pace_mark = (0, 0.0)
 
     # -- set-up ------------------------------------------------------------------------------
     def _build_models(self, points: tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]) -> None:
@@ -507,6 +569,7 @@ class _ChunkTrainer:
             )
         self.means_gamma = 0.01 ** (1.0 / self.options.max_steps)
         self.means_lr = rates["means"]
+        self.means_lr_end = 0.01 * rates["means"]
 
     # -- steps -------------------------------------------------------------------------------
     def _level(self) -> int:
@@ -615,13 +678,15 @@ class _ChunkTrainer:
         self.means_lr *= self.means_gamma
         for group in self.optimizers["means"].param_groups:
             group["lr"] = self.means_lr
-        if self.step_no % opts.val_every == 0 or self.step_no >= opts.max_steps:
-            self._validate()
+        spent = self.seconds + time.perf_counter() - start
+        out_of_time = self.time_share is not None and spent >= self.time_share
+        if self.step_no % opts.val_every == 0 or self.step_no >= self.cap or out_of_time:
+            self._validate(spent)
             timer.mark("validate")
         timer.end()
         self.seconds += time.perf_counter() - start
 
-    def _validate(self) -> None:
+    def _validate(self, spent: float) -> None:
         import torch  # noqa: PLC0415
 
         from cam2sim.splat.losses import masked_psnr, ssim  # noqa: PLC0415
@@ -655,6 +720,27 @@ class _ChunkTrainer:
             self.done, self.stopped = True, "plateau"
         elif self.step_no >= opts.max_steps:
             self.done, self.stopped = True, "max_steps"
+        elif self.time_share is not None:
+            if self.step_no >= self.cap or spent >= self.time_share:
+                self.done, self.stopped = True, "time"
+            else:
+                self._fit_to_time(spent)
+
+    def _fit_to_time(self, spent: float) -> None:
+        """Move the step cap to where the time share runs out, with the schedules that end there."""
+        assert self.time_share is not None
+        cap = min(
+            self.options.max_steps,
+            steps_that_fit(self.step_no, spent, self.time_share, self._pace_mark),
+        )
+        self._pace_mark = (self.step_no, spent)
+        if cap != self.cap:
+            self.cap = cap
+            # The means' learning rate reaches its final value at the new cap, and no opacity
+            # reset falls within reset_every steps of it.
+            self.means_gamma = (self.means_lr_end / self.means_lr) ** (1.0 / (cap - self.step_no))
+            if self.densifier is not None:
+                self.densifier.end_at(cap)
 
     def _plateaued(self) -> bool:
         opts = self.options
@@ -825,21 +911,28 @@ def train_scene(
     if in_flight > 1 and len(wanted) > 1:
         from cam2sim.splat.parallel import train_chunks_in_processes  # noqa: PLC0415
 
+        slots = min(in_flight, len(wanted))
         return train_chunks_in_processes(
             prep_dir,
             scene,
             tuple(wanted),
-            replace(options, device=device, backend=backend),
+            replace(
+                options,
+                device=device,
+                backend=backend,
+                time_budget_s=time_share(options.time_budget_s, len(wanted), slots),
+            ),
             models_dir=models_dir,
-            in_flight=min(in_flight, len(wanted)),
+            in_flight=slots,
             progress=progress,
         )
     torch.manual_seed(options.seed)
     if device.startswith("cuda"):
         torch.cuda.reset_peak_memory_stats(device)
     xyz, rgb, _ = load_points(prep_dir / "points.npz")
+    share = time_share(options.time_budget_s, len(wanted), 1)  # interleaved: one at a time
     trainers = [
-        _ChunkTrainer(known[c], scene, prep_dir, (xyz, rgb), options, device, backend)
+        _ChunkTrainer(known[c], scene, prep_dir, (xyz, rgb), options, device, backend, share)
         for c in wanted
     ]
     _log.info("training %d chunk(s) on %s with the %s rasterizer", len(trainers), device, backend)
