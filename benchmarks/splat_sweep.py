@@ -210,9 +210,9 @@ def main() -> int:
     t_build = time.perf_counter()
     if args.device.startswith("cuda"):
         # Build gsplat's extension once here, so the workers do not all compile it at once.
-        from cam2sim.splat.parallel import _build_gsplat  # noqa: PLC0415
+        from cam2sim.splat.raster import build_gsplat  # noqa: PLC0415
 
-        _build_gsplat()
+        build_gsplat()
     build_s = time.perf_counter() - t_build
     ctx = mp.get_context("spawn")
     procs = [

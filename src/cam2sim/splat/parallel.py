@@ -25,7 +25,6 @@ before the first worker starts, so the workers load it instead of each compiling
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import logging
 import logging.handlers
 import queue
@@ -35,7 +34,7 @@ import traceback
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from cam2sim.core.errors import BackendUnavailableError, StageError
+from cam2sim.core.errors import StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
 
 if TYPE_CHECKING:
@@ -177,20 +176,6 @@ def _worker(
         messages.put(("done", chunk, (trained.chunks[0], trained.peak_memory_bytes)))
     except Exception as err:  # noqa: BLE001 -- goes to the parent with the chunk id
         messages.put(("failed", chunk, f"{type(err).__name__}: {err}\n{traceback.format_exc()}"))
-
-
-def _build_gsplat() -> None:
-    """Build (or load) gsplat's CUDA extension here, so spawned workers find it built."""
-    try:
-        backend = importlib.import_module("gsplat.cuda._backend")
-    except ImportError as err:
-        msg = f"gsplat's CUDA extension does not build or load ({err}); check nvcc and "
-        msg += "TORCH_EXTENSIONS_DIR, or train with backend 'torch'"
-        raise BackendUnavailableError(msg) from err
-    if getattr(backend, "_C", None) is None:
-        msg = "gsplat's CUDA extension did not build (see the log above); check nvcc and "
-        msg += "MAX_JOBS, or train with backend 'torch'"
-        raise BackendUnavailableError(msg)
 
 
 # ----------------------------------------------------------------------------------- parent
@@ -361,9 +346,11 @@ def train_chunks_in_processes(
     """
     import torch  # noqa: PLC0415
 
+    from cam2sim.splat.raster import build_gsplat  # noqa: PLC0415
+
     start = time.perf_counter()
     if options.backend == "gsplat":
-        _build_gsplat()
+        build_gsplat()  # here, once, so spawned workers find it built
     worker_options = dataclasses.replace(options, concurrent_chunks=1)
     level = logging.getLogger("cam2sim").getEffectiveLevel()
     threads = torch.get_num_threads() if options.device == "cpu" else 0

@@ -34,6 +34,7 @@ __all__ = [
     "INSTALL_HINT",
     "RasterBackend",
     "RasterOutput",
+    "build_gsplat",
     "has_cuda",
     "has_gsplat",
     "rasterize",
@@ -100,6 +101,27 @@ def has_gsplat() -> bool:
         _log.debug("gsplat does not import: %s", err)
         return False
     return True
+
+
+def build_gsplat() -> None:
+    """Build (or load) gsplat's CUDA extension now rather than inside a first training step.
+
+    gsplat compiles its extension on first use (about a minute on a fresh machine); built here,
+    that minute does not count as training time, and worker processes spawned afterwards load it.
+
+    Raises:
+        BackendUnavailableError: The extension does not build or load.
+    """
+    try:
+        extension = importlib.import_module("gsplat.cuda._backend")
+    except ImportError as err:
+        msg = f"gsplat's CUDA extension does not build or load ({err}); check nvcc and "
+        msg += "TORCH_EXTENSIONS_DIR, or train with backend 'torch'"
+        raise BackendUnavailableError(msg) from err
+    if getattr(extension, "_C", None) is None:
+        msg = "gsplat's CUDA extension did not build (see the log above); check nvcc and "
+        msg += "MAX_JOBS, or train with backend 'torch'"
+        raise BackendUnavailableError(msg)
 
 
 def resolve_backend(

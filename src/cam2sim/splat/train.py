@@ -892,7 +892,11 @@ def train_scene(
     """
     import torch  # noqa: PLC0415
 
-    from cam2sim.splat.raster import resolve_backend, resolve_device  # noqa: PLC0415
+    from cam2sim.splat.raster import (  # noqa: PLC0415
+        build_gsplat,
+        resolve_backend,
+        resolve_device,
+    )
 
     start = time.perf_counter()
     options = options or TrainOptions()
@@ -926,6 +930,8 @@ def train_scene(
             in_flight=slots,
             progress=progress,
         )
+    if backend == "gsplat":
+        build_gsplat()  # before the clock of the first step starts
     torch.manual_seed(options.seed)
     if device.startswith("cuda"):
         torch.cuda.reset_peak_memory_stats(device)
