@@ -353,7 +353,8 @@ def train_chunks_in_processes(
         build_gsplat()  # here, once, so spawned workers find it built
     worker_options = dataclasses.replace(options, concurrent_chunks=1)
     level = logging.getLogger("cam2sim").getEffectiveLevel()
-    threads = torch.get_num_threads() if options.device == "cpu" else 0
+    # On the CPU the workers training at once share this process's threads.
+    threads = max(1, torch.get_num_threads() // in_flight) if options.device == "cpu" else 0
     job = (scene, Path(prep_dir), worker_options, Path(models_dir), (level, threads))
     outcomes = ChunkOutcomes(chunk_ids, "in worker processes")
     logger.info(

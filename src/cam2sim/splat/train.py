@@ -26,8 +26,9 @@ Reads ``WS/splat/prep/`` (:mod:`cam2sim.splat.scene`), writes ``WS/splat/models/
   getting the budget divided by the rounds in which they train (:func:`time_share`). At every
   validation a chunk measures its pace over the last interval and moves its step cap to the step
   its share runs out at (never above ``max_steps``): the means' learning rate is re-aimed to
-  reach its final value there and no opacity reset falls within ``reset_every`` steps of it. A
-  chunk whose share is spent stops at once after a last validation (``stopped == "time"``).
+  reach its final value there and no opacity reset falls within ``reset_every`` steps of it. One
+  validation's time is kept back for the last one: a chunk stops (``stopped == "time"``) after
+  the step at which a validation as long as the previous would overrun its share, scoring it.
 
 :func:`train_scene` trains several chunks at a time on one device, each in its own worker
 process (``concurrent_chunks``, by default 2 on CUDA; :mod:`cam2sim.splat.parallel`), or, with
@@ -485,6 +486,7 @@ class _ChunkTrainer:
         self.cap = options.max_steps  # the step cap, fitted to the time share when one is set
         self.time_share = time_share_s
         self._pace_mark = (0, 0.0)
+        self._val_seconds = 0.0  # how long the last validation took
 
     # -- set-up ------------------------------------------------------------------------------
     def _build_models(self, points: tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]) -> None:
@@ -679,9 +681,12 @@ class _ChunkTrainer:
         for group in self.optimizers["means"].param_groups:
             group["lr"] = self.means_lr
         spent = self.seconds + time.perf_counter() - start
-        out_of_time = self.time_share is not None and spent >= self.time_share
+        # Out of time when the last validation, as long as the one before, would overrun.
+        out_of_time = self.time_share is not None and spent + self._val_seconds >= self.time_share
         if self.step_no % opts.val_every == 0 or self.step_no >= self.cap or out_of_time:
+            val_start = time.perf_counter()
             self._validate(spent)
+            self._val_seconds = time.perf_counter() - val_start
             timer.mark("validate")
         timer.end()
         self.seconds += time.perf_counter() - start
@@ -721,7 +726,7 @@ class _ChunkTrainer:
         elif self.step_no >= opts.max_steps:
             self.done, self.stopped = True, "max_steps"
         elif self.time_share is not None:
-            if self.step_no >= self.cap or spent >= self.time_share:
+            if self.step_no >= self.cap or spent + self._val_seconds >= self.time_share:
                 self.done, self.stopped = True, "time"
             else:
                 self._fit_to_time(spent)
@@ -729,9 +734,10 @@ class _ChunkTrainer:
     def _fit_to_time(self, spent: float) -> None:
         """Move the step cap to where the time share runs out, with the schedules that end there."""
         assert self.time_share is not None
+        # The share less one validation: the last one, at the cap, is scored within it.
+        share = self.time_share - self._val_seconds
         cap = min(
-            self.options.max_steps,
-            steps_that_fit(self.step_no, spent, self.time_share, self._pace_mark),
+            self.options.max_steps, steps_that_fit(self.step_no, spent, share, self._pace_mark)
         )
         self._pace_mark = (self.step_no, spent)
         if cap != self.cap:
