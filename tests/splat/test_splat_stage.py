@@ -19,10 +19,14 @@ def test_splat_command_prepares_trains_and_records_the_stage(tmp_path: Path) -> 
     ws = _workspace(tmp_path / "ws", lidar=False)
     ws.record_stage("extract", state="done", started=dt.datetime.now(dt.UTC), inputs_hash="x")
     args = ["--no-progress", "splat", str(ws.root), "--device", "cpu", "--max-steps", "20"]
-    args += ["--min-steps", "20", "--downscale", "2", "--chunk-length", "10", "--no-eval"]
+    args += ["--min-steps", "20", "--downscale", "2", "--chunk-length", "10"]
     args += ["--time-budget", "600"]  # ample: the 20 steps end it
     result = CliRunner().invoke(app, args, env={"COLUMNS": "200"})
     assert result.exit_code == 0, result.output
+    assert "chunk 0: 20 steps in " in result.output
+    assert "(stopped: max_steps)" in result.output
+    assert "held-out (" in result.output  # the evaluation's headline
+    assert (ws.splat_dir / "eval.json").is_file()
     assert sorted(p.name for p in (ws.splat_dir / "models").glob("chunk_*.pt")) == ["chunk_00.pt"]
     assert (ws.splat_dir / "prep" / "scene.json").is_file()
     record = ws.stage_record("splat")

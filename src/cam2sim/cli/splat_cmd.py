@@ -86,6 +86,26 @@ def splat(
     except Cam2SimError as err:
         error_console.print(f"[bold red]error:[/] {err}", highlight=False, soft_wrap=True)
         raise typer.Exit(1) from None
+    if result.trained is not None:
+        for chunk in result.trained.chunks:
+            psnr = chunk.val_history[-1][1] if chunk.val_history else None
+            console.print(
+                f"chunk {chunk.chunk_id}: {chunk.steps:,} steps in {chunk.train_seconds:.0f} s "
+                f"(stopped: {chunk.stopped}), {chunk.n_gaussians:,} Gaussians"
+                + ("" if psnr is None else f", held-in PSNR {psnr:.2f} dB"),
+                highlight=False,
+            )
     console.print(f"models in {result.models_dir}", highlight=False)
     if result.evaluation is not None:
-        console.print(f"evaluation in {ws.splat_dir / 'eval.json'}", highlight=False)
+        ev = result.evaluation
+        means = (
+            ("PSNR", ev.psnr_db.mean, "{:.2f} dB"),
+            ("SSIM", ev.ssim.mean, "{:.3f}"),
+            ("LPIPS", ev.lpips.mean, "{:.3f}"),
+        )
+        scores = [f"{name} {fmt.format(v)}" for name, v, fmt in means if v is not None]
+        console.print(
+            f"held-out ({ev.n_held_out} frames): {', '.join(scores) or 'no scores'}; "
+            f"evaluation in {ws.splat_dir / 'eval.json'}",
+            highlight=False,
+        )
