@@ -479,7 +479,6 @@ class _ChunkTrainer:
         )
         self.step_no = 0
         self.history: list[tuple[int, float, float]] = []
-        self.best: float | None = None
         self.done = False
         self.stopped: Stop = "max_steps"
         self.seconds = 0.0
@@ -681,9 +680,7 @@ class _ChunkTrainer:
         for group in self.optimizers["means"].param_groups:
             group["lr"] = self.means_lr
         spent = self.seconds + time.perf_counter() - start
-        # Out of time when the last validation, as long as the one before, would overrun.
-        out_of_time = self.time_share is not None and spent + self._val_seconds >= self.time_share
-        if self.step_no % opts.val_every == 0 or self.step_no >= self.cap or out_of_time:
+        if self.step_no % opts.val_every == 0 or self.step_no >= self.cap or self._out_of(spent):
             val_start = time.perf_counter()
             self._validate(spent)
             self._val_seconds = time.perf_counter() - val_start
@@ -711,8 +708,6 @@ class _ChunkTrainer:
             ssim_mean = float(torch.stack(ssims).mean())
         psnr = float(np.mean(psnrs))
         self.history.append((self.step_no, psnr, ssim_mean))
-        if self.best is None or psnr > self.best:
-            self.best = psnr
         _log.info(
             "chunk %d step %d: held-in PSNR %.2f dB, SSIM %.4f, %d Gaussians",
             self.chunk.id,
@@ -726,10 +721,19 @@ class _ChunkTrainer:
         elif self.step_no >= opts.max_steps:
             self.done, self.stopped = True, "max_steps"
         elif self.time_share is not None:
-            if self.step_no >= self.cap or spent + self._val_seconds >= self.time_share:
+            if self.step_no >= self.cap or self._out_of(spent):
                 self.done, self.stopped = True, "time"
             else:
                 self._fit_to_time(spent)
+
+    def _out_of(self, spent: float) -> bool:
+        """Out of time: one more validation, as long as the last, would overrun the share."""
+        return self.time_share is not None and spent + self._val_seconds >= self.time_share
+
+    @property
+    def best(self) -> float | None:
+        """The best held-in PSNR so far, dB."""
+        return max((psnr for _, psnr, _ in self.history), default=None)
 
     def _fit_to_time(self, spent: float) -> None:
         """Move the step cap to where the time share runs out, with the schedules that end there."""
