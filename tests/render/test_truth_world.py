@@ -10,6 +10,7 @@ import pytest
 from cam2sim.core.frames.projection import WorldFrame
 from cam2sim.render.look import frame_noise_rng
 from cam2sim.render.truth import TruthWorld, truth_from_world
+from conftest import has_egl
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -108,3 +109,26 @@ def test_road_texture_is_filtered_like_a_camera_would_see_it() -> None:
     score = ssim(plain[road], fine.astype(np.uint8)[road])
     # Point-sampled textures scored 0.72 here: distant grain aliased into per-pose patterns.
     assert score > 0.9, score
+
+
+@pytest.mark.skipif(not has_egl(), reason="no headless OpenGL (EGL) here")
+def test_the_truth_camera_renders_without_sensor_noise_on_request() -> None:
+    """Noise-free renders of a pose are identical and differ from the noisy one by noise only."""
+    from cam2sim.render.truth import TruthRenderer
+    from cam2sim.scenario.synthetic import StreetSpec, synthetic_street
+
+    _, xodr = synthetic_street(StreetSpec(length_m=30.0))
+    world = TruthWorld(crs=UTM, origin=ORIGIN, xodr=xodr)
+    T = np.eye(4)  # optical axes: looking along +x from 1.4 m above the road
+    T[:3, :3] = [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]
+    T[:3, 3] = [5.0, 0.0, 1.4]
+    K = np.array([[80.0, 0.0, 80.0], [0.0, 80.0, 50.0], [0.0, 0.0, 1.0]])
+    with TruthRenderer(world, None) as camera:
+        clean = camera.render(T, K, 160, 100, sensor_noise=False).rgb
+        again = camera.render(T, K, 160, 100, sensor_noise=False).rgb
+        noisy = camera.render(T, K, 160, 100).rgb
+    assert np.array_equal(clean, again)
+    diff = noisy.astype(np.float64) - clean.astype(np.float64)
+    assert abs(diff.mean()) < 0.5  # zero-mean noise: no change of textures, grading, vignetting
+    assert 2.5 < diff.std() < 5.0  # the sensor's 0.015 (3.8 levels), less clipping and rounding
+    assert np.abs(diff).max() < 30

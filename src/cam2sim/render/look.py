@@ -7,8 +7,9 @@ it, and so is the ``truth`` camera (:mod:`cam2sim.render.truth`), so closed-loop
 ground-truth world see exactly the recording's look.
 
 Determinism: the world textures depend on ``seed`` only; the sensor noise is drawn from the
-``rng`` given. :func:`frame_noise_rng` derives that generator from the seed and the camera pose,
-so one pose renders the same image every time, in the recording and in a closed-loop run.
+``rng`` given (none when ``rng`` is None: the noise-free image, e.g. to score a model against).
+:func:`frame_noise_rng` derives that generator from the seed and the camera pose, so one pose
+renders the same image every time, in the recording and in a closed-loop run.
 """
 
 from __future__ import annotations
@@ -121,7 +122,7 @@ def photographic_look(
     T_world_cam: npt.NDArray[np.float64],
     K: npt.NDArray[np.float64],
     *,
-    rng: np.random.Generator,
+    rng: np.random.Generator | None,
     seed: int = 0,
 ) -> npt.NDArray[np.uint8]:
     """Turn a raster frame into a photograph-like one.
@@ -138,7 +139,7 @@ def photographic_look(
         labels: ``(H, W)`` raster labels (:class:`~cam2sim.render.meshes.Label`).
         T_world_cam: The camera pose (optical axes).
         K: The intrinsics.
-        rng: Draws the sensor noise.
+        rng: Draws the sensor noise; None renders without it (everything else unchanged).
         seed: Seeds the world textures (keep it fixed over a recording).
     """
     from cam2sim.render.meshes import Label  # noqa: PLC0415
@@ -217,9 +218,9 @@ def _lens_and_sensor(
     img: npt.NDArray[np.float32],
     u: npt.NDArray[np.float64],
     v: npt.NDArray[np.float64],
-    rng: np.random.Generator,
+    rng: np.random.Generator | None,
 ) -> npt.NDArray[np.float32]:
-    """Lens and sensor: blur, warm grade with a soft S-curve, vignetting, noise."""
+    """Lens and sensor: blur, warm grade with a soft S-curve, vignetting, noise (``rng``)."""
     import cv2  # noqa: PLC0415
 
     h, w = img.shape[:2]
@@ -229,5 +230,6 @@ def _lens_and_sensor(
     img *= np.array([1.05, 1.0, 0.93], np.float32)
     r2 = ((u - w / 2) / (w / 2)) ** 2 + ((v - h / 2) / (h / 2)) ** 2
     img *= (1.0 - 0.18 * r2)[..., None].astype(np.float32)
-    img += rng.normal(0.0, 0.015, img.shape).astype(np.float32)
+    if rng is not None:
+        img += rng.normal(0.0, 0.015, img.shape).astype(np.float32)
     return img

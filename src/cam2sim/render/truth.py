@@ -12,7 +12,9 @@ takes camera poses in the workspace world frame, moves them into the truth frame
 transform fitted through the two projections) and renders the truth scene with the raster
 renderer and, for ``look.kind == "photographic"``, :func:`~cam2sim.render.look.photographic_look`
 with per-pose noise (:func:`~cam2sim.render.look.frame_noise_rng`): the very pipeline that made
-the demo recording, so a pose renders as the recording would have seen it.
+the demo recording, so a pose renders as the recording would have seen it. With
+``sensor_noise=False`` it renders the same image without the noise (the reference the splat
+models are scored against off the recorded path).
 """
 
 from __future__ import annotations
@@ -222,9 +224,20 @@ class TruthRenderer:
         return cls(TruthWorld.load(path), proj_string)
 
     def render(
-        self, T_world_cam: npt.NDArray[np.float64], K: npt.NDArray[np.float64], w: int, h: int
+        self,
+        T_world_cam: npt.NDArray[np.float64],
+        K: npt.NDArray[np.float64],
+        w: int,
+        h: int,
+        *,
+        sensor_noise: bool = True,
     ) -> RasterResult:
-        """RGB (with the world's look) and labels of a camera at a world-frame pose."""
+        """RGB (with the world's look) and labels of a camera at a world-frame pose.
+
+        ``sensor_noise=False`` leaves out the photographic look's sensor noise (textures, blur,
+        grading and vignetting stay): the noise-free image of the pose, the same every time,
+        which models are scored against (:mod:`cam2sim.splat.envelope`).
+        """
         from cam2sim.render.look import frame_noise_rng, photographic_look  # noqa: PLC0415
         from cam2sim.render.raster import RasterResult  # noqa: PLC0415
 
@@ -233,7 +246,7 @@ class TruthRenderer:
         look = self.world.look
         if look.kind == "raster":
             return frame
-        rng = frame_noise_rng(look.seed, T)
+        rng = frame_noise_rng(look.seed, T) if sensor_noise else None
         rgb = photographic_look(frame.rgb, frame.labels, T, K, rng=rng, seed=look.seed)
         return RasterResult(rgb=rgb, labels=frame.labels)
 
