@@ -5,6 +5,7 @@ from __future__ import annotations
 import datetime as dt
 from pathlib import Path
 
+import numpy as np
 import pytest
 from test_prepare import _workspace
 from typer.testing import CliRunner
@@ -50,3 +51,37 @@ def test_splat_command_refuses_a_time_budget_of_zero(tmp_path: Path) -> None:
     )
     assert result.exit_code == 1
     assert "time_budget_s=0" in result.stderr
+
+
+def test_the_stage_scores_against_the_truth_only_where_a_truth_world_exists(
+    tmp_path: Path,
+) -> None:
+    from cam2sim.render.truth import TruthWorld, truth_world_path
+    from cam2sim.scenario.synthetic import StreetSpec, synthetic_street
+    from cam2sim.splat.envelope import TruthEnvelopeOptions
+    from cam2sim.splat.scene import SceneRecord
+    from cam2sim.stages.splat import SplatStageOptions, _truth_reference
+    from conftest import has_egl, street_workspace
+
+    if not has_egl():
+        pytest.skip("no headless OpenGL (EGL) for the truth camera")
+    ws = street_workspace(tmp_path / "ws", StreetSpec(length_m=30.0))
+    scene = SceneRecord(frames=[], chunks=[], pose_source="recording")
+    notes: list[str] = []
+    with _truth_reference(ws, SplatStageOptions(), scene, notes) as truth:
+        assert truth is None  # no truth/world.json
+    _, xodr = synthetic_street(StreetSpec(length_m=30.0))
+    TruthWorld(crs="EPSG:32632", origin=(0.0, 0.0), xodr=xodr).save(truth_world_path(ws.root))
+    options = SplatStageOptions(truth=TruthEnvelopeOptions(max_frames=3))
+    with _truth_reference(ws, options, scene, notes) as truth:
+        assert truth is not None
+        assert truth.options.max_frames == 3
+        assert truth.ground_z is not None  # from the scenario: the road is at z = 0
+        assert truth.ground_z(np.array([10.0, 0.0])) == pytest.approx(0.0)
+    with _truth_reference(ws, SplatStageOptions(truth_envelope=False), scene, notes) as truth:
+        assert truth is None
+    assert notes == []
+    sfm = scene.model_copy(update={"scale_ambiguous": True})
+    with _truth_reference(ws, options, sfm, notes) as truth:
+        assert truth is None
+    assert notes == ["not scored against the ground truth: the scene's scale is unknown (SfM)"]

@@ -109,3 +109,17 @@ def splat(
             f"evaluation in {ws.splat_dir / 'eval.json'}",
             highlight=False,
         )
+        if ev.truth is not None:
+            rows = [
+                f"{row.label()} {_mean(row.psnr_db.mean, '.2f')} dB / {_mean(row.ssim.mean, '.3f')}"
+                for row in ev.truth.scores
+            ]
+            console.print(
+                f"against the ground truth ({len(ev.truth.frames)} frames, PSNR / SSIM): "
+                + ", ".join(rows),
+                highlight=False,
+            )
+
+
+def _mean(value: float | None, spec: str) -> str:
+    return "-" if value is None else format(value, spec)

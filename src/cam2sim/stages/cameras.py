@@ -30,6 +30,7 @@ __all__ = [
     "Cameras",
     "RunContext",
     "camera_poses",
+    "ground_height_at",
     "load_run_context",
     "scaled_intrinsics",
     "write_png",
@@ -110,6 +111,17 @@ def camera_poses(
     T[:, 0, 3], T[:, 1, 3], T[:, 2, 3] = reference_xy[:, 0], reference_xy[:, 1], reference_z
     out: npt.NDArray[np.float64] = T @ T_ref_cam
     return out
+
+
+def ground_height_at(scenario: Scenario, xy: npt.NDArray[np.float64]) -> float:
+    """Recorded ground height (world z, m) under a world ``(x, y)``: at the nearest sample.
+
+    The recorded reference point's z less its height above the ground. The raster and truth
+    worlds have their road at z = 0; the splat models live at the recorded heights.
+    """
+    ref = np.asarray(scenario.trajectory.reference, dtype=np.float64)
+    i = int(np.argmin(np.hypot(ref[:, 0] - xy[0], ref[:, 1] - xy[1])))
+    return float(ref[i, 2] - scenario.vehicle.reference_xyz[2])
 
 
 class Cameras:

@@ -37,6 +37,7 @@ from cam2sim.stages.cameras import (
     Cameras,
     RunContext,
     camera_poses,
+    ground_height_at,
     load_run_context,
     scaled_intrinsics,
     write_png,
@@ -653,9 +654,7 @@ def _splat_ground(sc: Scenario, state: Any, camera: str) -> float:
     """Ground height under the vehicle for a camera: 0 for raster, recorded for splat."""
     if camera != "splat":
         return 0.0
-    ref = np.asarray(sc.trajectory.reference, dtype=np.float64)
-    i = int(np.argmin(np.hypot(ref[:, 0] - state.x, ref[:, 1] - state.y)))
-    return float(ref[i, 2] - sc.vehicle.reference_xyz[2])
+    return ground_height_at(sc, np.array([state.x, state.y]))
 
 
 def iter_runs(ws: Workspace) -> Iterator[Path]:

@@ -2,25 +2,34 @@
 
 ``WS/splat/prep/`` (frames, masks, initial points: :mod:`cam2sim.splat.prepare`),
 ``WS/splat/models/chunk_XX.pt`` (:mod:`cam2sim.splat.train`; gsplat on CUDA, the pure-torch
-rasterizer on CPU) and ``WS/splat/eval.json`` (:mod:`cam2sim.splat.evaluate`).
+rasterizer on CPU) and ``WS/splat/eval.json`` (:mod:`cam2sim.splat.evaluate`). Where the
+workspace has a ground-truth world (``WS/truth/world.json``), the evaluation also scores the
+models against it on and off the recorded path (:mod:`cam2sim.splat.envelope`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from cam2sim.core.errors import StageError
+from cam2sim.core.errors import Cam2SimError, StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.workspace import Workspace, hash_inputs
 from cam2sim.stages._runner import stage_run
 
 if TYPE_CHECKING:
+    from collections.abc import Callable, Iterator
     from pathlib import Path
 
+    import numpy as np
+    import numpy.typing as npt
+
+    from cam2sim.splat.envelope import TruthEnvelopeOptions, TruthReference
     from cam2sim.splat.evaluate import SplatEval
     from cam2sim.splat.prepare import PrepareOptions
+    from cam2sim.splat.scene import SceneRecord
     from cam2sim.splat.train import SceneTrainResult, TrainOptions
 
 __all__ = ["SplatResult", "SplatStageOptions", "run_splat"]
@@ -31,13 +40,27 @@ STAGE = "splat"
 
 @dataclass(frozen=True)
 class SplatStageOptions:
-    """What ``cam2sim splat`` does; None options take each step's defaults."""
+    """What ``cam2sim splat`` does; None options take each step's defaults.
+
+    Attributes:
+        prepare: Preparation options.
+        train: Training options.
+        evaluate: Write ``eval.json``.
+        lpips_weights: LPIPS weights for the evaluation (None: the cache).
+        offsets_m: Lateral offsets of the relative envelope (render against render).
+        truth_envelope: Also score against the ground-truth world when the workspace has one.
+        truth: What that measures (None: :class:`~cam2sim.splat.envelope.TruthEnvelopeOptions`
+            defaults: +-0.5, 1, 2 m and +-5 degrees at 12 held-out frames).
+        steps: Steps to run.
+    """
 
     prepare: PrepareOptions | None = None
     train: TrainOptions | None = None
     evaluate: bool = True
     lpips_weights: Path | None = None
     offsets_m: tuple[float, ...] = (-2.0, -1.0, -0.5, 0.5, 1.0, 2.0)
+    truth_envelope: bool = True
+    truth: TruthEnvelopeOptions | None = None
     steps: tuple[str, ...] = field(default=("prepare", "train", "evaluate"))
 
 
@@ -105,12 +128,61 @@ def run_splat(
                 prep_dir, options=opts.train, models_dir=models_dir, progress=report, scene=scene
             )
         if opts.evaluate and "evaluate" in opts.steps:
-            evaluation = evaluate_splat(
-                prep_dir,
-                models_dir,
-                offsets=() if scene.scale_ambiguous else opts.offsets_m,
-                lpips_weights=opts.lpips_weights,
-                out_path=ws.splat_dir / "eval.json",
-                progress=report,
-            )
+            notes: list[str] = []
+            with _truth_reference(ws, opts, scene, notes) as truth:
+                evaluation = evaluate_splat(
+                    prep_dir,
+                    models_dir,
+                    offsets=() if scene.scale_ambiguous else opts.offsets_m,
+                    lpips_weights=opts.lpips_weights,
+                    out_path=ws.splat_dir / "eval.json",
+                    truth=truth,
+                    progress=report,
+                )
+            if notes:
+                evaluation = evaluation.model_copy(update={"notes": [*evaluation.notes, *notes]})
+                evaluation.save(ws.splat_dir / "eval.json")
     return SplatResult(prep_dir, models_dir, trained, evaluation)
+
+
+@contextlib.contextmanager
+def _truth_reference(
+    ws: Workspace, opts: SplatStageOptions, scene: SceneRecord, notes: list[str]
+) -> Iterator[TruthReference | None]:
+    """The workspace's truth camera for the evaluation, or None (and why, in ``notes``)."""
+    from cam2sim.render.truth import TruthRenderer, truth_world_path  # noqa: PLC0415
+    from cam2sim.splat.envelope import TruthEnvelopeOptions, TruthReference  # noqa: PLC0415
+
+    if not opts.truth_envelope or not truth_world_path(ws.root).is_file():
+        yield None
+        return
+    if scene.scale_ambiguous:
+        notes.append("not scored against the ground truth: the scene's scale is unknown (SfM)")
+        yield None
+        return
+    frame = ws.world_frame()
+    try:
+        camera = TruthRenderer.open(ws.root, frame.proj_string if frame else None)
+    except Cam2SimError as err:  # no headless OpenGL here, say: the rest of eval.json stands
+        logger.warning("splat: not scored against the ground truth: %s", err)
+        notes.append(f"not scored against the ground truth: {err}")
+        yield None
+        return
+    with camera:
+        yield TruthReference(
+            camera,
+            ground_z=_recorded_ground(ws),
+            options=opts.truth or TruthEnvelopeOptions(),
+        )
+
+
+def _recorded_ground(ws: Workspace) -> Callable[[npt.NDArray[np.float64]], float] | None:
+    """Ground height under a world ``(x, y)`` from the scenario; None without a scenario."""
+    from cam2sim.scenario.model import Scenario  # noqa: PLC0415
+    from cam2sim.stages.cameras import ground_height_at  # noqa: PLC0415
+
+    path = ws.scenario_dir / "scenario.json"
+    if not path.is_file():
+        return None
+    scenario = Scenario.load(path)
+    return lambda xy: ground_height_at(scenario, xy)
