@@ -1,8 +1,9 @@
 """The splat models scored against the ground truth, on and off the recorded path.
 
-A small street with a parked car and two buildings is the ground-truth world; the "recording"
-is its truth camera driving along the street (with sensor noise, as recorded), the points are
-sampled on its surfaces and coloured from the frames, and a few dozen CPU steps train a model.
+A street workspace whose ground-truth world is the same street with a parked car and two
+buildings; the "recording" is its truth camera driving along the street (with sensor noise, as
+recorded), the points are sampled on its surfaces and coloured from the frames, and a few dozen
+CPU steps train a model. A drive with the splat camera then records the splat's quality.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from cam2sim.splat.envelope import (
 from cam2sim.splat.evaluate import EvalOptions, SplatEval, evaluate_splat
 from cam2sim.splat.scene import ChunkRecord, FrameRecord, SceneRecord, save_points
 from cam2sim.splat.train import train_scene
-from conftest import has_egl
+from conftest import has_egl, street_workspace
 
 pytestmark = [
     pytest.mark.usefixtures("one_torch_thread"),
@@ -130,8 +131,10 @@ def recorded_scene(root: Path, world: TruthWorld) -> Path:
 
 @pytest.fixture(scope="module")
 def scored(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, SplatEval]:
+    """A street workspace (scenario: the same street) with trained, evaluated splat models."""
     world = truth_world()
-    prep = recorded_scene(tmp_path_factory.mktemp("ws"), world)
+    ws = street_workspace(tmp_path_factory.mktemp("ws") / "ws", StreetSpec(length_m=40.0))
+    prep = recorded_scene(ws.root, world)
     train_scene(prep, options=fast_options(max_steps=60, min_steps=60, sky_points=100))
     calls: list[tuple[str, int, int | None]] = []
     with TruthRenderer(world, None) as camera:
@@ -210,3 +213,31 @@ def test_a_perturbed_pose_moves_right_and_turns_left_about_the_vertical() -> Non
     assert np.allclose(left[:3, 1], T[:3, 1])  # still upright
     assert even_picks(10, 4) == [0, 3, 6, 9]
     assert even_picks(3, 12) == [0, 1, 2]
+
+
+def test_a_drive_with_the_splat_camera_records_its_quality_and_the_gate(
+    scored: tuple[Path, SplatEval],
+) -> None:
+    from cam2sim.core.workspace import Workspace
+    from cam2sim.metrics.drive_io import load_run_dir
+    from cam2sim.stages.runs import DriveOptions, drive
+
+    prep, result = scored
+    ws = Workspace.open(prep.parent.parent)
+    options = DriveOptions(camera="splat", image_size=(W, H), max_steps=45)
+    (run,) = drive(ws, options=options)
+    meta = json.loads((run.folder / "run.json").read_text(encoding="utf-8"))
+    quality, gate = meta["splat_quality"], meta["splat_gate"]
+    assert quality["frames"] == 15  # every 3rd of 45 steps
+    assert 0.0 <= quality["coverage_mean"] <= quality["coverage_max"] <= 1.0
+    assert quality["held_out_psnr_db"] == pytest.approx(result.psnr_db.mean)
+    assert result.truth is not None
+    on_path = result.truth.on_path()
+    assert on_path is not None
+    assert quality["truth_ssim"] == pytest.approx(on_path.ssim.mean)
+    assert len(quality["truth_envelope"]) == 9
+    assert gate["fit"] == (gate["failures"] == [])
+    loaded = load_run_dir(run.folder)
+    assert loaded.method == "drive-splat"
+    assert loaded.splat_quality is not None
+    assert loaded.splat_quality.frames == 15

@@ -8,7 +8,11 @@ against the others); a closed-loop real run that fails is scored against the ref
 simulated run and counts in the Real group's failure rate. ``docs/metrics.md`` says why.
 
 :func:`behaviour_table` lays the per-method summaries out as the paper does: one column per
-method (Real, then the simulated ones), one row per metric.
+method (Real, then the simulated ones), one row per metric. Runs with the splat camera carry
+the splat's quality along their path (``run.json``); :func:`evaluate_with_real_runs` puts the
+splat quality gate's verdict per method into the metrics (:mod:`cam2sim.metrics.splat_gate`),
+and the table labels a method that failed it ``splat (unfit)`` with the reason under the table:
+its failures measure the splat, not the system under test.
 """
 
 from __future__ import annotations
@@ -85,7 +89,8 @@ def evaluate_with_real_runs(
 
     Returns:
         The evaluation; its Real group holds the recorded drives and every closed-loop real
-        run, completed ones as references, failed ones scored against them.
+        run, completed ones as references, failed ones scored against them. Its metrics hold
+        the splat quality gate's verdict for each method whose runs recorded splat quality.
     """
     from cam2sim.metrics.drive_quality import evaluate_drives  # noqa: PLC0415
 
@@ -97,23 +102,36 @@ def evaluate_with_real_runs(
         done = {m.name for m in probe.metrics.runs if not m.real and m.success}
     references = [*recorded, *(replace(r, real=True) for r in closed if r.name in done)]
     failed = [r for r in closed if r.name not in done]
-    return evaluate_drives(references, failed + others, segment=segment, options=options)
+    ev = evaluate_drives(references, failed + others, segment=segment, options=options)
+    from cam2sim.metrics.splat_gate import gate_methods  # noqa: PLC0415
+
+    gates = gate_methods([(r.method, r.splat_quality) for r in runs if r.splat_quality])
+    if not gates:
+        return ev
+    return replace(ev, metrics=ev.metrics.model_copy(update={"splat_gate": gates}))
 
 
 @dataclass(frozen=True)
 class BehaviourTable:
-    """The paper's behaviour table: ``rows`` of ``(metric, value per column)``."""
+    """The paper's behaviour table: ``rows`` of ``(metric, value per column)``.
+
+    ``notes`` are lines that belong under the table (a method that failed the splat quality
+    gate, and why).
+    """
 
     columns: tuple[str, ...]
     rows: tuple[tuple[str, tuple[str, ...]], ...]
+    notes: tuple[str, ...] = ()
 
     def markdown(self) -> str:
-        """The table as Markdown."""
+        """The table as Markdown (its notes under it)."""
         lines = [
             "| metric | " + " | ".join(self.columns) + " |",
             "|---|" + "---:|" * len(self.columns),
         ]
         lines += [f"| {name} | " + " | ".join(values) + " |" for name, values in self.rows]
+        if self.notes:
+            lines += ["", *self.notes]
         return "\n".join(lines) + "\n"
 
 
@@ -132,10 +150,24 @@ def behaviour_table(metrics: DriveMetrics) -> BehaviourTable:
 
     Failure rate and completion count every run of a method; Min-Fréchet, corridor violations
     and the excesses average the successful runs; jitter averages all runs. Failure types are
-    ``OR-CC-OS-US`` counts (out of road, car crash, oversteer, understeer).
+    ``OR-CC-OS-US`` counts (out of road, car crash, oversteer, understeer). A method that
+    failed the splat quality gate is labelled ``(unfit)``, with a note giving the reason.
     """
+    from cam2sim.metrics.splat_gate import unfit_label  # noqa: PLC0415
+
     methods = _order(metrics.methods)
-    columns = tuple(METHOD_LABELS.get(s.method, s.method) for s in methods)
+    gates = {g.method: g for g in metrics.splat_gate}
+    labels = {s.method: METHOD_LABELS.get(s.method, s.method) for s in methods}
+    notes = []
+    for method, gate in gates.items():
+        if method in labels and not gate.fit:
+            labels[method] = unfit_label(labels[method])
+            notes.append(
+                f"{labels[method]}: {gate.reason}. Its runs fail the splat quality gate "
+                f"({gate.unfit_runs}/{gate.runs}), so its column measures the splat, not the "
+                "system under test."
+            )
+    columns = tuple(labels[s.method] for s in methods)
 
     def row(name: str, values: list[str]) -> tuple[str, tuple[str, ...]]:
         return name, tuple(values)
@@ -164,4 +196,4 @@ def behaviour_table(metrics: DriveMetrics) -> BehaviourTable:
         row("steering jitter (units/s)", [_fmt(s.avg_jitter, ".3f") for s in methods]),
         row("max jitter (units/s)", [_fmt(s.max_jitter, ".3f") for s in methods]),
     )
-    return BehaviourTable(columns=columns, rows=rows)
+    return BehaviourTable(columns=columns, rows=rows, notes=tuple(notes))

@@ -33,6 +33,7 @@ from cam2sim.core.errors import WorkspaceError
 
 if TYPE_CHECKING:
     from cam2sim.core import frames
+    from cam2sim.metrics.splat_gate import SplatPathQuality
 
 __all__ = [
     "LEGACY_ACTOR_OFFSET_M",
@@ -79,6 +80,8 @@ class DriveRun:
             (legacy runs), else None.
         events: Events recorded by the simulator (empty for real drives).
         source: File or folder it came from.
+        splat_quality: The splat's quality along the run (``run.json``'s ``splat_quality``,
+            runs with the splat camera); None for other runs and older run folders.
     """
 
     name: str
@@ -92,6 +95,7 @@ class DriveRun:
     steering_dt: float | None = None
     events: tuple[RunEvent, ...] = ()
     source: str = ""
+    splat_quality: SplatPathQuality | None = None
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -191,7 +195,25 @@ def load_run_dir(path: Path, *, method: str | None = None) -> DriveRun:
         steering=steer,
         events=tuple(events),
         source=str(path),
+        splat_quality=_splat_quality(path, meta),
     )
+
+
+def _splat_quality(path: Path, meta: dict[str, Any]) -> SplatPathQuality | None:
+    """``run.json``'s ``splat_quality`` block, if it has one."""
+    import pydantic  # noqa: PLC0415
+
+    from cam2sim.core.schema import format_validation_error  # noqa: PLC0415
+    from cam2sim.metrics.splat_gate import SplatPathQuality  # noqa: PLC0415
+
+    raw = meta.get("splat_quality")
+    if raw is None:
+        return None
+    try:
+        return SplatPathQuality.model_validate(raw)
+    except pydantic.ValidationError as err:
+        msg = format_validation_error(err, source=f"{path / 'run.json'} splat_quality")
+        raise WorkspaceError(msg) from None
 
 
 def xodr_projection(xodr: Path) -> tuple[str, float, float]:

@@ -23,6 +23,7 @@ from cam2sim.core.schema import Artifact
 from cam2sim.metrics.drive_io import DriveRun, runs_in_frame
 from cam2sim.metrics.frechet import discrete_frechet
 from cam2sim.metrics.path import ReferencePath, arc_length, resample_by_arc_length, resample_indices
+from cam2sim.metrics.splat_gate import MethodGate
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -143,6 +144,10 @@ class DriveMetrics(Artifact):
     runs: list[RunMetrics]
     methods: list[MethodSummary]
     options: dict[str, float | int | None]
+    splat_gate: list[MethodGate] = pydantic.Field(
+        default_factory=list,
+        description="The splat quality gate per method whose runs recorded splat quality",
+    )
 
 
 @dataclass(frozen=True)

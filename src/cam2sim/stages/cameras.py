@@ -162,6 +162,11 @@ class Cameras:
         rgb: npt.NDArray[np.uint8] = self.renderers[name].render(T, K, w, h).rgb
         return rgb
 
+    def coverage(self, name: str, T: npt.NDArray[np.float64]) -> float:
+        """The splat camera ``name``'s coverage of pose ``T`` (0 on a training view, toward 1)."""
+        value: float = self.renderers[name].coverage_of(T)[0]
+        return value
+
     def __enter__(self) -> Self:
         return self
 

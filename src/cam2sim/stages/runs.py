@@ -13,7 +13,10 @@ into place, so runs never overwrite each other and no half run is left):
   reference point (the point real drives are recorded at, so runs and real drives compare
   directly in ``cam2sim evaluate drive``);
 - ``steering.csv``: the policy's decisions ``t, value``; ``events.json``; ``run.json`` (what was
-  run: kind, policy, camera, seed, options, timing, the world projection);
+  run: kind, policy, camera, seed, options, timing, the world projection; with the splat
+  camera also ``splat_quality``, the splat's coverage along the driven path and its held-out
+  and ground-truth scores, and ``splat_gate``, the quality gate's verdict:
+  :mod:`cam2sim.metrics.splat_gate`);
 - ``frames/<camera>/NNNNNN.png`` and ``side_by_side/`` on request, ``video.mp4`` on request.
 """
 
@@ -495,6 +498,7 @@ def _drive_loop(  # noqa: PLR0913, PLR0915, PLR0917 - one run: setup, step loop,
     ref_xyz = sc.vehicle.reference_xyz
     command = 0.0
     render_s = policy_s = 0.0
+    coverage: list[float] = []  # the splat camera's, per frame
     failure: dict[str, Any] | None = None
     started = time.perf_counter()
     steps = 0
@@ -507,7 +511,7 @@ def _drive_loop(  # noqa: PLR0913, PLR0915, PLR0917 - one run: setup, step loop,
                     image = (
                         sim.camera_images().rgb
                         if cam_name == "carla"
-                        else _vehicle_view(sc, state, cameras, cam_name, (K, w, h))
+                        else _vehicle_view(sc, state, cameras, cam_name, (K, w, h), coverage)
                     )
                     render_s += time.perf_counter() - t0
                     _keep_frame(
@@ -544,6 +548,8 @@ def _drive_loop(  # noqa: PLR0913, PLR0915, PLR0917 - one run: setup, step loop,
         timing = {"seconds": seconds, "render_s": render_s, "policy_s": policy_s}
         meta = _drive_meta(opts, policy.name, cam_name, seed, steps, len(decisions), timing)
         meta |= {"simulator": sim_opts.model_dump(mode="json"), "proj_string": sc.world.proj_string}
+        if cam_name == "splat":
+            meta |= _splat_quality(ctx.ws, run_id, coverage)
         _write_meta(tmp, meta, events)
     except BaseException:
         _discard(tmp)
@@ -626,14 +632,39 @@ def _keep_frame(
         video.add(image)
 
 
+def _splat_quality(ws: Workspace, run_id: str, coverage: list[float]) -> dict[str, Any]:
+    """``run.json``'s ``splat_quality`` and ``splat_gate`` (:mod:`cam2sim.metrics.splat_gate`)."""
+    from cam2sim.metrics.splat_gate import gate_run, path_quality  # noqa: PLC0415
+    from cam2sim.splat.evaluate import SplatEval  # noqa: PLC0415
+
+    path = ws.splat_dir / "eval.json"
+    evaluation, notes = None, []
+    if not path.is_file():
+        notes.append(f"{path} missing: the splat was not evaluated")
+    else:
+        try:
+            evaluation = SplatEval.load(path)
+        except Cam2SimError as err:
+            notes.append(f"{path} unreadable: {err}")
+    quality = path_quality(coverage, evaluation, notes=notes)
+    gate = gate_run(quality)
+    if not gate.fit:
+        logger.warning("run %s: the splat camera fails the quality gate: %s", run_id, gate.reason)
+    return {
+        "splat_quality": quality.model_dump(mode="json"),
+        "splat_gate": gate.model_dump(mode="json"),
+    }
+
+
 def _vehicle_view(
     sc: Scenario,
     state: Any,
     cameras: Cameras,
     cam_name: str,
     camera: tuple[npt.NDArray[np.float64], int, int],
+    coverage: list[float],
 ) -> npt.NDArray[np.uint8]:
-    """What the vehicle's camera sees in its current state."""
+    """What the vehicle's camera sees in its current state (the splat's coverage appended)."""
     from cam2sim.scenario.body import body_point_positions  # noqa: PLC0415
 
     ref_xyz = sc.vehicle.reference_xyz
@@ -647,6 +678,8 @@ def _vehicle_view(
         np.array([ref_xyz[2] + _splat_ground(sc, state, cam_name)]),
     )[0]
     K, w, h = camera
+    if cam_name == "splat":
+        coverage.append(cameras.coverage(cam_name, T))
     return cameras.render(cam_name, T, K, w, h)
 
 
