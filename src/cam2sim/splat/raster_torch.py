@@ -33,11 +33,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Final
+from typing import Final, Literal
 
 import torch
 from torch.nn import functional as tnf
 
+from cam2sim.splat import raster_cpu
 from cam2sim.splat.raster import RasterOutput
 
 __all__ = [
@@ -487,6 +488,7 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
     sh_degree: int | None = None,
     backgrounds: torch.Tensor | None = None,
     max_elements: int = _MAX_ELEMENTS,
+    compositing: Literal["auto", "compiled", "torch"] = "auto",
 ) -> RasterOutput:
     """Render Gaussians into ``C`` images (see :func:`cam2sim.splat.raster.rasterize`).
 
@@ -507,6 +509,10 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
         sh_degree: SH degree, or None for plain colours.
         backgrounds: ``[C, D]`` background colours, or None (zeros).
         max_elements: Bound on (tile, Gaussian, pixel) elements per compositing batch.
+        compositing: Step 5 on the CPU: ``"compiled"`` (:mod:`cam2sim.splat.raster_cpu`,
+            numba, float32; several times faster), ``"torch"`` (this module's batched
+            tensors, any device and dtype) or ``"auto"`` (compiled for float32 on the CPU
+            when numba is installed).
 
     Returns:
         Images, alphas and screen-space data (``backend="torch"``).
@@ -543,22 +549,40 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
 
     tiles_x = math.ceil(width / TILE_SIZE)
     tiles_y = math.ceil(height / TILE_SIZE)
+    compiled = compositing == "compiled" or (
+        compositing == "auto"
+        and means.device.type == "cpu"
+        and means.dtype == torch.float32
+        and raster_cpu.available()
+    )
     images, alphas = [], []
     for cam in range(n_cams):
         tile_ids, gauss_ids = _tile_intersections(
             proj.means2d[cam], proj.radii[cam], proj.depths[cam], tiles_x, tiles_y
         )
-        rgb, acc = _composite(
-            proj.means2d[cam],
-            proj.conics[cam],
-            opacities,
-            per_cam[cam],
-            tile_ids,
-            gauss_ids,
-            tiles_x=tiles_x,
-            tiles_y=tiles_y,
-            max_elements=max_elements,
-        )
+        if compiled:
+            rgb, acc = raster_cpu.composite(
+                proj.means2d[cam],
+                proj.conics[cam],
+                opacities,
+                per_cam[cam],
+                tile_ids,
+                gauss_ids,
+                tiles_x=tiles_x,
+                tiles_y=tiles_y,
+            )
+        else:
+            rgb, acc = _composite(
+                proj.means2d[cam],
+                proj.conics[cam],
+                opacities,
+                per_cam[cam],
+                tile_ids,
+                gauss_ids,
+                tiles_x=tiles_x,
+                tiles_y=tiles_y,
+                max_elements=max_elements,
+            )
         rgb, acc = rgb[:height, :width], acc[:height, :width]
         if backgrounds is not None:
             rgb = rgb + (1.0 - acc)[..., None] * backgrounds[cam]
