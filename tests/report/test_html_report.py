@@ -16,6 +16,7 @@ from cam2sim.core.config import Config, RecordingConfig
 from cam2sim.core.workspace import Workspace
 from cam2sim.report.html import SECTION_IDS, write_report
 from cam2sim.scenario.synthetic import StreetSpec
+from cam2sim.splat.evaluate import SplatEval
 from cam2sim.stages.pipeline import STATE_FILE, STEPS_KEY
 from cam2sim.stages.runs import DriveOptions, ReplayOptions, drive, replay
 from conftest import has_egl, launch_chromium, playwright_with_chromium, street_workspace
@@ -183,3 +184,53 @@ def test_report_renders_in_headless_chromium(
     image = cv2.imread(str(shot), cv2.IMREAD_COLOR)
     assert image is not None
     assert image.shape[0] >= height - 1  # the whole page, not the first screen
+
+
+def _splat_eval(psnr: float) -> SplatEval:
+    """A held-out evaluation with a ground-truth envelope (on path, +-2 m, a yaw turn)."""
+    from cam2sim.splat.evaluate import HeldOutFrame, TruthEnvelope, TruthScore, summarise
+
+    def row(lateral: float, yaw: float, drop: float) -> TruthScore:
+        return TruthScore(
+            lateral_m=lateral, yaw_deg=yaw, psnr_db=summarise([psnr - drop, psnr - 2 * drop]),
+            ssim=summarise([0.85 - drop / 50]), lpips=summarise([0.3 + drop / 20]),
+            coverage=summarise([0.5 + abs(lateral) / 5]),
+        )  # fmt: skip
+
+    frame = HeldOutFrame(index=8, psnr_db=psnr, ssim=0.83, lpips=0.35, coverage=0.5, chunks={})
+    truth = [row(0.0, 0.0, 0.0), row(-2.0, 0.0, 3.0), row(2.0, 0.0, 4.0), row(0.0, 5.0, 0.5)]
+    return SplatEval(
+        models_dir="models", n_held_out=1, psnr_db=summarise([psnr]), ssim=summarise([0.83]),
+        lpips=summarise([0.35]), lpips_net="alex", lower_fraction=0.5, frames=[frame],
+        offsets=[], truth=TruthEnvelope(frames=[8], lpips_net="alex", scores=truth),
+    )  # fmt: skip
+
+
+def test_the_report_shows_the_splat_envelope_and_an_unfit_splat_plainly(tmp_path: Path) -> None:
+    from cam2sim.metrics.splat_gate import gate_run, path_quality
+
+    ws = _workspace(tmp_path / "ws")
+    evaluation = _splat_eval(21.3)
+    evaluation.save(ws.splat_dir / "eval.json")
+    (run,) = drive(ws, options=DriveOptions(camera="none", runs=1))
+    meta = json.loads((run.folder / "run.json").read_text(encoding="utf-8"))
+    quality = path_quality([0.2, 0.3, 0.25], evaluation)  # as a splat drive records it
+    meta |= {
+        "method": "drive-splat",
+        "splat_quality": quality.model_dump(mode="json"),
+        "splat_gate": gate_run(quality).model_dump(mode="json"),
+    }
+    (run.folder / "run.json").write_text(json.dumps(meta), encoding="utf-8")
+    html = write_report(ws).read_text(encoding="utf-8")
+    sections = dict(re.findall(r'<section id="(\w+)">(.*?)</section>', html, re.DOTALL))
+    behaviour, splat = sections["behaviour"], sections["splat"]
+    assert "<th>splat (unfit)</th>" in behaviour
+    assert "splat (unfit): splat under-trained: held-out 21.3 dB &lt; 25 dB" in behaviour
+    assert "Validity envelope, measured" in splat
+    assert "<td>on path</td><td>21.30</td><td>0.850</td>" in splat
+    assert "<td>+2 m</td>" in splat
+    assert "<td>yaw +5 deg</td>" in splat
+    assert splat.count('src="data:image/png;base64,') == 1  # the envelope plot
+    assert "drive-splat: unfit (1/1 runs)" in splat
+    assert "its runs fail the splat quality gate" in sections["summary"]
+    assert "unfit (0.25 / 0.30)" in sections["runs"]

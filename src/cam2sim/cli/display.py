@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, TextIO
 
 from rich.console import Console
 from rich.logging import RichHandler
+from rich.markup import escape
 from rich.measure import Measurement
 from rich.progress import (
     BarColumn,
@@ -110,7 +111,7 @@ class ProgressSink:
 
 
 def print_behaviour(metrics: DriveMetrics) -> None:
-    """Print the behaviour table in the paper's layout (Real / splat / Sim columns)."""
+    """Print the behaviour table in the paper's layout (Real / splat / Sim), notes under it."""
     from rich.table import Table  # noqa: PLC0415
 
     from cam2sim.metrics.behaviour import behaviour_table  # noqa: PLC0415
@@ -123,3 +124,5 @@ def print_behaviour(metrics: DriveMetrics) -> None:
     for name, values in paper.rows:
         table.add_row(name, *values)
     print_table(table)
+    for note in paper.notes:  # a method that failed the splat quality gate, and why
+        console.print(f"[bold yellow]{escape(note)}[/]", highlight=False, soft_wrap=True)

@@ -284,10 +284,11 @@ def drive(
         "OR-CC-OS-US",
     ):
         table.add_column(col, justify="left" if col == "method" else "right")
+    unfit = {g.method for g in m.splat_gate if not g.fit}
     for s in m.methods:
         ft = s.failure_types
         table.add_row(
-            s.method,
+            f"{s.method} (unfit)" if s.method in unfit else s.method,
             str(s.runs),
             f"{100 * s.failure_rate:.0f}",
             f"{s.completion_mean:.2f} ({s.completion_min:.2f}-{s.completion_max:.2f})",

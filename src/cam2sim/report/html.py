@@ -6,9 +6,12 @@ resource. Every section is always present; a section whose inputs are missing sa
 makes them. Every string read from files is escaped.
 
 Sections (stable ids): ``summary`` (inputs, stage timings, warnings), ``map`` (route, parked cars,
-every run's trajectory), ``behaviour`` (drive metrics per method, the paper's layout), ``runs``
-(per-run table, lateral offset and steering plots), ``frames`` (side-by-side frames at chosen
-points, a video strip), ``semantic`` (IoU tables) and ``images`` (PSNR, SSIM, LPIPS tables).
+every run's trajectory), ``behaviour`` (drive metrics per method, the paper's layout; a splat
+that fails the splat quality gate is labelled unfit, with the reason), ``runs`` (per-run table,
+lateral offset and steering plots), ``splat`` (held-out scores, the validity envelope measured
+against the ground truth with a plot, the gate's verdict), ``frames`` (side-by-side frames at
+chosen points, a video strip), ``semantic`` (IoU tables) and ``images`` (PSNR, SSIM, LPIPS
+tables).
 """
 
 from __future__ import annotations
@@ -39,11 +42,12 @@ if TYPE_CHECKING:
     from cam2sim.metrics.drive_quality import DriveEvaluation
     from cam2sim.metrics.image_quality import MetricStats
     from cam2sim.scenario.model import Scenario
+    from cam2sim.splat.evaluate import MetricSummary
 
 __all__ = ["SECTION_IDS", "VIDEO_CAP_BYTES", "write_report"]
 
 #: The ids of the report's sections, in page order.
-SECTION_IDS = ("summary", "map", "behaviour", "runs", "frames", "semantic", "images")
+SECTION_IDS = ("summary", "map", "behaviour", "runs", "splat", "frames", "semantic", "images")
 _VIDEO_FRAMES = 300  # frames of a run's clip in the report
 _VIDEO_WIDTH = 640
 #: A run's clip (WebM made from its frames) is embedded only up to this size.
@@ -329,11 +333,17 @@ def _behaviour(ctx: _Context, why: str | None) -> str:
             "Behaviour (the paper's layout)",
         )
     ]
+    parts += [f'<p class="warn"><b>{_e(note)}</b></p>' for note in paper.notes]
+    unfit = {g.method: g for g in m.splat_gate if not g.fit}
+    ctx.warnings += [
+        f"{g.method}: its runs fail the splat quality gate ({g.reason})" for g in unfit.values()
+    ]
     rows = []
     for s in m.methods:
         ft = s.failure_types
         rows.append((
-            s.method, s.runs, f"{100 * s.failure_rate:.0f}",
+            f"{s.method} (unfit)" if s.method in unfit else s.method, s.runs,
+            f"{100 * s.failure_rate:.0f}",
             f"{s.completion_mean:.2f} ({s.completion_min:.2f}-{s.completion_max:.2f})",
             f"{ft['out_of_road']}-{ft['collision']}-{ft['oversteer']}-{ft['understeer']}",
             _fmt(s.avg_min_frechet_m, ".2f"), _fmt(s.avg_corridor_violation_pct, ".1f"),
@@ -372,9 +382,10 @@ def _runs(ctx: _Context, tmp: Path) -> str:
             run.name, meta.get("kind", "?"), drv.method, meta.get("policy", "-"),
             len(drv), f"{float(meta.get('seconds', 0.0)):.2f}", kinds,
             _fmt(m.completion if m else None, ".2f"), (m.failure or "ok") if m else "-",
+            _splat_cell(meta),
         ))  # fmt: skip
     headers = ["run", "kind", "method", "policy", "steps", "seconds", "events", "completion",
-               "outcome"]  # fmt: skip
+               "outcome", "splat gate (coverage mean / max)"]  # fmt: skip
     parts = [_table(headers, rows, "Runs")]
     if ctx.evaluation is None:
         parts.append(_na("Lateral offset and steering plots", f"cam2sim drive {ctx.ws.root}"))
@@ -384,6 +395,16 @@ def _runs(ctx: _Context, tmp: Path) -> str:
     figures = write_drive_figures(ctx.evaluation, tmp)
     parts += [_img(p.read_bytes(), p.stem.replace("_", " ")) for p in figures[1:]]
     return "".join(parts)
+
+
+def _splat_cell(meta: dict[str, Any]) -> str:
+    """A run's splat gate verdict and driven coverage; "-" for runs without the splat camera."""
+    quality, gate = meta.get("splat_quality"), meta.get("splat_gate")
+    if not isinstance(quality, dict) or not isinstance(gate, dict):
+        return "-"
+    verdict = "fit" if gate.get("fit") else "unfit"
+    mean, top = quality.get("coverage_mean"), quality.get("coverage_max")
+    return f"{verdict} ({_fmt(mean, '.2f')} / {_fmt(top, '.2f')})"
 
 
 def _evenly(items: Sequence[Path], n: int) -> list[Path]:
@@ -569,6 +590,78 @@ def _stats_cell(stats: MetricStats | None, spec: str) -> str:
     return f"{format(stats.mean, spec)} ± {_fmt(stats.std, spec)}"
 
 
+def _summary_rows(
+    rows: Iterable[tuple[str, MetricSummary, str]],
+) -> list[tuple[str, str, str, str, int]]:
+    return [(n, _fmt(s.mean, f), _fmt(s.p10, f), _fmt(s.p90, f), s.n) for n, s, f in rows]
+
+
+def _splat(ctx: _Context) -> str:
+    """Held-out scores, the envelope against the ground truth (table and plot), the gate."""
+    from cam2sim.metrics import splat_gate as gate  # noqa: PLC0415
+    from cam2sim.report.splat_figures import envelope_figure  # noqa: PLC0415
+    from cam2sim.splat.evaluate import SplatEval  # noqa: PLC0415
+
+    path = ctx.ws.splat_dir / "eval.json"
+    if not path.is_file():
+        return _na("Splat quality (WS/splat/eval.json)", f"cam2sim splat {ctx.ws.root}")
+    try:
+        ev = SplatEval.load(path)
+    except Cam2SimError as err:
+        ctx.warnings.append(f"{path}: {err}")
+        return _na("Splat quality (eval.json unreadable)", f"cam2sim splat {ctx.ws.root} --force")
+    held = [("PSNR dB", ev.psnr_db, ".2f"), ("SSIM", ev.ssim, ".3f"), ("LPIPS", ev.lpips, ".3f")]
+    caption = f"Held out: {ev.n_held_out} recorded frames never trained on"
+    parts = [_table(["metric", "mean", "p10", "p90", "frames"], _summary_rows(held), caption)]
+    if ev.truth is None:
+        parts.append(
+            '<p class="note">Not scored against a ground truth: the workspace has no '
+            "WS/truth/world.json (cam2sim demo writes one), so the validity envelope is "
+            "measured only relative to the on-path renders (eval.json offsets).</p>"
+        )
+    else:
+        rows = [
+            (
+                row.label(), _fmt(row.psnr_db.mean, ".2f"), _fmt(row.ssim.mean, ".3f"),
+                _fmt(row.lpips.mean, ".3f"), _fmt(row.coverage.mean, ".2f"), row.ssim.n,
+            )
+            for row in ev.truth.scores
+        ]  # fmt: skip
+        headers = ["pose", "PSNR dB", "SSIM", "LPIPS", "coverage", "frames"]
+        caption = "Validity envelope, measured: splat vs the ground truth without sensor noise"
+        parts.append(_table(headers, rows, caption))
+        fig = envelope_figure(
+            ev.truth, min_psnr_db=gate.TRUTH_MIN_PSNR_DB, min_ssim=gate.TRUTH_MIN_SSIM
+        )
+        parts.append(_img(_figure_bytes(fig), "splat vs ground truth by lateral offset and yaw"))
+        parts.append(
+            '<p class="note">Means over the same held-out frames at each pose: the recorded '
+            "pose (on path), moved along the camera's x axis (+ = right) or turned about the "
+            "vertical (+ = left). Coverage: 0 on a training view, toward 1 far from all.</p>"
+        )
+    parts += [f'<p class="note">{_e(note)}</p>' for note in ev.notes]
+    rule = (
+        f"The splat quality gate: held-out PSNR &ge; {gate.HELD_OUT_MIN_PSNR_DB:g} dB and SSIM "
+        f"&ge; {gate.HELD_OUT_MIN_SSIM:.2f}; against the ground truth on the path (when there is "
+        f"one) PSNR &ge; {gate.TRUTH_MIN_PSNR_DB:g} dB and SSIM &ge; {gate.TRUTH_MIN_SSIM:.2f}; "
+        f"at most {gate.MAX_BEYOND_ENVELOPE:.0%} of a run's frames beyond the validated envelope "
+        "(docs/metrics.md)."
+    )
+    parts.append(f'<p class="note">{rule}</p>')
+    verdicts = ctx.evaluation.metrics.splat_gate if ctx.evaluation is not None else []
+    for v in verdicts:
+        text = (
+            f"{v.method}: unfit ({v.unfit_runs}/{v.runs} runs): {v.reason}"
+            if not v.fit
+            else (f"{v.method}: fit ({v.runs} runs)")
+        )
+        cls = "note" if v.fit else "warn"
+        parts.append(f'<p class="{cls}"><b>{_e(text)}</b>. {_e(v.evidence)}.</p>')
+    if not verdicts:
+        parts.append('<p class="note">No drive with the splat camera recorded its quality.</p>')
+    return "".join(parts)
+
+
 # -- the page -----------------------------------------------------------------------------------
 def write_report(
     ws: Workspace,
@@ -604,10 +697,12 @@ def write_report(
             ("map", "Map, route and trajectories", lambda: _map(ctx)),
             ("behaviour", "Behaviour", lambda: _behaviour(ctx, why)),
             ("runs", "Runs", lambda: _runs(ctx, Path(tmp))),
+            ("splat", "Splat quality: held out, against the ground truth, the gate",
+             lambda: _splat(ctx)),
             ("frames", "Frames: real | splat | simulator", lambda: _frames(ctx)),
             ("semantic", "Semantic IoU", lambda: _semantic(ctx)),
             ("images", "Image quality", lambda: _images(ctx)),
-        )
+        )  # fmt: skip
         for k, (sid, title, build) in enumerate(steps, start=2):
             body[sid] = _section(sid, title, build())
             report("report", k, total)
