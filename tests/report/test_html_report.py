@@ -234,3 +234,8 @@ def test_the_report_shows_the_splat_envelope_and_an_unfit_splat_plainly(tmp_path
     assert "drive-splat: unfit (1/1 runs)" in splat
     assert "its runs fail the splat quality gate" in sections["summary"]
     assert "unfit (0.25 / 0.30)" in sections["runs"]
+    evaluation.model_copy(update={"truth": None}).save(ws.splat_dir / "eval.json")
+    html = write_report(ws).read_text(encoding="utf-8")
+    splat = dict(re.findall(r'<section id="(\w+)">(.*?)</section>', html, re.DOTALL))["splat"]
+    assert "Not scored against a ground truth" in splat
+    assert "Validity envelope, measured" not in splat
