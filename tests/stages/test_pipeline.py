@@ -273,3 +273,26 @@ def test_a_ground_truth_world_adds_real_runs_and_the_reconstruction_metrics(
     assert not (ws.report_dir / "images").exists()
     semantic = SemanticResult.load(ws.report_dir / "semantic" / "semantic.json")
     assert semantic.frames
+
+
+def test_runs_with_splat_or_truth_cameras_depend_on_their_models(
+    tmp_path: Path, recording: tuple[Path, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from cam2sim.core.progress import no_progress
+    from cam2sim.render.truth import truth_world_path
+    from cam2sim.stages.pipeline import _Pipeline
+
+    bag, osm = recording
+    ws = Workspace.create(tmp_path / "ws", _config(bag))
+    pipeline = _Pipeline(ws, _fast(osm), no_progress)
+    assert pipeline._camera_inputs(("raster",)) == {}
+    monkeypatch.setattr(pipeline, "_finished", lambda stage: ("done", "2026-11-26T03:00:00"))
+    before = pipeline._camera_inputs(("raster", "splat"))
+    monkeypatch.setattr(pipeline, "_finished", lambda stage: ("done", "2026-11-26T03:05:00"))
+    assert pipeline._camera_inputs(("raster", "splat")) != before  # retrained: new runs
+    world = truth_world_path(ws.root)
+    world.parent.mkdir(parents=True)
+    world.write_text("{}", encoding="utf-8")
+    first = pipeline._camera_inputs(("truth",))
+    world.write_text('{"changed": 1}', encoding="utf-8")
+    assert pipeline._camera_inputs(("truth",)) != first

@@ -75,7 +75,7 @@ def demo(
                 runs=runs,
                 replay_every=6,  # 20 Hz camera: 76 replayed frames
                 steering_noise_std=DEMO_STEERING_NOISE,
-                splat=demo_splat_options(),
+                splat=demo_splat_options(cuda=_cuda()),
                 splat_on_cpu=True,
                 # 23 s of driving: the held-out tail (the last straight) cannot choose the
                 # epoch, so all 30 are trained and the last is kept (docs/benchmarks.md).
@@ -91,3 +91,10 @@ def demo(
         error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
         raise typer.Exit(1) from None
     _finish(ws, result, time.perf_counter() - started)
+
+
+def _cuda() -> bool:
+    """Whether a CUDA GPU is there for the splat (torch is imported by the pipeline anyway)."""
+    import torch  # noqa: PLC0415
+
+    return bool(torch.cuda.is_available())

@@ -425,6 +425,36 @@ def visible_points(
     return seen
 
 
+def screen_density_keep(
+    xyz: npt.NDArray[np.float32], centres: npt.NDArray[np.float64], budget: int
+) -> npt.NDArray[np.float64]:
+    """Keep probabilities of points so that about ``budget`` remain, thinned with distance.
+
+    A point at distance ``d`` from the nearest camera is kept with probability
+    ``min(1, (r0 / d) ** 2)``, ``r0`` chosen so the probabilities sum to ``budget``: a
+    surface sampled evenly in space then stays about evenly sampled on screen, where a
+    Gaussian's footprint shrinks with ``d ** 2``. Along a street this keeps the road and kerbs
+    next to the path whole and thins facades and far ground, where a uniform random subset
+    thins everything alike (on the demo, 40k of 180k points kept a fifth of the road).
+    """
+    pts = np.asarray(xyz, dtype=np.float64)
+    d2 = np.full(len(pts), np.inf)
+    for start in range(0, len(pts), 4_096):  # bounded memory: (4k, cameras) at a time
+        block = pts[start : start + 4_096]
+        dist = ((block[:, None, :] - centres[None, :, :]) ** 2).sum(-1).min(axis=1)
+        d2[start : start + 4_096] = dist
+    d2 = np.maximum(d2, 1e-6)
+    lo, hi = 0.0, float(d2.max())  # r0 ** 2 between these
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if np.minimum(1.0, mid / d2).sum() < budget:
+            lo = mid
+        else:
+            hi = mid
+    out: npt.NDArray[np.float64] = np.minimum(1.0, hi / d2)
+    return out
+
+
 @dataclass(frozen=True)
 class SeedOptions:
     """How :func:`seed_models` starts a chunk model.
@@ -435,7 +465,8 @@ class SeedOptions:
         sky_points: Sky Gaussians (0: one invisible placeholder).
         sky_radius_m: Sky sphere radius; None: 3 times the 99th-percentile point distance from
             the camera centroid, at least 10 scene scales.
-        max_points: Random subset of the visible points; None = all.
+        max_points: About this many of the visible points, thinned with the distance from the
+            cameras (:func:`screen_density_keep`); None = all.
         seed: Seeds the subset.
     """
 
@@ -495,9 +526,8 @@ def seed_models(
     inside = dist < 0.8 * radius
     xyz, rgb = xyz[inside], rgb[inside]
     if options.max_points is not None and len(xyz) > options.max_points:
-        pick = np.random.default_rng(options.seed).choice(
-            len(xyz), options.max_points, replace=False
-        )
+        keep_p = screen_density_keep(xyz, centres, options.max_points)
+        pick = np.random.default_rng(options.seed).random(len(xyz)) < keep_p
         xyz, rgb = xyz[pick], rgb[pick]
     street = GaussianModel.from_points(
         torch.tensor(xyz, dtype=torch.float32, device=device),

@@ -178,7 +178,8 @@ class TrainOptions:
         sky_radius_m: Sky sphere radius; None = automatic.
         sky_weight: Weight of the sky-share loss (used when ``sky/`` masks exist).
         init_opacity: Opacity of new street Gaussians.
-        max_init_points: Random subset of the chunk's points to start from; None = all.
+        max_init_points: About this many of the chunk's points to start from, thinned with the
+            distance from the cameras (``splat.model.screen_density_keep``); None = all.
         background: RGB in ``[0, 1]`` behind everything.
         scene_scale: Scale (scene units) of the means' learning rate and of densification's
             size thresholds (``grow_scale3d``, ``prune_scale3d``). None = automatic:
