@@ -560,29 +560,18 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
         tile_ids, gauss_ids = _tile_intersections(
             proj.means2d[cam], proj.radii[cam], proj.depths[cam], tiles_x, tiles_y
         )
-        if compiled:
-            rgb, acc = raster_cpu.composite(
-                proj.means2d[cam],
-                proj.conics[cam],
-                opacities,
-                per_cam[cam],
-                tile_ids,
-                gauss_ids,
-                tiles_x=tiles_x,
-                tiles_y=tiles_y,
-            )
-        else:
-            rgb, acc = _composite(
-                proj.means2d[cam],
-                proj.conics[cam],
-                opacities,
-                per_cam[cam],
-                tile_ids,
-                gauss_ids,
-                tiles_x=tiles_x,
-                tiles_y=tiles_y,
-                max_elements=max_elements,
-            )
+        kwargs = {"tiles_x": tiles_x, "tiles_y": tiles_y}
+        if not compiled:
+            kwargs["max_elements"] = max_elements
+        rgb, acc = (raster_cpu.composite if compiled else _composite)(
+            proj.means2d[cam],
+            proj.conics[cam],
+            opacities,
+            per_cam[cam],
+            tile_ids,
+            gauss_ids,
+            **kwargs,
+        )
         rgb, acc = rgb[:height, :width], acc[:height, :width]
         if backgrounds is not None:
             rgb = rgb + (1.0 - acc)[..., None] * backgrounds[cam]
