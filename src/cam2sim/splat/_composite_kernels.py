@@ -56,6 +56,21 @@ def gather(  # noqa: PLR0913, PLR0917 -- flat arrays are what numba takes
             row_len[ly] += 1
 
 
+@_jit_serial
+def tile_locals(
+    means2d: Any, conics: Any, opac: Any, ids: Any, s0: int, s1: int, tile: int, tiles_x: int
+) -> tuple[int, int, Any, Any, Any]:
+    """A tile's pixel origin and its gathered Gaussians (:func:`gather`), freshly allocated."""
+    ox = (tile % tiles_x) * _TILE
+    oy = (tile // tiles_x) * _TILE
+    n = s1 - s0
+    local = np.zeros((n, 8), np.float32)
+    rows = np.empty((_TILE, n), np.int32)
+    row_len = np.zeros(_TILE, np.int32)
+    gather(means2d, conics, opac, ids, s0, s1, ox, oy, local, rows, row_len)
+    return ox, oy, local, rows, row_len
+
+
 @_jit
 def forward(  # noqa: PLR0913, PLR0917 -- flat arrays are what numba takes
     means2d: Any, conics: Any, opac: Any, colors: Any, starts: Any, ids: Any,
@@ -66,13 +81,10 @@ def forward(  # noqa: PLR0913, PLR0917 -- flat arrays are what numba takes
         s0, s1 = starts[tile], starts[tile + 1]
         if s0 == s1:
             continue
-        ox = (tile % tiles_x) * _TILE
-        oy = (tile // tiles_x) * _TILE
+        ox, oy, local, rows, row_len = tile_locals(
+            means2d, conics, opac, ids, s0, s1, tile, tiles_x
+        )
         n = s1 - s0
-        local = np.zeros((n, 8), np.float32)
-        rows = np.empty((_TILE, n), np.int32)
-        row_len = np.zeros(_TILE, np.int32)
-        gather(means2d, conics, opac, ids, s0, s1, ox, oy, local, rows, row_len)
         acc = np.zeros(d, np.float32)
         for ly in range(_TILE):
             py = oy + ly + np.float32(0.5)
@@ -114,7 +126,7 @@ def forward(  # noqa: PLR0913, PLR0917 -- flat arrays are what numba takes
 
 
 @_jit
-def backward(  # noqa: PLR0913, PLR0917, PLR0915 -- one pixel's chain rule, kept inline
+def backward(  # noqa: PLR0913, PLR0917 -- one pixel's chain rule, kept inline
     means2d: Any, conics: Any, opac: Any, colors: Any, starts: Any, ids: Any,
     tiles_x: int, n_tiles: int, out_t: Any, out_last: Any, g_rgb: Any, g_acc: Any,
     v_means: Any, v_conics: Any, v_opac: Any, v_colors: Any,
@@ -127,13 +139,9 @@ def backward(  # noqa: PLR0913, PLR0917, PLR0915 -- one pixel's chain rule, kept
             s0, s1 = starts[tile], starts[tile + 1]
             if s0 == s1:
                 continue
-            ox = (tile % tiles_x) * _TILE
-            oy = (tile // tiles_x) * _TILE
-            n = s1 - s0
-            local = np.zeros((n, 8), np.float32)
-            rows = np.empty((_TILE, n), np.int32)
-            row_len = np.zeros(_TILE, np.int32)
-            gather(means2d, conics, opac, ids, s0, s1, ox, oy, local, rows, row_len)
+            ox, oy, local, rows, row_len = tile_locals(
+                means2d, conics, opac, ids, s0, s1, tile, tiles_x
+            )
             for ly in range(_TILE):
                 y = oy + ly
                 py = y + np.float32(0.5)

@@ -32,7 +32,7 @@ if TYPE_CHECKING:
 
     from cam2sim.core.workspace import Workspace
     from cam2sim.stages.cameras import CameraName
-    from cam2sim.stages.splat import SplatStageOptions
+    from cam2sim.stages.splat import SplatResult, SplatStageOptions
 
 __all__ = [
     "STATE_FILE",
@@ -229,7 +229,7 @@ def small_splat_options() -> SplatStageOptions:
     return SplatStageOptions(train=train, offsets_m=(-1.0, 1.0))
 
 
-def _splat_summary(result: Any) -> str:
+def _splat_summary(result: SplatResult) -> str:
     """Which device and rasterizer trained the splat, how long, and its held-out quality."""
     parts = []
     if result.trained is not None and result.trained.chunks:
@@ -425,7 +425,7 @@ class _Pipeline:
                     raise _NotApplicableError(msg)
                 opts = small_splat_options()
                 step.message = "no CUDA GPU: trained the small CPU preset"
-        results = []
+        results: list[SplatResult] = []
         self._recorded(
             "splat",
             lambda: results.append(run_splat(self.ws, options=opts, progress=self.progress)),
