@@ -34,6 +34,7 @@ if TYPE_CHECKING:
     from cam2sim.core.dataset import Calibration, DatasetInfo
     from cam2sim.detect.boxes import Boxes
     from cam2sim.detect.detector import CameraDetector, LidarDetector, Source
+    from cam2sim.detect.route import Route
     from cam2sim.detect.snap import SnapOptions
     from cam2sim.detect.vehicles import ParkedVehicles
 
@@ -222,11 +223,14 @@ def _detect_all(
             yield out
 
 
-def _route_xy(paths: DatasetPaths) -> npt.NDArray[np.float64]:
+def _route(paths: DatasetPaths) -> Route:
+    """The driven route (a car that stood still: the line along its heading)."""
     from cam2sim.core.table import read_table  # noqa: PLC0415
+    from cam2sim.detect.route import Route  # noqa: PLC0415
 
     table = read_table(paths.trajectory_csv)
-    return np.stack([table["x"], table["y"]], 1).astype(np.float64)
+    xy = np.stack([table["x"], table["y"]], 1).astype(np.float64)
+    return Route.from_xy(xy, heading=np.asarray(table["heading"], dtype=np.float64))
 
 
 def _detect_boxes(
@@ -276,7 +280,6 @@ def run_detect(
     """
     from cam2sim.detect.detector import load_detector  # noqa: PLC0415
     from cam2sim.detect.fusion import fuse  # noqa: PLC0415
-    from cam2sim.detect.route import Route  # noqa: PLC0415
     from cam2sim.detect.vehicles import (  # noqa: PLC0415
         ParkedVehicles,
         parked_vehicles_path,
@@ -315,7 +318,7 @@ def run_detect(
         road_map = load_road_map(ws)
     with stage_run(ws, STAGE, inputs_hash=inputs, config=None):
         boxes, frames_used = _detect_boxes(paths, info, calib, source, detector, opts, report)
-        route = Route.from_xy(_route_xy(paths))
+        route = _route(paths)
         vehicles, member = fuse(boxes, route, source=source, options=opts.fusion)
         snapped = False
         if road_map is not None:

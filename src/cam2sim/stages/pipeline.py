@@ -412,9 +412,24 @@ class _Pipeline:
 
         self._recorded("scenario", lambda: run_scenario(self.ws, progress=self.progress), step)
 
+    def _require_motion(self, what: str) -> None:
+        """Raise not-applicable when the recorded car stood still (``what`` needs motion)."""
+        from cam2sim.detect.route import MIN_ROUTE_M  # noqa: PLC0415
+        from cam2sim.scenario.model import Scenario  # noqa: PLC0415
+        from cam2sim.stages.runs import driven_length_m  # noqa: PLC0415
+
+        path = self.ws.scenario_dir / "scenario.json"
+        if not path.is_file():
+            return  # the step itself says what is missing
+        length = driven_length_m(Scenario.load(path))
+        if length < MIN_ROUTE_M:
+            msg = f"the car stood still ({length:.1f} m driven); {what}"
+            raise _NotApplicableError(msg)
+
     def splat(self, step: _Step) -> None:
         from cam2sim.stages.splat import run_splat  # noqa: PLC0415
 
+        self._require_motion("a splat needs views from a moving camera")
         opts = self.options.splat
         if opts is None:
             import torch  # noqa: PLC0415
@@ -450,6 +465,7 @@ class _Pipeline:
         if self.options.policy is not None:
             msg = f"a policy was given ({self.options.policy}); no model is trained"
             raise _NotApplicableError(msg)
+        self._require_motion("DAVE-2 learns steering from a drive")
         signal = self._steering_signal()
         if signal is None:
             msg = "the recording has no steering signal (name a signal 'steering' in config.yaml)"
@@ -501,6 +517,7 @@ class _Pipeline:
         from cam2sim.core.files import file_fingerprint  # noqa: PLC0415
         from cam2sim.stages.runs import DriveOptions, drive  # noqa: PLC0415
 
+        self._require_motion("closed-loop drives follow the recorded route")
         policy = self._policy()
         sim = self._sim_options()
         all_opts = [
@@ -532,6 +549,7 @@ class _Pipeline:
         step.message = f"{len(runs)} run(s), policy {policy}, camera {cams}"
 
     def evaluate(self, step: _Step) -> None:
+        self._require_motion("there are no drives to score")
         runs = [str(r) for r in self.state.get("drive", {}).get("runs", [])]
         if not runs:
             msg = "no drive runs to evaluate; the drive step must run first"

@@ -379,6 +379,32 @@ def _carla_view(sim: Any, tr: Any, i: int) -> npt.NDArray[np.uint8]:
 
 
 # -- drive ---------------------------------------------------------------------------------------
+def driven_length_m(scenario: Scenario) -> float:
+    """How far the recorded car drove (metres along its reference-point trajectory)."""
+    from cam2sim.metrics.path import arc_length  # noqa: PLC0415
+
+    xy = np.asarray(scenario.trajectory.reference, dtype=np.float64)[:, :2]
+    return float(arc_length(xy)[-1]) if len(xy) else 0.0
+
+
+def require_route(scenario: Scenario) -> None:
+    """Refuse closed-loop driving on a recording that stood still.
+
+    Raises:
+        StageError: The recorded car drove less than :data:`~cam2sim.detect.route.MIN_ROUTE_M`.
+    """
+    from cam2sim.detect.route import MIN_ROUTE_M  # noqa: PLC0415
+
+    length = driven_length_m(scenario)
+    if length < MIN_ROUTE_M:
+        msg = (
+            f"the recorded car drove {length:.1f} m (it stood still); closed-loop drives follow "
+            f"the recorded route, so they need a recording that moves at least {MIN_ROUTE_M:.0f} m "
+            "(extract, detect, map, scenario and replay work on this one)"
+        )
+        raise StageError(msg)
+
+
 def drive(
     ws: Workspace,
     *,
@@ -391,6 +417,7 @@ def drive(
     opts = options or DriveOptions()
     ctx = load_run_context(ws)
     sc = ctx.scenario
+    require_route(sc)
     policy = load_policy(
         opts.policy,
         route_xy=np.asarray(sc.trajectory.rear_axle, dtype=np.float64)[:, :2],
