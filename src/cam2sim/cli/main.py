@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import errno
 import sys
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
+import typer.core
 
 from cam2sim import __version__
 from cam2sim.cli.display import (
@@ -21,8 +23,64 @@ from cam2sim.core.errors import Cam2SimError
 
 __all__ = ["app", "main"]
 
+# Exit codes, usage errors and aborts: click's own ending of a command (typer vendors click, so
+# the usage-error base class is found through typer's public BadParameter).
+_CLICK_FLOW: tuple[type[BaseException], ...] = (
+    typer.Exit,
+    typer.Abort,
+    *(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException"),
+)
+
+
+class _Guarded(typer.core.TyperGroup):
+    """The root command group: an error no stage anticipated ends in one line, not a traceback.
+
+    Stage errors (:class:`~cam2sim.core.errors.Cam2SimError`) are printed by each command; this
+    catches the rest (a bug, a full disk, a permission denied) and names it with a hint.
+    ``--debug`` shows the traceback instead.
+    """
+
+    def invoke(self, ctx: Any) -> Any:
+        try:
+            return super().invoke(ctx)
+        except _CLICK_FLOW:
+            raise
+        except KeyboardInterrupt:
+            error_console.print("interrupted; re-run the same command to resume", highlight=False)
+            raise typer.Exit(code=130) from None
+        except Cam2SimError as err:
+            if _state["debug"]:
+                raise
+            raise _fail(err) from None
+        except Exception as err:
+            if _state["debug"]:
+                raise
+            error_console.print(
+                f"[bold red]error:[/] {unexpected_error(err)}", highlight=False, soft_wrap=True
+            )
+            raise typer.Exit(code=1) from None
+
+
+def unexpected_error(err: BaseException) -> str:
+    """One line for an error no stage anticipated: what happened and what to do."""
+    text = str(err) or "no message"
+    if isinstance(err, PermissionError):
+        return f"permission denied: {err.filename or text}; check the folder's owner and mode"
+    if isinstance(err, FileNotFoundError):
+        return f"no such file: {err.filename or text}; check the path"
+    if isinstance(err, OSError) and err.errno == errno.ENOSPC:
+        return f"the disk is full ({err.filename or text}); free space and re-run to resume"
+    if isinstance(err, MemoryError):
+        return "out of memory; close other programs or use smaller options, then re-run"
+    return (
+        f"unexpected {type(err).__name__}: {text} (a cam2sim bug: re-run with --debug for the "
+        "traceback and report it)"
+    )
+
+
 app = typer.Typer(
     name="cam2sim",
+    cls=_Guarded,
     help="Turn a real driving recording into a closed-loop simulation of the same street.",
     no_args_is_help=True,
     add_completion=False,
@@ -30,7 +88,7 @@ app = typer.Typer(
     rich_markup_mode="rich",
 )
 
-_state = {"verbose": 0, "progress": True}
+_state: dict[str, int | bool] = {"verbose": 0, "progress": True, "debug": False}
 
 
 def _register_subcommands() -> None:
@@ -76,6 +134,9 @@ def _root(
         int, typer.Option("--verbose", "-v", count=True, help="More log output (-vv for debug).")
     ] = 0,
     no_progress: Annotated[bool, typer.Option("--no-progress", help="Hide progress bars.")] = False,
+    debug: Annotated[
+        bool, typer.Option("--debug", help="Show the traceback of an unexpected error.")
+    ] = False,
     version: Annotated[
         bool,
         typer.Option("--version", callback=_version, is_eager=True, help="Show the version."),
@@ -83,6 +144,7 @@ def _root(
 ) -> None:
     del version
     _state["verbose"] = verbose
+    _state["debug"] = debug
     _state["progress"] = not no_progress and sys.stderr.isatty()
     setup_logging(verbose=verbose)
 
