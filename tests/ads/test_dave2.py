@@ -139,6 +139,20 @@ def test_missing_signal_lists_available(tmp_path: Path) -> None:
         train_ads(ws, options=TrainOptions(epochs=1))
 
 
+def test_a_deleted_frame_is_named_with_the_fix(tmp_path: Path) -> None:
+    from cam2sim.ads.train import TrainOptions
+    from cam2sim.stages.ads import train_ads
+
+    ws = make_drive(tmp_path / "ws")
+    gone = dataset_paths(ws.dataset_dir).frame_file(7, "png")
+    gone.unlink()
+    with pytest.raises(
+        StageError, match=r"cannot read frame .*000007\.png; re-run `cam2sim extract`"
+    ):
+        train_ads(ws, options=TrainOptions(epochs=1))
+    assert not (ws.ads_dir / "dave2.pt").exists()  # nothing half-trained left behind
+
+
 def test_keras_needs_tensorflow(tmp_path: Path) -> None:
     if importlib.util.find_spec("tensorflow") is not None:
         pytest.skip("TensorFlow is installed; this checks the message without it")

@@ -18,7 +18,7 @@ from cam2sim.campaign.executors import LocalPool
 from cam2sim.campaign.runner import campaign_lock, run_campaign
 from cam2sim.campaign.state import CampaignState
 from cam2sim.cli.main import app
-from cam2sim.core.errors import StageError
+from cam2sim.core.errors import WorkspaceError
 from cam2sim.core.table import read_table
 
 if TYPE_CHECKING:
@@ -165,5 +165,5 @@ def test_a_run_stuck_where_the_timeout_signal_cannot_reach_is_killed(
 
 def test_one_campaign_folder_serves_one_process_at_a_time(tmp_path: Path) -> None:
     plan = write_campaign(tmp_path)
-    with campaign_lock(tmp_path / "plan-campaign"), pytest.raises(StageError, match="another"):
+    with campaign_lock(tmp_path / "plan-campaign"), pytest.raises(WorkspaceError, match="another"):
         run_campaign(plan, executor=LocalPool(1))

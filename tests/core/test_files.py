@@ -53,3 +53,22 @@ def test_fingerprint_changes_when_a_file_is_truncated_or_changed(tmp_path: Path)
     data[-1] ^= 1
     path.write_bytes(bytes(data))
     assert len({a, b, file_fingerprint(path)}) == 3
+
+
+def test_read_json_names_the_file_the_place_and_the_fix(tmp_path: Path) -> None:
+    from cam2sim.core.errors import WorkspaceError
+    from cam2sim.core.files import read_json
+
+    path = tmp_path / "run.json"
+    path.write_text('{"kind": "drive", "steps": 3}', encoding="utf-8")
+    assert read_json(path) == {"kind": "drive", "steps": 3}
+    path.write_text('{"kind": "dri', encoding="utf-8")  # a crash mid-write by another tool
+    with pytest.raises(
+        WorkspaceError, match=r"run\.json is not valid JSON \(.*char.*\); drive again"
+    ):
+        read_json(path, fix="drive again")
+    with pytest.raises(WorkspaceError, match=r"nope\.json does not exist; make it"):
+        read_json(tmp_path / "nope.json", fix="make it")
+    path.write_bytes(b"\xff\xfe{")
+    with pytest.raises(WorkspaceError, match="not valid JSON"):
+        read_json(path)

@@ -334,3 +334,19 @@ def test_legacy_carla_runs_are_read_back_in_true_metres(
     assert scored.min_frechet_m is not None
     assert scored.min_frechet_m < 0.3
     assert scored.min_frechet_vs == "real/trajectory1"
+
+
+def test_a_broken_run_json_names_the_run_and_the_fix(tmp_path: Path) -> None:
+    from cam2sim.core.errors import WorkspaceError
+    from cam2sim.metrics.drive_io import load_run_dir
+
+    run = tmp_path / "20261126-drive-s0"
+    run.mkdir()
+    (run / "trajectory.csv").write_text("t,x,y\n0,0,0\n0.1,1,0\n", encoding="utf-8")
+    (run / "run.json").write_text('{"method": "drive-spl', encoding="utf-8")
+    with pytest.raises(WorkspaceError, match=r"drive-s0/run\.json is not valid JSON.*drive again"):
+        load_run_dir(run)
+    (run / "run.json").write_text('{"method": "drive-splat"}', encoding="utf-8")
+    (run / "events.json").write_text("[", encoding="utf-8")
+    with pytest.raises(WorkspaceError, match=r"events\.json is not valid JSON"):
+        load_run_dir(run)

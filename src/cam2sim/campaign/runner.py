@@ -22,7 +22,6 @@ from cam2sim.campaign.executors import Job, LocalPool
 from cam2sim.campaign.plan import expand, load_plan
 from cam2sim.campaign.state import CampaignState, RunOutcome
 from cam2sim.campaign.summary import score_runs, summarize, write_summary
-from cam2sim.core.errors import StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
 
 if TYPE_CHECKING:
@@ -90,17 +89,12 @@ def campaign_lock(folder: Path) -> Iterator[None]:
     """Hold the campaign folder for this process (released when it ends, even by a crash).
 
     Raises:
-        StageError: Another process runs this campaign.
+        WorkspaceError: Another process runs this campaign.
     """
-    import fcntl  # noqa: PLC0415 - POSIX only, like the workers' time limit
+    from cam2sim.core.files import process_lock  # noqa: PLC0415
 
-    folder.mkdir(parents=True, exist_ok=True)
-    with (folder / ".lock").open("w") as handle:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            msg = f"another cam2sim campaign is running in {folder}; wait for it to end or stop it"
-            raise StageError(msg) from None
+    busy = f"another cam2sim campaign is running in {folder}; wait for it to end or stop it"
+    with process_lock(folder / ".lock", busy=busy):
         yield
 
 

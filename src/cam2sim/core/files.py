@@ -1,4 +1,4 @@
-"""Atomic file and folder writes.
+"""Atomic file and folder writes, and JSON reads that say which file is broken.
 
 A reader never sees a half-written artifact: files are written to a temporary sibling and renamed
 into place, and whole output folders are built beside the old one and swapped in at the end.
@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import json
 import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
+
+from cam2sim.core.errors import WorkspaceError
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
@@ -22,6 +25,8 @@ __all__ = [
     "atomic_folder",
     "atomic_write",
     "file_fingerprint",
+    "process_lock",
+    "read_json",
     "write_bytes_atomic",
     "write_text_atomic",
 ]
@@ -121,3 +126,47 @@ def file_fingerprint(path: Path) -> str:
             handle.seek(max(size - _FINGERPRINT_BLOCK, _FINGERPRINT_BLOCK))
             digest.update(handle.read(_FINGERPRINT_BLOCK))
     return f"fp256:{digest.hexdigest()}"
+
+
+def read_json(path: Path, *, fix: str = "delete it and re-run the stage that writes it") -> Any:
+    """The parsed JSON of ``path``.
+
+    Args:
+        path: The file.
+        fix: What the user should do when it is missing or broken (ends the message).
+
+    Raises:
+        WorkspaceError: The file is missing, unreadable, or not valid JSON (truncated by a
+            crash, edited by hand); the message names the file, the place and ``fix``.
+    """
+    path = Path(path)
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        msg = f"{path} does not exist; {fix}"
+        raise WorkspaceError(msg) from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        msg = f"{path} is not valid JSON ({err}); {fix}"
+        raise WorkspaceError(msg) from None
+
+
+@contextlib.contextmanager
+def process_lock(path: Path, *, busy: str) -> Iterator[None]:
+    """Hold the lock file ``path`` for this process (released when it ends, even by a crash).
+
+    Args:
+        path: The lock file (created with its folder).
+        busy: The message when another process holds it (what runs, what to do).
+
+    Raises:
+        WorkspaceError: Another process holds the lock.
+    """
+    import fcntl  # noqa: PLC0415 - POSIX only, like the campaign workers' time limit
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise WorkspaceError(busy) from None
+        yield

@@ -7,14 +7,13 @@ malformed file with a message naming the file and the offending element.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import ClassVar, Self
 
 import pydantic
 
 from cam2sim.core.errors import SchemaVersionError, WorkspaceError
-from cam2sim.core.files import write_text_atomic
+from cam2sim.core.files import read_json, write_text_atomic
 
 __all__ = ["Artifact", "format_validation_error"]
 
@@ -34,6 +33,8 @@ class Artifact(pydantic.BaseModel):
     model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
 
     SCHEMA_VERSION: ClassVar[int] = 1
+    #: What to do when the file is not valid JSON (ends the error message).
+    BROKEN_FIX: ClassVar[str] = "delete it and re-run the stage that writes it"
     schema_version: int = 1
 
     def save(self, path: Path) -> None:
@@ -49,14 +50,10 @@ class Artifact(pydantic.BaseModel):
             SchemaVersionError: The file was written by a newer schema version.
         """
         path = Path(path)
-        try:
-            raw = json.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
+        if not path.is_file():
             msg = f"{path} does not exist; run the stage that writes it first"
-            raise WorkspaceError(msg) from None
-        except (json.JSONDecodeError, UnicodeDecodeError) as err:
-            msg = f"{path} is not valid JSON ({err}); delete it and re-run the stage that writes it"
-            raise WorkspaceError(msg) from None
+            raise WorkspaceError(msg)
+        raw = read_json(path, fix=cls.BROKEN_FIX)
         version = raw.get("schema_version") if isinstance(raw, dict) else None
         if isinstance(version, int) and version > cls.SCHEMA_VERSION:
             msg = (

@@ -18,7 +18,7 @@ import datetime as dt
 import hashlib
 import json
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 import pydantic
 
@@ -85,6 +85,12 @@ class WorldFrameRecord(pydantic.BaseModel):
 class Manifest(Artifact):
     """``workspace.json``."""
 
+    BROKEN_FIX: ClassVar[str] = (
+        "it records which stages ran: restore it from a backup, or move it aside and "
+        "re-create the workspace with `cam2sim init` (keep a copy of config.yaml: init writes "
+        "a new one)"
+    )
+
     tool_version: str = __version__
     created: dt.datetime = pydantic.Field(default_factory=_now)
     config: dict[str, object] | None = pydantic.Field(
@@ -131,10 +137,11 @@ class Workspace:
 
     @classmethod
     def open(cls, root: Path) -> Workspace:
-        """Open an existing workspace.
+        """Open an existing workspace (its manifest read and checked).
 
         Raises:
-            WorkspaceError: ``root`` is not a workspace.
+            WorkspaceError: ``root`` is not a workspace, or its manifest is broken.
+            SchemaVersionError: A newer cam2sim wrote the workspace.
         """
         ws = cls(root)
         if not ws.manifest_path.is_file():
@@ -143,6 +150,7 @@ class Workspace:
                 f"`cam2sim init {root} --bag BAG` or `cam2sim import {root} --images DIR`"
             )
             raise WorkspaceError(msg)
+        ws.read_manifest()
         return ws
 
     # -- manifest and config ----------------------------------------------------------------

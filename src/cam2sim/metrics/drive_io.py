@@ -30,6 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from cam2sim.core.errors import WorkspaceError
+from cam2sim.core.files import read_json
 
 if TYPE_CHECKING:
     from cam2sim.core import frames
@@ -168,8 +169,9 @@ def load_run_dir(path: Path, *, method: str | None = None) -> DriveRun:
     """Load one of our run folders (``WS/runs/<id>/``)."""
     path = Path(path)
     meta: dict[str, Any] = {}
+    fix = "delete the run folder and drive again"
     if (path / "run.json").is_file():
-        meta = json.loads((path / "run.json").read_text(encoding="utf-8"))
+        meta = read_json(path / "run.json", fix=fix)
     cols = _read_csv_columns(path / "trajectory.csv")
     steer_t = steer = np.zeros(0)
     if (path / "steering.csv").is_file():
@@ -177,7 +179,7 @@ def load_run_dir(path: Path, *, method: str | None = None) -> DriveRun:
         steer_t, steer = sc["t"], sc["value"]
     events: list[RunEvent] = []
     if (path / "events.json").is_file():
-        raw = json.loads((path / "events.json").read_text(encoding="utf-8"))
+        raw = read_json(path / "events.json", fix=fix)
         items = raw.get("events", raw) if isinstance(raw, dict) else raw
         events = [
             RunEvent(kind=str(e["kind"]), t=float(e.get("t", 0.0)), reason=str(e.get("reason", "")))

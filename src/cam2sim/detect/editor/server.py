@@ -651,8 +651,20 @@ def serve_editor(
         port: TCP port; 0 picks a free one.
         open_browser: Open the page in the default browser once the server listens.
         on_ready: Called with the page's URL once the server listens (e.g. to print it).
+
+    Raises:
+        WorkspaceError: Another editor is open on ``ws``.
     """
-    with EditorServer(ws, port=port) as server:
+    from cam2sim.core.files import process_lock  # noqa: PLC0415
+
+    busy = (
+        f"another cam2sim editor is open on {ws.root}; use that one (two would overwrite "
+        "each other's edits) or stop it first"
+    )
+    with (
+        process_lock(ws.detections_dir / ".editor.lock", busy=busy),
+        EditorServer(ws, port=port) as server,
+    ):
         logger.info("editor: serving %s at %s", ws.root, server.url)
         if on_ready is not None:
             on_ready(server.url)
