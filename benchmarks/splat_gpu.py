@@ -20,8 +20,9 @@ What it measures (each part optional):
 
 * ``--resize WxH``: train and evaluate on a copy of the prepared scene resized to ``WxH`` (PNG
   images, masks and sky masks; K scaled), written to ``--resized-dir`` (reused when present).
-* ``--set KEY=VALUE`` (repeatable): override a ``TrainOptions`` field (``lr.X`` and
-  ``densify.X`` reach the nested options), e.g. ``--set sky_weight=0 --set lr.appearance=1e-4``.
+* ``--set KEY=VALUE`` (repeatable): override a ``TrainOptions`` field (``lr.X``, ``densify.X``
+  and ``robust.X`` reach the nested options), e.g. ``--set sky_weight=0 --set
+  lr.appearance=1e-4 --set robust.quantile=0.8``.
 * ``--plain-steps N``: a plain gsplat trainer in the style of gsplat's
   ``examples/simple_trainer.py`` (all SfM points, KNN scales, its learning rates and scene scale,
   ``DefaultStrategy`` plus the opacity reset that gsplat 1.5.3 never does, L1 + 0.2 SSIM, no sky
@@ -73,6 +74,7 @@ import torch
 from cam2sim.splat.evaluate import EvalOptions, evaluate_splat
 from cam2sim.splat.raster import rasterize
 from cam2sim.splat.render import RenderOptions, SplatRenderer
+from cam2sim.splat.robust import RobustLoss
 from cam2sim.splat.scene import SceneRecord, load_points
 from cam2sim.splat.train import DensifyOptions, LearningRates, TrainOptions, train_scene
 
@@ -358,10 +360,10 @@ def _parse_value(text: str) -> Any:
 
 
 def options_from(settings: dict[str, Any], **base: Any) -> TrainOptions:
-    """``TrainOptions`` of ``base`` fields with ``settings`` applied over them (``densify.X`` /
-    ``lr.X`` for the nested fields)."""
+    """``TrainOptions`` of ``base`` fields with ``settings`` applied over them (``densify.X``,
+    ``lr.X`` and ``robust.X`` for the nested fields)."""
     top = dict(base)
-    nested: dict[str, dict[str, Any]] = {"lr": {}, "densify": {}}
+    nested: dict[str, dict[str, Any]] = {"lr": {}, "densify": {}, "robust": {}}
     for key, value in settings.items():
         group, _, name = key.partition(".")
         if name:
@@ -372,6 +374,7 @@ def options_from(settings: dict[str, Any], **base: Any) -> TrainOptions:
         **top,
         lr=LearningRates(**nested["lr"]),
         densify=DensifyOptions(**nested["densify"]),
+        robust=RobustLoss(**nested["robust"]),
     )
 
 

@@ -546,3 +546,22 @@ def test_scene_scale_is_metric_for_recordings_and_the_camera_spread_for_sfm(
     spread = scale_of(sfm)
     # Three training views 0.25 m apart: the spread rule, not the metric constant.
     assert 0.0 < spread < 1.0
+
+
+def test_robust_weighting_trains_and_reports_what_it_left_out(tmp_path: Path) -> None:
+    from cam2sim.splat.robust import RobustLoss
+
+    prep = make_prepared_scene(tmp_path, n_frames=4, chunks=((0, 4),), size=(32, 24))
+    scene = SceneRecord.load(prep / "scene.json")
+    robust = RobustLoss(quantile=0.8, after_steps=10, patch=8)
+    result = train_chunk(
+        scene, 0, prep, fast_options(robust=robust, sky_points=0), models_dir=tmp_path / "m"
+    )
+    assert result.steps == 40
+    assert result.robust_outlier_share is not None
+    assert 0.0 <= result.robust_outlier_share < 0.2  # blobs only: a static scene has few
+    plain = train_chunk(scene, 0, prep, fast_options(sky_points=0), models_dir=tmp_path / "p")
+    assert plain.robust_outlier_share is None
+    assert result.best_val_psnr_db is not None
+    assert plain.best_val_psnr_db is not None
+    assert result.best_val_psnr_db > plain.best_val_psnr_db - 1.0  # no worse on a static scene

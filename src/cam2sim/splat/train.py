@@ -48,6 +48,7 @@ import numpy as np
 
 from cam2sim.core.errors import StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.splat.robust import RobustLoss
 from cam2sim.splat.scene import ChunkRecord, SceneRecord, load_points
 
 if TYPE_CHECKING:
@@ -199,6 +200,8 @@ class TrainOptions:
         coarse_every: Steps per coarse level.
         lr: Learning rates.
         densify: Densification settings.
+        robust: Robust weighting that leaves transient objects out of the loss
+            (:mod:`cam2sim.splat.robust`).
         device: ``"auto"`` (CUDA when available), ``"cpu"``, ``"cuda"``, ``"cuda:1"``, ...
         backend: Rasterizer, see :mod:`cam2sim.splat.raster`.
         write_ply: Also write ``chunk_XX.ply`` (3DGS layout) beside each model.
@@ -237,6 +240,7 @@ class TrainOptions:
     coarse_every: int = 3_000
     lr: LearningRates = field(default_factory=LearningRates)
     densify: DensifyOptions = field(default_factory=DensifyOptions)
+    robust: RobustLoss = field(default_factory=RobustLoss)
     device: str = "auto"
     backend: RasterBackend = "auto"
     write_ply: bool = False
@@ -295,6 +299,8 @@ class TrainResult:
         device: torch device.
         phase_ms: Per-step host and device milliseconds by phase when phase timing was on
             (``TrainOptions.profile``, see :mod:`cam2sim.splat.profiling`), else empty.
+        robust_outlier_share: Mean share of used pixels the robust weighting left out, over
+            the steps it ran (None when it was off).
     """
 
     chunk_id: int
@@ -311,6 +317,7 @@ class TrainResult:
     backend: str
     device: str
     phase_ms: dict[str, float] = field(default_factory=dict)
+    robust_outlier_share: float | None = None
 
 
 @dataclass(frozen=True)
@@ -479,6 +486,9 @@ class _ChunkTrainer:
             [[*options.background, 0.0]], dtype=torch.float32, device=device
         )
         self.step_no = 0
+        # Robust weighting: the summed share of used pixels left out, and the steps it ran.
+        self.outlier_sum = torch.zeros((), device=device)
+        self.outlier_steps = 0
         self.history: list[tuple[int, float, float]] = []
         self.done = False
         self.stopped: Stop = "max_steps"
@@ -630,15 +640,18 @@ class _ChunkTrainer:
                 c.sky_pixels[view] * c.sky_scale[view],
                 c.street_pixels[view] * c.street_scale[view],
             )
-        return photometric_loss(
-            rgb,
-            v.images[view].float() / 255.0,
-            v.masks[view],
-            c.l1_scale[view],
-            opts.ssim_weight,
-            sky,
-            opts.sky_weight,
-        )
+        target = v.images[view].float() / 255.0
+        mask, l1_scale = v.masks[view], c.l1_scale[view]
+        if opts.robust.active(self.step_no):
+            from cam2sim.splat.robust import robust_keep  # noqa: PLC0415
+
+            used = mask
+            mask = robust_keep(rgb, target, used, opts.robust)
+            kept = mask.sum()
+            l1_scale = 1.0 / (3.0 * kept.clamp(min=1))
+            self.outlier_sum += 1.0 - kept / used.sum().clamp(min=1)
+            self.outlier_steps += 1
+        return photometric_loss(rgb, target, mask, l1_scale, opts.ssim_weight, sky, opts.sky_weight)
 
     def _next_view(self) -> int:
         import torch  # noqa: PLC0415
@@ -825,6 +838,9 @@ class _ChunkTrainer:
             backend=self.backend,
             device=self.device,
             phase_ms=self.timer.summary(),
+            robust_outlier_share=(
+                float(self.outlier_sum) / self.outlier_steps if self.outlier_steps else None
+            ),
         )
 
 
