@@ -565,3 +565,27 @@ def test_robust_weighting_trains_and_reports_what_it_left_out(tmp_path: Path) ->
     assert result.best_val_psnr_db is not None
     assert plain.best_val_psnr_db is not None
     assert result.best_val_psnr_db > plain.best_val_psnr_db - 1.0  # no worse on a static scene
+
+
+def test_pose_refinement_learns_small_corrections_and_writes_them_back(tmp_path: Path) -> None:
+    from cam2sim.splat.model import load_chunk_model
+
+    prep = make_prepared_scene(tmp_path, n_frames=4, chunks=((0, 4),), size=(32, 24))
+    scene = SceneRecord.load(prep / "scene.json")
+    lr = LearningRates(means=1.6e-3, scales=1e-2, sh0=2e-2, poses=1e-3)
+    result = train_chunk(
+        scene, 0, prep, fast_options(lr=lr, sky_points=0), models_dir=tmp_path / "m"
+    )
+    assert result.pose_correction is not None
+    mean_t, max_t, mean_r, max_r = result.pose_correction
+    assert 0.0 < mean_t <= max_t < 0.5  # moved, but not far: 40 steps of 1e-3
+    assert 0.0 < mean_r <= max_r < 5.0
+    plain = train_chunk(scene, 0, prep, fast_options(sky_points=0), models_dir=tmp_path / "p")
+    assert plain.pose_correction is None
+    moved = load_chunk_model(result.model_path).header.train_views
+    kept = load_chunk_model(plain.model_path).header.train_views
+    shifts = [
+        np.linalg.norm(np.subtract(a.position, b.position))
+        for a, b in zip(moved, kept, strict=True)
+    ]
+    assert 0.0 < max(shifts) <= max_t + 1e-6

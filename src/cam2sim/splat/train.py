@@ -97,6 +97,8 @@ class LearningRates:
         sh0: Degree-0 SH (base colour); the sky's colours use it too.
         sh_rest: Higher SH bands (``shN``).
         appearance: The per-view affine colour transforms.
+        poses: The per-view pose corrections (:mod:`cam2sim.splat.pose_refine`; scene units
+            and radians); 0 = poses as recorded.
     """
 
     means: float = 1.6e-4
@@ -106,6 +108,7 @@ class LearningRates:
     sh0: float = 2.5e-3
     sh_rest: float = 2.5e-3 / 20
     appearance: float = 1e-3
+    poses: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -301,6 +304,8 @@ class TrainResult:
             (``TrainOptions.profile``, see :mod:`cam2sim.splat.profiling`), else empty.
         robust_outlier_share: Mean share of used pixels the robust weighting left out, over
             the steps it ran (None when it was off).
+        pose_correction: The learned pose corrections' mean and largest translation (scene
+            units) and rotation (degrees), when pose refinement was on (``lr.poses``).
     """
 
     chunk_id: int
@@ -318,6 +323,7 @@ class TrainResult:
     device: str
     phase_ms: dict[str, float] = field(default_factory=dict)
     robust_outlier_share: float | None = None
+    pose_correction: tuple[float, float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -579,6 +585,13 @@ class _ChunkTrainer:
             self.extra_optimizers.append(
                 torch.optim.Adam([self.appearance], lr=lr.appearance, fused=fused)
             )
+        self.pose_delta: torch.nn.Parameter | None = None
+        if lr.poses > 0:
+            zeros = torch.zeros(len(self.views.frames), 6, device=self.device)
+            self.pose_delta = torch.nn.Parameter(zeros)
+            self.extra_optimizers.append(
+                torch.optim.Adam([self.pose_delta], lr=lr.poses, weight_decay=1e-6, fused=fused)
+            )
         self.means_gamma = 0.01 ** (1.0 / self.options.max_steps)
         self.means_lr = rates["means"]
         self.means_lr_end = 0.01 * rates["means"]
@@ -600,13 +613,18 @@ class _ChunkTrainer:
         inputs = gather_splats(
             self.street, self.sky, v.campos[view : view + 1], degree, backend=self.backend
         )
+        viewmats = v.viewmats[view : view + 1]
+        if self.pose_delta is not None:
+            from cam2sim.splat.pose_refine import se3_exp  # noqa: PLC0415
+
+            viewmats = se3_exp(self.pose_delta[view : view + 1]) @ viewmats
         out = rasterize(
             inputs.means,
             inputs.quats,
             inputs.scales,
             inputs.opacities,
             inputs.colors,
-            v.viewmats[view : view + 1],
+            viewmats,
             v.Ks[view : view + 1],
             v.width,
             v.height,
@@ -782,14 +800,23 @@ class _ChunkTrainer:
             save_chunk_model,
         )
 
+        poses = np.stack([f.T() for f in self.views.frames])
+        correction = None
+        if self.pose_delta is not None:
+            from cam2sim.splat.pose_refine import correction_sizes, se3_exp  # noqa: PLC0415
+
+            # Refined camera -> world: T' = T exp(delta)^-1 (the correction acts on world->camera).
+            fix = se3_exp(self.pose_delta.detach().double().cpu()).numpy()
+            poses = poses @ np.linalg.inv(fix)
+            correction = correction_sizes(self.pose_delta)
         views = [
             ViewRecord(
                 index=f.index,
                 progress_m=f.progress_m,
-                position=f.T()[:3, 3].tolist(),
-                forward=f.T()[:3, 2].tolist(),
+                position=pose[:3, 3].tolist(),
+                forward=pose[:3, 2].tolist(),
             )
-            for f in self.views.frames
+            for f, pose in zip(self.views.frames, poses, strict=True)
         ]
         header = ChunkHeader(
             chunk_id=self.chunk.id,
@@ -841,6 +868,7 @@ class _ChunkTrainer:
             robust_outlier_share=(
                 float(self.outlier_sum) / self.outlier_steps if self.outlier_steps else None
             ),
+            pose_correction=correction,
         )
 
 

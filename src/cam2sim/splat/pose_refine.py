@@ -1,0 +1,65 @@
+"""Camera pose refinement while training: a small rigid correction per training view.
+
+Recorded poses (odometry, GNSS) and images-only SfM poses both carry error: a few centimetres or
+a tenth of a degree on a bend is a pixel at the far end of a street, and the splat then blurs
+what it cannot place. Each training view gets a learned correction ``delta = (omega, t)`` (an
+axis-angle rotation and a translation, in the camera frame, scene units) applied on the left of
+its world-to-camera matrix, ``V' = exp(delta) V`` (as gsplat's ``simple_trainer`` pose
+optimisation does). The corrections start at zero, learn with Adam and a small weight decay,
+and are reported (:func:`correction_sizes`) and written back into the chunk's view records.
+
+Held-out views keep their recorded poses: their scores measure the scene, not a fit to them.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import torch
+
+__all__ = ["correction_sizes", "se3_exp"]
+
+
+def _skew(v: torch.Tensor) -> torch.Tensor:
+    """``[N, 3, 3]`` cross-product matrices of ``[N, 3]`` vectors."""
+    import torch  # noqa: PLC0415
+
+    zero = torch.zeros_like(v[:, 0])
+    x, y, z = v.unbind(dim=1)
+    return torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=1).view(-1, 3, 3)
+
+
+def se3_exp(delta: torch.Tensor) -> torch.Tensor:
+    """``[N, 4, 4]`` rigid transforms of ``[N, 6]`` corrections ``(omega, t)``.
+
+    The rotation is Rodrigues' formula (with its Taylor series near zero, so the gradient at the
+    start, ``delta = 0``, is exact); the translation is ``t`` as is.
+    """
+    import torch  # noqa: PLC0415
+
+    omega, t = delta[:, :3], delta[:, 3:]
+    theta2 = (omega * omega).sum(dim=1)
+    theta = theta2.clamp(min=1e-12).sqrt()
+    small = theta2 < 1e-8
+    a = torch.where(small, 1.0 - theta2 / 6.0, torch.sin(theta) / theta)
+    b = torch.where(small, 0.5 - theta2 / 24.0, (1.0 - torch.cos(theta)) / theta2.clamp(min=1e-12))
+    w = _skew(omega)
+    eye = torch.eye(3, dtype=delta.dtype, device=delta.device).expand_as(w)
+    rot = eye + a[:, None, None] * w + b[:, None, None] * (w @ w)
+    out = torch.eye(4, dtype=delta.dtype, device=delta.device).repeat(len(delta), 1, 1)
+    out[:, :3, :3] = rot
+    out[:, :3, 3] = t
+    return out
+
+
+def correction_sizes(delta: torch.Tensor) -> tuple[float, float, float, float]:
+    """Mean and largest translation (scene units) and rotation (degrees) of the corrections."""
+    import math  # noqa: PLC0415
+
+    with_grad_off = delta.detach()
+    rot = with_grad_off[:, :3].norm(dim=1) * (180.0 / math.pi)
+    shift = with_grad_off[:, 3:].norm(dim=1)
+    if len(delta) == 0:
+        return 0.0, 0.0, 0.0, 0.0
+    return float(shift.mean()), float(shift.max()), float(rot.mean()), float(rot.max())
