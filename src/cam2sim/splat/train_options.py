@@ -1,0 +1,286 @@
+"""The options and results of splat training (:mod:`cam2sim.splat.train`), as typed records.
+
+Kept apart from the trainer so that what a run is asked to do, and what it reports, reads on one
+page; :mod:`cam2sim.splat.train` re-exports every name.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path  # noqa: TC003 - a dataclass field's type
+from typing import TYPE_CHECKING, Literal
+
+from cam2sim.splat.robust import RobustLoss
+
+if TYPE_CHECKING:
+    from cam2sim.splat.raster import RasterBackend
+
+__all__ = [
+    "DensifyOptions",
+    "LearningRates",
+    "SceneTrainResult",
+    "Stop",
+    "TrainOptions",
+    "TrainResult",
+]
+
+Stop = Literal["plateau", "max_steps", "time"]
+"""Why a chunk's training ended (``TrainResult.stopped``)."""
+
+
+@dataclass(frozen=True)
+class LearningRates:
+    """Adam learning rates (gsplat ``simple_trainer`` defaults).
+
+    Attributes:
+        means: Times the scene scale; decays exponentially to 1 % at ``max_steps`` (or at the
+            step cap fitted to the time budget).
+        scales: Log scales.
+        quats: Quaternions.
+        opacities: Opacity logits.
+        sh0: Degree-0 SH (base colour); the sky's colours use it too.
+        sh_rest: Higher SH bands (``shN``).
+        appearance: The per-view affine colour transforms.
+        poses: The per-view pose corrections (:mod:`cam2sim.splat.pose_refine`; scene units
+            and radians); 0 = poses as recorded.
+    """
+
+    means: float = 1.6e-4
+    scales: float = 5e-3
+    quats: float = 1e-3
+    opacities: float = 5e-2
+    sh0: float = 2.5e-3
+    sh_rest: float = 2.5e-3 / 20
+    appearance: float = 1e-3
+    poses: float = 0.0
+
+
+@dataclass(frozen=True)
+class DensifyOptions:
+    """Densification (3DGS rules; ``strategy="auto"``: gsplat's with gsplat, else ours).
+
+    Attributes:
+        enabled: Densify at all.
+        strategy: ``"gsplat"`` (DefaultStrategy), ``"simple"`` (ours) or ``"auto"``.
+        refine_start: First step that clones/splits/prunes.
+        refine_stop: No refinement from this step on.
+        refine_every: Steps between refinements.
+        reset_every: Steps between opacity resets (to twice ``prune_opacity``); none within
+            ``reset_every`` steps of ``max_steps``, as the model needs about that long to
+            recover (a reset at 6,000 of 6,500 steps cost a route 0.006 SSIM).
+        grow_grad2d: Mean 2-D gradient (normalised screen units) above which a Gaussian grows.
+        absgrad: Accumulate the absolute per-pixel gradients instead (AbsGS: finer detail on
+            textured surfaces from fewer Gaussians; gsplat backend only; raise ``grow_grad2d``
+            about 3-4x with it, gsplat's examples use 8e-4).
+        pixel_weighted: Average the 2-D gradients over the views weighted by the Gaussian's
+            screen footprint (Pixel-GS, Zhang et al. 2024) instead of counting every view
+            alike. Driving forward, a Gaussian on the road near the camera is seen small from
+            far away in most of its views, so its plain mean gradient stays low and it is never
+            split; weighted, the views where it covers many pixels decide. On a route chunk
+            it more than doubled the Gaussians and took held-out LPIPS from 0.175 to 0.148 at
+            8,000 steps, at about twice the cost a step (``docs/benchmarks.md``).
+        near_damping: With ``pixel_weighted``: a Gaussian's gradient in a view is scaled by
+            ``min(1, depth / (near_damping * scene scale)) ** 2`` for these statistics (3 m on
+            a metric street), so large Gaussians right in front of the camera do not grow into
+            floaters (0 = no damping).
+        grow_scale3d: Largest scale (times scene scale) up to which growing clones, above splits.
+        prune_opacity: Gaussians below this opacity are removed.
+        prune_scale3d: Gaussians larger than this (times scene scale) are removed after the
+            first reset.
+        max_gaussians: No growth once the street model has this many Gaussians.
+    """
+
+    enabled: bool = True
+    strategy: Literal["auto", "gsplat", "simple"] = "auto"
+    refine_start: int = 500
+    refine_stop: int = 15_000
+    refine_every: int = 100
+    reset_every: int = 3000
+    grow_grad2d: float = 2e-4
+    absgrad: bool = False
+    pixel_weighted: bool = True
+    near_damping: float = 0.3
+    grow_scale3d: float = 0.01
+    prune_opacity: float = 0.005
+    prune_scale3d: float = 0.1
+    max_gaussians: int = 6_000_000
+
+
+@dataclass(frozen=True)
+class TrainOptions:
+    """How to train chunk models (see the module doc for what each part does).
+
+    Attributes:
+        max_steps: Step cap per chunk.
+        min_steps: No plateau stop before this step.
+        val_every: Steps between held-in validations.
+        patience: Validation intervals in the plateau trend (``patience + 1`` validations).
+        min_gain_db: Held-in PSNR trend, dB per 1,000 steps, below which PSNR has plateaued.
+        min_gain_ssim: Held-in SSIM trend per 1,000 steps below which SSIM has plateaued.
+        n_val_views: Training views used for validation (spread along the chunk).
+        ssim_weight: Weight ``w`` of ``1 - SSIM`` in the photometric loss.
+        sh_degree: Highest SH degree of the street model (0-3).
+        sh_degree_interval: Steps per SH degree added (degree 0 first).
+        appearance: Learn per-view colour transforms.
+        sky_points: Number of sky Gaussians (0 = none).
+        sky_radius_m: Sky sphere radius; None = automatic.
+        sky_weight: Weight of the sky-share loss (used when ``sky/`` masks exist).
+        init_opacity: Opacity of new street Gaussians.
+        max_init_points: About this many of the chunk's points to start from, thinned with the
+            distance from the cameras (``splat.model.screen_density_keep``); None = all.
+        background: RGB in ``[0, 1]`` behind everything.
+        scene_scale: Scale (scene units) of the means' learning rate and of densification's
+            size thresholds (``grow_scale3d``, ``prune_scale3d``). None = automatic:
+            :data:`STREET_SCALE_M` for metric scenes, the spread of the chunk's cameras for
+            scale-ambiguous (images-only SfM) ones. The spread is gsplat's rule, made for
+            cameras around an object; along a street it grows with the chunk's length (about
+            60 m for a 117 m chunk) while detail stays at the viewing distance, so Gaussians of
+            half a metre were cloned instead of split.
+        downscale: Integer image downscale for training (1 = full size).
+        coarse_levels: Coarse-to-fine training: the first ``coarse_every`` steps see the views
+            at ``1/2**coarse_levels`` of their size, each further ``coarse_every`` steps at
+            twice the size, up to full size (nerfstudio's splatfacto does 2 levels every 3,000
+            steps); validation is always at full size. 0 = full size throughout. Coarse steps
+            are cheaper on the torch rasterizer and on large images; with gsplat on small ones
+            they can cost more (one thread block per 16x16 tile: 1/4 of 480x300 leaves the GPU
+            idle; ``docs/benchmarks.md``).
+        coarse_every: Steps per coarse level.
+        lr: Learning rates.
+        densify: Densification settings.
+        robust: Robust weighting that leaves transient objects out of the loss
+            (:mod:`cam2sim.splat.robust`).
+        device: ``"auto"`` (CUDA when available), ``"cpu"``, ``"cuda"``, ``"cuda:1"``, ...
+        backend: Rasterizer, see :mod:`cam2sim.splat.raster`.
+        write_ply: Also write ``chunk_XX.ply`` (3DGS layout) beside each model.
+        seed: Seeds view order, subsets and splits.
+        profile: Time each step's phases (host and CUDA-event device time) into
+            ``TrainResult.phase_ms``; also on with ``CAM2SIM_SPLAT_PROFILE=1``.
+        concurrent_chunks: Chunks trained at a time by :func:`train_scene`, each in its own
+            worker process on the one device; 1 = all in one interleaved loop in this process;
+            None = 2 on CUDA (two processes overlap on one GPU), 1 elsewhere.
+        time_budget_s: Seconds of training for all the chunks of one call (their steps and
+            validations; not loading them, nor gsplat's one-time build), shared out by
+            :func:`time_share`; each chunk fits its step cap to its share (module doc).
+            None = no budget: the plateau or ``max_steps`` ends training.
+    """
+
+    max_steps: int = 30_000
+    min_steps: int = 7_000
+    val_every: int = 1_000
+    patience: int = 3
+    min_gain_db: float = 0.05
+    min_gain_ssim: float = 0.002
+    n_val_views: int = 16
+    ssim_weight: float = 0.2
+    sh_degree: int = 3
+    sh_degree_interval: int = 1_000
+    appearance: bool = True
+    sky_points: int = 10_000
+    sky_radius_m: float | None = None
+    sky_weight: float = 0.05
+    init_opacity: float = 0.1
+    max_init_points: int | None = None
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    scene_scale: float | None = None
+    downscale: int = 1
+    coarse_levels: int = 0
+    coarse_every: int = 3_000
+    lr: LearningRates = field(default_factory=LearningRates)
+    densify: DensifyOptions = field(default_factory=DensifyOptions)
+    robust: RobustLoss = field(default_factory=RobustLoss)
+    device: str = "auto"
+    backend: RasterBackend = "auto"
+    write_ply: bool = False
+    seed: int = 0
+    profile: bool = False
+    concurrent_chunks: int | None = None
+    time_budget_s: float | None = None
+
+    def __post_init__(self) -> None:
+        problems = []
+        if self.max_steps < 1:
+            problems.append(f"max_steps={self.max_steps} (need >= 1)")
+        if not 0 <= self.sh_degree <= 3:
+            problems.append(f"sh_degree={self.sh_degree} (need 0-3)")
+        if not 0.0 <= self.ssim_weight <= 1.0:
+            problems.append(f"ssim_weight={self.ssim_weight} (need 0-1)")
+        if self.downscale < 1:
+            problems.append(f"downscale={self.downscale} (need >= 1)")
+        if self.scene_scale is not None and self.scene_scale <= 0:
+            problems.append(f"scene_scale={self.scene_scale} (need > 0 or None)")
+        if self.coarse_levels < 0 or self.coarse_every < 1:
+            problems.append(
+                f"coarse_levels={self.coarse_levels}, coarse_every={self.coarse_every} "
+                "(need >= 0 and >= 1)"
+            )
+        if self.densify.near_damping < 0:
+            problems.append(f"densify.near_damping={self.densify.near_damping} (need >= 0)")
+        if self.concurrent_chunks is not None and self.concurrent_chunks < 1:
+            problems.append(f"concurrent_chunks={self.concurrent_chunks} (need >= 1 or None)")
+        if self.time_budget_s is not None and not self.time_budget_s > 0:
+            problems.append(f"time_budget_s={self.time_budget_s} (need > 0 or None)")
+        if self.val_every < 1 or self.patience < 1 or self.n_val_views < 1:
+            problems.append("val_every, patience and n_val_views must be >= 1")
+        if problems:
+            msg = "invalid TrainOptions: " + "; ".join(problems)
+            raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """Outcome of training one chunk.
+
+    Attributes:
+        chunk_id: The chunk.
+        model_path: The written ``chunk_XX.pt``.
+        steps: Steps run.
+        stopped: ``"plateau"``, ``"max_steps"`` or ``"time"`` (the time budget ended it).
+        n_gaussians: Street Gaussians at the end.
+        n_initial_gaussians: Street Gaussians at the start (one per visible point).
+        n_sky: Sky Gaussians.
+        n_train_views: Views trained on.
+        best_val_psnr_db: Best held-in validation PSNR, dB.
+        val_history: ``(step, psnr_db, ssim)`` of every validation.
+        train_seconds: Wall time spent in this chunk's steps and validations.
+        backend: Rasterizer that ran.
+        device: torch device.
+        phase_ms: Per-step host and device milliseconds by phase when phase timing was on
+            (``TrainOptions.profile``, see :mod:`cam2sim.splat.profiling`), else empty.
+        robust_outlier_share: Mean share of used pixels the robust weighting left out, over
+            the steps it ran (None when it was off).
+        pose_correction: The learned pose corrections' mean and largest translation (scene
+            units) and rotation (degrees), when pose refinement was on (``lr.poses``).
+    """
+
+    chunk_id: int
+    model_path: Path
+    steps: int
+    stopped: Stop
+    n_gaussians: int
+    n_initial_gaussians: int
+    n_sky: int
+    n_train_views: int
+    best_val_psnr_db: float | None
+    val_history: tuple[tuple[int, float, float], ...]
+    train_seconds: float
+    backend: str
+    device: str
+    phase_ms: dict[str, float] = field(default_factory=dict)
+    robust_outlier_share: float | None = None
+    pose_correction: tuple[float, float, float, float] | None = None
+
+
+@dataclass(frozen=True)
+class SceneTrainResult:
+    """Outcome of :func:`train_scene`.
+
+    Attributes:
+        chunks: One result per chunk, by chunk id.
+        seconds: Wall time of the whole run (loading included).
+        peak_memory_bytes: Peak CUDA memory allocated, or None on CPU (with worker processes:
+            the largest of one worker's).
+    """
+
+    chunks: tuple[TrainResult, ...]
+    seconds: float
+    peak_memory_bytes: int | None
