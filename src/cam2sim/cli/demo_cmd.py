@@ -50,6 +50,7 @@ def demo(
         demo_splat_options,
         run_pipeline,
     )
+    from cam2sim.stages.variation import DEMO_RUN_VARIATION  # noqa: PLC0415
 
     started = time.perf_counter()
     try:
@@ -75,6 +76,8 @@ def demo(
                 runs=runs,
                 replay_every=6,  # 20 Hz camera: 76 replayed frames
                 steering_noise_std=DEMO_STEERING_NOISE,
+                # Runs differ as a driver's repeated drives do: start pose and speed.
+                run_variation=DEMO_RUN_VARIATION,
                 splat=demo_splat_options(cuda=_cuda()),
                 splat_on_cpu=True,
                 # 23 s of driving: the held-out tail (the last straight) cannot choose the

@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from cam2sim.core.workspace import Workspace
     from cam2sim.stages.cameras import CameraName
     from cam2sim.stages.splat import SplatResult, SplatStageOptions
+    from cam2sim.stages.variation import RunVariation
 
 __all__ = [
     "STATE_FILE",
@@ -95,6 +96,8 @@ class PipelineOptions:
             quality are computed on them).
         steering_noise_std: Steering noise of the builtin simulator (steering units per step,
             seeded per run), so that repeated runs of a deterministic policy differ.
+        run_variation: Seeded start-pose and speed differences between drive runs
+            (:mod:`cam2sim.stages.variation`); None: none.
         splat: Splat options; None: the defaults on CUDA, :func:`small_splat_options` on CPU.
         splat_on_cpu: Train splats without a GPU (slow even with the small preset); False makes
             ``splat`` not applicable there.
@@ -113,6 +116,7 @@ class PipelineOptions:
     runs: int = 3
     replay_every: int = 1
     steering_noise_std: float = 0.0
+    run_variation: RunVariation | None = None
     splat: SplatStageOptions | None = None
     splat_on_cpu: bool = True
     steering_signal: str | None = None
@@ -521,7 +525,13 @@ class _Pipeline:
         policy = self._policy()
         sim = self._sim_options()
         all_opts = [
-            DriveOptions(policy=policy, camera=cam, runs=self.options.runs, sim=sim)
+            DriveOptions(
+                policy=policy,
+                camera=cam,
+                runs=self.options.runs,
+                sim=sim,
+                variation=self.options.run_variation,
+            )
             for cam in self._drive_cameras()
         ]
         model = Path(policy)

@@ -54,6 +54,7 @@ if TYPE_CHECKING:
 
     from cam2sim.core.workspace import Workspace
     from cam2sim.scenario.model import Scenario
+    from cam2sim.stages.variation import DrawnVariation, RunVariation
 
 __all__ = [
     "TRUTH_CAMERA",
@@ -122,6 +123,8 @@ class DriveOptions:
         carla_client_factory: Builds the ``carla.Client`` (tests and embedding; None: connect).
         start_offset: ``(lateral_m, heading_deg)`` moved from the recorded hero start (lateral:
             left of the start heading; heading: counter-clockwise); ``(0, 0)`` keeps it.
+        variation: Seeded run-to-run differences (start pose, speed) drawn per run on top of
+            ``start_offset`` and the target speed (:mod:`cam2sim.stages.variation`); None: none.
     """
 
     policy: str = "pure-pursuit"
@@ -139,6 +142,7 @@ class DriveOptions:
     carla: Any = field(default=None)
     carla_client_factory: Any = field(default=None)
     start_offset: tuple[float, float] = (0.0, 0.0)
+    variation: RunVariation | None = None
 
     def __post_init__(self) -> None:
         if self.runs < 1 or self.policy_every < 1 or self.max_steps < 1:
@@ -512,7 +516,8 @@ def _drive_loop(  # noqa: PLR0913, PLR0915, PLR0917 - one run: setup, step loop,
     from cam2sim.sim.interface import Control  # noqa: PLC0415
 
     sc = ctx.scenario
-    state = sim.reset(_start_pose(sc, opts.start_offset))
+    offset, target, drawn = _varied(sc, opts, seed, target)
+    state = sim.reset(_start_pose(sc, offset))
     policy.reset()
     cam_name = "carla" if opts.camera == "carla" else next(iter(cameras.renderers), None)
     K, w, h = scaled_intrinsics(sc, opts.image_size) if cam_name else (np.eye(3), 0, 0)
@@ -575,6 +580,8 @@ def _drive_loop(  # noqa: PLR0913, PLR0915, PLR0917 - one run: setup, step loop,
         timing = {"seconds": seconds, "render_s": render_s, "policy_s": policy_s}
         meta = _drive_meta(opts, policy.name, cam_name, seed, steps, len(decisions), timing)
         meta |= {"simulator": sim_opts.model_dump(mode="json"), "proj_string": sc.world.proj_string}
+        if drawn is not None:
+            meta["variation"] = asdict(drawn)
         if cam_name == "splat":
             meta |= _splat_quality(ctx.ws, run_id, coverage)
         _write_meta(tmp, meta, events)
@@ -617,6 +624,19 @@ def _drive_meta(
             if k not in ("sim", "carla", "carla_client_factory")
         },
     }
+
+
+def _varied(
+    sc: Scenario, opts: DriveOptions, seed: int, target: float | None
+) -> tuple[tuple[float, float], float | None, DrawnVariation | None]:
+    """The run's start offset and target speed with its seeded variation, and the draw."""
+    if opts.variation is None:
+        return opts.start_offset, target, None
+    drawn = opts.variation.draw(seed)
+    offset = (opts.start_offset[0] + drawn.lateral_m, opts.start_offset[1] + drawn.heading_deg)
+    if drawn.speed_factor != 1.0:
+        target = (sc.hero_start.speed if target is None else target) * drawn.speed_factor
+    return offset, target, drawn
 
 
 def _start_pose(sc: Scenario, offset: tuple[float, float]) -> Any:
