@@ -123,7 +123,7 @@ def _drive(spec: RunSpec) -> str:
     ws = Workspace.open(Path(spec.workspace_path))
     d = spec.drive
     sim = None
-    scenario = ws.scenario_dir / "scenario.json"
+    scenario = ws.scenario_path
     if d.steering_noise_std and scenario.is_file():
         from cam2sim.scenario.model import Scenario  # noqa: PLC0415
         from cam2sim.sim.builtin import BuiltinOptions  # noqa: PLC0415

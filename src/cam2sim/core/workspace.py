@@ -28,6 +28,7 @@ from cam2sim.core.errors import WorkspaceError
 from cam2sim.core.schema import Artifact
 
 __all__ = [
+    "SCENARIO_FILE",
     "Manifest",
     "StageRecord",
     "Workspace",
@@ -98,6 +99,10 @@ class Manifest(Artifact):
     )
     world: WorldFrameRecord | None = None
     stages: dict[str, StageRecord] = pydantic.Field(default_factory=dict)
+
+
+SCENARIO_FILE = "scenario.json"
+"""The scenario's file name in ``scenario/``."""
 
 
 class Workspace:
@@ -242,6 +247,11 @@ class Workspace:
     def scenario_dir(self) -> Path:
         """Stage scenario output folder."""
         return self.root / "scenario"
+
+    @property
+    def scenario_path(self) -> Path:
+        """``scenario/scenario.json``: the scenario every run reads."""
+        return self.scenario_dir / SCENARIO_FILE
 
     @property
     def splat_dir(self) -> Path:

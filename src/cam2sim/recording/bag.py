@@ -78,7 +78,10 @@ def _bag_paths(paths: Sequence[Path]) -> list[Path]:
     for path in paths:
         p = Path(path)
         if not p.exists():
-            msg = f"recording {p} does not exist; check the path (recording.bags in config.yaml)"
+            msg = (
+                f"recording {p} does not exist; check the path (on the command line, or "
+                "recording.bags in config.yaml)"
+            )
             raise RecordingError(msg)
         out.append(p)
     return out

@@ -134,7 +134,7 @@ def _gather(ctx: _Context) -> None:
     from cam2sim.scenario.model import Scenario  # noqa: PLC0415
     from cam2sim.stages.runs import iter_runs  # noqa: PLC0415
 
-    path = ctx.ws.scenario_dir / "scenario.json"
+    path = ctx.ws.scenario_path
     if path.is_file():
         try:
             ctx.scenario = Scenario.load(path)
@@ -169,7 +169,7 @@ def _real_drives(ctx: _Context, real_runs: Sequence[Path], real_crs: str) -> lis
             "no real drives given (--real or WS/real/) and no run in the ground-truth world: the "
             "scenario's recorded trajectory is the only reference, so the corridor has zero width"
         )
-    return [recorded_drive(ctx.scenario, source=str(ctx.ws.scenario_dir / "scenario.json"))]
+    return [recorded_drive(ctx.scenario, source=str(ctx.ws.scenario_path))]
 
 
 def _evaluate(ctx: _Context, real_runs: Sequence[Path], real_crs: str) -> str | None:

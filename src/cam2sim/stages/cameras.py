@@ -68,7 +68,7 @@ def load_run_context(ws: Workspace) -> RunContext:
     from cam2sim.scenario.model import Scenario  # noqa: PLC0415
     from cam2sim.stages.map import load_road_map  # noqa: PLC0415
 
-    path = ws.scenario_dir / "scenario.json"
+    path = ws.scenario_path
     if not path.is_file():
         msg = f"{ws.root} has no scenario; run `cam2sim scenario {ws.root}` first"
         raise StageError(msg)

@@ -373,7 +373,7 @@ class _Pipeline:
         from cam2sim.scenario.model import Scenario  # noqa: PLC0415
         from cam2sim.sim.builtin import BuiltinOptions  # noqa: PLC0415
 
-        sc = Scenario.load(self.ws.scenario_dir / "scenario.json")
+        sc = Scenario.load(self.ws.scenario_path)
         return BuiltinOptions(
             calibration=sc.steering_calibration, steering_noise_std=self.options.steering_noise_std
         )
@@ -422,7 +422,7 @@ class _Pipeline:
         from cam2sim.scenario.model import Scenario  # noqa: PLC0415
         from cam2sim.stages.runs import driven_length_m  # noqa: PLC0415
 
-        path = self.ws.scenario_dir / "scenario.json"
+        path = self.ws.scenario_path
         if not path.is_file():
             return  # the step itself says what is missing
         length = driven_length_m(Scenario.load(path))
@@ -643,7 +643,7 @@ def evaluate_workspace_drives(ws: Workspace, run_ids: list[str], out: Path) -> P
     from cam2sim.report.drive_figures import write_drive_figures  # noqa: PLC0415
     from cam2sim.scenario.model import Scenario  # noqa: PLC0415
 
-    path = ws.scenario_dir / "scenario.json"
+    path = ws.scenario_path
     if not path.is_file():
         msg = f"{ws.root} has no scenario; run `cam2sim scenario {ws.root}` first"
         raise StageError(msg)

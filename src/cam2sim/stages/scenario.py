@@ -21,7 +21,7 @@ import numpy as np
 
 from cam2sim.core.errors import StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
-from cam2sim.core.workspace import Workspace, dataset_paths, hash_inputs
+from cam2sim.core.workspace import SCENARIO_FILE, Workspace, dataset_paths, hash_inputs
 from cam2sim.stages._runner import stage_run
 
 if TYPE_CHECKING:
@@ -38,7 +38,6 @@ __all__ = ["ScenarioOptions", "ScenarioResult", "run_scenario", "size_class"]
 
 logger = logging.getLogger(__name__)
 STAGE = "scenario"
-SCENARIO_FILE = "scenario.json"
 XOSC_FILE = "scenario.xosc"
 
 

@@ -181,7 +181,7 @@ def _recorded_ground(ws: Workspace) -> Callable[[npt.NDArray[np.float64]], float
     from cam2sim.scenario.model import Scenario  # noqa: PLC0415
     from cam2sim.stages.cameras import ground_height_at  # noqa: PLC0415
 
-    path = ws.scenario_dir / "scenario.json"
+    path = ws.scenario_path
     if not path.is_file():
         return None
     scenario = Scenario.load(path)
