@@ -157,10 +157,14 @@ def main(argv: list[str]) -> int:
         return run(py, "-m", "cam2sim", "demo", *(rest or ["-o", "cam2sim-demo"]), check=False)
     ensure_chromium()
     os.chdir(ROOT)
-    for step in (["ruff", "check", "."], ["ruff", "format", "--check", "."], ["mypy"]):
+    checks = (["ruff", "check", "."], ["ruff", "format", "--check", "."], ["mypy"])
+    for step in checks:
         say(" ".join(step))
         if run(py, "-m", *step, check=False) != 0:
             return 1
+    say("lint-imports (the package layers)")
+    if run(env / "bin" / "lint-imports", check=False) != 0:
+        return 1
     say("pytest")
     return run(py, "-m", "pytest", "-q", "-p", "no:cacheprovider", *rest, check=False)
 

@@ -49,19 +49,19 @@ import numpy as np
 
 from cam2sim.ads.dave2 import METADATA_KEY as DAVE2_METADATA
 from cam2sim.ads.dave2 import Dave2Config, preprocess
-from cam2sim.core.errors import ConfigError, StageError
-from cam2sim.detect.learned import (
-    _FLOAT_TYPES,
-    _ONNX_HINT,
-    _TORCH_HINT,
-    _check_file,
-    _check_size,
-    _fixed,
-    _image_tensor,
-    _require,
-    _to_numpy,
+from cam2sim.core.backends import (
+    ONNX_FLOAT_TYPES,
+    ONNX_HINT,
+    TORCH_HINT,
+    checked_size,
+    fixed_dim,
+    image_tensor,
     load_torch_model,
+    local_file,
+    require_module,
+    to_numpy,
 )
+from cam2sim.core.errors import ConfigError, StageError
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -335,7 +335,7 @@ def _contract_error(model: str, what: str, inputs: str, outputs: str) -> ConfigE
 
 
 def _steering_value(value: Any, model: str) -> float:  # Any: numpy arrays or torch tensors
-    a = _to_numpy(value)
+    a = to_numpy(value)
     if a.size != 1 or a.ndim > 2:
         msg = (
             f"{model} returned an output of shape {a.shape}; the contract is one steering value, "
@@ -359,13 +359,13 @@ def _model_image(obs: Observation, size: tuple[int, int], model: str) -> npt.NDA
         raise ValueError(msg)
     if (img.shape[1], img.shape[0]) != size:
         img = np.asarray(cv2.resize(img, size, interpolation=cv2.INTER_AREA), dtype=np.uint8)
-    return _image_tensor(img)
+    return image_tensor(img)
 
 
 def _fit_size(
     declared: tuple[int, int] | None, input_size: tuple[int, int] | None, model: str
 ) -> tuple[int, int]:
-    size = _check_size(input_size) or declared
+    size = checked_size(input_size) or declared
     if size is None:
         msg = f"{model} has no fixed input size; give input_size=(width, height)"
         raise ConfigError(msg)
@@ -380,7 +380,7 @@ class _OnnxSteering:
 
     def __init__(self, path: Path, input_size: tuple[int, int] | None) -> None:
         self.name = f"onnx:{path.name}"
-        ort = _require("onnxruntime", _ONNX_HINT, "the ONNX steering policy")
+        ort = require_module("onnxruntime", ONNX_HINT, "the ONNX steering policy")
         options = ort.SessionOptions()
         options.log_severity_level = 3
         available = set(ort.get_available_providers())
@@ -402,9 +402,9 @@ class _OnnxSteering:
         shape = list(inputs[0].shape) if len(inputs) == 1 else []
         ok = (
             len(shape) == 4
-            and _fixed(shape[0]) in (None, 1)
-            and _fixed(shape[1]) in (None, 3)
-            and inputs[0].type in _FLOAT_TYPES
+            and fixed_dim(shape[0]) in (None, 1)
+            and fixed_dim(shape[1]) in (None, 3)
+            and inputs[0].type in ONNX_FLOAT_TYPES
         )
         if not ok:
             raise _contract_error(self.name, "wrong inputs", ins, outs)
@@ -412,8 +412,8 @@ class _OnnxSteering:
         if len(names) != 1 and "steering" not in names:
             raise _contract_error(self.name, "one output (or one named steering) needed", ins, outs)
         self._fetch = names[0] if len(names) == 1 else "steering"
-        self._input, self._dtype = inputs[0].name, _FLOAT_TYPES[inputs[0].type]
-        h, w = _fixed(shape[2]), _fixed(shape[3])
+        self._input, self._dtype = inputs[0].name, ONNX_FLOAT_TYPES[inputs[0].type]
+        h, w = fixed_dim(shape[2]), fixed_dim(shape[3])
         self.size = _fit_size((w, h) if w and h else None, input_size, self.name)
         meta = self._session.get_modelmeta().custom_metadata_map.get(DAVE2_METADATA)
         self.dave2 = None if meta is None else Dave2Config.from_json(meta)
@@ -435,7 +435,7 @@ class _TorchSteering:
 
     def __init__(self, path: Path, input_size: tuple[int, int] | None, device: str) -> None:
         self.name = f"torch:{path.name}"
-        _require("torch", _TORCH_HINT, "the torch steering policy")
+        require_module("torch", TORCH_HINT, "the torch steering policy")
         self._device = device
         self._module, n_inputs, declared = load_torch_model(path, device)
         if n_inputs != 1:
@@ -476,7 +476,7 @@ class _KerasSteering:
 
     def __init__(self, path: Path) -> None:
         self.name = f"keras:{path.name}"
-        tf = _require("tensorflow", _KERAS_HINT, "the Keras steering policy")
+        tf = require_module("tensorflow", _KERAS_HINT, "the Keras steering policy")
         try:
             self._model = tf.keras.models.load_model(str(path), compile=False, safe_mode=False)
         except (OSError, ValueError, TypeError) as err:
@@ -486,7 +486,7 @@ class _KerasSteering:
         self.size = self.dave2.input_size
 
     def __call__(self, x: npt.NDArray[np.float32]) -> float:
-        out = _to_numpy(self._model(x.transpose(0, 2, 3, 1), training=False))
+        out = to_numpy(self._model(x.transpose(0, 2, 3, 1), training=False))
         return _steering_value(out.reshape(-1)[:1], self.name)
 
 
@@ -515,7 +515,7 @@ class ModelPolicy:
     def __init__(
         self, path: Path | str, *, input_size: tuple[int, int] | None = None, device: str = "cpu"
     ) -> None:
-        path = _check_file(Path(path), "steering model")
+        path = local_file(Path(path), "steering model")
         suffix = path.suffix.lower()
         if suffix not in _MODEL_SUFFIXES:
             msg = f"steering model {path.name!r} must be one of {', '.join(_MODEL_SUFFIXES)}"

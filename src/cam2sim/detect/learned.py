@@ -49,13 +49,10 @@ converted to the centre), ``fcos3d:CONFIG:CHECKPOINT`` runs ``inference_mono_3d_
 
 from __future__ import annotations
 
-import importlib
-import io
 import logging
 import pickle
 import tempfile
 import warnings
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
@@ -63,7 +60,19 @@ from typing import TYPE_CHECKING, Any, Final
 import cv2
 import numpy as np
 
-from cam2sim.core.errors import BackendUnavailableError, ConfigError
+from cam2sim.core.backends import (
+    ONNX_FLOAT_TYPES,
+    ONNX_HINT,
+    TORCH_HINT,
+    checked_size,
+    fixed_dim,
+    image_tensor,
+    load_torch_model,
+    local_file,
+    require_module,
+    to_numpy,
+)
+from cam2sim.core.errors import ConfigError
 from cam2sim.detect.boxes import Boxes
 
 if TYPE_CHECKING:
@@ -94,16 +103,10 @@ LIDAR_SIGMA_M: Final = 0.3
 errors (mATE) of LiDAR detectors lie between about 0.25 m (CenterPoint) and 0.5 m
 (PointPillars)."""
 
-_ONNX_HINT: Final = "pip install 'cam2sim[detect]' (or: pip install onnxruntime)"
-_TORCH_HINT: Final = "pip install torch (CPU wheels suffice)"
 _MMDET3D_HINT: Final = (
     "pip install mmdet3d (and mmcv, mmengine; OpenMMLab's route: pip install -U openmim && "
     "mim install mmengine 'mmcv>=2.0.0' 'mmdet>=3.0.0' 'mmdet3d>=1.1.0')"
 )
-_FLOAT_TYPES: Final[dict[str, type[np.floating[Any]]]] = {
-    "tensor(float)": np.float32,
-    "tensor(double)": np.float64,
-}
 _OUTPUTS: Final = ("boxes", "scores", "labels")
 _MM_CAMERA: Final = "CAM_FRONT"
 
@@ -182,29 +185,6 @@ class _Filter:
         if raw.labels is not None and self.vehicle_labels is not None:
             keep &= np.isin(raw.labels, np.fromiter(self.vehicle_labels, dtype=np.int64))
         return keep
-
-
-def _require(module: str, hint: str, what: str) -> ModuleType:
-    """Import an optional backend, or say how to install it."""
-    try:
-        return importlib.import_module(module)
-    except ImportError as err:
-        msg = f"{what} needs {module.partition('.')[0]}, which is not installed ({err}); {hint}"
-        raise BackendUnavailableError(msg) from None
-
-
-def _check_file(path: Path, what: str) -> Path:
-    path = Path(path)
-    if not path.is_file():
-        msg = f"{what} {str(path)!r} does not exist; give the path of a local file"
-        raise ConfigError(msg)
-    return path
-
-
-def _to_numpy(value: Any) -> npt.NDArray[Any]:  # Any: torch tensors, numpy arrays or lists
-    if hasattr(value, "detach"):
-        value = value.detach().cpu().numpy()
-    return np.asarray(value)
 
 
 def _drop_batch(a: npt.NDArray[Any], rank: int) -> npt.NDArray[Any]:
@@ -325,30 +305,18 @@ def _resize(
     return out, scale @ K
 
 
-def _image_tensor(image: npt.NDArray[np.uint8]) -> npt.NDArray[np.float32]:
-    """``(H, W, 3)`` uint8 to ``(1, 3, H, W)`` float32 in ``[0, 1]``."""
-    return np.ascontiguousarray(image.transpose(2, 0, 1)[None], dtype=np.float32) / 255.0
-
-
 def _k_tensor(K: npt.NDArray[np.float64], rank: int, dim: int) -> npt.NDArray[np.float64]:
     k = np.eye(dim)
     k[:3, :3] = K
     return k[None] if rank == 3 else k
 
 
-def _check_size(size: tuple[int, int] | None) -> tuple[int, int] | None:
-    if size is not None and (len(size) != 2 or min(size) < 1):
-        msg = f"input_size must be (width, height) in pixels, got {size!r}"
-        raise ConfigError(msg)
-    return None if size is None else (int(size[0]), int(size[1]))
-
-
 class _OnnxModel:
     """An onnxruntime session with its declared inputs and outputs."""
 
     def __init__(self, path: Path, role: str) -> None:
-        self.path = _check_file(path, "ONNX model")
-        ort = _require("onnxruntime", _ONNX_HINT, f"the ONNX {role} detector")
+        self.path = local_file(path, "ONNX model")
+        ort = require_module("onnxruntime", ONNX_HINT, f"the ONNX {role} detector")
         options = ort.SessionOptions()
         options.log_severity_level = 3
         available = set(ort.get_available_providers())
@@ -386,10 +354,10 @@ class _OnnxModel:
         return ConfigError(msg)
 
     def dtype(self, arg: Any) -> type[np.floating[Any]]:  # Any: an onnxruntime NodeArg
-        if arg.type not in _FLOAT_TYPES:
+        if arg.type not in ONNX_FLOAT_TYPES:
             msg = f"input {arg.name!r} must be float32 or float64"
             raise self.error(msg)
-        return _FLOAT_TYPES[arg.type]
+        return ONNX_FLOAT_TYPES[arg.type]
 
     def run(self, feeds: dict[str, npt.NDArray[Any]]) -> dict[str, npt.NDArray[Any]]:
         try:
@@ -399,10 +367,6 @@ class _OnnxModel:
             msg = f"inference failed on inputs of shapes {shapes} ({err})"
             raise self.error(msg) from err
         return {n: np.asarray(v) for n, v in zip(self.fetch, values, strict=True)}
-
-
-def _fixed(dim: object) -> int | None:
-    return dim if isinstance(dim, int) and dim > 0 else None
 
 
 def _fit_count(points: npt.NDArray[np.float32], n: int) -> npt.NDArray[np.float32]:
@@ -444,14 +408,14 @@ class OnnxLidarDetector:
             raise self._model.error(msg)
         arg = self._model.inputs[0]
         shape = list(arg.shape)
-        channels = _fixed(shape[-1]) if shape else None
-        batch_ok = len(shape) == 2 or _fixed(shape[0]) in (None, 1)
+        channels = fixed_dim(shape[-1]) if shape else None
+        batch_ok = len(shape) == 2 or fixed_dim(shape[0]) in (None, 1)
         if len(shape) not in (2, 3) or channels not in (None, 3, 4) or not batch_ok:
             msg = "the points input must be (N, 4) or (1, N, 4), or with 3 channels"
             raise self._model.error(msg)
         self._input, self._rank, self._dtype = arg.name, len(shape), self._model.dtype(arg)
         self._channels = channels or 4
-        self._count = _fixed(shape[-2])
+        self._count = fixed_dim(shape[-2])
 
     def detect(self, points: npt.NDArray[np.float32]) -> Boxes:
         """Boxes (``axes="link"``) of the vehicles in one scan.
@@ -502,19 +466,21 @@ class OnnxCameraDetector:
         k_arg = by_name.get("K") or (rest[0] if len(rest) == 1 else None)
         shape = list(image.shape) if image is not None else []
         ok_image = (
-            len(shape) == 4 and _fixed(shape[0]) in (None, 1) and _fixed(shape[1]) in (None, 3)
+            len(shape) == 4
+            and fixed_dim(shape[0]) in (None, 1)
+            and fixed_dim(shape[1]) in (None, 3)
         )
         k_shape = list(k_arg.shape) if k_arg is not None else [3, 3]
-        ok_k = len(k_shape) in (2, 3) and _fixed(k_shape[-1]) in (None, 3, 4)
+        ok_k = len(k_shape) in (2, 3) and fixed_dim(k_shape[-1]) in (None, 3, 4)
         if image is None or not (ok_image and ok_k) or len(model.inputs) != 1 + (k_arg is not None):
             msg = "a camera model takes image (1, 3, H, W) and optionally K (1, 3, 3)"
             raise model.error(msg)
         self._image, self._image_dtype = image.name, model.dtype(image)
         self._k = None if k_arg is None else (k_arg.name, model.dtype(k_arg))
-        self._k_rank, self._k_dim = len(k_shape), _fixed(k_shape[-1]) or 3
-        h, w = _fixed(shape[2]), _fixed(shape[3])
+        self._k_rank, self._k_dim = len(k_shape), fixed_dim(k_shape[-1]) or 3
+        h, w = fixed_dim(shape[2]), fixed_dim(shape[3])
         declared = (w, h) if w is not None and h is not None else None
-        self._size = _check_size(input_size) or declared
+        self._size = checked_size(input_size) or declared
         if declared is not None and self._size != declared:
             msg = f"input_size {input_size!r} differs from the model's fixed size {declared}"
             raise model.error(msg)
@@ -527,69 +493,11 @@ class OnnxCameraDetector:
             K: ``(3, 3)`` pinhole matrix of ``image``.
         """
         img, k = _resize(*_check_image(image, K), self._size)
-        feeds = {self._image: _image_tensor(img).astype(self._image_dtype)}
+        feeds = {self._image: image_tensor(img).astype(self._image_dtype)}
         if self._k is not None:
             feeds[self._k[0]] = _k_tensor(k, self._k_rank, self._k_dim).astype(self._k[1])
         raw = _raw_from_outputs(self._model.run(feeds), self.name)
         return _camera_boxes(raw, self._filter.keep(raw), self._errors, float(k[1, 1]))
-
-
-def _torch_kind(path: Path) -> str:
-    """``torchscript`` (torch.jit.save) or ``export`` (torch.export.save) archive, by contents."""
-    try:
-        with zipfile.ZipFile(path) as archive:
-            names = archive.namelist()
-    except (zipfile.BadZipFile, OSError):
-        names = []
-    if any(n.endswith("/archive_format") for n in names):
-        return "export"
-    if any("/code/" in n or n.endswith("/constants.pkl") for n in names):
-        return "torchscript"
-    msg = (
-        f"{path.name} is not a TorchScript or torch.export archive (a plain state dict holds "
-        "weights only); save the whole model with torch.export.save(torch.export.export(model, "
-        "example_inputs), path) or torch.jit.save(torch.jit.script(model), path)"
-    )
-    raise ConfigError(msg)
-
-
-def load_torch_model(
-    path: Path, device: str
-) -> tuple[Callable[..., Any], int, tuple[int, int] | None]:
-    """Load a ``torch.export`` program or a TorchScript archive.
-
-    Returns:
-        The callable module on ``device``, its number of inputs, and the ``(width, height)``
-        its first input declares (None when dynamic or unknown).
-
-    Raises:
-        ConfigError: The file is neither, or cannot be loaded.
-    """
-    import warnings  # noqa: PLC0415  (only torch's deprecations need it)
-
-    torch = _require("torch", _TORCH_HINT, "torch models")
-    declared: tuple[int, int] | None = None
-    try:
-        if _torch_kind(path) == "export":
-            program = torch.export.load(io.BytesIO(path.read_bytes()))
-            user = set(program.graph_signature.user_inputs)
-            shapes = [
-                tuple(n.meta["val"].shape)
-                for n in program.graph.nodes
-                if n.op == "placeholder" and n.name in user and "val" in n.meta
-            ]
-            if shapes and len(shapes[0]) == 4 and all(type(d) is int for d in shapes[0][2:]):
-                declared = (int(shapes[0][3]), int(shapes[0][2]))
-            module: Callable[..., Any] = program.module().to(device)
-            return module, len(user), declared
-        with warnings.catch_warnings():
-            # torch >= 2.10 deprecates TorchScript; loading a user's archive still works.
-            warnings.filterwarnings("ignore", r".*torch\.jit", DeprecationWarning)
-            script = torch.jit.load(str(path), map_location=device)
-    except (RuntimeError, ValueError, KeyError, OSError) as err:
-        msg = f"cannot load torch model {str(path)!r}: {err}"
-        raise ConfigError(msg) from err
-    return script, len(script.forward.schema.arguments) - 1, None
 
 
 class TorchCameraDetector:
@@ -620,8 +528,8 @@ class TorchCameraDetector:
         input_size: tuple[int, int] | None = None,
         device: str = "cpu",
     ) -> None:
-        path = _check_file(Path(path), "torch model")
-        _require("torch", _TORCH_HINT, "the torch camera detector")
+        path = local_file(Path(path), "torch model")
+        require_module("torch", TORCH_HINT, "the torch camera detector")
         self._filter = _Filter(score_threshold, vehicle_labels)
         self._errors = error_model or MonocularErrorModel()
         self.name = f"torch:{path.name}"
@@ -634,7 +542,7 @@ class TorchCameraDetector:
             )
             raise ConfigError(msg)
         self._takes_k = n_inputs == 2
-        self._size = _check_size(input_size) or declared
+        self._size = checked_size(input_size) or declared
         if declared is not None and self._size != declared:
             msg = f"{path.name}: input_size {input_size!r} differs from its fixed size {declared}"
             raise ConfigError(msg)
@@ -649,7 +557,7 @@ class TorchCameraDetector:
         import torch  # noqa: PLC0415  (an optional backend; checked in __init__)
 
         img, k = _resize(*_check_image(image, K), self._size)
-        args = [torch.from_numpy(_image_tensor(img)).to(self._device)]
+        args = [torch.from_numpy(image_tensor(img)).to(self._device)]
         if self._takes_k:
             k32 = _k_tensor(k, 3, 3).astype(np.float32)
             args.append(torch.from_numpy(k32).to(self._device))
@@ -679,7 +587,7 @@ def _torch_outputs(out: object, model: str) -> dict[str, npt.NDArray[Any]]:
             "(and optionally labels), or a tuple (boxes, scores[, labels])"
         )
         raise ConfigError(msg)
-    return {n: _to_numpy(named[n]) for n in _OUTPUTS if named.get(n) is not None}
+    return {n: to_numpy(named[n]) for n in _OUTPUTS if named.get(n) is not None}
 
 
 def _mmdet3d_raw(result: Any, model: str, convert: Callable[..., Any]) -> _Raw:
@@ -687,18 +595,18 @@ def _mmdet3d_raw(result: Any, model: str, convert: Callable[..., Any]) -> _Raw:
     # Any: mmdet3d results are untyped InstanceData of torch tensors.
     sample = result[0] if isinstance(result, (tuple, list)) else result
     pred = sample.pred_instances_3d
-    boxes = convert(_to_numpy(pred.bboxes_3d.tensor))
-    raw = {"boxes": boxes, "scores": _to_numpy(pred.scores_3d)}
-    return _raw_from_outputs({**raw, "labels": _to_numpy(pred.labels_3d)}, model)
+    boxes = convert(to_numpy(pred.bboxes_3d.tensor))
+    raw = {"boxes": boxes, "scores": to_numpy(pred.scores_3d)}
+    return _raw_from_outputs({**raw, "labels": to_numpy(pred.labels_3d)}, model)
 
 
 def _mmdet3d_model(
     config: Path, checkpoint: Path, device: str | None, what: str
 ) -> tuple[ModuleType, Any]:
     """Check the files, import ``mmdet3d.apis`` and build the model (Any: an nn.Module)."""
-    config = _check_file(Path(config), "mmdet3d config")
-    checkpoint = _check_file(Path(checkpoint), "mmdet3d checkpoint")
-    apis = _require("mmdet3d.apis", _MMDET3D_HINT, what)
+    config = local_file(Path(config), "mmdet3d config")
+    checkpoint = local_file(Path(checkpoint), "mmdet3d checkpoint")
+    apis = require_module("mmdet3d.apis", _MMDET3D_HINT, what)
     if device is None:
         import torch  # noqa: PLC0415  (mmdet3d depends on torch)
 
