@@ -244,6 +244,11 @@ class Workspace:
         return self.root / "map"
 
     @property
+    def map_xodr_path(self) -> Path:
+        """``map/map.xodr``: the road map every later stage queries."""
+        return self.map_dir / "map.xodr"
+
+    @property
     def scenario_dir(self) -> Path:
         """Stage scenario output folder."""
         return self.root / "scenario"

@@ -376,7 +376,7 @@ def load_road_map(ws: Workspace) -> RoadMap:
     Raises:
         StageError: The map stage has not run yet.
     """
-    path = ws.map_dir / MAP_FILES["xodr"]
+    path = ws.map_xodr_path
     if not path.is_file():
         msg = f"{path} does not exist; run `cam2sim map {ws.root}` first"
         raise StageError(msg)

@@ -151,12 +151,12 @@ def _lanes(ws: Workspace) -> list[dict[str, object]]:
     """The map's lane outlines by type, simplified; empty without ``WS/map/map.xodr``."""
     import shapely  # noqa: PLC0415
 
-    from cam2sim.stages.map import MAP_FILES, load_road_map  # noqa: PLC0415
+    from cam2sim.map.query import RoadMap  # noqa: PLC0415
 
-    if not (ws.map_dir / MAP_FILES["xodr"]).is_file():
+    if not ws.map_xodr_path.is_file():
         return []
     try:
-        road_map = load_road_map(ws)
+        road_map = RoadMap.from_xodr(ws.map_xodr_path)
     except Cam2SimError as err:
         msg = f"{err}; the editor shows no lanes. Rebuild the map with `cam2sim map {ws.root}`"
         warnings.warn(msg, stacklevel=3)
