@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from cam2sim.core.errors import StageError
+from cam2sim.core.polyline import ReferencePath
 from cam2sim.metrics.drive_io import DriveRun, RunEvent, load_legacy_run, load_runs
 from cam2sim.metrics.drive_quality import (
     DriveOptions,
@@ -18,7 +19,6 @@ from cam2sim.metrics.drive_quality import (
     steering_jitter,
 )
 from cam2sim.metrics.frechet import discrete_frechet
-from cam2sim.metrics.path import ReferencePath
 
 
 # -- real reference drives ---------------------------------------------------------------------

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Final
 import numpy as np
 import numpy.typing as npt
 
-from cam2sim.metrics.path import ReferencePath, arc_length
+from cam2sim.core.polyline import ReferencePath, arc_length
 
 if TYPE_CHECKING:
     from cam2sim.detect.vehicles import Orientation, Side

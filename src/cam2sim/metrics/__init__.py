@@ -5,7 +5,8 @@
 :mod:`~cam2sim.metrics.semantic` compares segmentations class by class (IoU, mIoU);
 :mod:`~cam2sim.metrics.drive_quality` scores driven runs against the real drives (segment,
 completion, Min-Fréchet, corridor, jitter, failure types), reading runs with
-:mod:`~cam2sim.metrics.drive_io` and measuring along :mod:`~cam2sim.metrics.path`.
+:mod:`~cam2sim.metrics.drive_io` and measuring along :mod:`~cam2sim.core.polyline` (the path
+geometry every package shares).
 Definitions are in ``docs/metrics.md``.
 """
 

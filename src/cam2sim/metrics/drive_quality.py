@@ -19,10 +19,15 @@ import pydantic
 
 from cam2sim.core import frames
 from cam2sim.core.errors import StageError
+from cam2sim.core.polyline import (
+    ReferencePath,
+    arc_length,
+    resample_by_arc_length,
+    resample_indices,
+)
 from cam2sim.core.schema import Artifact
 from cam2sim.metrics.drive_io import DriveRun, runs_in_frame
 from cam2sim.metrics.frechet import discrete_frechet
-from cam2sim.metrics.path import ReferencePath, arc_length, resample_by_arc_length, resample_indices
 from cam2sim.metrics.splat_gate import MethodGate
 
 if TYPE_CHECKING:

@@ -109,7 +109,7 @@ class RouteTracker:
     """Monotone progress (metres) of the vehicle centre along the recorded centre route."""
 
     def __init__(self, center_xy: npt.ArrayLike, *, max_lateral_m: float) -> None:
-        from cam2sim.metrics.path import ReferencePath  # noqa: PLC0415
+        from cam2sim.core.polyline import ReferencePath  # noqa: PLC0415
 
         self.route = ReferencePath.from_polyline(
             np.asarray(center_xy, dtype=np.float64)[:, :2], spacing_m=1.0

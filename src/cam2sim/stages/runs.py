@@ -385,7 +385,7 @@ def _carla_view(sim: Any, tr: Any, i: int) -> npt.NDArray[np.uint8]:
 # -- drive ---------------------------------------------------------------------------------------
 def driven_length_m(scenario: Scenario) -> float:
     """How far the recorded car drove (metres along its reference-point trajectory)."""
-    from cam2sim.metrics.path import arc_length  # noqa: PLC0415
+    from cam2sim.core.polyline import arc_length  # noqa: PLC0415
 
     xy = np.asarray(scenario.trajectory.reference, dtype=np.float64)[:, :2]
     return float(arc_length(xy)[-1]) if len(xy) else 0.0

@@ -46,6 +46,7 @@ import numpy as np
 import pydantic
 
 from cam2sim.core.errors import Cam2SimError, ConfigError, WorkspaceError
+from cam2sim.core.polyline import resample_indices
 from cam2sim.core.schema import format_validation_error
 from cam2sim.core.table import read_table
 from cam2sim.core.workspace import dataset_paths
@@ -58,7 +59,6 @@ from cam2sim.detect.vehicles import (
     parked_vehicles_path,
     save_parked_vehicles,
 )
-from cam2sim.metrics.path import resample_indices
 
 if TYPE_CHECKING:
     from collections.abc import Callable

@@ -1,4 +1,7 @@
-"""Reference paths: arc-length resampling, robust projection of runs, signed lateral offsets.
+"""Polylines and reference paths: arc length, resampling, robust projection, lateral offsets.
+
+The shared path geometry: the metrics measure runs along it, the simulator tracks route
+progress with it, detection places parked cars beside the driven route with it.
 
 A run is projected onto a reference polyline by a monotone alignment: each point is assigned to a
 reference segment so that progress never decreases along the run and the summed distance is
