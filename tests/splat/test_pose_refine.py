@@ -38,3 +38,21 @@ def test_correction_sizes_in_scene_units_and_degrees() -> None:
     assert (mean_t, max_t) == (0.25, 0.5)
     assert math.isclose(max_r, 2.0, rel_tol=1e-5)
     assert math.isclose(mean_r, 1.0, rel_tol=1e-5)
+
+
+def test_held_out_frames_take_their_neighbours_corrections() -> None:
+    from cam2sim.splat.pose_refine import corrected_pose, interpolated_correction
+
+    views = [(0, [0.0] * 6), (8, [0.0, 0.0, 0.08, 0.8, 0.0, 0.0]), (16, [0.0] * 6)]
+    mid = interpolated_correction(4, views)
+    assert mid is not None
+    assert np.allclose(mid, [0.0, 0.0, 0.04, 0.4, 0.0, 0.0])
+    assert np.allclose(interpolated_correction(20, views), 0.0)  # the last view's beyond the end
+    assert interpolated_correction(3, []) is None
+    T = np.eye(4)
+    T[:3, 3] = [5.0, 1.0, 2.0]
+    assert corrected_pose(T, None) is T
+    moved = corrected_pose(T, np.array([0.0, 0.0, 0.0, 0.4, 0.0, 0.0]))
+    # World -> camera gained +0.4 along camera x, so the camera centre moved by -0.4 along it.
+    assert np.allclose(moved[:3, 3], [4.6, 1.0, 2.0])
+    assert np.allclose(moved[:3, :3], np.eye(3))

@@ -589,3 +589,5 @@ def test_pose_refinement_learns_small_corrections_and_writes_them_back(tmp_path:
         for a, b in zip(moved, kept, strict=True)
     ]
     assert 0.0 < max(shifts) <= max_t + 1e-6
+    assert all(v.correction is not None and len(v.correction) == 6 for v in moved)
+    assert all(v.correction is None for v in kept)

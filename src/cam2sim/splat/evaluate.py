@@ -58,6 +58,7 @@ if TYPE_CHECKING:
     from cam2sim.splat.envelope import RenderCache, TruthReference
     from cam2sim.splat.raster import RasterBackend
     from cam2sim.splat.render import SplatRenderer
+    from cam2sim.splat.scene import FrameRecord
 
 __all__ = [
     "DEFAULT_OFFSETS_M",
@@ -334,6 +335,23 @@ def _load_lpips(
     return net, []
 
 
+def _aligned(frame: FrameRecord, renderer: SplatRenderer) -> FrameRecord:
+    """``frame`` with the training views' pose corrections interpolated onto it (if any)."""
+    from cam2sim.splat.pose_refine import corrected_pose, interpolated_correction  # noqa: PLC0415
+
+    views = [
+        (v.index, v.correction)
+        for h in renderer.headers.values()
+        for v in h.train_views
+        if v.correction is not None
+    ]
+    delta = interpolated_correction(frame.index, views)
+    if delta is None:
+        return frame
+    pose = corrected_pose(frame.T(), delta)
+    return frame.model_copy(update={"T_world_cam": pose.tolist()})
+
+
 def evaluate_splat(
     prep_dir: Path,
     models_dir: Path,
@@ -384,6 +402,7 @@ def evaluate_splat(
     envelope = None
     with SplatRenderer(models_dir, options=render_options) as renderer:
         lpips, notes = _load_lpips(opts, lpips_weights, renderer.device)
+        held = [_aligned(frame, renderer) for frame in held]
         n_offset = len(held) if opts.max_offset_frames is None else opts.max_offset_frames
         pick = {round(i * (len(held) - 1) / max(1, n_offset - 1)) for i in range(n_offset)}
         rows: list[HeldOutFrame] = []

@@ -563,6 +563,11 @@ class ViewRecord(pydantic.BaseModel):
     progress_m: float
     position: list[float] = pydantic.Field(description="Camera centre, world metres")
     forward: list[float] = pydantic.Field(description="Optical axis (camera +z), world, unit")
+    correction: list[float] | None = pydantic.Field(
+        None,
+        description="Learned pose correction (omega, t) of this view, when pose refinement ran "
+        "(cam2sim.splat.pose_refine); position and forward are already corrected",
+    )
 
 
 class ChunkHeader(Artifact):

@@ -8,7 +8,10 @@ its world-to-camera matrix, ``V' = exp(delta) V`` (as gsplat's ``simple_trainer`
 optimisation does). The corrections start at zero, learn with Adam and a small weight decay,
 and are reported (:func:`correction_sizes`) and written back into the chunk's view records.
 
-Held-out views keep their recorded poses: their scores measure the scene, not a fit to them.
+A held-out view (scored, never trained on) lies between training views along the drive, and its
+recorded pose carries the same slowly varying error as theirs: the evaluation corrects it with
+the neighbours' corrections interpolated by frame index (:func:`interpolated_correction`), as
+it takes their colour transforms; it never fits the held-out image itself.
 """
 
 from __future__ import annotations
@@ -16,9 +19,13 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    import numpy as np
+    import numpy.typing as npt
     import torch
 
-__all__ = ["correction_sizes", "se3_exp"]
+__all__ = ["corrected_pose", "correction_sizes", "interpolated_correction", "se3_exp"]
 
 
 def _skew(v: torch.Tensor) -> torch.Tensor:
@@ -63,3 +70,35 @@ def correction_sizes(delta: torch.Tensor) -> tuple[float, float, float, float]:
     if len(delta) == 0:
         return 0.0, 0.0, 0.0, 0.0
     return float(shift.mean()), float(shift.max()), float(rot.mean()), float(rot.max())
+
+
+def interpolated_correction(
+    index: int, views: Sequence[tuple[int, Sequence[float]]]
+) -> npt.NDArray[np.float64] | None:
+    """The correction of frame ``index`` from the training views' ``(index, correction)``.
+
+    Linear in the frame index between the nearest training views before and after it (the
+    nearest one's beyond the ends); None when no view carries a correction.
+    """
+    import numpy as np  # noqa: PLC0415
+
+    if not views:
+        return None
+    order = sorted(views, key=lambda v: v[0])
+    idx = np.array([v[0] for v in order], dtype=np.float64)
+    deltas = np.array([list(v[1]) for v in order], dtype=np.float64)
+    return np.array([np.interp(float(index), idx, deltas[:, k]) for k in range(6)])
+
+
+def corrected_pose(
+    T_world_cam: npt.NDArray[np.float64], delta: npt.NDArray[np.float64] | None
+) -> npt.NDArray[np.float64]:
+    """``T_world_cam`` with a correction applied (``T exp(delta)^-1``); unchanged for None."""
+    import numpy as np  # noqa: PLC0415
+    import torch  # noqa: PLC0415
+
+    if delta is None:
+        return T_world_cam
+    fix = se3_exp(torch.as_tensor(delta, dtype=torch.float64)[None])[0].numpy()
+    out: npt.NDArray[np.float64] = np.asarray(T_world_cam, dtype=np.float64) @ np.linalg.inv(fix)
+    return out

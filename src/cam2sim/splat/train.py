@@ -557,14 +557,20 @@ class _ChunkTrainer:
             fix = se3_exp(self.pose_delta.detach().double().cpu()).numpy()
             poses = poses @ np.linalg.inv(fix)
             correction = correction_sizes(self.pose_delta)
+        deltas: list[list[float] | None] = (
+            self.pose_delta.detach().cpu().double().tolist()
+            if self.pose_delta is not None
+            else [None] * len(poses)
+        )
         views = [
             ViewRecord(
                 index=f.index,
                 progress_m=f.progress_m,
                 position=pose[:3, 3].tolist(),
                 forward=pose[:3, 2].tolist(),
+                correction=delta,
             )
-            for f, pose in zip(self.views.frames, poses, strict=True)
+            for f, pose, delta in zip(self.views.frames, poses, deltas, strict=True)
         ]
         header = ChunkHeader(
             chunk_id=self.chunk.id,
