@@ -49,7 +49,7 @@ __all__ = [
 class Label(IntEnum):
     """Semantic label ids of the raster renderer.
 
-    0, 1 and 2 are the labels of :meth:`cam2sim.metrics.semantic.Palette.cityscapes`
+    0, 1 and 2 are the labels of :meth:`cam2sim.core.labels.Palette.cityscapes`
     (background, road, car); the others follow in the order of
     :func:`cam2sim.render.raster.raster_palette`. Lane markings and parking lanes are road.
     """

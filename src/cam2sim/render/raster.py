@@ -53,8 +53,8 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
 
+    from cam2sim.core.labels import Palette
     from cam2sim.map.query import RoadMap
-    from cam2sim.metrics.semantic import Palette
     from cam2sim.scenario.model import ScenarioVehicle
 
 __all__ = [
@@ -119,9 +119,9 @@ void main() {{
 def raster_palette() -> Palette:
     """Return the Cityscapes colours of the labels (label ``i`` = class ``i - 1``, 0 background).
 
-    Road and car come first, as in :meth:`~cam2sim.metrics.semantic.Palette.cityscapes`.
+    Road and car come first, as in :meth:`~cam2sim.core.labels.Palette.cityscapes`.
     """
-    from cam2sim.metrics.semantic import Palette  # noqa: PLC0415
+    from cam2sim.core.labels import Palette  # noqa: PLC0415
 
     return Palette.from_mapping(
         {

@@ -257,7 +257,7 @@ def score_pair(
 
 def frame_exclusion(prep_dir: Path, frame: FrameRecord) -> npt.NDArray[np.bool_] | None:
     """``(H, W)`` bool, True where the frame's mask leaves a pixel out; None without a mask."""
-    from cam2sim.metrics.image_quality import read_mask  # noqa: PLC0415
+    from cam2sim.core.images import read_mask  # noqa: PLC0415
 
     path = prep_dir / "masks" / f"{frame.index:06d}.png"
     if not path.is_file():
@@ -386,7 +386,7 @@ def evaluate_splat(
         StageError: The scene has no held-out frame, or a mask does not fit its frame.
         WorkspaceError: Missing models or images.
     """
-    from cam2sim.metrics.image_quality import read_rgb  # noqa: PLC0415
+    from cam2sim.core.images import read_rgb  # noqa: PLC0415
     from cam2sim.splat.render import RenderOptions, SplatRenderer  # noqa: PLC0415
 
     opts = options or EvalOptions()

@@ -71,7 +71,7 @@ def load_views(
     import cv2  # noqa: PLC0415
     import torch  # noqa: PLC0415
 
-    from cam2sim.metrics.image_quality import read_rgb  # noqa: PLC0415
+    from cam2sim.core.images import read_rgb  # noqa: PLC0415
 
     sizes = {(f.width, f.height) for f in frames}
     if len(sizes) != 1:

@@ -1,0 +1,62 @@
+"""Reading images and masks the way every package compares them: 8-bit RGB, boolean masks.
+
+One reader for the evaluation (:mod:`cam2sim.metrics.image_quality`), the splat training views
+and the splat evaluation; errors name the file.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from cam2sim.core.errors import WorkspaceError
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    import numpy.typing as npt
+
+__all__ = ["read_mask", "read_rgb"]
+
+
+def read_rgb(path: Path) -> npt.NDArray[np.uint8]:
+    """Read an 8-bit image as ``(H, W, 3)`` uint8 RGB (grey is repeated, alpha is dropped).
+
+    Raises:
+        WorkspaceError: The file cannot be decoded, or is not 8-bit.
+    """
+    import cv2  # noqa: PLC0415
+
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        msg = f"cannot read image {path}: missing, empty or not an image format OpenCV decodes"
+        raise WorkspaceError(msg)
+    if image.dtype != np.uint8:
+        msg = f"{path} is {image.dtype}; only 8-bit images are compared (convert it first)"
+        raise WorkspaceError(msg)
+    if image.ndim == 2:
+        return np.ascontiguousarray(np.repeat(image[:, :, None], 3, axis=2))
+    code = cv2.COLOR_BGRA2RGB if image.shape[2] == 4 else cv2.COLOR_BGR2RGB
+    return np.asarray(cv2.cvtColor(image, code), dtype=np.uint8)
+
+
+def read_mask(path: Path, *, keep_nonzero: bool = False) -> npt.NDArray[np.bool_]:
+    """Read a mask image as ``(H, W)`` bool, True where a pixel is excluded.
+
+    Args:
+        path: Mask image; a colour mask counts a pixel as nonzero if any channel is.
+        keep_nonzero: False (default): nonzero pixels are excluded. True: nonzero pixels are kept
+            and zero pixels excluded (nerfstudio-style masks: 255 = keep, 0 = ignore).
+
+    Raises:
+        WorkspaceError: The file cannot be decoded.
+    """
+    import cv2  # noqa: PLC0415
+
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        msg = f"cannot read mask {path}: missing, empty or not an image format OpenCV decodes"
+        raise WorkspaceError(msg)
+    nonzero = image != 0 if image.ndim == 2 else np.any(image != 0, axis=2)
+    return np.asarray(~nonzero if keep_nonzero else nonzero, dtype=np.bool_)
