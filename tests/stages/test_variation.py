@@ -68,3 +68,20 @@ def test_the_demo_varies_its_runs_like_a_driver() -> None:
     assert DEMO_RUN_VARIATION.start_lateral_m > 0
     assert DEMO_RUN_VARIATION.start_heading_deg > 0
     assert DEMO_RUN_VARIATION.speed > 0
+
+
+def test_the_drive_command_varies_runs_and_refuses_a_bad_spec(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from cam2sim.cli.main import app
+
+    ws = street_workspace(tmp_path / "ws", StreetSpec(length_m=30.0))
+    args = ["drive", str(ws.root), "--camera", "none", "--runs", "2"]
+    result = CliRunner().invoke(app, [*args, "--vary", "0.2,1,0.05"])
+    assert result.exit_code == 0, result.output
+    metas = [json.loads((d / "run.json").read_text()) for d in sorted(ws.runs_dir.iterdir())]
+    assert len(metas) == 2
+    assert metas[0]["variation"] != metas[1]["variation"]
+    bad = CliRunner().invoke(app, [*args, "--vary", "0.2,1"])
+    assert bad.exit_code != 0
+    assert "LATERAL_M,HEADING_DEG,SPEED" in " ".join(bad.output.split())

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from enum import StrEnum
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.markup import escape
@@ -90,6 +90,24 @@ def _size(text: str | None) -> tuple[int, int] | None:
     return int(w), int(h)
 
 
+def _variation(text: str | None) -> Any:
+    """``--vary LATERAL_M,HEADING_DEG,SPEED`` as a RunVariation (None: no variation)."""
+    if not text:
+        return None
+    from cam2sim.stages.variation import RunVariation  # noqa: PLC0415
+
+    parts = text.split(",")
+    try:
+        lateral, heading, speed = (float(v) for v in parts)
+        return RunVariation(start_lateral_m=lateral, start_heading_deg=heading, speed=speed)
+    except ValueError:
+        msg = (
+            "--vary takes LATERAL_M,HEADING_DEG,SPEED standard deviations (>= 0; speed as a "
+            f"fraction below 0.5), e.g. 0.1,0.5,0.03; got {text!r}"
+        )
+        raise typer.BadParameter(msg) from None
+
+
 def replay(
     workspace: Annotated[Path, typer.Argument(help="The workspace folder.")],
     *,
@@ -159,13 +177,20 @@ def drive(
     ] = None,
     save_frames: Annotated[bool, typer.Option("--save-frames", help="Write the frames.")] = False,
     video: Annotated[bool, typer.Option("--video", help="Write video.mp4.")] = False,
+    vary: Annotated[
+        str | None,
+        typer.Option(
+            help="Seeded run-to-run variation: standard deviations LATERAL_M,HEADING_DEG,SPEED "
+            "of the start offset and the speed factor, e.g. 0.1,0.5,0.03 (the demo's)."
+        ),
+    ] = None,
     sim: SimOption = SimChoice.BUILTIN,
     carla_host: CarlaHostOption = None,
     carla_port: CarlaPortOption = None,
 ) -> None:
     """Closed-loop runs in the builtin simulator (or CARLA); each run ends on an event.
 
-    Example: cam2sim drive ws --policy pure-pursuit --camera raster --runs 3 --speed 20
+    Example: cam2sim drive ws --policy pure-pursuit --camera raster --runs 3 --vary 0.1,0.5,0.03
     """
     from cam2sim.core.workspace import Workspace  # noqa: PLC0415
     from cam2sim.stages.runs import DriveOptions  # noqa: PLC0415
@@ -184,6 +209,7 @@ def drive(
             video=video,
             simulator=sim.value,
             carla=_carla(workspace, sim, carla_host, carla_port),
+            variation=_variation(vary),
         )
         ws = Workspace.open(workspace)
         with progress_bars(enabled=sys.stderr.isatty()) as sink:
