@@ -335,8 +335,8 @@ def _load_lpips(
     return net, []
 
 
-def _aligned(frame: FrameRecord, renderer: SplatRenderer) -> FrameRecord:
-    """``frame`` with the training views' pose corrections interpolated onto it (if any)."""
+def _aligned(held: list[FrameRecord], renderer: SplatRenderer) -> list[FrameRecord]:
+    """The held-out frames with the training views' pose corrections interpolated onto them."""
     from cam2sim.splat.pose_refine import corrected_pose, interpolated_correction  # noqa: PLC0415
 
     views = [
@@ -345,11 +345,13 @@ def _aligned(frame: FrameRecord, renderer: SplatRenderer) -> FrameRecord:
         for v in h.train_views
         if v.correction is not None
     ]
-    delta = interpolated_correction(frame.index, views)
-    if delta is None:
-        return frame
-    pose = corrected_pose(frame.T(), delta)
-    return frame.model_copy(update={"T_world_cam": pose.tolist()})
+    if not views:
+        return held
+    out = []
+    for frame in held:
+        pose = corrected_pose(frame.T(), interpolated_correction(frame.index, views))
+        out.append(frame.model_copy(update={"T_world_cam": pose.tolist()}))
+    return out
 
 
 def evaluate_splat(
@@ -402,7 +404,7 @@ def evaluate_splat(
     envelope = None
     with SplatRenderer(models_dir, options=render_options) as renderer:
         lpips, notes = _load_lpips(opts, lpips_weights, renderer.device)
-        held = [_aligned(frame, renderer) for frame in held]
+        held = _aligned(held, renderer)
         n_offset = len(held) if opts.max_offset_frames is None else opts.max_offset_frames
         pick = {round(i * (len(held) - 1) / max(1, n_offset - 1)) for i in range(n_offset)}
         rows: list[HeldOutFrame] = []

@@ -64,11 +64,10 @@ def correction_sizes(delta: torch.Tensor) -> tuple[float, float, float, float]:
     """Mean and largest translation (scene units) and rotation (degrees) of the corrections."""
     import math  # noqa: PLC0415
 
-    with_grad_off = delta.detach()
-    rot = with_grad_off[:, :3].norm(dim=1) * (180.0 / math.pi)
-    shift = with_grad_off[:, 3:].norm(dim=1)
     if len(delta) == 0:
         return 0.0, 0.0, 0.0, 0.0
+    rot = delta.detach()[:, :3].norm(dim=1) * (180.0 / math.pi)
+    shift = delta.detach()[:, 3:].norm(dim=1)
     return float(shift.mean()), float(shift.max()), float(rot.mean()), float(rot.max())
 
 
@@ -93,12 +92,17 @@ def interpolated_correction(
 def corrected_pose(
     T_world_cam: npt.NDArray[np.float64], delta: npt.NDArray[np.float64] | None
 ) -> npt.NDArray[np.float64]:
-    """``T_world_cam`` with a correction applied (``T exp(delta)^-1``); unchanged for None."""
+    """Camera poses with their corrections applied, ``T exp(delta)^-1``; unchanged for None.
+
+    ``T_world_cam`` is one ``(4, 4)`` pose with a ``(6,)`` correction, or ``(N, 4, 4)`` poses
+    with ``(N, 6)`` corrections (the correction acts on world -> camera, hence the inverse).
+    """
     import numpy as np  # noqa: PLC0415
     import torch  # noqa: PLC0415
 
     if delta is None:
         return T_world_cam
-    fix = se3_exp(torch.as_tensor(delta, dtype=torch.float64)[None])[0].numpy()
+    d = torch.as_tensor(np.asarray(delta, dtype=np.float64)).reshape(-1, 6)
+    fix = se3_exp(d).numpy().reshape(np.shape(T_world_cam))
     out: npt.NDArray[np.float64] = np.asarray(T_world_cam, dtype=np.float64) @ np.linalg.inv(fix)
     return out

@@ -550,18 +550,14 @@ class _ChunkTrainer:
 
         poses = np.stack([f.T() for f in self.views.frames])
         correction = None
+        deltas: list[list[float] | None] = [None] * len(poses)
         if self.pose_delta is not None:
-            from cam2sim.splat.pose_refine import correction_sizes, se3_exp  # noqa: PLC0415
+            from cam2sim.splat.pose_refine import corrected_pose, correction_sizes  # noqa: PLC0415
 
-            # Refined camera -> world: T' = T exp(delta)^-1 (the correction acts on world->camera).
-            fix = se3_exp(self.pose_delta.detach().double().cpu()).numpy()
-            poses = poses @ np.linalg.inv(fix)
+            delta = self.pose_delta.detach().cpu().double().numpy()
+            poses = corrected_pose(poses, delta)
             correction = correction_sizes(self.pose_delta)
-        deltas: list[list[float] | None] = (
-            self.pose_delta.detach().cpu().double().tolist()
-            if self.pose_delta is not None
-            else [None] * len(poses)
-        )
+            deltas = delta.tolist()
         views = [
             ViewRecord(
                 index=f.index,

@@ -418,15 +418,14 @@ class _Pipeline:
 
     def _require_motion(self, what: str) -> None:
         """Raise not-applicable when the recorded car stood still (``what`` needs motion)."""
-        from cam2sim.detect.route import MIN_ROUTE_M  # noqa: PLC0415
         from cam2sim.scenario.model import Scenario  # noqa: PLC0415
-        from cam2sim.stages.runs import driven_length_m  # noqa: PLC0415
+        from cam2sim.stages.runs import stood_still_m  # noqa: PLC0415
 
         path = self.ws.scenario_path
         if not path.is_file():
             return  # the step itself says what is missing
-        length = driven_length_m(Scenario.load(path))
-        if length < MIN_ROUTE_M:
+        length = stood_still_m(Scenario.load(path))
+        if length is not None:
             msg = f"the car stood still ({length:.1f} m driven); {what}"
             raise _NotApplicableError(msg)
 

@@ -383,12 +383,18 @@ def _carla_view(sim: Any, tr: Any, i: int) -> npt.NDArray[np.uint8]:
 
 
 # -- drive ---------------------------------------------------------------------------------------
-def driven_length_m(scenario: Scenario) -> float:
-    """How far the recorded car drove (metres along its reference-point trajectory)."""
+def stood_still_m(scenario: Scenario) -> float | None:
+    """How far the recorded car drove when that is too little for a route, else None.
+
+    Below :data:`~cam2sim.detect.route.MIN_ROUTE_M` (metres along the reference-point
+    trajectory) the recording stood still: closed-loop drives, splats and DAVE-2 need motion.
+    """
     from cam2sim.core.polyline import arc_length  # noqa: PLC0415
+    from cam2sim.detect.route import MIN_ROUTE_M  # noqa: PLC0415
 
     xy = np.asarray(scenario.trajectory.reference, dtype=np.float64)[:, :2]
-    return float(arc_length(xy)[-1]) if len(xy) else 0.0
+    length = float(arc_length(xy)[-1]) if len(xy) else 0.0
+    return length if length < MIN_ROUTE_M else None
 
 
 def require_route(scenario: Scenario) -> None:
@@ -399,8 +405,8 @@ def require_route(scenario: Scenario) -> None:
     """
     from cam2sim.detect.route import MIN_ROUTE_M  # noqa: PLC0415
 
-    length = driven_length_m(scenario)
-    if length < MIN_ROUTE_M:
+    length = stood_still_m(scenario)
+    if length is not None:
         msg = (
             f"the recorded car drove {length:.1f} m (it stood still); closed-loop drives follow "
             f"the recorded route, so they need a recording that moves at least {MIN_ROUTE_M:.0f} m "
