@@ -276,3 +276,35 @@ def test_cli_train_export_and_serve_errors(tmp_path: Path) -> None:
     assert (ws.ads_dir / "dave2.onnx").is_file()
     out = runner.invoke(app, ["ads", "train", str(tmp_path / "ws"), "--signal", "nope"])
     assert out.exit_code == 1
+
+
+def test_recovery_views_from_the_workspace_calibration(tmp_path: Path) -> None:
+    import math
+
+    from cam2sim.ads.train import TrainOptions
+    from cam2sim.core.dataset import Calibration, CameraIntrinsics, MountRecord
+    from cam2sim.core.frames.rotation import quat_from_euler, quat_multiply
+    from cam2sim.stages.ads import recovery_geometry, train_ads
+
+    ws = make_drive(tmp_path / "ws")
+    assert recovery_geometry(ws) is None  # no calibration: the shift augmentation instead
+    optical = np.array([-0.5, 0.5, -0.5, 0.5])  # optical axes -> base_link, looking ahead
+    pitched = quat_multiply(quat_from_euler(0.0, math.radians(5.0), 0.0), optical)
+    k = ((50.0, 0.0, 39.5), (0.0, 50.0, 24.5), (0.0, 0.0, 1.0))
+    camera = CameraIntrinsics(width=SIZE[0], height=SIZE[1], K=k, source="config")
+    mount = MountRecord(
+        translation_m=(1.5, 0.0, 1.3), quat_xyzw=tuple(pitched), axes="optical", source="config"
+    )
+    calibration = dataset_paths(ws.dataset_dir).calibration_json
+    Calibration(camera=camera, camera_mount=mount).save(calibration)
+    geometry = recovery_geometry(ws)
+    assert geometry is not None
+    assert geometry.height_m == pytest.approx(1.3)
+    assert math.degrees(geometry.pitch_rad) == pytest.approx(5.0, abs=1e-6)  # looking down
+    assert geometry.curvature_per_unit > 0  # the default calibration (no path to fit)
+    options = TrainOptions(epochs=2, batch_size=16, device="cpu", workers=1)
+    train_ads(ws, options=options)
+    report = json.loads((ws.ads_dir / "train_report.json").read_text())
+    assert report["recovery"]["max_lateral_m"] == options.recovery_m
+    assert report["recovery"]["camera_height_m"] == pytest.approx(1.3)
+    assert report["shift_steering_per_px"] == 0.0

@@ -5,8 +5,10 @@ dataset) with a steering signal (``signals/<name>.csv``) interpolated at the fra
 frames outside the signal's time span are dropped. :func:`split_by_time` holds out the last
 ``val_fraction`` of the drive and drops the training frames within ``gap_s`` before it, so
 neighbouring, nearly identical frames do not leak into validation. :func:`train_dave2` trains
-with Adam and MSE, augmenting every batch on the device (:func:`augment`), stops early when the
-validation loss stops improving and keeps the best epoch.
+with Adam and MSE, augmenting every batch on the device (:func:`augment`; with the camera's
+geometry, a share of it seen from beside the recorded path with labels that steer back,
+:mod:`cam2sim.ads.recovery`), stops early when the validation loss stops improving and keeps the
+best epoch.
 
 Files (written by :func:`save_training`, each atomically) in ``WS/ads/``:
 
@@ -24,7 +26,7 @@ import logging
 import math
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Final, Literal
+from typing import TYPE_CHECKING, Any, Final, Literal
 
 import cv2
 import numpy as np
@@ -32,6 +34,7 @@ import pydantic
 import torch
 
 from cam2sim.ads.dave2 import Dave2Config, build_dave2, preprocess
+from cam2sim.ads.recovery import RecoveryGeometry, recovery_label, recovery_views
 from cam2sim.core.errors import StageError
 from cam2sim.core.files import write_bytes_atomic
 from cam2sim.core.progress import ProgressCallback, no_progress
@@ -96,6 +99,12 @@ class TrainOptions:
             steering is left). None: ``0.004 *`` the 95th percentile of ``|steering|``.
         flip: Also mirror half the batches' images and negate their steering (only for
             left/right-symmetric traffic scenes).
+        recovery_m: Largest sideways displacement of the recovery views
+            (:mod:`cam2sim.ads.recovery`), metres; 0 turns them off. They replace the shift
+            when the camera geometry is known (``train_dave2(geometry=...)``).
+        recovery_deg: Largest turn of the recovery views, degrees.
+        recovery_lookahead_m: Pure-pursuit look-ahead of their labels, metres.
+        recovery_share: Share of each batch shown displaced.
         config: Network sizes and preprocessing.
         seed: Seeds torch and numpy.
         device: ``cuda``/``cpu``; None takes CUDA when available.
@@ -115,6 +124,10 @@ class TrainOptions:
     shift_px: int = 10
     shift_steering_per_px: float | None = None
     flip: bool = False
+    recovery_m: float = 0.6
+    recovery_deg: float = 4.0
+    recovery_lookahead_m: float = 10.0
+    recovery_share: float = 0.5
     config: Dave2Config = field(default_factory=Dave2Config)
     seed: int = 0
     device: str | None = None
@@ -138,6 +151,18 @@ class TrainOptions:
             msg = (
                 "val_fraction must lie in (0, 1), gap_s and shift_px must be >= 0; got "
                 f"{self.val_fraction}, {self.gap_s}, {self.shift_px}"
+            )
+            raise ValueError(msg)
+        if (
+            self.recovery_m < 0
+            or self.recovery_deg < 0
+            or not self.recovery_lookahead_m > 0
+            or not 0.0 <= self.recovery_share <= 1.0
+        ):
+            msg = (
+                "recovery_m and recovery_deg must be >= 0, recovery_lookahead_m > 0 and "
+                f"recovery_share in [0, 1]; got {self.recovery_m}, {self.recovery_deg}, "
+                f"{self.recovery_lookahead_m}, {self.recovery_share}"
             )
             raise ValueError(msg)
         if not self.learning_rate > 0:
@@ -177,6 +202,20 @@ class EpochRecord(pydantic.BaseModel):
     seconds: float
 
 
+class RecoveryRecord(pydantic.BaseModel):
+    """How the recovery views were made (:mod:`cam2sim.ads.recovery`)."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+    camera_height_m: float
+    pitch_deg: float
+    curvature_per_unit: float
+    max_lateral_m: float
+    max_yaw_deg: float
+    lookahead_m: float
+    share: float
+
+
 class TrainReport(Artifact):
     """``train_report.json``: what was trained on and how well it fits the held-out frames.
 
@@ -196,6 +235,7 @@ class TrainReport(Artifact):
     val_correlation: float | None
     baseline_mse: float
     shift_steering_per_px: float
+    recovery: RecoveryRecord | None = None
 
 
 class Dave2ModelInfo(Artifact):
@@ -429,8 +469,14 @@ def train_dave2(
     data: SteeringData,
     options: TrainOptions | None = None,
     progress: ProgressCallback = no_progress,
+    *,
+    geometry: RecoveryGeometry | None = None,
 ) -> TrainedModel:
     """Train DAVE-2 on ``data`` (time-ordered) with a time split, augmentation, early stopping.
+
+    With the camera ``geometry`` (and ``options.recovery_m > 0``), a share of every batch is
+    shown from beside and askew of the recorded path with labels that steer back
+    (:mod:`cam2sim.ads.recovery`) instead of the horizontal shift.
 
     Raises:
         StageError: Too few frames for the split, or constant steering.
@@ -444,15 +490,13 @@ def train_dave2(
     if not spread > 0:
         msg = f"signal {opts.signal!r} is constant over the training frames; nothing to learn"
         raise StageError(msg)
-    per_px = opts.shift_steering_per_px
-    if per_px is None:
-        per_px = 0.004 * float(np.percentile(np.abs(train.steering), 95))
     model = build_dave2(opts.config).to(device)
     model.get_buffer("output_scale").fill_(spread)
     # Tiny gradients turn subnormal on CPU and slow every step ~10x; flush them while training.
     flush = device.type == "cpu" and torch.set_flush_denormal(True)
     try:
-        return _fit(model, train, val, opts, per_px, spread, device, progress)
+        recovery = geometry if opts.augment and opts.recovery_m > 0 else None
+        return _fit(model, train, val, opts, device, progress, recovery)
     finally:
         if flush:
             torch.set_flush_denormal(False)  # the default
@@ -463,11 +507,14 @@ def _fit(
     train: SteeringData,
     val: SteeringData,
     opts: TrainOptions,
-    per_px: float,
-    spread: float,
     device: torch.device,
     progress: ProgressCallback,
+    recovery: RecoveryGeometry | None,
 ) -> TrainedModel:
+    spread = float(np.std(train.steering))
+    per_px = opts.shift_steering_per_px
+    if per_px is None:
+        per_px = 0.004 * float(np.percentile(np.abs(train.steering), 95))
     rng = np.random.default_rng(opts.seed)
     n_train = len(train.frame)
     optimizer = torch.optim.Adam(
@@ -486,9 +533,12 @@ def _fit(
         for rows in np.array_split(rng.permutation(n_train), max(1, n_train // opts.batch_size)):
             idx = torch.from_numpy(rows).to(device)
             x, y = x_all[idx].to(torch.float32), y_all[idx]
+            if recovery is not None:
+                x, y = _displace(x, y, rng, recovery, opts)
             if opts.augment:
+                shift = 0 if recovery is not None else opts.shift_px
                 x, y = augment(
-                    x, y, generator, shift_px=opts.shift_px, steering_per_px=-per_px, flip=opts.flip
+                    x, y, generator, shift_px=shift, steering_per_px=-per_px, flip=opts.flip
                 )
             loss = torch.nn.functional.mse_loss(model(x).view(-1) / spread, y / spread)
             optimizer.zero_grad(set_to_none=True)
@@ -515,9 +565,47 @@ def _fit(
     model.eval()
     pred = _predict(model, val.images, device, opts.batch_size)
     report = _report(opts, str(device), records, best[1], pred, val.steering, n_train)
-    report = report.model_copy(update={"shift_steering_per_px": per_px})
+    update: dict[str, Any] = {"shift_steering_per_px": 0.0 if recovery else per_px}
+    if recovery is not None:
+        update["recovery"] = RecoveryRecord(
+            camera_height_m=recovery.height_m,
+            pitch_deg=math.degrees(recovery.pitch_rad),
+            curvature_per_unit=recovery.curvature_per_unit,
+            max_lateral_m=opts.recovery_m,
+            max_yaw_deg=opts.recovery_deg,
+            lookahead_m=opts.recovery_lookahead_m,
+            share=opts.recovery_share,
+        )
+    report = report.model_copy(update=update)
     info = Dave2ModelInfo(config=opts.config, signal=opts.signal)
     return TrainedModel(model.cpu(), info, report, val.t, val.steering, pred)
+
+
+def _displace(
+    x: torch.Tensor,
+    y: torch.Tensor,
+    rng: np.random.Generator,
+    geometry: RecoveryGeometry,
+    opts: TrainOptions,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """A random ``recovery_share`` of the batch seen displaced, with steer-back labels."""
+    pick = np.flatnonzero(rng.random(len(y)) < opts.recovery_share)
+    if len(pick) == 0:
+        return x, y
+    lateral = rng.uniform(-opts.recovery_m, opts.recovery_m, len(pick))
+    yaw = np.radians(rng.uniform(-opts.recovery_deg, opts.recovery_deg, len(pick)))
+    rows = torch.from_numpy(pick).to(x.device)
+    x, y = x.clone(), y.clone()
+    x[rows] = recovery_views(x[rows], geometry, opts.config, lateral, yaw)
+    label = recovery_label(
+        y[rows].cpu().numpy(),
+        lateral,
+        yaw,
+        lookahead_m=opts.recovery_lookahead_m,
+        curvature_per_unit=geometry.curvature_per_unit,
+    )
+    y[rows] = torch.from_numpy(label).to(y)
+    return x, y
 
 
 def _now() -> float:

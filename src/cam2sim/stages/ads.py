@@ -26,10 +26,11 @@ if TYPE_CHECKING:
 
     from cam2sim.ads.dave2 import Dave2Config
     from cam2sim.ads.export import ExportReport
+    from cam2sim.ads.recovery import RecoveryGeometry
     from cam2sim.ads.train import TrainOptions, TrainReport
     from cam2sim.core.dataset import DatasetInfo
 
-__all__ = ["ExportAdsResult", "TrainAdsResult", "export_ads", "train_ads"]
+__all__ = ["ExportAdsResult", "TrainAdsResult", "export_ads", "recovery_geometry", "train_ads"]
 
 logger = logging.getLogger(__name__)
 TRAIN_STAGE: Final = "ads_train"
@@ -109,10 +110,61 @@ def train_ads(
         return result
     with stage_run(ws, TRAIN_STAGE, inputs_hash=inputs, config=None):
         data = tr.assemble(dataset_paths(ws.dataset_dir), info.frame_format, opts, report)
-        trained = tr.train_dave2(data, opts, report)
+        geometry = recovery_geometry(ws) if opts.augment and opts.recovery_m > 0 else None
+        trained = tr.train_dave2(data, opts, report, geometry=geometry)
         ads.mkdir(parents=True, exist_ok=True)
         tr.save_training(trained, ads)
     return TrainAdsResult(result.model, result.report_path, result.figure, trained.report)
+
+
+def recovery_geometry(ws: Workspace) -> RecoveryGeometry | None:
+    """The camera and steering geometry the recovery views need, or None (logged why).
+
+    The camera's intrinsics and mount come from the dataset's calibration (its height over the
+    ground is the mount's height over the reference point, which the recording convention puts
+    on the ground: ``base_link``); the curvature per steering unit is the scenario stage's fit
+    of the recorded steering against the recorded path (or its default).
+    """
+    import math  # noqa: PLC0415
+
+    import numpy as np  # noqa: PLC0415
+
+    from cam2sim.ads.recovery import RecoveryGeometry  # noqa: PLC0415
+    from cam2sim.core.dataset import Calibration  # noqa: PLC0415
+    from cam2sim.core.errors import WorkspaceError  # noqa: PLC0415
+    from cam2sim.core.frames.rotation import quat_rotate  # noqa: PLC0415
+    from cam2sim.sim.interface import SteeringCalibration  # noqa: PLC0415
+    from cam2sim.stages.scenario import steering_calibration  # noqa: PLC0415
+
+    try:
+        calib = Calibration.load(dataset_paths(ws.dataset_dir).calibration_json)
+    except WorkspaceError as err:
+        logger.info("no recovery views: %s", err)
+        return None
+    if calib.camera is None:
+        logger.info("no recovery views: the dataset has no camera intrinsics")
+        return None
+    mount = calib.camera_mount
+    forward = np.array([0.0, 0.0, 1.0] if mount.axes == "optical" else [1.0, 0.0, 0.0])
+    ahead = quat_rotate(np.asarray(mount.quat_xyzw), forward)
+    height = float(mount.translation_m[2])
+    if not height > 0:
+        logger.info("no recovery views: the camera mount is %.2f m over the reference", height)
+        return None
+    cam = calib.camera
+    try:
+        per_unit = steering_calibration(ws).curvature_per_unit
+    except WorkspaceError as err:  # no trajectory to fit against
+        logger.info("steering calibration not fitted (%s); using the default", err)
+        per_unit = SteeringCalibration().curvature_per_unit
+    return RecoveryGeometry(
+        K=tuple((float(r[0]), float(r[1]), float(r[2])) for r in cam.K),
+        width=cam.width,
+        height=cam.height,
+        height_m=height,
+        pitch_rad=math.asin(float(np.clip(-ahead[2], -1.0, 1.0))),
+        curvature_per_unit=per_unit,
+    )
 
 
 def _real_inputs(ws: Workspace, config: Dave2Config) -> npt.NDArray[np.float32] | None:

@@ -1,0 +1,176 @@
+"""Recovery views: the recorded frames seen from beside and askew of the recorded path.
+
+A policy trained only on where the recorded car was never sees the car off its path, so it
+cannot learn to come back (Bojarski et al. 2016 trained DAVE-2 on side cameras and on views
+shifted by "viewpoint transformation" for this reason). :func:`recovery_views` makes such views
+from the frames alone: the camera is moved ``e`` metres sideways and turned ``psi`` about the
+vertical, everything below the horizon is taken to lie on a flat ground plane ``height_m`` under
+the camera and everything above it to lie far away, so each output pixel has one source pixel
+(a homography below the horizon, a rotation above). :func:`recovery_label` gives the steering
+that brings the displaced car back: pure pursuit of the recorded path ``lookahead_m`` ahead,
+
+    kappa = kappa_recorded - 2 e / L^2 - 2 psi / L     (e, psi positive to the left),
+
+whose error dynamics ``e'' + (2/L) e' + (2/L^2) e = 0`` are damped (ratio 1/sqrt(2)), so the
+labels teach a return to the path, not the undamped oscillation of a weave.
+
+The warp works on the network's preprocessed inputs (:func:`~cam2sim.ads.dave2.preprocess`:
+resize, crop rows, resize), whose pixels map to the camera frame by one axis-aligned affine
+map; sources outside the crop repeat its edge.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+    import torch
+
+    from cam2sim.ads.dave2 import Dave2Config
+
+__all__ = ["RecoveryGeometry", "recovery_label", "recovery_views"]
+
+
+@dataclass(frozen=True)
+class RecoveryGeometry:
+    """What the warp and the labels need to know about the camera and the car.
+
+    Attributes:
+        K: ``(3, 3)`` intrinsics of the camera frames (before preprocessing).
+        width: Frame width, pixels.
+        height: Frame height, pixels.
+        height_m: Camera height over the ground, metres.
+        pitch_rad: Camera pitch, positive looking down.
+        curvature_per_unit: Path curvature (1/m, positive left) per steering unit.
+    """
+
+    K: tuple[tuple[float, float, float], ...]
+    width: int
+    height: int
+    height_m: float
+    pitch_rad: float
+    curvature_per_unit: float
+
+    def __post_init__(self) -> None:
+        k = np.asarray(self.K, dtype=np.float64)
+        if k.shape != (3, 3) or not (k[0, 0] > 0 and k[1, 1] > 0):
+            msg = f"K must be a 3x3 intrinsics matrix with positive focal lengths, got {self.K}"
+            raise ValueError(msg)
+        if not (self.height_m > 0 and self.width > 0 and self.height > 0):
+            msg = (
+                f"camera height {self.height_m} m and frame size {self.width}x{self.height} "
+                "must be positive"
+            )
+            raise ValueError(msg)
+        if self.curvature_per_unit == 0:
+            msg = "curvature_per_unit must not be 0 (steering would not turn the car)"
+            raise ValueError(msg)
+
+
+def recovery_label(
+    steering: npt.ArrayLike,
+    lateral_m: npt.ArrayLike,
+    yaw_rad: npt.ArrayLike,
+    *,
+    lookahead_m: float,
+    curvature_per_unit: float,
+) -> npt.NDArray[np.float64]:
+    """Steering that returns a car ``lateral_m`` left of, and ``yaw_rad`` left of, its path.
+
+    Args:
+        steering: The recorded steering at the frame (the path's own turn).
+        lateral_m: Offset of the displaced car to the left of the recorded pose, metres.
+        yaw_rad: Heading of the displaced car to the left of the recorded heading, radians.
+        lookahead_m: Pure-pursuit look-ahead distance ``L``.
+        curvature_per_unit: Curvature per steering unit (positive left).
+    """
+    e = np.asarray(lateral_m, dtype=np.float64)
+    psi = np.asarray(yaw_rad, dtype=np.float64)
+    dk = -2.0 * e / lookahead_m**2 - 2.0 * psi / lookahead_m
+    out: npt.NDArray[np.float64] = np.asarray(steering, dtype=np.float64) + dk / curvature_per_unit
+    return out
+
+
+def _net_to_frame(config: Dave2Config, width: int, height: int) -> tuple[float, ...]:
+    """``(sx, ox, sy, oy)``: frame pixel = ``s * net pixel + o`` (pixel centres)."""
+    sw, sh = config.source_size
+    top, bottom = config.crop_rows
+    nw, nh = config.input_size
+    # net -> source-size frame (crop) -> camera frame, each a scale between pixel centres.
+    ax, bx = sw / nw, 0.5 * sw / nw - 0.5
+    ay, by = (bottom - top) / nh, top + 0.5 * (bottom - top) / nh - 0.5
+    cx, dx = width / sw, 0.5 * width / sw - 0.5
+    cy, dy = height / sh, 0.5 * height / sh - 0.5
+    return (cx * ax, cx * bx + dx, cy * ay, cy * by + dy)
+
+
+def _rotations_about(
+    axis: npt.NDArray[np.float64], angle: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """``(B, 3, 3)`` rotations by ``angle`` (radians, right-handed) about the unit ``axis``."""
+    a = axis / np.linalg.norm(axis)
+    cross = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    c, s = np.cos(angle)[:, None, None], np.sin(angle)[:, None, None]
+    rot: npt.NDArray[np.float64] = c * np.eye(3) + s * cross + (1 - c) * np.outer(a, a)
+    return rot
+
+
+def source_pixels(
+    geometry: RecoveryGeometry,
+    config: Dave2Config,
+    lateral_m: npt.ArrayLike,
+    yaw_rad: npt.ArrayLike,
+) -> npt.NDArray[np.float64]:
+    """Where each network-input pixel of each displaced view comes from.
+
+    Args:
+        geometry: The camera.
+        config: The network's preprocessing.
+        lateral_m: ``(B,)`` offsets to the left, metres.
+        yaw_rad: ``(B,)`` turns to the left, radians.
+
+    Returns:
+        ``(B, h, w, 2)`` source ``(x, y)`` in network-input pixels (may lie outside the input).
+    """
+    e = np.atleast_1d(np.asarray(lateral_m, dtype=np.float64))
+    psi = np.atleast_1d(np.asarray(yaw_rad, dtype=np.float64))
+    nw, nh = config.input_size
+    sx, ox, sy, oy = _net_to_frame(config, geometry.width, geometry.height)
+    k = np.asarray(geometry.K, dtype=np.float64)
+    u, v = np.meshgrid(np.arange(nw) * sx + ox, np.arange(nh) * sy + oy)
+    pix = np.stack([u, v, np.ones_like(u)], -1).reshape(-1, 3)
+    rays = pix @ np.linalg.inv(k).T  # (P, 3) camera rays of the displaced view
+    # Optical axes (x right, y down, z forward); the ground's normal, pointing down.
+    down = np.array([0.0, math.cos(geometry.pitch_rad), math.sin(geometry.pitch_rad)])
+    rot = _rotations_about(-down, psi)  # turns to the left about the vertical
+    ground = np.clip(rays @ down, 0.0, None) / geometry.height_m  # (P,) 1/depth on the ground
+    src = np.einsum("bij,pj->bpi", rot, rays)
+    src[..., 0] -= e[:, None] * ground[None, :]  # the camera moved left: -x, scaled by 1/depth
+    z = np.clip(src[..., 2], 1e-6, None)
+    fx = (k[0, 0] * src[..., 0] + k[0, 1] * src[..., 1]) / z + k[0, 2]
+    fy = k[1, 1] * src[..., 1] / z + k[1, 2]
+    out = np.stack([(fx - ox) / sx, (fy - oy) / sy], -1)
+    return out.reshape(len(e), nh, nw, 2)
+
+
+def recovery_views(
+    x: torch.Tensor,
+    geometry: RecoveryGeometry,
+    config: Dave2Config,
+    lateral_m: npt.ArrayLike,
+    yaw_rad: npt.ArrayLike,
+) -> torch.Tensor:
+    """The batch ``x`` (``(B, 3, h, w)`` network inputs) seen from the displaced cameras."""
+    import torch  # noqa: PLC0415
+
+    h, w = x.shape[2:]
+    src = torch.from_numpy(source_pixels(geometry, config, lateral_m, yaw_rad)).to(x)
+    grid = torch.stack([(2 * src[..., 0] + 1) / w - 1, (2 * src[..., 1] + 1) / h - 1], -1)
+    return torch.nn.functional.grid_sample(
+        x, grid, mode="bilinear", padding_mode="border", align_corners=False
+    )
