@@ -8,7 +8,7 @@ run's outcome (``WS/report/drive/metrics.json``). Prints a per-seed table of Rea
 completion and a summary for seed groups (``--groups 0-2,3-5``), and writes it all as JSON.
 
 Usage:
-    python benchmarks/demo.py OUT [--runs 6] [--groups 0-2,3-5] [--json result.json]
+    python benchmarks/demo.py OUT [--runs 6] [--groups 0-2,3-5] [--world paper] [--json result.json]
 
 On a CUDA machine the demo trains the splat with gsplat (the GPU preset) automatically; the
 recipe for the GPU machine is in docs/benchmarks.md.
@@ -120,6 +120,9 @@ def main() -> int:
     parser.add_argument("out", type=Path)
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--groups", default="0-2")
+    parser.add_argument(
+        "--world", default="l-street", help="the demo street (cam2sim demo --world)"
+    )
     parser.add_argument("--json", type=Path)
     parser.add_argument("--no-run", action="store_true", help="only read an existing OUT")
     args = parser.parse_args()
@@ -134,6 +137,8 @@ def main() -> int:
             str(args.out),
             "--runs",
             str(args.runs),
+            "--world",
+            args.world,
         ]
         subprocess.run(cmd, check=True)
     wall = time.perf_counter() - started

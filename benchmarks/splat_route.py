@@ -44,7 +44,7 @@ import cv2
 import numpy as np
 
 from cam2sim.core.frames import Pose
-from cam2sim.demo.world import CRS, ORIGIN_UTM, footprint_ring, weave
+from cam2sim.demo.world import CRS, L_STREET, ORIGIN_UTM, footprint_ring
 from cam2sim.detect.synthetic import LidarModel, scan_scene
 from cam2sim.render.truth import TruthBuilding, TruthCar, TruthLook, TruthRenderer, TruthWorld
 from cam2sim.scenario.synthetic import lane_section_xml
@@ -234,6 +234,7 @@ def build_world(route: Route, seed: int) -> TruthWorld:
 
 def drive(route: Route, s: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """``(N, 4, 4)`` body poses (x forward, z up) on the driven path (route plus weave)."""
+    weave = L_STREET.weave  # the demo driver's weave
     xy, _ = route.points(s, weave(s))
     a, _ = route.points(s - 0.01, weave(s - 0.01))
     b, _ = route.points(s + 0.01, weave(s + 0.01))

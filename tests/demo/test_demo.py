@@ -10,12 +10,11 @@ import pytest
 
 from cam2sim.demo.world import (
     CAMERA_SIZE,
-    SPEED_MPS,
+    L_STREET,
     TOPICS,
     DemoRecording,
     build_demo_recording,
     camera_matrix,
-    camera_pose,
     demo_world,
     load_demo_recording,
 )
@@ -98,7 +97,7 @@ def test_the_camera_does_not_look_like_the_raster_renderer(recording: DemoRecord
     with Recording([recording.bag]) as rec:
         msg = next(iter(rec.messages([TOPICS["camera"]]))).msg
     photo = decode_compressed_image(msg).astype(np.float64)
-    pose = camera_pose(SPEED_MPS * 0.05)
+    pose = L_STREET.camera_pose(L_STREET.speed_mps * 0.05)
     with RasterRenderer(demo_world().raster_scene()) as renderer:
         frame = renderer.render(pose, camera_matrix(), *CAMERA_SIZE)
     raster = frame.rgb.astype(np.float64)
@@ -132,7 +131,7 @@ def test_the_truth_camera_renders_what_the_recording_saw(recording: DemoRecordin
 
     with TruthRenderer(world, None) as camera, TruthRenderer(other, None) as wrong:
         for k, photo in enumerate(photos):
-            pose = camera_pose(SPEED_MPS * (0.05 + 0.05 * k))
+            pose = L_STREET.camera_pose(L_STREET.speed_mps * (0.05 + 0.05 * k))
             same = error(camera.render(pose, camera_matrix(), *CAMERA_SIZE).rgb, photo)
             seeded = error(wrong.render(pose, camera_matrix(), *CAMERA_SIZE).rgb, photo)
             # The same pixels but for JPEG (which smooths the sensor noise); another look seed

@@ -40,13 +40,13 @@ def test_points_are_continuous_and_offsets_are_perpendicular() -> None:
 def test_offset_plan_view_follows_the_offset_line() -> None:
     carla = pytest.importorskip("carla")
     route = PiecewiseRoute(((50.0, 0.0), (30.0, 1 / 30.0), (40.0, -1 / 50.0), (20.0, 0.0)))
-    geometry = route.offset_plan_view(1.75, lead_m=10.0)
+    geometry, total = route.offset_plan_view(1.75, lead_m=10.0)
     lanes = (
         '<laneSection s="0"><right><lane id="-1" type="driving">'
         '<width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane></right>'
         '<center><lane id="0" type="none"/></center></laneSection>'
     )
-    total = sum(float(g.split('length="')[1].split('"')[0]) for g in geometry.split("<geometry")[1:])
+    assert total == pytest.approx(route.length_m + 20.0 - 30.0 * 1.75 / 30.0 + 40.0 * 1.75 / 50.0)
     xodr = (
         '<?xml version="1.0"?><OpenDRIVE><header revMajor="1" revMinor="4"/>'
         f'<road name="r" length="{total}" id="1" junction="-1"><planView>{geometry}</planView>'

@@ -132,3 +132,16 @@ def test_the_truth_camera_renders_without_sensor_noise_on_request() -> None:
     assert abs(diff.mean()) < 0.5  # zero-mean noise: no change of textures, grading, vignetting
     assert 2.5 < diff.std() < 5.0  # the sensor's 0.015 (3.8 levels), less clipping and rounding
     assert np.abs(diff).max() < 30
+
+
+def test_an_unmarked_world_draws_no_lane_markings() -> None:
+    from cam2sim.demo.world import PAPER_STREET, demo_world
+    from cam2sim.map.query import RoadMap
+    from cam2sim.render.meshes import marking_mesh
+
+    world = demo_world(0, PAPER_STREET).truth_world()
+    marked = world.model_copy(update={"lane_markings": True})
+    assert len(marking_mesh(RoadMap.from_xodr(world.xodr))) > 0  # the road has two lanes
+    # The unmarked scene has exactly the marking triangles fewer.
+    n_marks = len(marking_mesh(RoadMap.from_xodr(world.xodr)))
+    assert len(marked.raster_scene().mesh) - len(world.raster_scene().mesh) == n_marks

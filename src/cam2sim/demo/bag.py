@@ -1,7 +1,7 @@
 """The demo recording's bag: the reference drive through the demo world as ROS2 MCAP.
 
-:func:`write_bag` drives the route (:func:`~cam2sim.demo.world.drive_points`: the route plus the
-driver's weave) at :data:`~cam2sim.demo.world.SPEED_MPS` and writes odometry (UTM 32N, x-left
+:func:`write_bag` drives the world's street (:meth:`~cam2sim.demo.world.DemoStreet.drive_points`:
+the route plus the driver's weave) at the street's speed and writes odometry (UTM 32N, x-left
 axes) and steering at 50 Hz, a ray-cast LiDAR at 5 Hz and the photographic camera (JPEG) with
 its camera info at :data:`~cam2sim.demo.world.CAMERA_HZ`.
 """
@@ -23,14 +23,9 @@ from cam2sim.demo.world import (
     LIDAR_MOUNT,
     ODOM_HZ,
     ORIGIN_UTM,
-    SPEED_MPS,
     TOPICS,
     body_pose,
     camera_matrix,
-    camera_pose,
-    drive_curvature,
-    drive_points,
-    route_length_m,
 )
 from cam2sim.render.look import photographic_look
 
@@ -40,7 +35,7 @@ if TYPE_CHECKING:
     import numpy.typing as npt
 
     from cam2sim.core.progress import ProgressCallback
-    from cam2sim.demo.world import DemoWorld
+    from cam2sim.demo.world import DemoStreet, DemoWorld
 
 __all__ = ["write_bag"]
 
@@ -51,10 +46,10 @@ def _quat_z(yaw: float) -> dict[str, float]:
     return {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2.0), "w": math.cos(yaw / 2.0)}
 
 
-def _steering(t: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+def _steering(street: DemoStreet, t: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """The driver's steering at times ``t``: the driven path's curvature, eased over 1 s."""
     fine = np.arange(-1.0, t[-1] + 1.0, 0.01)
-    kappa = drive_curvature(SPEED_MPS * fine)
+    kappa = street.drive_curvature(street.speed_mps * fine)
     window = np.ones(101) / 101.0
     smooth = np.convolve(kappa, window, mode="same")
     out: npt.NDArray[np.float64] = np.interp(t, fine, smooth) / CURVATURE_PER_STEERING
@@ -85,11 +80,12 @@ def write_bag(path: Path, world: DemoWorld, *, seed: int, progress: ProgressCall
     from cam2sim.render.look import frame_noise_rng  # noqa: PLC0415
     from cam2sim.render.raster import RasterRenderer  # noqa: PLC0415
 
-    duration = route_length_m() / SPEED_MPS
+    street = world.street
+    duration = street.duration_s
     odom_t = np.arange(0.0, duration, 1.0 / ODOM_HZ)
     cam_t = np.arange(0.05, duration, 1.0 / CAMERA_HZ)
     lidar_t = np.arange(0.02, duration, 1.0 / LIDAR_HZ)
-    steer = _steering(odom_t)
+    steer = _steering(street, odom_t)
     events = [(float(t), 0, "odom", i) for i, t in enumerate(odom_t)]
     events += [(float(t), 1, "lidar", i) for i, t in enumerate(lidar_t)]
     events += [(float(t), 2, "camera", i) for i, t in enumerate(cam_t)]
@@ -101,15 +97,15 @@ def write_bag(path: Path, world: DemoWorld, *, seed: int, progress: ProgressCall
     with RasterRenderer(world.raster_scene()) as renderer, BagWriter(path, "mcap") as bag:
         for t, _, kind, i in events:
             stamp = _T0_NS + round(t * 1e9)
-            station = SPEED_MPS * t
+            station = street.speed_mps * t
             if kind == "odom":
-                xy, heading = drive_points([station])
+                xy, heading = street.drive_points([station])
                 pose = {
                     "position": {"x": ORIGIN_UTM[0] + xy[0, 0], "y": ORIGIN_UTM[1] + xy[0, 1]},
                     # The reference car's axes: x to the left, so yaw = heading + 90 degrees.
                     "orientation": _quat_z(float(heading[0]) + math.pi / 2.0),
                 }
-                twist = {"linear": {"y": SPEED_MPS}}
+                twist = {"linear": {"y": street.speed_mps}}
                 odom = {
                     "header": {"stamp": stamp, "frame_id": "utm"},
                     "child_frame_id": "base_link",
@@ -122,7 +118,7 @@ def write_bag(path: Path, world: DemoWorld, *, seed: int, progress: ProgressCall
                     TOPICS["steering"], "std_msgs/msg/Float64", value, receive_ns=stamp
                 )
             elif kind == "lidar":
-                xy, heading = drive_points([station])
+                xy, heading = street.drive_points([station])
                 body = body_pose(xy[0], float(heading[0]))
                 position = body[:3, :3] @ np.asarray(LIDAR_MOUNT) + body[:3, 3]
                 q = _quat_z(float(heading[0]))
@@ -130,7 +126,7 @@ def write_bag(path: Path, world: DemoWorld, *, seed: int, progress: ProgressCall
                 points = scan_scene(scene, sensor, lidar=lidar, seed=seed * 100_003 + i).points
                 bag.write_point_cloud(TOPICS["lidar"], stamp, points)
             else:
-                pose_cam = camera_pose(station)
+                pose_cam = street.camera_pose(station)
                 frame = renderer.render(pose_cam, k, width, height)
                 rng = frame_noise_rng(seed, pose_cam)  # per pose, as the truth camera draws it
                 image = photographic_look(frame.rgb, frame.labels, pose_cam, k, rng=rng, seed=seed)

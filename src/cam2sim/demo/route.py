@@ -56,7 +56,7 @@ class PiecewiseRoute:
     @property
     def end_heading(self) -> float:
         """Heading at the end of the route."""
-        s0, _, _, h0 = self.starts[-1]
+        h0 = self.starts[-1][3]
         length, k = self.pieces[-1]
         return h0 + k * length
 
@@ -113,8 +113,11 @@ class PiecewiseRoute:
             out |= (st > a - margin_m) & (st < b + margin_m)
         return out
 
-    def offset_plan_view(self, lateral_m: float, lead_m: float) -> str:
+    def offset_plan_view(self, lateral_m: float, lead_m: float) -> tuple[str, float]:
         """OpenDRIVE ``<geometry>`` elements of the line ``lateral_m`` left of the route.
+
+        Returns:
+            The elements and the line's length (the OpenDRIVE road's ``length``).
 
         The line runs from ``-lead_m`` to ``length_m + lead_m`` (straight leads); an arc of
         curvature ``k`` offset by ``d`` keeps its centre, so its curvature becomes ``k/(1-kd)``.
@@ -145,4 +148,4 @@ class PiecewiseRoute:
             scale = 1.0 - k * lateral_m
             line(s, float(length * scale), float(k / scale))
             s += length
-        return "".join(parts)
+        return "".join(parts), s_ref

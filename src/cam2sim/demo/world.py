@@ -1,18 +1,21 @@
-"""The demo world and its recording: an L-shaped residential street near Munich.
+"""The demo worlds and their recordings: residential streets near Munich.
 
-The world lives in a local metric frame whose origin sits at :data:`ORIGIN_UTM` in UTM 32N
-(x east, y north, z up; the frame's axes are the UTM grid's). The route starts at the origin
-heading east, runs :data:`STRAIGHT1_M` straight, turns left on a :data:`RADIUS_M` arc and runs
-:data:`STRAIGHT2_M` north. The street around it has a driving lane, a parking lane and a
-sidewalk each way (the route is the centre of the right driving lane); cars are parked on both
-sides along the straights and buildings line both sidewalks.
+A world lives in a local metric frame whose origin sits at :data:`ORIGIN_UTM` in UTM 32N
+(x east, y north, z up; the frame's axes are the UTM grid's). Its :class:`DemoStreet` says the
+route (straights and arcs from the origin, heading east; :class:`~cam2sim.demo.route.
+PiecewiseRoute`), the cross-section (a driving lane, a parking lane and a sidewalk each way; the
+route is the centre of the right driving lane; marked or not), the parked cars (on both sides
+along the straights) and the recorded driver. Buildings line both sidewalks, leaving the
+insides of the bends open. The built-in streets (:data:`STREETS`): :data:`L_STREET` (the
+default: 183 m, one bend) and :data:`PAPER_STREET` (the paper's street: 450 m, three bends,
+unmarked, cars narrowing the lane, 20 km/h).
 
 :func:`build_demo_recording` writes, into one folder:
 
 * ``demo.osm``: the street as a ``highway=residential`` way (``lanes=2``, ``width``) and the
   buildings as closed ``building=yes`` ways with ``building:levels``, in WGS84;
-* ``recording/bag``: a ROS2 MCAP bag of a drive along the route at :data:`SPEED_MPS`, weaving
-  gently about the lane centre (:func:`weave`, as a human driver does), with a
+* ``recording/bag``: a ROS2 MCAP bag of a drive along the route at the street's speed, weaving
+  gently about the lane centre (:meth:`DemoStreet.weave`, as a human driver does), with a
   JPEG camera (:data:`CAMERA_SIZE` at 20 Hz, rendered by the raster renderer and made to look
   photographic by :func:`photographic_look`), its camera info, odometry in UTM 32N with the
   reference car's axes (x to the left, y forward) at 50 Hz, a LiDAR ray-cast from the scene at
@@ -40,6 +43,7 @@ from typing import TYPE_CHECKING, Final
 import numpy as np
 
 from cam2sim.core.files import atomic_folder, write_text_atomic
+from cam2sim.demo.route import PiecewiseRoute
 from cam2sim.render.look import photographic_look
 from cam2sim.scenario.synthetic import lane_section_xml
 
@@ -56,42 +60,30 @@ __all__ = [
     "CAMERA_SIZE",
     "CRS",
     "CURVATURE_PER_STEERING",
+    "L_STREET",
     "ORIGIN_UTM",
-    "SPEED_MPS",
+    "PAPER_STREET",
+    "STREETS",
     "TOPICS",
     "DemoBuilding",
     "DemoRecording",
+    "DemoStreet",
     "DemoWorld",
     "ParkedCar",
     "build_demo_recording",
     "camera_matrix",
+    "demo_street",
     "demo_world",
-    "drive_points",
     "footprint_ring",
     "load_demo_recording",
     "photographic_look",
-    "route_points",
-    "weave",
+    "recorded_street",
 ]
 
 CRS: Final = "EPSG:32632"
 """UTM 32N: the odometry's CRS."""
 ORIGIN_UTM: Final = (691_000.0, 5_336_000.0)
 """Easting, northing of the local frame's origin (Munich)."""
-SPEED_MPS: Final = 8.0
-STRAIGHT1_M: Final = 60.0
-RADIUS_M: Final = 40.0
-STRAIGHT2_M: Final = 60.0
-LEAD_M: Final = 30.0
-WEAVE_M: Final = 0.35
-"""Amplitude of the reference driver's weave about the lane centre, metres."""
-WEAVE_PERIOD_M: Final = 40.0
-"""Wavelength of the weave: the driver drifts and corrects every 2.5 s at 8 m/s."""
-_WEAVE_RAMP_M: Final = 10.0
-"""Street before the route's start and after its end."""
-LANE_M: Final = 3.5
-PARKING_M: Final = 2.5
-SIDEWALK_M: Final = 2.0
 CURVATURE_PER_STEERING: Final = 0.022
 """The steering calibration: curvature (1/m) = steering * this."""
 CAMERA_SIZE: Final = (320, 200)
@@ -115,6 +107,152 @@ _TRUTH_WORLD: Final = "truth_world.json"
 _VERSION: Final = 3
 # Optical camera axes (x right, y down, z forward) in the body frame (x forward, y left, z up).
 _R_BODY_OPTICAL: Final = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+_WEAVE_RAMP_M: Final = 10.0
+
+
+@dataclass(frozen=True)
+class DemoStreet:
+    """A demo street: its route, its cross-section, its parked cars and its driver.
+
+    The street has a driving lane, a parking lane and a sidewalk each way; the route is the
+    centre of the right driving lane. Cars park on the straights (not in the bends).
+
+    Attributes:
+        name: What ``cam2sim demo --world`` calls it.
+        title: One line for people.
+        route: The driven route (local frame, starting at the origin heading east).
+        speed_mps: The recorded car's speed.
+        lane_m: Driving lane width.
+        parking_m: Parking lane width.
+        sidewalk_m: Sidewalk width.
+        lane_markings: Whether the roadway is marked between its driving lanes.
+        car_intrusion_m: How far parked cars stand from their parking lane's centre towards the
+            driving lane (so that they narrow it when their half width exceeds the rest).
+        park_share: Share of the parking places taken.
+        weave_m: Amplitude of the recorded driver's weave about the lane centre.
+        weave_period_m: Its wavelength.
+        lead_m: Street before the route's start and after its end.
+    """
+
+    name: str
+    title: str
+    route: PiecewiseRoute
+    speed_mps: float = 8.0
+    lane_m: float = 3.5
+    parking_m: float = 2.5
+    sidewalk_m: float = 2.0
+    lane_markings: bool = True
+    car_intrusion_m: float = 0.0
+    park_share: float = 0.65
+    weave_m: float = 0.35
+    weave_period_m: float = 40.0
+    lead_m: float = 30.0
+
+    @property
+    def length_m(self) -> float:
+        """Length of the driven route."""
+        return self.route.length_m
+
+    @property
+    def duration_s(self) -> float:
+        """Length of the recorded drive."""
+        return self.length_m / self.speed_mps
+
+    def route_points(
+        self, s: npt.ArrayLike, lateral: float | npt.NDArray[np.float64] = 0.0
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """Positions ``(N, 2)`` and headings ``(N,)`` at stations ``s``, ``lateral`` to the left.
+
+        Stations before 0 or past :attr:`length_m` continue straight.
+        """
+        return self.route.points(s, lateral)
+
+    def route_curvature(self, s: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """Curvature (1/m, positive left) of the route at stations ``s``."""
+        return self.route.curvature(s)
+
+    def weave(self, s: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """The driver's lateral offset (m, left) from the lane centre at stations ``s``.
+
+        A sine of :attr:`weave_m` and :attr:`weave_period_m`, eased in from 10 m to 30 m (so the
+        drive starts on the lane centre, straight): a human driver never holds the centre
+        exactly.
+        """
+        st = np.asarray(s, dtype=np.float64)
+        ramp = np.clip((st - _WEAVE_RAMP_M) / (2.0 * _WEAVE_RAMP_M), 0.0, 1.0)
+        out: npt.NDArray[np.float64] = (
+            self.weave_m
+            * np.sin(2.0 * math.pi * st / self.weave_period_m)
+            * ramp
+            * ramp
+            * (3.0 - 2.0 * ramp)
+        )
+        return out
+
+    def drive_points(
+        self, s: npt.ArrayLike
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """Positions ``(N, 2)`` and headings ``(N,)`` of the driven path (route plus weave)."""
+        st = np.atleast_1d(np.asarray(s, dtype=np.float64))
+        xy, _ = self.route_points(st, self.weave(st))
+        ds = 0.01
+        a, _ = self.route_points(st - ds, self.weave(st - ds))
+        b, _ = self.route_points(st + ds, self.weave(st + ds))
+        heading: npt.NDArray[np.float64] = np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
+        return xy, heading
+
+    def drive_curvature(self, s: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """Curvature (1/m, positive left) of the driven path at stations ``s``."""
+        st = np.atleast_1d(np.asarray(s, dtype=np.float64))
+        ds = 0.05
+        a, ha = self.drive_points(st - ds)
+        b, hb = self.drive_points(st + ds)
+        turn = np.remainder(hb - ha + math.pi, 2.0 * math.pi) - math.pi
+        out: npt.NDArray[np.float64] = turn / np.maximum(np.hypot(*(b - a).T), 1e-9)
+        return out
+
+    def camera_pose(self, station: float) -> npt.NDArray[np.float64]:
+        """``T_world_cam`` (optical axes) of the demo camera with the car at ``station``."""
+        xy, heading = self.drive_points([station])
+        body = body_pose(xy[0], float(heading[0]))
+        mount = np.eye(4)
+        mount[:3, :3] = _R_BODY_OPTICAL
+        mount[:3, 3] = CAMERA_MOUNT
+        out: npt.NDArray[np.float64] = body @ mount
+        return out
+
+
+L_STREET: Final = DemoStreet(
+    name="l-street",
+    title="an L-shaped residential street: 183 m, one left bend of 40 m radius, 8 m/s",
+    route=PiecewiseRoute(((60.0, 0.0), (40.0 * math.pi / 2.0, 1.0 / 40.0), (60.0, 0.0))),
+)
+PAPER_STREET: Final = DemoStreet(
+    name="paper",
+    title=(
+        "the paper's street: 450 m, three bends, an unmarked two-way roadway, parked cars "
+        "narrowing the lane, sidewalks, 20 km/h"
+    ),
+    route=PiecewiseRoute(
+        (
+            (80.0, 0.0),
+            (30.0 * math.pi / 2.0, 1.0 / 30.0),
+            (90.0, 0.0),
+            (40.0 * math.pi / 3.0, -1.0 / 40.0),
+            (70.0, 0.0),
+            (35.0 * 5.0 * math.pi / 12.0, 1.0 / 35.0),
+            (75.0, 0.0),
+        )
+    ),
+    speed_mps=20.0 / 3.6,
+    parking_m=2.0,
+    lane_markings=False,
+    car_intrusion_m=0.2,
+    park_share=0.6,
+    weave_m=0.2,
+)
+STREETS: Final = {s.name: s for s in (L_STREET, PAPER_STREET)}
+"""The built-in demo streets by name."""
 
 
 @dataclass(frozen=True)
@@ -149,6 +287,7 @@ class DemoRecording:
 
     Attributes:
         root: The folder holding everything.
+        street: The street it drove.
         bag: The ROS2 MCAP bag folder.
         osm: The OSM file of the street and buildings.
         config: The cam2sim config of the bag.
@@ -160,6 +299,7 @@ class DemoRecording:
     """
 
     root: Path
+    street: DemoStreet
     bag: Path
     osm: Path
     config: Path
@@ -168,87 +308,6 @@ class DemoRecording:
     truth_world: Path
     camera_frames: int
     duration_s: float
-
-
-def _arc_m() -> float:
-    return RADIUS_M * math.pi / 2.0
-
-
-def route_length_m() -> float:
-    """Length of the driven route."""
-    return STRAIGHT1_M + _arc_m() + STRAIGHT2_M
-
-
-def route_points(
-    s: npt.ArrayLike, lateral: float | npt.NDArray[np.float64] = 0.0
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """Positions ``(N, 2)`` and headings ``(N,)`` at route stations ``s``, ``lateral`` to the left.
-
-    ``lateral`` is one offset or one per station.
-
-    Stations before 0 or past :func:`route_length_m` continue the straights.
-    """
-    st = np.atleast_1d(np.asarray(s, dtype=np.float64))
-    th = np.clip((st - STRAIGHT1_M) / RADIUS_M, 0.0, math.pi / 2.0)
-    first = st <= STRAIGHT1_M
-    last = st > STRAIGHT1_M + _arc_m()
-    x = np.where(
-        first, st, np.where(last, STRAIGHT1_M + RADIUS_M, STRAIGHT1_M + RADIUS_M * np.sin(th))
-    )
-    y = np.where(
-        first,
-        0.0,
-        np.where(last, RADIUS_M + st - STRAIGHT1_M - _arc_m(), RADIUS_M - RADIUS_M * np.cos(th)),
-    )
-    xy = np.column_stack([x - lateral * np.sin(th), y + lateral * np.cos(th)])
-    return xy, th
-
-
-def route_curvature(s: npt.ArrayLike) -> npt.NDArray[np.float64]:
-    """Curvature (1/m, positive left) of the route at stations ``s``."""
-    st = np.asarray(s, dtype=np.float64)
-    inside = (st > STRAIGHT1_M) & (st <= STRAIGHT1_M + _arc_m())
-    out: npt.NDArray[np.float64] = np.where(inside, 1.0 / RADIUS_M, 0.0)
-    return out
-
-
-def weave(s: npt.ArrayLike) -> npt.NDArray[np.float64]:
-    """The driver's lateral offset (m, left) from the lane centre at stations ``s``.
-
-    A sine of :data:`WEAVE_M` and :data:`WEAVE_PERIOD_M`, eased in from 10 m to 30 m (so the
-    drive starts on the lane centre, straight): a human driver never holds the centre exactly,
-    and the drift-and-correct is what teaches DAVE-2 to steer back towards it.
-    """
-    st = np.asarray(s, dtype=np.float64)
-    ramp = np.clip((st - _WEAVE_RAMP_M) / (2.0 * _WEAVE_RAMP_M), 0.0, 1.0)
-    out: npt.NDArray[np.float64] = (
-        WEAVE_M * np.sin(2.0 * math.pi * st / WEAVE_PERIOD_M) * ramp * ramp * (3.0 - 2.0 * ramp)
-    )
-    return out
-
-
-def drive_points(
-    s: npt.ArrayLike,
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """Positions ``(N, 2)`` and headings ``(N,)`` of the driven path (the route plus the weave)."""
-    st = np.atleast_1d(np.asarray(s, dtype=np.float64))
-    xy, _ = route_points(st, weave(st))
-    ds = 0.01
-    a, _ = route_points(st - ds, weave(st - ds))
-    b, _ = route_points(st + ds, weave(st + ds))
-    heading: npt.NDArray[np.float64] = np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
-    return xy, heading
-
-
-def drive_curvature(s: npt.ArrayLike) -> npt.NDArray[np.float64]:
-    """Curvature (1/m, positive left) of the driven path at stations ``s``."""
-    st = np.atleast_1d(np.asarray(s, dtype=np.float64))
-    ds = 0.05
-    a, ha = drive_points(st - ds)
-    b, hb = drive_points(st + ds)
-    turn = np.remainder(hb - ha + math.pi, 2.0 * math.pi) - math.pi
-    out: npt.NDArray[np.float64] = turn / np.maximum(np.hypot(*(b - a).T), 1e-9)
-    return out
 
 
 def camera_matrix() -> npt.NDArray[np.float64]:
@@ -267,47 +326,27 @@ def body_pose(xy: npt.NDArray[np.float64], heading: float) -> npt.NDArray[np.flo
     return pose
 
 
-def camera_pose(station: float) -> npt.NDArray[np.float64]:
-    """``T_world_cam`` (optical axes) of the demo camera with the car at ``station``."""
-    xy, heading = drive_points([station])
-    body = body_pose(xy[0], float(heading[0]))
-    mount = np.eye(4)
-    mount[:3, :3] = _R_BODY_OPTICAL
-    mount[:3, 3] = CAMERA_MOUNT
-    out: npt.NDArray[np.float64] = body @ mount
-    return out
-
-
 # -- the world -------------------------------------------------------------------------------
-_LANES: Final = lane_section_xml(LANE_M, PARKING_M, SIDEWALK_M)
 
 
 @dataclass(frozen=True)
 class DemoWorld:
     """The street, the parked cars and the buildings (local frame)."""
 
+    street: DemoStreet
     cars: tuple[ParkedCar, ...]
     buildings: tuple[DemoBuilding, ...]
 
     def xodr(self) -> str:
         """The street as OpenDRIVE 1.4 text (reference line between the driving lanes)."""
-        half = LANE_M / 2.0
-        r_ref = RADIUS_M - half
-        a = STRAIGHT1_M + LEAD_M
-        b = a + r_ref * math.pi / 2.0
-        total = b + STRAIGHT2_M + LEAD_M
-        geometry = (
-            f'<geometry s="0" x="{-LEAD_M}" y="{half}" hdg="0" length="{a}"><line/></geometry>'
-            f'<geometry s="{a}" x="{STRAIGHT1_M}" y="{half}" hdg="0" length="{b - a}">'
-            f'<arc curvature="{1.0 / r_ref}"/></geometry>'
-            f'<geometry s="{b}" x="{STRAIGHT1_M + r_ref}" y="{RADIUS_M}" hdg="{math.pi / 2}" '
-            f'length="{total - b}"><line/></geometry>'
-        )
+        st = self.street
+        geometry, total = st.route.offset_plan_view(st.lane_m / 2.0, st.lead_m)
+        lanes = lane_section_xml(st.lane_m, st.parking_m, st.sidewalk_m)
         return f"""<?xml version="1.0"?>
 <OpenDRIVE><header revMajor="1" revMinor="4"/>
-  <road name="Demostraße" length="{total}" id="1" junction="-1">
+  <road name="Demostraße" length="{total!r}" id="1" junction="-1">
     <planView>{geometry}</planView>
-    <lanes><laneSection s="0">{_LANES}
+    <lanes><laneSection s="0">{lanes}
     </laneSection></lanes>
   </road>
 </OpenDRIVE>
@@ -318,8 +357,9 @@ class DemoWorld:
         from pyproj import Transformer  # noqa: PLC0415
 
         to_wgs84 = Transformer.from_crs(CRS, "EPSG:4326", always_xy=True)
-        stations = np.arange(-LEAD_M, route_length_m() + LEAD_M + 1e-6, 5.0)
-        road, _ = route_points(stations, LANE_M / 2.0)
+        st = self.street
+        stations = np.arange(-st.lead_m, st.length_m + st.lead_m + 1e-6, 5.0)
+        road, _ = st.route_points(stations, st.lane_m / 2.0)
         rings = [np.asarray(b.xy, dtype=np.float64) for b in self.buildings]
         local = np.concatenate([road, *rings])
         lon, lat = to_wgs84.transform(local[:, 0] + ORIGIN_UTM[0], local[:, 1] + ORIGIN_UTM[1])
@@ -340,7 +380,7 @@ class DemoWorld:
         tags = {
             "highway": "residential",
             "lanes": "2",
-            "width": f"{2 * LANE_M:g}",
+            "width": f"{2 * st.lane_m:g}",
             "name": "Demostraße",
             "parking:lane:both": "parallel",
             "surface": "asphalt",
@@ -383,6 +423,7 @@ class DemoWorld:
             cars=tuple(TruthCar(**asdict(c)) for c in self.cars),
             buildings=tuple(TruthBuilding(xy=b.xy, height_m=b.height_m) for b in self.buildings),
             look=TruthLook(kind="photographic", seed=seed),
+            lane_markings=self.street.lane_markings,
         )
 
     def raster_scene(self) -> RasterScene:
@@ -390,22 +431,30 @@ class DemoWorld:
         return self.truth_world().raster_scene()
 
 
-def _cars(rng: np.random.Generator) -> tuple[ParkedCar, ...]:
-    half = LANE_M / 2.0
-    right = -(LANE_M - half) - PARKING_M / 2.0  # centre of the right parking lane
-    left = half + LANE_M + PARKING_M / 2.0
-    end = route_length_m() + LEAD_M
-    spans = ((-LEAD_M + 3.0, STRAIGHT1_M - 8.0), (STRAIGHT1_M + _arc_m() + 8.0, end - 3.0))
+def _straights(street: DemoStreet, margin_m: float) -> list[tuple[float, float]]:
+    """``(start, end)`` stations of the street's straight stretches, ``margin_m`` from bends."""
+    edges = [-street.lead_m + 3.0]
+    for lo, hi in street.route.bends():
+        edges += [lo - margin_m, hi + margin_m]
+    edges.append(street.length_m + street.lead_m - 3.0)
+    return [(lo, hi) for lo, hi in zip(edges[::2], edges[1::2], strict=True) if hi > lo]
+
+
+def _cars(street: DemoStreet, rng: np.random.Generator) -> tuple[ParkedCar, ...]:
+    half = street.lane_m / 2.0
+    # Centres of the parking lanes, moved towards the roadway by the intrusion.
+    right = -half - street.parking_m / 2.0 + street.car_intrusion_m
+    left = half + street.lane_m + street.parking_m / 2.0 - street.car_intrusion_m
     cars: list[ParkedCar] = []
     for lateral, side in ((right, "right"), (left, "left")):
-        for lo, hi in spans:
+        for lo, hi in _straights(street, 8.0):
             s = lo + rng.uniform(0.0, 2.0)
             while True:
                 length = rng.uniform(4.0, 4.8)
                 if s + length > hi:
                     break
-                if rng.random() < 0.65:
-                    xy, heading = route_points([s + length / 2.0], lateral)
+                if rng.random() < street.park_share:
+                    xy, heading = street.route_points([s + length / 2.0], lateral)
                     flip = math.pi if side == "left" and rng.random() < 0.5 else 0.0
                     cars.append(
                         ParkedCar(
@@ -436,18 +485,23 @@ def footprint_ring(
     return tuple((float(p[0]), float(p[1])) for p in ring)
 
 
-def _buildings(rng: np.random.Generator) -> tuple[DemoBuilding, ...]:
-    half = LANE_M / 2.0
-    kerb = LANE_M + PARKING_M + SIDEWALK_M  # from the reference line
+def _buildings(street: DemoStreet, rng: np.random.Generator) -> tuple[DemoBuilding, ...]:
+    half = street.lane_m / 2.0
+    kerb = street.lane_m + street.parking_m + street.sidewalk_m  # from the reference line
     length, depth, setback = 16.0, 10.0, 1.5
     out: list[DemoBuilding] = []
-    corner = (STRAIGHT1_M - 12.0, STRAIGHT1_M + _arc_m() + 12.0)
+    stations = np.arange(-street.lead_m + 10.0, street.length_m + street.lead_m - 8.0, 21.0)
     for sign in (1.0, -1.0):
         lateral = half + sign * (kerb + setback + depth / 2.0)
-        for s in np.arange(-LEAD_M + 10.0, route_length_m() + LEAD_M - 8.0, 21.0):
-            if sign > 0 and corner[0] < s < corner[1]:
-                continue  # the inside of the bend stays open
-            c, h = route_points([s], lateral)
+        for s in stations:
+            inside = [
+                lo - 12.0 < s < hi + 12.0
+                for (lo, hi), k in zip(street.route.bends(), _bend_curvatures(street), strict=True)
+                if k * sign > 0
+            ]
+            if any(inside):
+                continue  # the inside of a bend stays open
+            c, h = street.route_points([s], lateral)
             out.append(
                 DemoBuilding(
                     xy=footprint_ring(c[0], float(h[0]), length, depth),
@@ -457,10 +511,14 @@ def _buildings(rng: np.random.Generator) -> tuple[DemoBuilding, ...]:
     return tuple(out)
 
 
-def demo_world(seed: int = 0) -> DemoWorld:
-    """The demo world; ``seed`` places the parked cars and picks building heights."""
+def _bend_curvatures(street: DemoStreet) -> list[float]:
+    return [k for _, k in street.route.pieces if k != 0.0]
+
+
+def demo_world(seed: int = 0, street: DemoStreet = L_STREET) -> DemoWorld:
+    """The demo world on ``street``; ``seed`` places the parked cars and picks building heights."""
     rng = np.random.default_rng(seed)
-    return DemoWorld(cars=_cars(rng), buildings=_buildings(rng))
+    return DemoWorld(street=street, cars=_cars(street, rng), buildings=_buildings(street, rng))
 
 
 def demo_config(bag: Path) -> Config:
@@ -504,12 +562,39 @@ def demo_config(bag: Path) -> Config:
     )
 
 
+def demo_street(name: str) -> DemoStreet:
+    """The built-in street called ``name``.
+
+    Raises:
+        ConfigError: No such street (the message lists them).
+    """
+    from cam2sim.core.errors import ConfigError  # noqa: PLC0415
+
+    if name not in STREETS:
+        msg = f"no demo world {name!r}; choose one of {', '.join(sorted(STREETS))}"
+        raise ConfigError(msg)
+    return STREETS[name]
+
+
+def recorded_street(out_dir: Path) -> str | None:
+    """The name of the street whose recording ``out_dir`` holds (None: none, or unreadable)."""
+    try:
+        meta = json.loads((Path(out_dir) / _MARKER).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    name = meta.get("world", L_STREET.name) if isinstance(meta, dict) else None
+    return str(name) if name is not None else None
+
+
 def _paths(root: Path) -> tuple[Path, Path, Path, Path]:
     return root / "recording" / "bag", root / "demo.osm", root / "config.yaml", root / "truth.json"
 
 
-def load_demo_recording(out_dir: Path) -> DemoRecording | None:
-    """The recording already built in ``out_dir``, or None when there is none (or a partial one)."""
+def load_demo_recording(out_dir: Path, street: DemoStreet = L_STREET) -> DemoRecording | None:
+    """The recording of ``street`` already built in ``out_dir``, or None.
+
+    None when there is none, a partial one, or one of another street.
+    """
     root = Path(out_dir)
     marker = root / _MARKER
     bag, osm, config, truth = _paths(root)
@@ -520,7 +605,7 @@ def load_demo_recording(out_dir: Path) -> DemoRecording | None:
     try:
         meta = json.loads(marker.read_text(encoding="utf-8"))
         data = json.loads(truth.read_text(encoding="utf-8"))
-        if meta.get("version") != _VERSION:
+        if meta.get("version") != _VERSION or meta.get("world", L_STREET.name) != street.name:
             return None
         cars = tuple(ParkedCar(**c) for c in data["cars"])
         buildings = tuple(
@@ -529,6 +614,7 @@ def load_demo_recording(out_dir: Path) -> DemoRecording | None:
         )
         return DemoRecording(
             root=root,
+            street=street,
             bag=bag,
             osm=osm,
             config=config,
@@ -543,9 +629,13 @@ def load_demo_recording(out_dir: Path) -> DemoRecording | None:
 
 
 def build_demo_recording(
-    out_dir: Path, *, seed: int = 0, progress: ProgressCallback | None = None
+    out_dir: Path,
+    *,
+    seed: int = 0,
+    street: DemoStreet = L_STREET,
+    progress: ProgressCallback | None = None,
 ) -> DemoRecording:
-    """Write the demo's OSM file, bag, config and ground truth into ``out_dir``.
+    """Write the demo's OSM file, bag, config and ground truth of ``street`` into ``out_dir``.
 
     Every file is written atomically, and ``demo.json`` last: a folder with it is complete
     (:func:`load_demo_recording` reads it back).
@@ -560,7 +650,7 @@ def build_demo_recording(
 
     root = Path(out_dir)
     root.mkdir(parents=True, exist_ok=True)
-    world = demo_world(seed)
+    world = demo_world(seed, street)
     bag, osm, config, truth = _paths(root)
     write_text_atomic(osm, world.osm_xml())
     with atomic_folder(bag.parent) as tmp:
@@ -574,11 +664,18 @@ def build_demo_recording(
     }
     write_text_atomic(truth, json.dumps(data, indent=1) + "\n")
     world.truth_world(seed=seed).save(root / _TRUTH_WORLD)
-    duration = route_length_m() / SPEED_MPS
-    meta = {"version": _VERSION, "seed": seed, "camera_frames": frames, "duration_s": duration}
+    duration = street.duration_s
+    meta = {
+        "version": _VERSION,
+        "world": street.name,
+        "seed": seed,
+        "camera_frames": frames,
+        "duration_s": duration,
+    }
     write_text_atomic(root / _MARKER, json.dumps(meta, indent=1) + "\n")
     return DemoRecording(
         root=root,
+        street=street,
         bag=bag,
         osm=osm,
         config=config,

@@ -146,6 +146,8 @@ class RasterOptions:
         tile_m: Edge of the square tiles the scene is cut into for culling.
         kerb_height_m: Height of sidewalks above the road.
         ground_margin_m: How far the ground plane reaches beyond the map.
+        lane_markings: Draw the dashed markings between driving lanes (False: an unmarked
+            roadway, as many residential streets are).
     """
 
     near_m: float = 0.1
@@ -154,6 +156,7 @@ class RasterOptions:
     tile_m: float = 20.0
     kerb_height_m: float = 0.15
     ground_margin_m: float = 300.0
+    lane_markings: bool = True
 
 
 @dataclass(frozen=True)
@@ -196,7 +199,7 @@ class RasterScene:
         opts = options or RasterOptions()
         parts = [
             lane_mesh(road_map, kerb_height_m=opts.kerb_height_m),
-            marking_mesh(road_map),
+            marking_mesh(road_map) if opts.lane_markings else Mesh.empty(),
             car_mesh(vehicles),
             building_mesh(buildings),
         ]

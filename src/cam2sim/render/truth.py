@@ -94,6 +94,7 @@ class TruthWorld(Artifact):
         cars: Parked cars.
         buildings: Buildings.
         look: The camera's look (and the seed of its textures and noise).
+        lane_markings: Whether the roadway has markings between its driving lanes.
     """
 
     crs: str
@@ -102,6 +103,7 @@ class TruthWorld(Artifact):
     cars: tuple[TruthCar, ...] = ()
     buildings: tuple[TruthBuilding, ...] = ()
     look: TruthLook = TruthLook()
+    lane_markings: bool = True
 
     def lidar_scene(self) -> StreetScene:
         """The scene a ray-cast LiDAR scans: flat ground, car boxes, building boxes.
@@ -135,7 +137,11 @@ class TruthWorld(Artifact):
     def raster_scene(self) -> RasterScene:
         """The scene the raster renderer draws (street, cars, buildings)."""
         from cam2sim.map.query import RoadMap  # noqa: PLC0415
-        from cam2sim.render.raster import BuildingFootprint, RasterScene  # noqa: PLC0415
+        from cam2sim.render.raster import (  # noqa: PLC0415
+            BuildingFootprint,
+            RasterOptions,
+            RasterScene,
+        )
         from cam2sim.scenario.model import ScenarioVehicle  # noqa: PLC0415
 
         vehicles = [
@@ -151,7 +157,8 @@ class TruthWorld(Artifact):
             for k, c in enumerate(self.cars)
         ]
         buildings = [BuildingFootprint(np.asarray(b.xy), b.height_m) for b in self.buildings]
-        return RasterScene(RoadMap.from_xodr(self.xodr), vehicles, buildings)
+        options = RasterOptions(lane_markings=self.lane_markings)
+        return RasterScene(RoadMap.from_xodr(self.xodr), vehicles, buildings, options=options)
 
 
 def truth_world_path(root: Path) -> Path:
