@@ -36,7 +36,6 @@ import json
 import math
 import shutil
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -44,6 +43,7 @@ import cv2
 import numpy as np
 
 from cam2sim.core.frames import Pose
+from cam2sim.demo.route import PiecewiseRoute
 from cam2sim.demo.world import CRS, L_STREET, ORIGIN_UTM, footprint_ring
 from cam2sim.detect.synthetic import LidarModel, scan_scene
 from cam2sim.render.truth import TruthBuilding, TruthCar, TruthLook, TruthRenderer, TruthWorld
@@ -78,94 +78,13 @@ SPEED_MPS = 8.0
 HELD_OUT_EVERY = 8
 
 
-@dataclass(frozen=True)
-class Route:
-    """A piecewise line/arc route; stations before 0 or past the end continue the straights."""
-
-    pieces: tuple[tuple[float, float], ...] = PIECES
-
-    @property
-    def length_m(self) -> float:
-        """Length of the route."""
-        return sum(p[0] for p in self.pieces)
-
-    def _starts(self) -> list[tuple[float, float, float, float]]:
-        """``(s, x, y, heading)`` at the start of each piece."""
-        out = []
-        s = x = y = h = 0.0
-        for length, k in self.pieces:
-            out.append((s, x, y, h))
-            if k == 0.0:
-                x, y = x + length * math.cos(h), y + length * math.sin(h)
-            else:
-                h1 = h + k * length
-                x, y = x + (math.sin(h1) - math.sin(h)) / k, y - (math.cos(h1) - math.cos(h)) / k
-                h = h1
-            s += length
-        return out
-
-    def points(
-        self, s: npt.ArrayLike, lateral: float | npt.NDArray[np.float64] = 0.0
-    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-        """Positions ``(N, 2)`` and headings ``(N,)`` at stations ``s``, ``lateral`` to the left."""
-        st = np.atleast_1d(np.asarray(s, dtype=np.float64))
-        starts = self._starts()
-        idx = np.clip(np.searchsorted([a[0] for a in starts], st, side="right") - 1, 0, None)
-        xy = np.zeros((len(st), 2))
-        hd = np.zeros(len(st))
-        for j, (s0, x0, y0, h0) in enumerate(starts):
-            sel = idx == j
-            ds = st[sel] - s0
-            k = self.pieces[j][1]  # the first and last pieces are straight
-            if k == 0.0:
-                xy[sel, 0] = x0 + ds * math.cos(h0)
-                xy[sel, 1] = y0 + ds * math.sin(h0)
-                hd[sel] = h0
-            else:
-                h = h0 + k * ds
-                xy[sel, 0] = x0 + (np.sin(h) - math.sin(h0)) / k
-                xy[sel, 1] = y0 - (np.cos(h) - math.cos(h0)) / k
-                hd[sel] = h
-        lat = np.broadcast_to(np.asarray(lateral, dtype=np.float64), st.shape)
-        out = np.column_stack([xy[:, 0] - lat * np.sin(hd), xy[:, 1] + lat * np.cos(hd)])
-        return out, hd
-
-    def in_bend(self, s: float, margin: float) -> bool:
-        """Whether station ``s`` is within ``margin`` of an arc."""
-        return any(
-            a[0] - margin < s < a[0] + length + margin
-            for a, (length, k) in zip(self._starts(), self.pieces, strict=True)
-            if k != 0.0
-        )
-
-    def xodr(self) -> str:
-        """OpenDRIVE text; the reference line runs between the driving lanes (half a lane left)."""
-        half = LANE_M / 2.0
-        parts = []
-        s_ref = 0.0
-        xy, h = self.points([-LEAD_M], half)
-        lead = [(LEAD_M, 0.0, xy[0], h[0])]
-        for (s0, _, _, _), (length, k) in zip(self._starts(), self.pieces, strict=True):
-            p, hh = self.points([s0], half)
-            lead.append((length, k, p[0], hh[0]))
-        last_len, last_k, last_p, last_h = lead[-1]
-        lead[-1] = (last_len + LEAD_M, last_k, last_p, last_h) if last_k == 0.0 else lead[-1]
-        for length, k, p, hh in lead:
-            if k == 0.0:
-                ref_len, shape = length, "<line/>"
-            else:
-                radius = 1.0 / abs(k) - math.copysign(half, k)
-                ref_len = radius * abs(k) * length
-                shape = f'<arc curvature="{math.copysign(1.0 / radius, k)}"/>'
-            parts.append(
-                f'<geometry s="{s_ref}" x="{p[0]}" y="{p[1]}" hdg="{hh}" length="{ref_len}">'
-                f"{shape}</geometry>"
-            )
-            s_ref += ref_len
-        return f"""<?xml version="1.0"?>
+def route_xodr(route: PiecewiseRoute) -> str:
+    """OpenDRIVE text; the reference line runs between the driving lanes (half a lane left)."""
+    geometry, total = route.offset_plan_view(LANE_M / 2.0, LEAD_M)
+    return f"""<?xml version="1.0"?>
 <OpenDRIVE><header revMajor="1" revMinor="4"/>
-  <road name="Routenstraße" length="{s_ref}" id="1" junction="-1">
-    <planView>{"".join(parts)}</planView>
+  <road name="Routenstraße" length="{total!r}" id="1" junction="-1">
+    <planView>{geometry}</planView>
     <lanes><laneSection s="0">{lane_section_xml(LANE_M, PARKING_M, SIDEWALK_M)}
     </laneSection></lanes>
   </road>
@@ -173,7 +92,7 @@ class Route:
 """
 
 
-def _cars(route: Route, rng: np.random.Generator) -> list[dict[str, Any]]:
+def _cars(route: PiecewiseRoute, rng: np.random.Generator) -> list[dict[str, Any]]:
     right = -LANE_M / 2.0 - PARKING_M / 2.0
     left = LANE_M / 2.0 + LANE_M + PARKING_M / 2.0
     out: list[dict[str, Any]] = []
@@ -181,7 +100,7 @@ def _cars(route: Route, rng: np.random.Generator) -> list[dict[str, Any]]:
         s = -LEAD_M + 3.0 + rng.uniform(0.0, 2.0)
         while s < route.length_m + LEAD_M - 8.0:
             length = rng.uniform(4.0, 4.8)
-            if not route.in_bend(s + length / 2.0, 8.0) and rng.random() < 0.65:
+            if not route.in_bend(s + length / 2.0, 8.0)[0] and rng.random() < 0.65:
                 xy, heading = route.points([s + length / 2.0], lateral)
                 flip = math.pi if side == "left" and rng.random() < 0.5 else 0.0
                 out.append(
@@ -199,14 +118,14 @@ def _cars(route: Route, rng: np.random.Generator) -> list[dict[str, Any]]:
     return out
 
 
-def _buildings(route: Route, rng: np.random.Generator) -> list[dict[str, Any]]:
+def _buildings(route: PiecewiseRoute, rng: np.random.Generator) -> list[dict[str, Any]]:
     kerb = LANE_M + PARKING_M + SIDEWALK_M
     length, depth, setback = 16.0, 10.0, 1.5
     out: list[dict[str, Any]] = []
     for sign in (1.0, -1.0):
         lateral = LANE_M / 2.0 + sign * (kerb + setback + depth / 2.0)
         for s in np.arange(-LEAD_M + 10.0, route.length_m + LEAD_M - 8.0, 21.0):
-            if route.in_bend(float(s), 12.0):
+            if route.in_bend(float(s), 12.0)[0]:
                 continue  # the bends stay open (no overlapping footprints)
             c, h = route.points([s], lateral)
             out.append(
@@ -218,21 +137,21 @@ def _buildings(route: Route, rng: np.random.Generator) -> list[dict[str, Any]]:
     return out
 
 
-def build_world(route: Route, seed: int) -> TruthWorld:
+def build_world(route: PiecewiseRoute, seed: int) -> TruthWorld:
     """The route's street, parked cars and buildings as a truth world (photographic look)."""
 
     rng = np.random.default_rng(seed)
     return TruthWorld(
         crs=CRS,
         origin=ORIGIN_UTM,
-        xodr=route.xodr(),
+        xodr=route_xodr(route),
         cars=tuple(TruthCar(**c) for c in _cars(route, rng)),
         buildings=tuple(TruthBuilding(**b) for b in _buildings(route, rng)),
         look=TruthLook(kind="photographic", seed=seed),
     )
 
 
-def drive(route: Route, s: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+def drive(route: PiecewiseRoute, s: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """``(N, 4, 4)`` body poses (x forward, z up) on the driven path (route plus weave)."""
     weave = L_STREET.weave  # the demo driver's weave
     xy, _ = route.points(s, weave(s))
@@ -279,7 +198,7 @@ def render_frames(
 def lidar_points(
     args: argparse.Namespace,
     world: TruthWorld,
-    route: Route,
+    route: PiecewiseRoute,
     frame_s: npt.NDArray[np.float64],
     cams: npt.NDArray[np.float64],
     K: Any,
@@ -353,7 +272,7 @@ def main() -> int:
     args = _parser().parse_args()
 
     t0 = time.perf_counter()
-    route = Route()
+    route = PiecewiseRoute(PIECES)
     world = build_world(route, args.seed)
     out = Path(args.out)
     if out.exists():
