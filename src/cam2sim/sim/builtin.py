@@ -22,9 +22,11 @@ import pydantic
 
 from cam2sim.core.errors import StageError
 from cam2sim.sim.control import (
+    EpisodeRuleOptions,
     EventLog,
     RouteTracker,
     SpeedPid,
+    VehicleControlOptions,
     limit_wheel_angle,
     wanted_wheel_angle,
 )
@@ -52,43 +54,17 @@ _ALL_EVENTS: tuple[EventKind, ...] = (
 )
 
 
-class BuiltinOptions(pydantic.BaseModel):
-    """Settings of the builtin simulator (defaults in the field descriptions)."""
+class BuiltinOptions(VehicleControlOptions, EpisodeRuleOptions):
+    """Settings of the builtin simulator (defaults in the field descriptions).
+
+    The control and episode settings are the ones every backend shares
+    (:class:`~cam2sim.sim.control.VehicleControlOptions`,
+    :class:`~cam2sim.sim.control.EpisodeRuleOptions`).
+    """
 
     model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
 
-    dt: float = pydantic.Field(1.0 / 30.0, gt=0, description="fixed time step, s")
-    max_wheel_angle_rad: float = pydantic.Field(0.61, gt=0, description="~35 degrees")
-    max_steer_rate_rad_s: float = pydantic.Field(1.0, gt=0, description="wheel angle rate limit")
-    max_accel: float = pydantic.Field(2.5, gt=0, description="m/s^2")
-    max_decel: float = pydantic.Field(6.0, gt=0, description="braking limit, m/s^2")
-    kp: float = pydantic.Field(1.5, ge=0, description="PID gain, (m/s^2) per (m/s)")
-    ki: float = pydantic.Field(0.5, ge=0)
-    kd: float = pydantic.Field(0.0, ge=0)
-    integral_band: float = pydantic.Field(
-        0.5, gt=0, description="the integral only runs this close to the target (m/s)"
-    )
-    target_speed: float | None = pydantic.Field(
-        None, ge=0, description="initial target, m/s; None: the hero start's recorded speed"
-    )
     calibration: SteeringCalibration = SteeringCalibration()
-    offroad_margin_m: float = pydantic.Field(
-        0.3, description="how far the footprint may leave the drivable area"
-    )
-    road_lane_types: tuple[str, ...] = pydantic.Field(
-        (
-            "driving", "parking", "shoulder", "bidirectional", "entry", "exit", "onRamp",
-            "offRamp",
-        ),
-        description="lane types of the carriageway (kerb to kerb): leaving them is off-road; "
-        "a parking lane or shoulder is road surface, a sidewalk is not",
-    )  # fmt: skip
-    route_end_tolerance_m: float = pydantic.Field(3.0, ge=0)
-    route_max_lateral_m: float = pydantic.Field(
-        4.0, gt=0, description="progress only counts this close to the recorded route"
-    )
-    stuck_speed: float = pydantic.Field(0.1, ge=0, description="m/s")
-    stuck_after_s: float = pydantic.Field(5.0, gt=0)
     timeout_s: float | None = pydantic.Field(
         None, gt=0, description="None: twice the recorded duration plus 10 s"
     )

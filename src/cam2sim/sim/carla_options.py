@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Literal
 import pydantic
 
 from cam2sim.core.errors import ConfigError
+from cam2sim.sim.control import EpisodeRuleOptions, VehicleControlOptions
 from cam2sim.sim.interface import SteeringCalibration
 
 if TYPE_CHECKING:
@@ -38,8 +39,13 @@ DEFAULT_BLUEPRINTS: dict[str, tuple[str, ...]] = {
 }
 
 
-class CarlaOptions(pydantic.BaseModel):
-    """Settings of the CARLA backend (defaults in the field descriptions)."""
+class CarlaOptions(VehicleControlOptions, EpisodeRuleOptions):
+    """Settings of the CARLA backend (defaults in the field descriptions).
+
+    The control and episode settings are the ones every backend shares
+    (:class:`~cam2sim.sim.control.VehicleControlOptions`,
+    :class:`~cam2sim.sim.control.EpisodeRuleOptions`).
+    """
 
     model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
 
@@ -53,7 +59,6 @@ class CarlaOptions(pydantic.BaseModel):
     additional_width: float = pydantic.Field(0.6, ge=0, description="junction lane widening, m")
     smooth_junctions: bool = True
     enable_mesh_visibility: bool = True
-    dt: float = pydantic.Field(1.0 / 30.0, gt=0, description="fixed time step, s")
     blueprints: dict[str, tuple[str, ...]] = pydantic.Field(
         default_factory=lambda: dict(DEFAULT_BLUEPRINTS),
         description="allowed parked-vehicle blueprints per size class",
@@ -67,35 +72,13 @@ class CarlaOptions(pydantic.BaseModel):
         None, description="camera (width, height) px; None: the scenario camera's size"
     )
     image_timeout_s: float = pydantic.Field(2.0, gt=0, description="wait for a tick's images")
-    # the builtin backend's steering and speed control
-    max_wheel_angle_rad: float = pydantic.Field(0.61, gt=0, description="~35 degrees")
-    max_steer_rate_rad_s: float = pydantic.Field(1.0, gt=0, description="wheel angle rate limit")
-    max_accel: float = pydantic.Field(2.5, gt=0, description="m/s^2")
-    max_decel: float = pydantic.Field(6.0, gt=0, description="braking limit, m/s^2")
-    kp: float = pydantic.Field(1.5, ge=0, description="PID gain, (m/s^2) per (m/s)")
-    ki: float = pydantic.Field(0.5, ge=0)
-    kd: float = pydantic.Field(0.0, ge=0)
-    integral_band: float = pydantic.Field(0.5, gt=0, description="integral band, m/s")
-    target_speed: float | None = pydantic.Field(
-        None, ge=0, description="initial target, m/s; None: the hero start's recorded speed"
-    )
+    # the control and episode settings come from the shared bases (sim.control)
     calibration: SteeringCalibration | None = pydantic.Field(
         None, description="None: the scenario's steering calibration"
-    )
-    # the builtin backend's events
-    offroad_margin_m: float = pydantic.Field(
-        0.3, ge=0, description="how far the footprint may leave the road surface"
     )
     offroad_markings: tuple[str, ...] = pydantic.Field(
         ("Curb", "Grass"), description="carla.LaneMarkingType names whose crossing is off-road"
     )
-    road_lane_types: tuple[str, ...] = (
-        "driving", "parking", "shoulder", "bidirectional", "entry", "exit", "onRamp", "offRamp",
-    )  # fmt: skip
-    route_end_tolerance_m: float = pydantic.Field(3.0, ge=0)
-    route_max_lateral_m: float = pydantic.Field(4.0, gt=0)
-    stuck_speed: float = pydantic.Field(0.1, ge=0, description="m/s")
-    stuck_after_s: float = pydantic.Field(5.0, gt=0)
     episode_timeout_s: float | None = pydantic.Field(
         None, gt=0, description="None: twice the recorded duration plus 10 s"
     )

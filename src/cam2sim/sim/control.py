@@ -1,7 +1,8 @@
-"""Pieces both simulator backends share: the speed controller and route progress.
+"""Pieces both simulator backends share: settings, the speed controller and route progress.
 
-The builtin and the CARLA backend must hold speed and judge route completion identically, so
-that runs on either compare; the code lives here once.
+The builtin and the CARLA backend must steer, hold speed and judge route completion
+identically, so that runs on either compare; the settings (:class:`VehicleControlOptions`,
+:class:`EpisodeRuleOptions`, which both backends' options extend) and the code live here once.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
+import pydantic
 
 from cam2sim.core.errors import ConfigError
 from cam2sim.sim.interface import SimEvent
@@ -21,17 +23,64 @@ if TYPE_CHECKING:
     from cam2sim.sim.interface import Control, EventKind, SteeringCalibration
 
 __all__ = [
+    "EpisodeRuleOptions",
     "EpisodeRules",
     "EventLog",
     "RouteTracker",
     "SpeedGains",
     "SpeedPid",
+    "VehicleControlOptions",
     "limit_wheel_angle",
     "wanted_wheel_angle",
 ]
 
 _PROJECT_BACK = 4  # route segments searched behind the last foot point
 _PROJECT_AHEAD = 40  # and ahead of it
+
+
+class VehicleControlOptions(pydantic.BaseModel):
+    """How the hero turns a control into motion, the same on every backend."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+    dt: float = pydantic.Field(1.0 / 30.0, gt=0, description="fixed time step, s")
+    max_wheel_angle_rad: float = pydantic.Field(0.61, gt=0, description="~35 degrees")
+    max_steer_rate_rad_s: float = pydantic.Field(1.0, gt=0, description="wheel angle rate limit")
+    max_accel: float = pydantic.Field(2.5, gt=0, description="m/s^2")
+    max_decel: float = pydantic.Field(6.0, gt=0, description="braking limit, m/s^2")
+    kp: float = pydantic.Field(1.5, ge=0, description="PID gain, (m/s^2) per (m/s)")
+    ki: float = pydantic.Field(0.5, ge=0)
+    kd: float = pydantic.Field(0.0, ge=0)
+    integral_band: float = pydantic.Field(
+        0.5, gt=0, description="the integral only runs this close to the target (m/s)"
+    )
+    target_speed: float | None = pydantic.Field(
+        None, ge=0, description="initial target, m/s; None: the hero start's recorded speed"
+    )
+
+
+class EpisodeRuleOptions(pydantic.BaseModel):
+    """When a run leaves the road, completes the route or is stuck, the same on every backend."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+    offroad_margin_m: float = pydantic.Field(
+        0.3, description="how far the footprint may leave the drivable area"
+    )
+    road_lane_types: tuple[str, ...] = pydantic.Field(
+        (
+            "driving", "parking", "shoulder", "bidirectional", "entry", "exit", "onRamp",
+            "offRamp",
+        ),
+        description="lane types of the carriageway (kerb to kerb): leaving them is off-road; "
+        "a parking lane or shoulder is road surface, a sidewalk is not",
+    )  # fmt: skip
+    route_end_tolerance_m: float = pydantic.Field(3.0, ge=0)
+    route_max_lateral_m: float = pydantic.Field(
+        4.0, gt=0, description="progress only counts this close to the recorded route"
+    )
+    stuck_speed: float = pydantic.Field(0.1, ge=0, description="m/s")
+    stuck_after_s: float = pydantic.Field(5.0, gt=0)
 
 
 class SpeedGains(Protocol):
