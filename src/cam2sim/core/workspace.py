@@ -279,6 +279,52 @@ class Workspace:
         return self.root / "report"
 
 
+def run_paths(run_dir: Path) -> RunPaths:
+    """Return the artifact paths inside one run folder (``WS/runs/<id>/``, or one being built)."""
+    return RunPaths(Path(run_dir))
+
+
+class RunPaths:
+    """Paths of one replay or drive run's artifacts, relative to its folder."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+
+    @property
+    def trajectory_csv(self) -> Path:
+        """``t, x, y, z, heading, speed, steering, wheel_angle`` of every simulator step."""
+        return self.root / "trajectory.csv"
+
+    @property
+    def steering_csv(self) -> Path:
+        """The policy's decisions ``t, value``."""
+        return self.root / "steering.csv"
+
+    @property
+    def events_json(self) -> Path:
+        """What happened during the run (collisions, off-road, route completed, ...)."""
+        return self.root / "events.json"
+
+    @property
+    def run_json(self) -> Path:
+        """What was run: method, camera, policy, seed, options, variation, outcome."""
+        return self.root / "run.json"
+
+    def frames_dir(self, camera: str) -> Path:
+        """Saved frames of ``camera`` (on request)."""
+        return self.root / "frames" / camera
+
+    @property
+    def side_by_side_dir(self) -> Path:
+        """Saved side-by-side images of every camera (on request)."""
+        return self.root / "side_by_side"
+
+    @property
+    def video(self) -> Path:
+        """The side-by-side video (on request)."""
+        return self.root / "video.mp4"
+
+
 def dataset_paths(dataset_dir: Path) -> DatasetPaths:
     """Return the artifact paths inside a dataset folder (also a temporary one being built)."""
     return DatasetPaths(Path(dataset_dir))

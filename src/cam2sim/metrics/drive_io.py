@@ -31,6 +31,7 @@ import numpy.typing as npt
 
 from cam2sim.core.errors import WorkspaceError
 from cam2sim.core.files import read_json
+from cam2sim.core.workspace import run_paths
 
 if TYPE_CHECKING:
     from cam2sim.core import frames
@@ -168,18 +169,19 @@ def load_real_drive(path: Path, *, crs: str = "EPSG:32632", method: str = "real"
 def load_run_dir(path: Path, *, method: str | None = None) -> DriveRun:
     """Load one of our run folders (``WS/runs/<id>/``)."""
     path = Path(path)
+    files = run_paths(path)
     meta: dict[str, Any] = {}
     fix = "delete the run folder and drive again"
-    if (path / "run.json").is_file():
-        meta = read_json(path / "run.json", fix=fix)
-    cols = _read_csv_columns(path / "trajectory.csv")
+    if files.run_json.is_file():
+        meta = read_json(files.run_json, fix=fix)
+    cols = _read_csv_columns(files.trajectory_csv)
     steer_t = steer = np.zeros(0)
-    if (path / "steering.csv").is_file():
-        sc = _read_csv_columns(path / "steering.csv")
+    if files.steering_csv.is_file():
+        sc = _read_csv_columns(files.steering_csv)
         steer_t, steer = sc["t"], sc["value"]
     events: list[RunEvent] = []
-    if (path / "events.json").is_file():
-        raw = read_json(path / "events.json", fix=fix)
+    if files.events_json.is_file():
+        raw = read_json(files.events_json, fix=fix)
         items = raw.get("events", raw) if isinstance(raw, dict) else raw
         events = [
             RunEvent(kind=str(e["kind"]), t=float(e.get("t", 0.0)), reason=str(e.get("reason", "")))
@@ -310,11 +312,11 @@ def load_runs(
         if real:
             files = sorted(p.glob("trajectory*.csv")) if p.is_dir() else [p]
             runs += [load_real_drive(f, crs=crs) for f in files]
-        elif p.is_dir() and (p / "trajectory.csv").is_file():
+        elif p.is_dir() and run_paths(p).trajectory_csv.is_file():
             runs.append(load_run_dir(p))
         elif p.is_dir():
             for sub in sorted(p.iterdir()):
-                if (sub / "trajectory.csv").is_file():
+                if run_paths(sub).trajectory_csv.is_file():
                     runs.append(load_run_dir(sub))
             for f in sorted(p.glob("*_trajectory.json")):
                 runs.append(_legacy(f, xodr))

@@ -29,8 +29,9 @@ import numpy as np
 
 from cam2sim import __version__
 from cam2sim.core.errors import Cam2SimError
-from cam2sim.core.files import write_text_atomic
+from cam2sim.core.files import read_json, write_text_atomic
 from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.workspace import run_paths
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Sequence
@@ -141,10 +142,10 @@ def _gather(ctx: _Context) -> None:
         except Cam2SimError as err:
             ctx.warnings.append(f"scenario.json unreadable: {err}")
     for run in iter_runs(ctx.ws):
-        if not (run / "trajectory.csv").is_file():
+        if not run_paths(run).trajectory_csv.is_file():
             continue
         try:
-            meta = json.loads((run / "run.json").read_text(encoding="utf-8"))
+            meta = read_json(run_paths(run).run_json, fix="delete the run folder and drive again")
             ctx.drives[run.name] = load_run_dir(run)
         except (OSError, ValueError, Cam2SimError) as err:
             ctx.warnings.append(f"run {run.name} unreadable: {err}")
@@ -374,7 +375,7 @@ def _runs(ctx: _Context, tmp: Path) -> str:
     rows = []
     for run in ctx.runs:
         meta = ctx.meta[run.name]
-        events = json.loads((run / "events.json").read_text(encoding="utf-8")).get("events", [])
+        events = read_json(run_paths(run).events_json, fix="drive again").get("events", [])
         kinds = ", ".join(str(e.get("kind")) for e in events) or "-"
         drv = ctx.drives[run.name]
         m = per_run.get(drv.name)
@@ -433,8 +434,8 @@ def _jpeg(path: Path, width: int) -> bytes:
 
 
 def _frame_folder(run: Path) -> Path | None:
-    if any((run / "side_by_side").glob("*.png")):
-        return run / "side_by_side"
+    if any(run_paths(run).side_by_side_dir.glob("*.png")):
+        return run_paths(run).side_by_side_dir
     for folder in sorted((run / "frames").glob("*")):
         if any(folder.glob("*.png")):
             return folder
@@ -468,8 +469,8 @@ def _frames(ctx: _Context) -> str:
         if clip is not None and len(clip) <= VIDEO_CAP_BYTES:
             src = _data_uri(clip, "video/webm")
             parts.append(f'<video controls muted loop width="640" src="{src}"></video>')
-        elif (run / "video.mp4").is_file():
-            parts.append(f'<p class="note">the run\'s video: {_e(str(run / "video.mp4"))}</p>')
+        elif run_paths(run).video.is_file():
+            parts.append(f'<p class="note">the run\'s video: {_e(str(run_paths(run).video))}</p>')
     return "".join(parts)
 
 

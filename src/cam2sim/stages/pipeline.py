@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, Final, Literal
 from cam2sim.core.errors import Cam2SimError, ConfigError, StageError
 from cam2sim.core.files import write_text_atomic
 from cam2sim.core.progress import ProgressCallback, no_progress
-from cam2sim.core.workspace import hash_inputs
+from cam2sim.core.workspace import hash_inputs, run_paths
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -316,7 +316,8 @@ class _Pipeline:
         if not isinstance(entry, dict) or entry.get("inputs") != inputs:
             return None
         runs = [str(r) for r in entry.get("runs", [])]
-        if not runs or not all((self.ws.runs_dir / r / "trajectory.csv").is_file() for r in runs):
+        done = (run_paths(self.ws.runs_dir / r).trajectory_csv.is_file() for r in runs)
+        if not runs or not all(done):
             return None
         return runs
 

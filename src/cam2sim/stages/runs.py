@@ -34,6 +34,7 @@ import numpy as np
 from cam2sim.core.errors import Cam2SimError, ConfigError, StageError
 from cam2sim.core.files import write_text_atomic
 from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.workspace import run_paths
 from cam2sim.stages.cameras import (
     TRUTH_CAMERA,
     CameraName,
@@ -229,14 +230,16 @@ def _write_tables(
 ) -> None:
     from cam2sim.core.table import write_table  # noqa: PLC0415
 
-    write_table(folder / "trajectory.csv", {k: np.asarray(v) for k, v in rows.items()})
+    files = run_paths(folder)
+    write_table(files.trajectory_csv, {k: np.asarray(v) for k, v in rows.items()})
     arr = np.asarray(decisions, dtype=np.float64).reshape(-1, 2)
-    write_table(folder / "steering.csv", {"t": arr[:, 0], "value": arr[:, 1]})
+    write_table(files.steering_csv, {"t": arr[:, 0], "value": arr[:, 1]})
 
 
 def _write_meta(folder: Path, meta: dict[str, Any], events: list[dict[str, Any]]) -> None:
-    write_text_atomic(folder / "events.json", json.dumps({"events": events}, indent=1) + "\n")
-    write_text_atomic(folder / "run.json", json.dumps(meta, indent=1, default=str) + "\n")
+    files = run_paths(folder)
+    write_text_atomic(files.events_json, json.dumps({"events": events}, indent=1) + "\n")
+    write_text_atomic(files.run_json, json.dumps(meta, indent=1, default=str) + "\n")
 
 
 # -- replay --------------------------------------------------------------------------------------
@@ -348,7 +351,7 @@ def _replay_frames(
     poses = {name: camera_poses(ctx.scenario, ref[:, :2], heading, z_of[name]) for name in z_of}
     t = np.asarray(tr.t, dtype=np.float64)[idx]
     fps = 1.0 / max(float(np.median(np.diff(t))), 1e-3) if len(t) > 1 else 10.0
-    video = _Video(folder / "video.mp4", fps) if opts.video else None
+    video = _Video(run_paths(folder).video, fps) if opts.video else None
     real_frame = _real_frames(ctx.ws)
     try:
         for k, i in enumerate(idx.tolist()):
@@ -361,8 +364,8 @@ def _replay_frames(
             sbs = side_by_side(([real] if real is not None else []) + views)
             if opts.save_frames:
                 for name, im in zip(names, views, strict=True):
-                    write_png(folder / "frames" / name / f"{tr.frame[i]:06d}.png", im)
-                write_png(folder / "side_by_side" / f"{tr.frame[i]:06d}.png", sbs)
+                    write_png(run_paths(folder).frames_dir(name) / f"{tr.frame[i]:06d}.png", im)
+                write_png(run_paths(folder).side_by_side_dir / f"{tr.frame[i]:06d}.png", sbs)
             if video is not None:
                 video.add(sbs)
             report("replay frames", k + 1, int(idx.size))
@@ -532,7 +535,8 @@ def _drive_loop(  # noqa: PLR0913, PLR0915, PLR0917 - one run: setup, step loop,
         k: [] for k in ("t", "x", "y", "z", "heading", "speed", "steering", "wheel_angle")
     }
     decisions: list[tuple[float, float]] = []
-    video = _Video(tmp / "video.mp4", 1.0 / sim_opts.dt / opts.policy_every) if opts.video else None
+    fps = 1.0 / sim_opts.dt / opts.policy_every
+    video = _Video(run_paths(tmp).video, fps) if opts.video else None
     ref_xyz = sc.vehicle.reference_xyz
     command = 0.0
     render_s = policy_s = 0.0
@@ -552,9 +556,8 @@ def _drive_loop(  # noqa: PLR0913, PLR0915, PLR0917 - one run: setup, step loop,
                         else _vehicle_view(sc, state, cameras, cam_name, (K, w, h), coverage)
                     )
                     render_s += time.perf_counter() - t0
-                    _keep_frame(
-                        image, tmp / "frames" / cam_name, steps - 1, opts.save_frames, video
-                    )
+                    where = run_paths(tmp).frames_dir(cam_name)
+                    _keep_frame(image, where, steps - 1, opts.save_frames, video)
                 t0 = time.perf_counter()
                 try:
                     command = float(
