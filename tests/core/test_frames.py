@@ -704,3 +704,15 @@ def test_carla_positive_roll_puts_the_right_side_down() -> None:
     right_world = quat_rotate(pose.quat, [0.0, -1.0, 0.0])
     assert right_world[2] < -0.1
     assert float(euler_from_quat(pose.quat).roll) == pytest.approx(math.radians(10.0))
+
+
+def test_camera_poses_compose_body_and_mount() -> None:
+    from cam2sim.core.frames import camera_poses, quat_from_yaw
+
+    mount_t = np.array([1.6, 0.0, 1.4])
+    optical = np.array([-0.5, 0.5, -0.5, 0.5])  # optical axes (z forward) in the body frame
+    T = camera_poses([[10.0, 5.0, 0.0]], quat_from_yaw([np.pi / 2])[None], mount_t, optical)
+    # The car faces north (+y): the camera sits 1.6 m ahead of it and looks north.
+    np.testing.assert_allclose(T[0, :3, 3], [10.0, 6.6, 1.4], atol=1e-12)
+    np.testing.assert_allclose(T[0, :3, 2], [0.0, 1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(T[0, :3, 0], [1.0, 0.0, 0.0], atol=1e-12)  # image right = east

@@ -138,7 +138,7 @@ def chunk_membership(chunks: list[ChunkRecord]) -> dict[int, list[int]]:
 def camera_poses(
     position: npt.ArrayLike, quat: npt.ArrayLike, mount: MountRecord
 ) -> npt.NDArray[np.float64]:
-    """Camera poses ``T_world_cam = T_world_body o T_body_camera``.
+    """Camera poses of body poses with a dataset's mount (:func:`cam2sim.core.frames.camera_poses`).
 
     Args:
         position: ``(N, 3)`` body positions, world metres.
@@ -148,13 +148,7 @@ def camera_poses(
     Returns:
         ``(N, 4, 4)`` float64, camera (optical) -> world.
     """
-    pos = np.asarray(position, dtype=np.float64).reshape(-1, 3)
-    q = fr.quat_normalize(np.asarray(quat, dtype=np.float64).reshape(-1, 4))
-    T_body_cam = fr.Pose(np.asarray(mount.translation_m), np.asarray(mount.quat_xyzw)).as_matrix()
-    T_world_body = np.tile(np.eye(4), (pos.shape[0], 1, 1))
-    T_world_body[:, :3, :3] = fr.quat_to_matrix(q)
-    T_world_body[:, :3, 3] = pos
-    return T_world_body @ T_body_cam
+    return fr.camera_poses(position, quat, mount.translation_m, mount.quat_xyzw)
 
 
 def voxel_downsample(

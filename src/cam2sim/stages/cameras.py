@@ -99,18 +99,19 @@ def camera_poses(
     scenario: Scenario, reference_xy: npt.NDArray[np.float64], heading: npt.NDArray[np.float64],
     reference_z: npt.NDArray[np.float64],
 ) -> npt.NDArray[np.float64]:  # fmt: skip
-    """``(N, 4, 4)`` camera (optical) -> world from reference-point poses and the mount."""
+    """``(N, 4, 4)`` camera (optical) -> world of planar reference-point poses and the mount.
+
+    The car is level (no roll or pitch) at each ``(x, y, z)`` with its ``heading``;
+    :func:`cam2sim.core.frames.camera_poses` composes it with the scenario's camera mount.
+    """
     from cam2sim.core import frames as fr  # noqa: PLC0415
 
     mount = scenario.camera_mount
-    T_ref_cam = fr.Pose(np.asarray(mount.translation_m), np.asarray(mount.quat_xyzw)).as_matrix()
-    n = reference_xy.shape[0]
-    T = np.tile(np.eye(4), (n, 1, 1))
-    c, s = np.cos(heading), np.sin(heading)
-    T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = c, -s, s, c
-    T[:, 0, 3], T[:, 1, 3], T[:, 2, 3] = reference_xy[:, 0], reference_xy[:, 1], reference_z
-    out: npt.NDArray[np.float64] = T @ T_ref_cam
-    return out
+    xy = np.asarray(reference_xy, dtype=np.float64).reshape(-1, 2)
+    z = np.broadcast_to(np.asarray(reference_z, dtype=np.float64), (xy.shape[0],))
+    position = np.column_stack([xy, z])
+    quat = fr.quat_from_yaw(np.asarray(heading, dtype=np.float64).reshape(-1))
+    return fr.camera_poses(position, quat, mount.translation_m, mount.quat_xyzw)
 
 
 def ground_height_at(scenario: Scenario, xy: npt.NDArray[np.float64]) -> float:

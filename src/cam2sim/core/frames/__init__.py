@@ -28,6 +28,7 @@ from cam2sim.core.frames.carla import (
 from cam2sim.core.frames.pose import (
     Pose,
     PoseSamples,
+    camera_poses,
     interpolate_poses,
 )
 from cam2sim.core.frames.projection import (
@@ -64,6 +65,7 @@ __all__ = [
     "Wgs84Points",
     "WorldFrame",
     "angle_difference",
+    "camera_poses",
     "carla_to_world",
     "carla_yaw_deg_to_heading",
     "circular_mean",

@@ -26,6 +26,7 @@ if TYPE_CHECKING:
 __all__ = [
     "Pose",
     "PoseSamples",
+    "camera_poses",
     "interpolate_poses",
 ]
 
@@ -229,3 +230,30 @@ class Pose:
     def heading(self) -> float:
         """Yaw of the body x axis in the parent frame, radians CCW from +x."""
         return float(yaw_from_quat(self.quat))
+
+
+def camera_poses(
+    position: npt.ArrayLike,
+    quat: npt.ArrayLike,
+    mount_translation: npt.ArrayLike,
+    mount_quat: npt.ArrayLike,
+) -> npt.NDArray[np.float64]:
+    """Camera poses ``T_world_cam = T_world_body o T_body_camera``: the one place this is done.
+
+    Args:
+        position: ``(N, 3)`` body positions, world metres.
+        quat: ``(N, 4)`` body orientations ``(x, y, z, w)``, body -> world.
+        mount_translation: ``(3,)`` camera position in the body frame, metres.
+        mount_quat: ``(4,)`` camera orientation ``(x, y, z, w)``, camera -> body.
+
+    Returns:
+        ``(N, 4, 4)`` float64, camera -> world.
+    """
+    pos = np.asarray(position, dtype=np.float64).reshape(-1, 3)
+    q = quat_normalize(np.asarray(quat, dtype=np.float64).reshape(-1, 4))
+    T_body_cam = Pose(np.asarray(mount_translation), np.asarray(mount_quat)).as_matrix()
+    T_world_body = np.tile(np.eye(4), (pos.shape[0], 1, 1))
+    T_world_body[:, :3, :3] = quat_to_matrix(q)
+    T_world_body[:, :3, 3] = pos
+    out: npt.NDArray[np.float64] = T_world_body @ T_body_cam
+    return out
