@@ -4,18 +4,24 @@ Shared by replay and drive (:mod:`cam2sim.stages.runs`) and by the reconstructio
 (:mod:`cam2sim.stages.reconstruction`). A camera is ``raster`` (the simulator's style),
 ``splat`` (the Gaussian splats), ``truth`` (the ground-truth world, ``WS/truth/world.json``),
 ``carla`` (rendered by a CARLA server through the simulator) or ``none``.
+
+Every renderer satisfies :class:`CameraRenderer`; :func:`register_camera` names a factory that
+opens one for a run's workspace (as rosbags registers its storage plugins), and
+:class:`Cameras` opens the named ones. The built-in cameras are registered below; another
+renderer plugs in with ``register_camera("mine", lambda ctx: MyRenderer(ctx.ws))``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Final, Literal, Self
+from typing import TYPE_CHECKING, Any, Final, Literal, Protocol, Self
 
 import numpy as np
 
 from cam2sim.core.errors import StageError
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
     from pathlib import Path
 
     import numpy.typing as npt
@@ -27,11 +33,14 @@ if TYPE_CHECKING:
 __all__ = [
     "TRUTH_CAMERA",
     "CameraName",
+    "CameraRenderer",
     "Cameras",
     "RunContext",
+    "camera_names",
     "camera_poses",
     "ground_height_at",
     "load_run_context",
+    "register_camera",
     "scaled_intrinsics",
     "write_png",
 ]
@@ -125,36 +134,104 @@ def ground_height_at(scenario: Scenario, xy: npt.NDArray[np.float64]) -> float:
     return float(ref[i, 2] - scenario.vehicle.reference_xyz[2])
 
 
+class RenderedFrame(Protocol):
+    """What a renderer returns: at least the RGB image."""
+
+    @property
+    def rgb(self) -> npt.NDArray[np.uint8]:
+        """``(H, W, 3)`` uint8."""
+        ...
+
+
+class CameraRenderer(Protocol):
+    """A camera of runs: renders world-frame camera poses; closed once at the end."""
+
+    def render(
+        self, T: npt.NDArray[np.float64], K: npt.NDArray[np.float64], w: int, h: int
+    ) -> RenderedFrame:
+        """The view from ``T`` (camera -> world, optical axes) with intrinsics ``K``."""
+        ...
+
+    def close(self) -> None:
+        """Release the renderer's resources."""
+        ...
+
+
+_CAMERAS: dict[str, Callable[[RunContext], CameraRenderer | None]] = {}
+
+
+def register_camera(name: str, factory: Callable[[RunContext], CameraRenderer | None]) -> None:
+    """Make camera ``name`` available to runs: ``factory(ctx)`` opens its renderer.
+
+    A factory returning None names a camera that another part renders (``carla``: the
+    simulator's own sensor). Registering a name again replaces its factory.
+    """
+    _CAMERAS[name] = factory
+
+
+def camera_names() -> tuple[str, ...]:
+    """The registered camera names, sorted."""
+    return tuple(sorted(_CAMERAS))
+
+
+def _raster(ctx: RunContext) -> CameraRenderer:
+    from cam2sim.render.meshes import BuildingFootprint  # noqa: PLC0415
+    from cam2sim.render.raster import RasterRenderer, RasterScene  # noqa: PLC0415
+    from cam2sim.stages.map import load_buildings  # noqa: PLC0415
+
+    buildings = [BuildingFootprint(b.xy, b.height_m) for b in load_buildings(ctx.ws)]
+    return RasterRenderer(RasterScene(ctx.road_map, ctx.scenario.parked, buildings))
+
+
+def _truth(ctx: RunContext) -> CameraRenderer:
+    """The ground-truth world (``WS/truth/world.json``)."""
+    from cam2sim.render.truth import TruthRenderer  # noqa: PLC0415
+
+    return TruthRenderer.open(ctx.ws.root, ctx.scenario.world.proj_string)
+
+
+def _splat(ctx: RunContext) -> CameraRenderer:
+    from cam2sim.splat.render import SplatRenderer  # noqa: PLC0415
+
+    models = ctx.ws.splat_dir / "models"
+    if not models.is_dir():
+        msg = f"{ctx.ws.root} has no splat models; run `cam2sim splat {ctx.ws.root}`"
+        raise StageError(msg)
+    return SplatRenderer(models)
+
+
+register_camera("raster", _raster)
+register_camera(TRUTH_CAMERA, _truth)
+register_camera("splat", _splat)
+register_camera("carla", lambda _ctx: None)  # rendered by the CARLA server through the simulator
+
+
 class Cameras:
     """The run's renderers by name, opened once and closed at the end."""
 
-    def __init__(self, ctx: RunContext, names: tuple[CameraName, ...]) -> None:
+    def __init__(self, ctx: RunContext, names: tuple[str, ...]) -> None:
+        """Open the renderers of ``names``.
+
+        Raises:
+            StageError: A name no camera is registered under (the message lists them), or a
+                renderer that cannot open (its own message).
+        """
         self.renderers: dict[str, Any] = {}
         self.carla: Any = None  # a CarlaSimulator whose hero is teleported (replay)
-        for name in names:
-            if name == "raster":
-                from cam2sim.render.meshes import BuildingFootprint  # noqa: PLC0415
-                from cam2sim.render.raster import RasterRenderer, RasterScene  # noqa: PLC0415
-                from cam2sim.stages.map import load_buildings  # noqa: PLC0415
-
-                buildings = [BuildingFootprint(b.xy, b.height_m) for b in load_buildings(ctx.ws)]
-                scene = RasterScene(ctx.road_map, ctx.scenario.parked, buildings)
-                self.renderers[name] = RasterRenderer(scene)
-            elif name == TRUTH_CAMERA:  # the ground-truth world (WS/truth/world.json)
-                from cam2sim.render.truth import TruthRenderer  # noqa: PLC0415
-
-                proj = ctx.scenario.world.proj_string
-                self.renderers[name] = TruthRenderer.open(ctx.ws.root, proj)
-            elif name == "carla":
-                continue  # rendered by the CARLA server through the simulator
-            elif name == "splat":
-                from cam2sim.splat.render import SplatRenderer  # noqa: PLC0415
-
-                models = ctx.ws.splat_dir / "models"
-                if not models.is_dir():
-                    msg = f"{ctx.ws.root} has no splat models; run `cam2sim splat {ctx.ws.root}`"
-                    raise StageError(msg)
-                self.renderers[name] = SplatRenderer(models)
+        unknown = [n for n in names if n not in _CAMERAS and n != "none"]
+        if unknown:
+            msg = f"no camera {', '.join(unknown)}; the cameras are {', '.join(camera_names())}"
+            raise StageError(msg)
+        try:
+            for name in names:
+                if name == "none":
+                    continue
+                renderer = _CAMERAS[name](ctx)
+                if renderer is not None:
+                    self.renderers[name] = renderer
+        except BaseException:
+            self.close()
+            raise
 
     def render(
         self, name: str, T: npt.NDArray[np.float64], K: npt.NDArray[np.float64], w: int, h: int
