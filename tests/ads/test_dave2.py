@@ -271,6 +271,7 @@ def test_cli_train_export_and_serve_errors(tmp_path: Path) -> None:
     out = runner.invoke(app, ["ads", "train", str(ws.root), "--epochs", "2", "--no-augment"])
     assert out.exit_code == 0, out.output
     assert "validation RMSE" in " ".join(out.output.split())
+    assert "no recovery views" in " ".join(out.output.split())
     out = runner.invoke(app, ["ads", "export", str(ws.root), "--onnx"])
     assert out.exit_code == 0, out.output
     assert (ws.ads_dir / "dave2.onnx").is_file()
@@ -308,3 +309,12 @@ def test_recovery_views_from_the_workspace_calibration(tmp_path: Path) -> None:
     assert report["recovery"]["max_lateral_m"] == options.recovery_m
     assert report["recovery"]["camera_height_m"] == pytest.approx(1.3)
     assert report["shift_steering_per_px"] == 0.0
+    # From the CLI, with another displacement.
+    from typer.testing import CliRunner
+
+    from cam2sim.cli.main import app
+
+    args = ["ads", "train", str(ws.root), "--epochs", "1", "--recovery-m", "0.4", "--force"]
+    out = CliRunner().invoke(app, args)
+    assert out.exit_code == 0, out.output
+    assert "recovery views up to 0.4 m / 4 deg" in " ".join(out.output.split())

@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.markup import escape
 
 from cam2sim.cli.display import console, error_console, progress_bars
 from cam2sim.core.errors import Cam2SimError
+
+if TYPE_CHECKING:
+    from cam2sim.ads.train import RecoveryRecord
 
 __all__ = ["ads_app"]
 
@@ -35,6 +38,20 @@ def train(
     epochs: Annotated[int, typer.Option(min=1, help="Most training epochs.")] = 30,
     batch_size: Annotated[int, typer.Option("--batch-size", min=1)] = 64,
     augment: Annotated[bool, typer.Option("--augment/--no-augment")] = True,
+    recovery_m: Annotated[
+        float,
+        typer.Option(
+            "--recovery-m",
+            min=0.0,
+            help=(
+                "Largest sideways displacement of the recovery views (frames re-projected "
+                "beside the recorded path, labelled to steer back), metres; 0 turns them off."
+            ),
+        ),
+    ] = 0.6,
+    recovery_deg: Annotated[
+        float, typer.Option("--recovery-deg", min=0.0, help="Largest turn of the recovery views.")
+    ] = 4.0,
     seed: Annotated[int, typer.Option()] = 0,
     force: Annotated[bool, typer.Option(help="Train again even if up to date.")] = False,
 ) -> None:
@@ -47,7 +64,13 @@ def train(
     from cam2sim.stages.ads import train_ads  # noqa: PLC0415
 
     opts = TrainOptions(
-        signal=signal, epochs=epochs, batch_size=batch_size, augment=augment, seed=seed
+        signal=signal,
+        epochs=epochs,
+        batch_size=batch_size,
+        augment=augment,
+        recovery_m=recovery_m,
+        recovery_deg=recovery_deg,
+        seed=seed,
     )
     try:
         ws = Workspace.open(workspace)
@@ -64,8 +87,18 @@ def train(
         f"{result.model}: {rep.train_frames} training / {rep.val_frames} validation frames, "
         f"best epoch {rep.best_epoch}; validation RMSE {rep.val_rmse:.4f} (baseline "
         f"{rep.baseline_mse**0.5:.4f}), MAE {rep.val_mae:.4f}, correlation {corr}; "
-        f"report {result.figure}",
+        f"{_recovery_line(rep.recovery)}; report {result.figure}",
         highlight=False,
+    )
+
+
+def _recovery_line(r: RecoveryRecord | None) -> str:
+    """How the recovery views were made, or why there were none."""
+    if r is None:
+        return "no recovery views (no camera geometry, or turned off): horizontal shifts"
+    return (
+        f"recovery views up to {r.max_lateral_m:g} m / {r.max_yaw_deg:g} deg "
+        f"(camera {r.camera_height_m:.2f} m high, look-ahead {r.lookahead_m:g} m)"
     )
 
 
