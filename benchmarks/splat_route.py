@@ -44,10 +44,16 @@ import numpy as np
 
 from cam2sim.core.frames import Pose
 from cam2sim.demo.route import PiecewiseRoute
-from cam2sim.demo.world import CRS, L_STREET, ORIGIN_UTM, footprint_ring
+from cam2sim.demo.world import (
+    CRS,
+    L_STREET,
+    ORIGIN_UTM,
+    DemoStreet,
+    footprint_ring,
+    street_xodr,
+)
 from cam2sim.detect.synthetic import LidarModel, scan_scene
 from cam2sim.render.truth import TruthBuilding, TruthCar, TruthLook, TruthRenderer, TruthWorld
-from cam2sim.scenario.synthetic import lane_section_xml
 from cam2sim.splat.geometry import chunk_membership, chunks_by_distance, voxel_downsample
 from cam2sim.splat.masks import sky_mask_classical
 from cam2sim.splat.prepare import colour_from_view
@@ -80,16 +86,11 @@ HELD_OUT_EVERY = 8
 
 def route_xodr(route: PiecewiseRoute) -> str:
     """OpenDRIVE text; the reference line runs between the driving lanes (half a lane left)."""
-    geometry, total = route.offset_plan_view(LANE_M / 2.0, LEAD_M)
-    return f"""<?xml version="1.0"?>
-<OpenDRIVE><header revMajor="1" revMinor="4"/>
-  <road name="Routenstraße" length="{total!r}" id="1" junction="-1">
-    <planView>{geometry}</planView>
-    <lanes><laneSection s="0">{lane_section_xml(LANE_M, PARKING_M, SIDEWALK_M)}
-    </laneSection></lanes>
-  </road>
-</OpenDRIVE>
-"""
+    street = DemoStreet(
+        name="route400", title="the 400 m route", route=route, lane_m=LANE_M,
+        parking_m=PARKING_M, sidewalk_m=SIDEWALK_M, lead_m=LEAD_M,
+    )  # fmt: skip
+    return street_xodr(street, "Routenstraße")
 
 
 def _cars(route: PiecewiseRoute, rng: np.random.Generator) -> list[dict[str, Any]]:

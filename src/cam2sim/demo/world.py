@@ -78,6 +78,7 @@ __all__ = [
     "load_demo_recording",
     "photographic_look",
     "recorded_street",
+    "street_xodr",
 ]
 
 CRS: Final = "EPSG:32632"
@@ -339,18 +340,7 @@ class DemoWorld:
 
     def xodr(self) -> str:
         """The street as OpenDRIVE 1.4 text (reference line between the driving lanes)."""
-        st = self.street
-        geometry, total = st.route.offset_plan_view(st.lane_m / 2.0, st.lead_m)
-        lanes = lane_section_xml(st.lane_m, st.parking_m, st.sidewalk_m)
-        return f"""<?xml version="1.0"?>
-<OpenDRIVE><header revMajor="1" revMinor="4"/>
-  <road name="Demostraße" length="{total!r}" id="1" junction="-1">
-    <planView>{geometry}</planView>
-    <lanes><laneSection s="0">{lanes}
-    </laneSection></lanes>
-  </road>
-</OpenDRIVE>
-"""
+        return street_xodr(self.street)
 
     def osm_xml(self) -> str:
         """The street and buildings as OSM XML (WGS84 nodes)."""
@@ -429,6 +419,25 @@ class DemoWorld:
     def raster_scene(self) -> RasterScene:
         """The scene the camera renders (the raster renderer's meshes)."""
         return self.truth_world().raster_scene()
+
+
+def street_xodr(street: DemoStreet, name: str = "Demostraße") -> str:
+    """``street`` as OpenDRIVE 1.4 text, one road named ``name``.
+
+    The reference line runs between the driving lanes (half a lane left of the route), from
+    ``lead_m`` before the route to ``lead_m`` past it.
+    """
+    geometry, total = street.route.offset_plan_view(street.lane_m / 2.0, street.lead_m)
+    lanes = lane_section_xml(street.lane_m, street.parking_m, street.sidewalk_m)
+    return f"""<?xml version="1.0"?>
+<OpenDRIVE><header revMajor="1" revMinor="4"/>
+  <road name="{name}" length="{total!r}" id="1" junction="-1">
+    <planView>{geometry}</planView>
+    <lanes><laneSection s="0">{lanes}
+    </laneSection></lanes>
+  </road>
+</OpenDRIVE>
+"""
 
 
 def _straights(street: DemoStreet, margin_m: float) -> list[tuple[float, float]]:
