@@ -26,12 +26,12 @@ from pathlib import Path
 from typing import Any
 
 from cam2sim.ads.export import export_onnx
-from cam2sim.ads.train import TrainOptions, assemble, train_dave2
+from cam2sim.ads.train import TrainOptions
 from cam2sim.cli.demo_cmd import DEMO_STEERING_NOISE
-from cam2sim.core.workspace import Workspace, dataset_paths
+from cam2sim.core.workspace import Workspace
 from cam2sim.scenario.model import Scenario
 from cam2sim.sim.builtin import BuiltinOptions
-from cam2sim.stages.ads import _dataset, recovery_geometry
+from cam2sim.stages.ads import train_model
 from cam2sim.stages.pipeline import evaluate_workspace_drives
 from cam2sim.stages.runs import DriveOptions, drive
 from cam2sim.stages.variation import DEMO_RUN_VARIATION
@@ -40,8 +40,7 @@ from cam2sim.stages.variation import DEMO_RUN_VARIATION
 def _train(ws: Workspace, seed: int, out: Path) -> dict[str, Any]:
     opts = TrainOptions(epochs=30, batch_size=32, keep="last", device="cpu", seed=seed)
     started = time.perf_counter()
-    data = assemble(dataset_paths(ws.dataset_dir), _dataset(ws).frame_format, opts)
-    trained = train_dave2(data, opts, geometry=recovery_geometry(ws))
+    trained = train_model(ws, opts)
     export_onnx(trained.model, trained.info.config, out)
     rep = trained.report
     return {

@@ -133,6 +133,11 @@ class TrainOptions:
     device: str | None = None
     workers: int = 2
 
+    @property
+    def uses_recovery(self) -> bool:
+        """Whether batches get recovery views (when the camera geometry is known)."""
+        return self.augment and self.recovery_m > 0
+
     def __post_init__(self) -> None:
         bad = {
             k: v
@@ -495,7 +500,7 @@ def train_dave2(
     # Tiny gradients turn subnormal on CPU and slow every step ~10x; flush them while training.
     flush = device.type == "cpu" and torch.set_flush_denormal(True)
     try:
-        recovery = geometry if opts.augment and opts.recovery_m > 0 else None
+        recovery = geometry if opts.uses_recovery else None
         return _fit(model, train, val, opts, device, progress, recovery)
     finally:
         if flush:

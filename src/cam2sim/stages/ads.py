@@ -27,10 +27,17 @@ if TYPE_CHECKING:
     from cam2sim.ads.dave2 import Dave2Config
     from cam2sim.ads.export import ExportReport
     from cam2sim.ads.recovery import RecoveryGeometry
-    from cam2sim.ads.train import TrainOptions, TrainReport
+    from cam2sim.ads.train import TrainedModel, TrainOptions, TrainReport
     from cam2sim.core.dataset import DatasetInfo
 
-__all__ = ["ExportAdsResult", "TrainAdsResult", "export_ads", "recovery_geometry", "train_ads"]
+__all__ = [
+    "ExportAdsResult",
+    "TrainAdsResult",
+    "export_ads",
+    "recovery_geometry",
+    "train_ads",
+    "train_model",
+]
 
 logger = logging.getLogger(__name__)
 TRAIN_STAGE: Final = "ads_train"
@@ -97,7 +104,7 @@ def train_ads(
 
     opts = options or tr.TrainOptions()
     report = progress or no_progress
-    info = _dataset(ws)
+    _dataset(ws)  # refuses a workspace without a dataset, before anything else
     ads = ws.ads_dir
     result = TrainAdsResult(ads / tr.MODEL_FILE, ads / tr.REPORT_FILE, ads / tr.REPORT_FIGURE, None)
     extract = ws.stage_record("extract")
@@ -109,12 +116,30 @@ def train_ads(
         logger.info("ads train: up to date; skipping (use --force to train again)")
         return result
     with stage_run(ws, TRAIN_STAGE, inputs_hash=inputs, config=None):
-        data = tr.assemble(dataset_paths(ws.dataset_dir), info.frame_format, opts, report)
-        geometry = recovery_geometry(ws) if opts.augment and opts.recovery_m > 0 else None
-        trained = tr.train_dave2(data, opts, report, geometry=geometry)
+        trained = train_model(ws, opts, report)
         ads.mkdir(parents=True, exist_ok=True)
         tr.save_training(trained, ads)
     return TrainAdsResult(result.model, result.report_path, result.figure, trained.report)
+
+
+def train_model(
+    ws: Workspace, options: TrainOptions, progress: ProgressCallback | None = None
+) -> TrainedModel:
+    """DAVE-2 trained on the workspace's dataset (recovery views from its camera), not saved.
+
+    :func:`train_ads` saves it as the workspace's model; ``benchmarks/dave2_seeds.py`` trains
+    several beside it.
+
+    Raises:
+        StageError: No dataset, no such signal, too few frames, or constant steering.
+    """
+    from cam2sim.ads import train as tr  # noqa: PLC0415
+
+    info = _dataset(ws)
+    report = progress or no_progress
+    data = tr.assemble(dataset_paths(ws.dataset_dir), info.frame_format, options, report)
+    geometry = recovery_geometry(ws) if options.uses_recovery else None
+    return tr.train_dave2(data, options, report, geometry=geometry)
 
 
 def recovery_geometry(ws: Workspace) -> RecoveryGeometry | None:
@@ -133,7 +158,6 @@ def recovery_geometry(ws: Workspace) -> RecoveryGeometry | None:
     from cam2sim.core.dataset import Calibration  # noqa: PLC0415
     from cam2sim.core.errors import WorkspaceError  # noqa: PLC0415
     from cam2sim.core.frames.rotation import quat_rotate  # noqa: PLC0415
-    from cam2sim.sim.interface import SteeringCalibration  # noqa: PLC0415
     from cam2sim.stages.scenario import steering_calibration  # noqa: PLC0415
 
     try:
@@ -152,18 +176,13 @@ def recovery_geometry(ws: Workspace) -> RecoveryGeometry | None:
         logger.info("no recovery views: the camera mount is %.2f m over the reference", height)
         return None
     cam = calib.camera
-    try:
-        per_unit = steering_calibration(ws).curvature_per_unit
-    except WorkspaceError as err:  # no trajectory to fit against
-        logger.info("steering calibration not fitted (%s); using the default", err)
-        per_unit = SteeringCalibration().curvature_per_unit
     return RecoveryGeometry(
         K=tuple((float(r[0]), float(r[1]), float(r[2])) for r in cam.K),
         width=cam.width,
         height=cam.height,
         height_m=height,
         pitch_rad=math.asin(float(np.clip(-ahead[2], -1.0, 1.0))),
-        curvature_per_unit=per_unit,
+        curvature_per_unit=steering_calibration(ws).curvature_per_unit,
     )
 
 

@@ -248,8 +248,8 @@ STEERING_SIGNAL = "steering"
 def steering_calibration(ws: Workspace) -> SteeringCalibration:
     """Curvature per steering unit, fitted from the recording's ``steering`` signal.
 
-    Without such a signal (or with too little driving to fit), the default calibration (the
-    reference drives' 0.022 1/m per unit) is used and the log says so.
+    Without such a signal or a trajectory (or with too little driving to fit), the default
+    calibration (the reference drives' 0.022 1/m per unit) is used and the log says so.
     """
     from cam2sim.core.errors import ConfigError  # noqa: PLC0415
     from cam2sim.core.table import read_table  # noqa: PLC0415
@@ -257,8 +257,10 @@ def steering_calibration(ws: Workspace) -> SteeringCalibration:
 
     paths = dataset_paths(ws.dataset_dir)
     signal = paths.signal_file(STEERING_SIGNAL)
-    if not signal.is_file():
-        logger.info("no '%s' signal: default steering calibration", STEERING_SIGNAL)
+    if not signal.is_file() or not paths.trajectory_csv.is_file():
+        logger.info(
+            "no '%s' signal or no trajectory: default steering calibration", STEERING_SIGNAL
+        )
         return SteeringCalibration()
     s = read_table(signal)
     tr = read_table(paths.trajectory_csv)
