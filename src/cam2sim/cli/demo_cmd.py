@@ -30,14 +30,36 @@ def demo(
     runs: Annotated[int, typer.Option(min=1, help="Drive runs per camera.")] = 3,
     seed: Annotated[int, typer.Option(help="Seed of the demo world and its noise.")] = 0,
     world: Annotated[
-        str,
+        str | None,
         typer.Option(
             help=(
-                "The demo street: 'l-street' (183 m, one bend, 8 m/s) or 'paper' (the paper's "
-                "street: 450 m, three bends, unmarked, parked cars narrowing the lane, 20 km/h)."
+                "The demo street: 'l-street' (the default: 183 m, one bend, 8 m/s) or 'paper' "
+                "(the paper's street: 450 m, three bends, unmarked, parked cars narrowing the "
+                "lane, 20 km/h)."
             )
         ),
-    ] = "l-street",
+    ] = None,
+    osm: Annotated[
+        Path | None,
+        typer.Option(
+            exists=True,
+            dir_okay=False,
+            help=(
+                "Build the world from a real OpenStreetMap file (.osm, .osm.bz2, .osm.pbf): its "
+                "street geometry, tags and building footprints; instead of --world."
+            ),
+        ),
+    ] = None,
+    route: Annotated[
+        tuple[str, str] | None,
+        typer.Option(
+            metavar="LAT,LON LAT,LON",
+            help=(
+                "With --osm: drive the shortest road path between these two points (else a "
+                "300-500 m route with two bends is picked)."
+            ),
+        ),
+    ] = None,
 ) -> None:
     """Build a demo recording (a residential street near Munich) and run every stage on it.
 
@@ -46,7 +68,8 @@ def demo(
     in OUT/ws/truth/world.json: DAVE-2 drives RUNS times each in it (Real), with splat images
     and with simulator images. Re-run to resume.
 
-    Example: cam2sim demo -o /tmp/demo   (or: cam2sim demo -o /tmp/paper --world paper)
+    Example: cam2sim demo -o /tmp/demo   (or: cam2sim demo -o /tmp/paper --world paper, or
+    cam2sim demo -o /tmp/munich --osm munich.osm)
     """
     from cam2sim.ads.train import TrainOptions  # noqa: PLC0415
     from cam2sim.cli.run_pipeline_cmd import _finish, _workspace  # noqa: PLC0415
@@ -68,12 +91,28 @@ def demo(
 
     started = time.perf_counter()
     try:
-        street = demo_street(world)
+        plan = None
+        if osm is not None:
+            if world is not None:
+                msg = "give --world or --osm, not both"
+                raise ConfigError(msg)
+            from cam2sim.demo.osm_world import osm_demo_world  # noqa: PLC0415
+
+            plan = osm_demo_world(osm, route=route, seed=seed)
+            street = plan.world.street
+            console.print(f"demo world: {street.title}", highlight=False)
+            for note in plan.notes:
+                console.print(f"  {note}", highlight=False)
+        elif route is not None:
+            msg = "--route needs --osm (the OSM file the route runs on)"
+            raise ConfigError(msg)
+        else:
+            street = demo_street(world or "l-street")
         there = recorded_street(out)
         if there is not None and there != street.name:
             msg = (
                 f"{out} holds the demo of world '{there}'; give another --out for "
-                f"'{street.name}' (or --world {there} to resume it)"
+                f"'{street.name}' (or the same --world/--osm as before to resume it)"
             )
             raise ConfigError(msg)
         options = PipelineOptions(
@@ -82,7 +121,13 @@ def demo(
         with progress_bars(enabled=sys.stderr.isatty()) as sink:
             recording = load_demo_recording(out, street)
             if recording is None:
-                recording = build_demo_recording(out, seed=seed, street=street, progress=sink)
+                recording = build_demo_recording(
+                    out,
+                    seed=seed,
+                    street=street,
+                    world=plan.world if plan is not None else None,
+                    progress=sink,
+                )
                 built = time.perf_counter() - started
                 console.print(
                     f"demo recording: {recording.bag} ({recording.camera_frames} frames, "

@@ -1,9 +1,9 @@
 """The demo recording's bag: the reference drive through the demo world as ROS2 MCAP.
 
 :func:`write_bag` drives the world's street (:meth:`~cam2sim.demo.world.DemoStreet.drive_points`:
-the route plus the driver's weave) at the street's speed and writes odometry (UTM 32N, x-left
-axes) and steering at 50 Hz, a ray-cast LiDAR at 5 Hz and the photographic camera (JPEG) with
-its camera info at :data:`~cam2sim.demo.world.CAMERA_HZ`.
+the route plus the driver's weave) at the street's speed and writes odometry (in the street's
+CRS, x-left axes) and steering at 50 Hz, a ray-cast LiDAR at 5 Hz and the photographic camera
+(JPEG) with its camera info at :data:`~cam2sim.demo.world.CAMERA_HZ`.
 """
 
 from __future__ import annotations
@@ -22,7 +22,6 @@ from cam2sim.demo.world import (
     LIDAR_HZ,
     LIDAR_MOUNT,
     ODOM_HZ,
-    ORIGIN_UTM,
     TOPICS,
     body_pose,
     camera_matrix,
@@ -81,6 +80,7 @@ def write_bag(path: Path, world: DemoWorld, *, seed: int, progress: ProgressCall
     from cam2sim.render.raster import RasterRenderer  # noqa: PLC0415
 
     street = world.street
+    origin = street.origin
     duration = street.duration_s
     odom_t = np.arange(0.0, duration, 1.0 / ODOM_HZ)
     cam_t = np.arange(0.05, duration, 1.0 / CAMERA_HZ)
@@ -101,7 +101,7 @@ def write_bag(path: Path, world: DemoWorld, *, seed: int, progress: ProgressCall
             if kind == "odom":
                 xy, heading = street.drive_points([station])
                 pose = {
-                    "position": {"x": ORIGIN_UTM[0] + xy[0, 0], "y": ORIGIN_UTM[1] + xy[0, 1]},
+                    "position": {"x": origin[0] + xy[0, 0], "y": origin[1] + xy[0, 1]},
                     # The reference car's axes: x to the left, so yaw = heading + 90 degrees.
                     "orientation": _quat_z(float(heading[0]) + math.pi / 2.0),
                 }

@@ -76,6 +76,7 @@ __all__ = [
     "demo_world",
     "footprint_ring",
     "load_demo_recording",
+    "parked_cars",
     "photographic_look",
     "recorded_street",
     "street_xodr",
@@ -133,6 +134,10 @@ class DemoStreet:
         weave_m: Amplitude of the recorded driver's weave about the lane centre.
         weave_period_m: Its wavelength.
         lead_m: Street before the route's start and after its end.
+        no_parking: ``(side, start, end)`` station ranges where no car parks on ``side``
+            (``"left"`` or ``"right"`` of the route): signed-off kerbs and junctions.
+        crs: The CRS whose grid the local frame is (odometry is written in it).
+        origin: The local frame's origin in ``crs``.
     """
 
     name: str
@@ -148,6 +153,9 @@ class DemoStreet:
     weave_m: float = 0.35
     weave_period_m: float = 40.0
     lead_m: float = 30.0
+    no_parking: tuple[tuple[str, float, float], ...] = ()
+    crs: str = CRS
+    origin: tuple[float, float] = ORIGIN_UTM
 
     @property
     def length_m(self) -> float:
@@ -337,22 +345,26 @@ class DemoWorld:
     street: DemoStreet
     cars: tuple[ParkedCar, ...]
     buildings: tuple[DemoBuilding, ...]
+    osm: str | None = None
+    """The OSM XML the map stage reads; None: :meth:`osm_xml` writes the street and buildings."""
 
     def xodr(self) -> str:
         """The street as OpenDRIVE 1.4 text (reference line between the driving lanes)."""
         return street_xodr(self.street)
 
     def osm_xml(self) -> str:
-        """The street and buildings as OSM XML (WGS84 nodes)."""
+        """The street and buildings as OSM XML (WGS84 nodes), or :attr:`osm` when set."""
+        if self.osm is not None:
+            return self.osm
         from pyproj import Transformer  # noqa: PLC0415
 
-        to_wgs84 = Transformer.from_crs(CRS, "EPSG:4326", always_xy=True)
         st = self.street
+        to_wgs84 = Transformer.from_crs(st.crs, "EPSG:4326", always_xy=True)
         stations = np.arange(-st.lead_m, st.length_m + st.lead_m + 1e-6, 5.0)
         road, _ = st.route_points(stations, st.lane_m / 2.0)
         rings = [np.asarray(b.xy, dtype=np.float64) for b in self.buildings]
         local = np.concatenate([road, *rings])
-        lon, lat = to_wgs84.transform(local[:, 0] + ORIGIN_UTM[0], local[:, 1] + ORIGIN_UTM[1])
+        lon, lat = to_wgs84.transform(local[:, 0] + st.origin[0], local[:, 1] + st.origin[1])
         lon, lat = np.asarray(lon), np.asarray(lat)
         margin = 5e-4
         lines = [
@@ -407,8 +419,8 @@ class DemoWorld:
         )
 
         return TruthWorld(
-            crs=CRS,
-            origin=ORIGIN_UTM,
+            crs=self.street.crs,
+            origin=self.street.origin,
             xodr=self.xodr(),
             cars=tuple(TruthCar(**asdict(c)) for c in self.cars),
             buildings=tuple(TruthBuilding(xy=b.xy, height_m=b.height_m) for b in self.buildings),
@@ -449,7 +461,8 @@ def _straights(street: DemoStreet, margin_m: float) -> list[tuple[float, float]]
     return [(lo, hi) for lo, hi in zip(edges[::2], edges[1::2], strict=True) if hi > lo]
 
 
-def _cars(street: DemoStreet, rng: np.random.Generator) -> tuple[ParkedCar, ...]:
+def parked_cars(street: DemoStreet, rng: np.random.Generator) -> tuple[ParkedCar, ...]:
+    """Cars parked along ``street``'s straights, both sides, at its density (``rng`` draws)."""
     half = street.lane_m / 2.0
     # Centres of the parking lanes, moved towards the roadway by the intrusion.
     right = -half - street.parking_m / 2.0 + street.car_intrusion_m
@@ -462,7 +475,12 @@ def _cars(street: DemoStreet, rng: np.random.Generator) -> tuple[ParkedCar, ...]
                 length = rng.uniform(4.0, 4.8)
                 if s + length > hi:
                     break
-                if rng.random() < street.park_share:
+                centre = s + length / 2.0
+                banned = any(
+                    side == no_side and lo_s - length / 2.0 < centre < hi_s + length / 2.0
+                    for no_side, lo_s, hi_s in street.no_parking
+                )
+                if rng.random() < street.park_share and not banned:
                     xy, heading = street.route_points([s + length / 2.0], lateral)
                     flip = math.pi if side == "left" and rng.random() < 0.5 else 0.0
                     cars.append(
@@ -505,8 +523,8 @@ def _buildings(street: DemoStreet, rng: np.random.Generator) -> tuple[DemoBuildi
         for s in stations:
             inside = [
                 lo - 12.0 < s < hi + 12.0
-                for (lo, hi), k in zip(street.route.bends(), _bend_curvatures(street), strict=True)
-                if k * sign > 0
+                for lo, hi, turn in street.route.bend_turns()
+                if turn * sign > 0
             ]
             if any(inside):
                 continue  # the inside of a bend stays open
@@ -520,18 +538,16 @@ def _buildings(street: DemoStreet, rng: np.random.Generator) -> tuple[DemoBuildi
     return tuple(out)
 
 
-def _bend_curvatures(street: DemoStreet) -> list[float]:
-    return [k for _, k in street.route.pieces if k != 0.0]
-
-
 def demo_world(seed: int = 0, street: DemoStreet = L_STREET) -> DemoWorld:
     """The demo world on ``street``; ``seed`` places the parked cars and picks building heights."""
     rng = np.random.default_rng(seed)
-    return DemoWorld(street=street, cars=_cars(street, rng), buildings=_buildings(street, rng))
+    return DemoWorld(
+        street=street, cars=parked_cars(street, rng), buildings=_buildings(street, rng)
+    )
 
 
-def demo_config(bag: Path) -> Config:
-    """The cam2sim config of the demo bag."""
+def demo_config(bag: Path, crs: str = CRS) -> Config:
+    """The cam2sim config of the demo bag (odometry in ``crs``)."""
     from cam2sim.core.config import (  # noqa: PLC0415
         AxisConvention,
         CameraConfig,
@@ -555,7 +571,7 @@ def demo_config(bag: Path) -> Config:
             lidar=TOPICS["lidar"],
             signals={"steering": SignalConfig(topic=TOPICS["steering"])},
         ),
-        pose=PoseConfig(crs=CRS, axis_convention=AxisConvention.X_LEFT),
+        pose=PoseConfig(crs=crs, axis_convention=AxisConvention.X_LEFT),
         camera=CameraConfig(
             intrinsics=IntrinsicsConfig(
                 fx=float(k[0, 0]),
@@ -642,9 +658,13 @@ def build_demo_recording(
     *,
     seed: int = 0,
     street: DemoStreet = L_STREET,
+    world: DemoWorld | None = None,
     progress: ProgressCallback | None = None,
 ) -> DemoRecording:
     """Write the demo's OSM file, bag, config and ground truth of ``street`` into ``out_dir``.
+
+    ``world`` (a world on ``street`` built elsewhere, e.g. from a real OSM file by
+    :func:`~cam2sim.demo.osm_world.osm_demo_world`) replaces :func:`demo_world`'s.
 
     Every file is written atomically, and ``demo.json`` last: a folder with it is complete
     (:func:`load_demo_recording` reads it back).
@@ -659,15 +679,21 @@ def build_demo_recording(
 
     root = Path(out_dir)
     root.mkdir(parents=True, exist_ok=True)
-    world = demo_world(seed, street)
+    if world is None:
+        world = demo_world(seed, street)
+    elif world.street != street:
+        msg = f"the world given is on street {world.street.name!r}, not {street.name!r}"
+        raise ValueError(msg)
     bag, osm, config, truth = _paths(root)
     write_text_atomic(osm, world.osm_xml())
     with atomic_folder(bag.parent) as tmp:
         frames = write_bag(tmp / bag.name, world, seed=seed, progress=progress or no_progress)
-    save_config(demo_config(bag), config, comment="The cam2sim demo recording (cam2sim demo)")
+    save_config(
+        demo_config(bag, street.crs), config, comment="The cam2sim demo recording (cam2sim demo)"
+    )
     data = {
-        "crs": CRS,
-        "origin_utm": list(ORIGIN_UTM),
+        "crs": street.crs,
+        "origin_utm": list(street.origin),
         "cars": [asdict(c) for c in world.cars],
         "buildings": [{"xy": [list(p) for p in b.xy], "levels": b.levels} for b in world.buildings],
     }

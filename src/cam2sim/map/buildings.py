@@ -19,7 +19,7 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
 
-    from cam2sim.core.frames import WorldFrame
+    from cam2sim.core.frames import GridFrame, WorldFrame
     from cam2sim.map.osm import OsmData
 
 __all__ = ["Building", "building_footprints"]
@@ -53,7 +53,7 @@ def _height(tags: Mapping[str, str], default: float) -> float:
 
 
 def building_footprints(
-    osm: OsmData, world: WorldFrame, *, default_height_m: float = 10.0
+    osm: OsmData, world: WorldFrame | GridFrame, *, default_height_m: float = 10.0
 ) -> list[Building]:
     """Every closed ``building`` way of ``osm`` as an outline in the world frame."""
     ways = [

@@ -32,7 +32,7 @@ from cam2sim.core.schema import Artifact
 if TYPE_CHECKING:
     import numpy.typing as npt
 
-    from cam2sim.detect.synthetic import StreetScene
+    from cam2sim.detect.synthetic import SceneBox, StreetScene
     from cam2sim.render.raster import RasterRenderer, RasterResult, RasterScene
 
 __all__ = [
@@ -108,8 +108,9 @@ class TruthWorld(Artifact):
     def lidar_scene(self) -> StreetScene:
         """The scene a ray-cast LiDAR scans: flat ground, car boxes, building boxes.
 
-        A building is a box over its footprint's first two edges, reaching 3 m below the road
-        (so no ray passes under it) up to its height.
+        A rectangular building is a box over its footprint, reaching 3 m below the road (so no
+        ray passes under it) up to its height; any other footprint (a real outline from OSM) is
+        a 0.3 m thick wall box inside each of its edges, so rays stop at the outline itself.
         """
         from cam2sim.detect.synthetic import Ground, SceneBox, StreetScene  # noqa: PLC0415
 
@@ -117,20 +118,9 @@ class TruthWorld(Artifact):
             SceneBox((c.x, c.y, c.height / 2.0), (c.length, c.width, c.height), c.yaw)
             for c in self.cars
         )
-        structures = []
+        structures: list[SceneBox] = []
         for b in self.buildings:
-            ring = np.asarray(b.xy)
-            edge = ring[1] - ring[0]
-            centre = ring.mean(axis=0)
-            h = b.height_m
-            size = (float(np.linalg.norm(edge)), float(np.linalg.norm(ring[2] - ring[1])), h + 3.0)
-            structures.append(
-                SceneBox(
-                    (float(centre[0]), float(centre[1]), (h - 3.0) / 2.0),
-                    size,
-                    math.atan2(edge[1], edge[0]),
-                )
-            )
+            structures += _building_boxes(np.asarray(b.xy, dtype=np.float64), b.height_m)
         ground = Ground(road_half_width_m=1e9, kerb_height_m=0.0)
         return StreetScene(ground=ground, cars=cars, structures=tuple(structures))
 
@@ -159,6 +149,41 @@ class TruthWorld(Artifact):
         buildings = [BuildingFootprint(np.asarray(b.xy), b.height_m) for b in self.buildings]
         options = RasterOptions(lane_markings=self.lane_markings)
         return RasterScene(RoadMap.from_xodr(self.xodr), vehicles, buildings, options=options)
+
+
+_WALL_M = 0.3
+
+
+def _building_boxes(ring: npt.NDArray[np.float64], height_m: float) -> list[SceneBox]:
+    """Boxes a ray-cast LiDAR sees of one footprint (see :meth:`TruthWorld.lidar_scene`)."""
+    from cam2sim.detect.synthetic import SceneBox  # noqa: PLC0415
+
+    if len(ring) > 3 and np.allclose(ring[0], ring[-1]):
+        ring = ring[:-1]
+    z, tall = (height_m - 3.0) / 2.0, height_m + 3.0
+    edges = np.roll(ring, -1, axis=0) - ring
+    if len(ring) == 4:
+        unit = edges / np.maximum(np.linalg.norm(edges, axis=1, keepdims=True), 1e-12)
+        if np.all(np.abs(np.sum(unit * np.roll(unit, -1, axis=0), axis=1)) < 1e-3):
+            centre = ring.mean(axis=0)
+            size = (float(np.linalg.norm(edges[0])), float(np.linalg.norm(edges[1])), tall)
+            yaw = math.atan2(edges[0, 1], edges[0, 0])
+            return [SceneBox((float(centre[0]), float(centre[1]), z), size, yaw)]
+    # Inwards is to the left of counter-clockwise edges.
+    area2 = float(
+        np.sum(ring[:, 0] * np.roll(ring[:, 1], -1) - np.roll(ring[:, 0], -1) * ring[:, 1])
+    )
+    inward = 1.0 if area2 > 0 else -1.0
+    out = []
+    for p, e in zip(ring, edges, strict=True):
+        length = float(np.linalg.norm(e))
+        if length < 1e-6:
+            continue
+        n = inward * np.array([-e[1], e[0]]) / length
+        c = p + e / 2.0 + n * _WALL_M / 2.0
+        yaw = math.atan2(e[1], e[0])
+        out.append(SceneBox((float(c[0]), float(c[1]), z), (length, _WALL_M, tall), yaw))
+    return out
 
 
 def truth_world_path(root: Path) -> Path:

@@ -32,6 +32,7 @@ from cam2sim.core.frames.pose import (
     interpolate_poses,
 )
 from cam2sim.core.frames.projection import (
+    GridFrame,
     Wgs84Points,
     WorldFrame,
     utm_crs_for,
@@ -60,6 +61,7 @@ from cam2sim.core.frames.rotation import (
 __all__ = [
     "CarlaTransform",
     "EulerAngles",
+    "GridFrame",
     "Pose",
     "PoseSamples",
     "Wgs84Points",

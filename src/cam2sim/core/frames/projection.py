@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     import numpy.typing as npt
 
 __all__ = [
+    "GridFrame",
     "Wgs84Points",
     "WorldFrame",
     "utm_crs_for",
@@ -122,6 +123,51 @@ def utm_crs_for(lat_deg: float, lon_deg: float) -> str:
         raise ValueError(msg)
     zone = int((lon_deg + 180.0) // 6.0) % 60 + 1
     return f"EPSG:{326 if lat_deg >= 0.0 else 327}{zone:02d}"
+
+
+@dataclass(frozen=True)
+class GridFrame:
+    """A CRS's own grid, shifted so that ``origin`` (in the CRS) is ``(0, 0)``.
+
+    The frame a ground-truth world is described in (x along the grid's easting, y along its
+    northing, z up): unlike :class:`WorldFrame` it keeps the grid's scale and convergence, as
+    UTM odometry does.
+
+    Attributes:
+        crs: pyproj CRS string with metre axes, e.g. ``"EPSG:32632"``.
+        origin: ``(x, y)`` of the frame's origin in ``crs``.
+    """
+
+    crs: str
+    origin: tuple[float, float]
+
+    @classmethod
+    def utm_at(cls, lat_deg: float, lon_deg: float) -> GridFrame:
+        """The UTM zone's grid of a point, with the origin at that point rounded to 1 m."""
+        crs = utm_crs_for(lat_deg, lon_deg)
+        x, y = _transform(_WGS84, crs, np.array([lon_deg]), np.array([lat_deg]))
+        return cls(crs, (float(np.round(x[0])), float(np.round(y[0]))))
+
+    def from_wgs84(
+        self, lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike, alt_m: npt.ArrayLike = 0.0
+    ) -> npt.NDArray[np.float64]:
+        """Project WGS84 points into the frame: ``(N, 3)`` metres (z is ``alt_m``)."""
+        lat, lon, alt = np.broadcast_arrays(
+            np.atleast_1d(_as_float(lat_deg, "lat_deg")),
+            np.atleast_1d(_as_float(lon_deg, "lon_deg")),
+            np.atleast_1d(_as_float(alt_m, "alt_m")),
+        )
+        x, y = _transform(_WGS84, self.crs, lon, lat)
+        return np.stack([x - self.origin[0], y - self.origin[1], alt], axis=-1)
+
+    def to_wgs84(self, xy: npt.ArrayLike) -> Wgs84Points:
+        """Convert ``(N, 2)`` (or ``(N, 3)``) frame points to WGS84."""
+        pts = np.atleast_2d(np.asarray(xy, dtype=np.float64))
+        lon, lat = _transform(
+            self.crs, _WGS84, pts[:, 0] + self.origin[0], pts[:, 1] + self.origin[1]
+        )
+        alt = pts[:, 2] if pts.shape[1] > 2 else np.zeros(len(pts))
+        return Wgs84Points(lat_deg=lat, lon_deg=lon, alt_m=alt)
 
 
 @dataclass(frozen=True)

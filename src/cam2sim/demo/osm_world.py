@@ -1,0 +1,621 @@
+"""Demo worlds from real OpenStreetMap extracts (``cam2sim demo --osm FILE [--route A B]``).
+
+:func:`osm_demo_world` turns an OSM file into the ground-truth world of a demo recording:
+
+* **The route.** Given two points (``route``), the shortest drivable path between the road
+  nodes nearest them; else the best path the file has (:func:`pick_route`): 300-500 m on
+  ``highway=residential|unclassified|tertiary`` ways (both directions open, no U-turns), with at
+  least two bends, preferring about 350 m near the middle of the extract; without a path that
+  has two bends, the one with most bends and closest to that length, saying so in the world's
+  notes. Every corner of the way geometry is rounded by the largest arc that fits
+  (:meth:`~cam2sim.demo.route.PiecewiseRoute.from_polyline`, at least 20 m: a corner sharper
+  than that is not drivable at the demo's speed and its paths are skipped).
+* **The street** (:class:`~cam2sim.demo.world.DemoStreet`): the cross-section from the tags of
+  the way the route follows longest (``width`` / ``lanes`` give the lane width, kept within
+  3.0-4.0 m, else 3.5 m; lane markings when ``lanes`` is tagged or the road is tertiary and
+  ``lane_markings`` is not ``no``); parked cars where ``parking:lane:*`` / ``parking:*`` allow
+  them, nowhere where they forbid them, at the demo's seeded density where the tags say nothing,
+  and never within 10 m of a junction; 25 km/h, or ``maxspeed`` when lower. The local frame is
+  the UTM grid of the route's start (:class:`~cam2sim.core.frames.GridFrame`).
+* **The buildings**: the extract's real footprints (``building=*``, heights from ``height`` or
+  ``building:levels``) within 60 m of the street, except those the drawn street runs into; plain
+  facades where the street has none within 25 m (as the built-in streets have).
+* **The map stage's input** is the real extract around the route, not the drawn street: the
+  reconstructed map differs from the truth as it does for a real recording.
+
+The truth road is only the driven street (with straight 30 m leads at both ends): side streets
+at its junctions are not drawn.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import heapq
+import itertools
+import logging
+import math
+import re
+from collections import Counter
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Final
+
+import numpy as np
+
+from cam2sim.core.errors import ConfigError, StageError
+from cam2sim.demo.route import PiecewiseRoute
+from cam2sim.demo.world import DemoBuilding, DemoStreet, DemoWorld, footprint_ring, parked_cars
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator, Mapping, Sequence
+
+    import numpy.typing as npt
+
+    from cam2sim.core.frames import GridFrame
+    from cam2sim.map.osm import OsmData
+
+__all__ = [
+    "DRIVABLE",
+    "OsmRoute",
+    "OsmWorldPlan",
+    "osm_demo_world",
+    "pick_route",
+    "route_between",
+]
+
+logger = logging.getLogger(__name__)
+
+DRIVABLE: Final = ("residential", "unclassified", "tertiary")
+"""The ``highway`` values a demo route may use."""
+ROUTE_MIN_M: Final = 300.0
+ROUTE_SHORTEST_M: Final = 100.0
+"""The shortest route taken when an extract has no path of :data:`ROUTE_MIN_M`."""
+ROUTE_MAX_M: Final = 500.0
+ROUTE_TARGET_M: Final = 350.0
+"""The preferred length: long enough for three bends, short enough for 15 minutes on 2 cores."""
+MIN_RADIUS_M: Final = 20.0
+JUNCTION_RADIUS_M: Final = 20.0
+"""Corners at junctions are turns: rounded by at most this (a street's own curves by 60 m)."""
+OSM_SPEED_MPS: Final = 25.0 / 3.6
+_MAX_DEFLECTION_RAD: Final = math.radians(100.0)
+_SEARCH_BUDGET: Final = 40_000
+"""Paths the route search extends before it settles for the best found."""
+_ROUTE_SNAP_M: Final = 30.0
+_BUILDING_REACH_M: Final = 60.0
+_FACADE_GAP_M: Final = 25.0
+_JUNCTION_CLEAR_M: Final = 10.0
+_CROP_MARGIN_M: Final = 150.0
+_SELF_CLEAR_M: Final = 60.0
+"""How close the route may come to itself further along (no loops around a small block)."""
+_NO_PARKING: Final = frozenset(
+    {"no", "no_parking", "no_stopping", "fire_lane", "separate", "none", "no_standing"}
+)
+_NUMBER = re.compile(r"^\s*([0-9]+(?:\.[0-9]+)?)")
+
+
+@dataclass(frozen=True, eq=False)
+class _Graph:
+    """Drivable ways as a graph over their nodes (all of them, not only junctions)."""
+
+    osm: OsmData
+    frame: GridFrame
+    ways: tuple[int, ...]  # indices into osm.ways
+    xy: npt.NDArray[np.float64]  # (N, 2) node positions, local frame
+    node_ids: npt.NDArray[np.int64]  # (N,) OSM ids
+    links: npt.NDArray[np.int64]  # (N,) distinct neighbours: 1 a dead end, 3+ a junction
+    adjacency: tuple[tuple[tuple[int, int, bool], ...], ...]  # per node: (next, way, forward)
+
+
+@dataclass(frozen=True)
+class OsmRoute:
+    """A drivable path through the extract.
+
+    Attributes:
+        nodes: Graph node indices along the path.
+        xy: ``(K, 2)`` the path's polyline in the local frame (possibly cut inside its last
+            segment, to stay within 500 m).
+        ways: For each segment of ``xy``, the index of its OSM way in the file.
+        forward: For each segment, whether it runs along its way's direction.
+        route: The way's centre line with its corners rounded (the street's reference line;
+            the car drives half a lane to its right).
+        bends: Its bends (:meth:`~cam2sim.demo.route.PiecewiseRoute.bend_turns`).
+    """
+
+    nodes: tuple[int, ...]
+    xy: npt.NDArray[np.float64]
+    ways: tuple[int, ...]
+    forward: tuple[bool, ...]
+    route: PiecewiseRoute
+    bends: int
+
+
+@dataclass(frozen=True)
+class OsmWorldPlan:
+    """A demo world built from a real OSM file, and how it was chosen."""
+
+    world: DemoWorld
+    route: OsmRoute
+    frame: GridFrame
+    notes: tuple[str, ...]
+
+
+def _number(text: str | None) -> float | None:
+    m = _NUMBER.match(text or "")
+    return float(m.group(1)) if m else None
+
+
+def _oneway(tags: Mapping[str, str]) -> int:
+    """1 forward only, -1 backward only, 0 both ways."""
+    value = tags.get("oneway", "no")
+    if value in {"yes", "true", "1"}:
+        return 1
+    if value == "-1":
+        return -1
+    return 0
+
+
+def _graph(osm: OsmData) -> _Graph:
+    from cam2sim.core.frames import GridFrame  # noqa: PLC0415
+
+    ways = tuple(
+        k
+        for k, w in enumerate(osm.ways)
+        if w.tags.get("highway") in DRIVABLE and w.tags.get("area") != "yes" and len(w.refs) > 1
+    )
+    if not ways:
+        found = Counter(w.tags["highway"] for w in osm.ways if "highway" in w.tags)
+        have = ", ".join(f"{k} ({n})" for k, n in found.most_common(8)) or "no highway at all"
+        msg = (
+            f"{osm.source} has no drivable road for the demo (highway={'/'.join(DRIVABLE)}); it "
+            f"has: {have}. Export an area with residential streets"
+        )
+        raise StageError(msg)
+    refs = np.concatenate([osm.ways[k].refs for k in ways])
+    rows = osm.node_indices(refs)
+    used = np.unique(rows[rows >= 0])
+    if used.size < 2:
+        msg = f"{osm.source}: the drivable ways' nodes are missing from the file; export it again"
+        raise StageError(msg)
+    lat, lon = osm.lat_deg[used], osm.lon_deg[used]
+    frame = GridFrame.utm_at(float(lat.mean()), float(lon.mean()))
+    xy = frame.from_wgs84(lat, lon)[:, :2]
+    index = {int(r): i for i, r in enumerate(used)}
+    neighbours: list[list[tuple[int, int, bool]]] = [[] for _ in used]
+    linked: list[set[int]] = [set() for _ in used]
+    for k in ways:
+        way = osm.ways[k]
+        seq = [index.get(int(r), -1) for r in osm.node_indices(way.refs)]
+        one = _oneway(way.tags)
+        for a, b in itertools.pairwise(seq):
+            if a < 0 or b < 0 or a == b:
+                continue
+            linked[a].add(b)
+            linked[b].add(a)
+            if one >= 0:
+                neighbours[a].append((b, k, True))
+            if one <= 0:
+                neighbours[b].append((a, k, False))
+    return _Graph(
+        osm=osm,
+        frame=frame,
+        ways=ways,
+        xy=xy,
+        node_ids=osm.node_id[used],
+        links=np.array([len(s) for s in linked], dtype=np.int64),
+        adjacency=tuple(tuple(n) for n in neighbours),
+    )
+
+
+def _route_of(
+    graph: _Graph, nodes: Sequence[int], ways: Sequence[int], forward: Sequence[bool]
+) -> OsmRoute | None:
+    """The path through ``nodes`` cut at :data:`ROUTE_MAX_M`; None when not drivable."""
+    xy = graph.xy[list(nodes)]
+    seg = np.hypot(*np.diff(xy, axis=0).T)
+    cum = np.r_[0.0, np.cumsum(seg)]
+    if cum[-1] > ROUTE_MAX_M:
+        j = int(np.searchsorted(cum, ROUTE_MAX_M))  # the segment (j-1, j) holds the cut
+        f = (ROUTE_MAX_M - cum[j - 1]) / seg[j - 1]
+        end = xy[j - 1] + f * (xy[j] - xy[j - 1])
+        xy = np.vstack([xy[:j], end])
+        nodes, ways, forward = nodes[: j + 1], ways[:j], forward[:j]
+    try:
+        turns = np.array([graph.links[n] > 2 for n in nodes[: len(xy)]])
+        cap = np.where(turns, JUNCTION_RADIUS_M, 60.0)
+        route = PiecewiseRoute.from_polyline(xy, max_radius_m=cap, min_radius_m=MIN_RADIUS_M)
+    except ValueError:
+        return None
+    if _loops_back(route):
+        return None
+    return OsmRoute(
+        nodes=tuple(nodes),
+        xy=xy,
+        ways=tuple(ways),
+        forward=tuple(forward),
+        route=route,
+        bends=len(route.bend_turns()),
+    )
+
+
+def _loops_back(route: PiecewiseRoute) -> bool:
+    """Whether the route passes within :data:`_SELF_CLEAR_M` of itself 80 m further along."""
+    s = np.arange(0.0, route.length_m, 5.0)
+    xy, _ = route.points(s)
+    near = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1)) < _SELF_CLEAR_M
+    apart = np.abs(s[:, None] - s[None, :]) > 80.0
+    return bool(np.any(near & apart))
+
+
+def _paths(graph: _Graph) -> Iterator[tuple[list[int], list[int], list[bool]]]:
+    """Simple paths of 100-500 m (cut at 500 m) ending at junctions or dead ends (or the cut).
+
+    They start from the junctions and dead ends nearest the extract's middle.
+    """
+    centre = graph.xy.mean(axis=0)
+    ends = np.flatnonzero(graph.links != 2) if np.any(graph.links != 2) else np.arange(1)
+    starts = ends[np.argsort(np.hypot(*(graph.xy[ends] - centre).T), kind="stable")]
+    budget = _SEARCH_BUDGET
+    for start in starts.tolist():
+        stack: list[tuple[list[int], list[int], list[bool], float]] = [([start], [], [], 0.0)]
+        while stack and budget > 0:
+            nodes, ways, fwd, length = stack.pop()
+            here = nodes[-1]
+            if length >= ROUTE_SHORTEST_M and (length >= ROUTE_MAX_M or graph.links[here] != 2):
+                yield nodes, ways, fwd
+            if length >= ROUTE_MAX_M:
+                continue
+            budget -= 1
+            for nxt, way, forward in graph.adjacency[here]:
+                if nxt in nodes:
+                    continue
+                if len(nodes) > 1:
+                    a = graph.xy[here] - graph.xy[nodes[-2]]
+                    b = graph.xy[nxt] - graph.xy[here]
+                    cos = float(a @ b) / max(float(np.hypot(*a) * np.hypot(*b)), 1e-12)
+                    if cos < math.cos(_MAX_DEFLECTION_RAD):
+                        continue
+                step = float(np.hypot(*(graph.xy[nxt] - graph.xy[here])))
+                stack.append(([*nodes, nxt], [*ways, way], [*fwd, forward], length + step))
+        if budget <= 0:
+            return
+
+
+def pick_route(graph: _Graph) -> tuple[OsmRoute, list[str]]:
+    """The best demo route of the extract (see the module's description) and notes on it.
+
+    Raises:
+        StageError: No drivable path of 300 m or more.
+    """
+    centre = graph.xy.mean(axis=0)
+    best: tuple[tuple[float, ...], OsmRoute] | None = None
+    seen = 0
+    for nodes, ways, fwd in _paths(graph):
+        seen += 1
+        cand = _route_of(graph, nodes, ways, fwd)
+        if cand is None:
+            continue
+        length = cand.route.length_m
+        mid, _ = cand.route.points([length / 2.0])
+        full = length >= ROUTE_MIN_M - 5.0  # rounding corners shortens a path a little
+        key = (
+            float(full),
+            float(min(cand.bends, 2)) if full else 0.0,
+            -round(abs(length - ROUTE_TARGET_M) / 25.0) if full else length,
+            float(min(cand.bends, 3)),
+            -float(np.hypot(*(mid[0] - centre))),
+        )
+        if best is None or key > best[0]:
+            best = (key, cand)
+    if best is None:
+        msg = (
+            f"{graph.osm.source} has no drivable path of {ROUTE_SHORTEST_M:.0f} m or more on "
+            f"{'/'.join(DRIVABLE)} roads with corners of {MIN_RADIUS_M:.0f} m radius or more "
+            f"({seen} paths tried); give --route LAT,LON LAT,LON or a larger extract"
+        )
+        raise StageError(msg)
+    route = best[1]
+    length = route.route.length_m
+    notes = [f"route picked among {seen} drivable paths"]
+    if length < ROUTE_MIN_M - 5.0:
+        notes.append(
+            f"no drivable path of {ROUTE_MIN_M:.0f}-{ROUTE_MAX_M:.0f} m here: took the longest, "
+            f"{length:.0f} m with {route.bends} bends"
+        )
+    elif route.bends < 2:
+        notes.append(
+            f"no drivable path of {ROUTE_MIN_M:.0f}-{ROUTE_MAX_M:.0f} m here has two bends; "
+            f"this one has {route.bends}"
+        )
+    return route, notes
+
+
+def _parse_point(text: str) -> tuple[float, float]:
+    try:
+        lat_s, lon_s = text.split(",")
+        lat, lon = float(lat_s), float(lon_s)
+    except ValueError:
+        msg = f"--route point {text!r} is not LAT,LON (degrees, e.g. 48.1859,11.5510)"
+        raise ConfigError(msg) from None
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+        msg = f"--route point {text!r} is out of range; give LAT,LON in degrees, latitude first"
+        raise ConfigError(msg)
+    return lat, lon
+
+
+def _snap(graph: _Graph, lat: float, lon: float, text: str) -> int:
+    """The graph node nearest a point; the point must lie within 30 m of a drivable way."""
+    p = graph.frame.from_wgs84([lat], [lon])[0, :2]
+    a = np.array([graph.xy[i] for i, nb in enumerate(graph.adjacency) for _ in nb])
+    b = np.array([graph.xy[j] for nb in graph.adjacency for j, _, _ in nb])
+    if len(a):
+        d = b - a
+        t = np.clip(np.sum((p - a) * d, axis=1) / np.maximum(np.sum(d * d, axis=1), 1e-12), 0, 1)
+        off = float(np.min(np.hypot(*(a + t[:, None] * d - p).T)))
+    else:
+        off = math.inf
+    if off > _ROUTE_SNAP_M:
+        msg = (
+            f"--route point {text} is {off:.0f} m from the nearest drivable road of "
+            f"{graph.osm.source} ({'/'.join(DRIVABLE)}); give a point on such a road"
+        )
+        raise ConfigError(msg)
+    return int(np.argmin(np.hypot(*(graph.xy - p).T)))
+
+
+def route_between(graph: _Graph, first: str, second: str) -> tuple[OsmRoute, list[str]]:
+    """The shortest drivable path between two ``LAT,LON`` points (cut at 500 m).
+
+    Raises:
+        ConfigError: A point is malformed or off the drivable roads, no path joins them, or the
+            path has a corner too sharp to drive.
+    """
+    src = _snap(graph, *_parse_point(first), first)
+    dst = _snap(graph, *_parse_point(second), second)
+    dist = {src: 0.0}
+    back: dict[int, tuple[int, int, bool]] = {}
+    heap = [(0.0, src)]
+    while heap:
+        d, u = heapq.heappop(heap)
+        if u == dst:
+            break
+        if d > dist.get(u, math.inf):
+            continue
+        for v, way, forward in graph.adjacency[u]:
+            nd = d + float(np.hypot(*(graph.xy[v] - graph.xy[u])))
+            if nd < dist.get(v, math.inf):
+                dist[v], back[v] = nd, (u, way, forward)
+                heapq.heappush(heap, (nd, v))
+    if dst not in dist or src == dst:
+        msg = f"no drivable path from {first} to {second} in {graph.osm.source}"
+        raise ConfigError(msg)
+    nodes, ways, fwd = [dst], [], []
+    while nodes[-1] != src:
+        u, way, forward = back[nodes[-1]]
+        nodes.append(u)
+        ways.append(way)
+        fwd.append(forward)
+    nodes.reverse()
+    ways.reverse()
+    fwd.reverse()
+    route = _route_of(graph, nodes, ways, fwd)
+    if route is None:
+        msg = (
+            f"the path from {first} to {second} turns a corner sharper than {MIN_RADIUS_M:.0f} m "
+            "radius (not drivable at the demo's speed); choose points on one street"
+        )
+        raise ConfigError(msg)
+    notes = [f"route from {first} to {second}: {dist[dst]:.0f} m of road"]
+    if dist[dst] > ROUTE_MAX_M:
+        notes.append(f"cut at {ROUTE_MAX_M:.0f} m")
+    return route, notes
+
+
+# -- the street --------------------------------------------------------------------------------
+
+
+def _parking(tags: Mapping[str, str], side: str) -> bool | None:
+    """Whether cars park on ``side`` (of the way's direction); None when the tags do not say."""
+    for key in (
+        f"parking:lane:{side}",
+        "parking:lane:both",
+        f"parking:{side}",
+        "parking:both",
+    ):
+        if key in tags:
+            return tags[key] not in _NO_PARKING
+    return None
+
+
+def _street(
+    graph: _Graph, route: OsmRoute, name: str, title_source: str
+) -> tuple[DemoStreet, list[str]]:
+    """The demo street along ``route``: cross-section, speed, parking, in the local frame."""
+    osm = graph.osm
+    seg = np.hypot(*np.diff(route.xy, axis=0).T)
+    on_way: Counter[int] = Counter()
+    for way, length in zip(route.ways, seg, strict=True):
+        on_way[way] += float(length)
+    main = osm.ways[on_way.most_common(1)[0][0]].tags
+    notes: list[str] = []
+    lanes = _number(main.get("lanes"))
+    width = _number(main.get("width"))
+    lane_m = 3.5
+    if width is not None:
+        lane_m = float(np.clip(width / max(lanes or 2.0, 1.0), 3.0, 4.0))
+        notes.append(f"lanes {lane_m:.2f} m from width={main['width']} of the main way")
+    speed = OSM_SPEED_MPS
+    limit = _number(main.get("maxspeed"))
+    if limit is not None and "mph" in main.get("maxspeed", ""):
+        limit *= 1.609344
+    if limit is not None and limit / 3.6 < speed:
+        speed = max(limit, 15.0) / 3.6
+    markings = main.get("lane_markings") != "no" and (
+        "lanes" in main or main.get("highway") == "tertiary"
+    )
+    # Parking: per segment of the path, on the route's left and right.
+    scale = route.route.length_m / max(float(seg.sum()), 1e-9)
+    cum = np.r_[0.0, np.cumsum(seg)] * scale
+    bans: list[tuple[str, float, float]] = []
+    tagged = 0
+    for j, (way, forward) in enumerate(zip(route.ways, route.forward, strict=True)):
+        tags = osm.ways[way].tags
+        for route_side in ("left", "right"):
+            way_side = route_side if forward else ("right" if route_side == "left" else "left")
+            allowed = _parking(tags, way_side)
+            tagged += allowed is not None
+            if allowed is False:
+                bans.append((route_side, float(cum[j]), float(cum[j + 1])))
+    for i, node in enumerate(route.nodes[: len(route.xy)]):
+        if graph.links[node] > 2:
+            s = float(cum[min(i, len(cum) - 1)])
+            lo, hi = s - _JUNCTION_CLEAR_M, s + _JUNCTION_CLEAR_M
+            bans += [("left", lo, hi), ("right", lo, hi)]
+    if tagged:
+        notes.append("parking from the ways' parking tags where they have them")
+    road = main.get("name", "an unnamed street")
+    street = DemoStreet(
+        name=name,
+        title=(
+            f"{road} ({title_source}): {route.route.length_m:.0f} m, {route.bends} bends, "
+            f"{speed * 3.6:.0f} km/h"
+        ),
+        route=route.route.offset(-lane_m / 2.0),  # the right lane's centre
+        speed_mps=speed,
+        lane_m=lane_m,
+        lane_markings=markings,
+        no_parking=tuple(_merge(bans)),
+        crs=graph.frame.crs,
+        origin=graph.frame.origin,
+    )
+    return street, notes
+
+
+def _merge(bans: list[tuple[str, float, float]]) -> list[tuple[str, float, float]]:
+    out: list[tuple[str, float, float]] = []
+    for side in ("left", "right"):
+        spans = sorted((lo, hi) for s, lo, hi in bans if s == side)
+        for lo, hi in spans:
+            if out and out[-1][0] == side and lo <= out[-1][2]:
+                out[-1] = (side, out[-1][1], max(out[-1][2], hi))
+            else:
+                out.append((side, lo, hi))
+    return out
+
+
+def _centre_line(street: DemoStreet) -> npt.NDArray[np.float64]:
+    """The street's reference line (between its driving lanes), leads included, every 1 m."""
+    s = np.arange(-street.lead_m, street.length_m + street.lead_m + 1e-9, 1.0)
+    xy, _ = street.route_points(s, street.lane_m / 2.0)
+    return xy
+
+
+def _buildings(
+    graph: _Graph, street: DemoStreet, rng: np.random.Generator
+) -> tuple[list[DemoBuilding], int, int]:
+    """Real footprints near the street, kept clear of it, and facades where it has none.
+
+    Returns the buildings, how many real ones were kept and how many dropped.
+    """
+    import shapely  # noqa: PLC0415
+
+    from cam2sim.map.buildings import building_footprints  # noqa: PLC0415
+
+    line = shapely.LineString(_centre_line(street))
+    half = street.lane_m + street.parking_m + street.sidewalk_m
+    corridor = line.buffer(half + 0.5)
+    reach = line.buffer(_BUILDING_REACH_M)
+    kept: list[DemoBuilding] = []
+    polys = []
+    dropped = 0
+    for b in building_footprints(graph.osm, graph.frame):
+        ring = np.asarray(b.xy, dtype=np.float64)
+        poly = shapely.make_valid(shapely.Polygon(ring))
+        if not poly.intersects(reach):
+            continue
+        if poly.intersects(corridor):
+            dropped += 1
+            continue
+        levels = max(round(b.height_m / 3.0), 1)
+        kept.append(DemoBuilding(xy=tuple((float(x), float(y)) for x, y in ring), levels=levels))
+        polys.append(poly)
+    real = shapely.union_all(polys) if polys else None
+    # Facades where a side of the street has no real building within reach.
+    out = list(kept)
+    length, depth, setback = 16.0, 10.0, 1.5
+    lateral0 = street.lane_m / 2.0
+    for sign in (1.0, -1.0):
+        lateral = lateral0 + sign * (half + setback + depth / 2.0)
+        for s in np.arange(-street.lead_m + 10.0, street.length_m + street.lead_m - 8.0, 21.0):
+            if street.route.in_bend([s], 12.0)[0]:
+                continue
+            c, h = street.route_points([s], lateral)
+            ring = footprint_ring(c[0], float(h[0]), length, depth)
+            poly = shapely.Polygon(ring)
+            near = poly.buffer(_FACADE_GAP_M - depth / 2.0)
+            if poly.intersects(corridor) or (real is not None and near.intersects(real)):
+                continue
+            if any(poly.intersects(shapely.Polygon(o.xy)) for o in out[len(kept) :]):
+                continue
+            out.append(DemoBuilding(xy=ring, levels=int(rng.integers(2, 6))))
+    return out, len(kept), dropped
+
+
+def _world_name(path: Path, route: Sequence[str] | None) -> str:
+    digest = hashlib.sha256(path.read_bytes())
+    digest.update(repr(tuple(route or ())).encode())
+    stem = path.name.split(".")[0]
+    return f"osm-{stem}-{digest.hexdigest()[:8]}"
+
+
+def osm_demo_world(
+    path: Path, *, route: Sequence[str] | None = None, seed: int = 0
+) -> OsmWorldPlan:
+    """The demo world of the real OSM file ``path`` (see the module's description).
+
+    ``route``: two ``"LAT,LON"`` points; None picks a route. ``seed`` places the parked cars
+    and the plain facades.
+
+    Raises:
+        StageError: The file cannot be read, holds no drivable road or no drivable path.
+        ConfigError: ``route`` is malformed, off the roads or not drivable.
+    """
+    from cam2sim.map.osm import BBox, read_osm  # noqa: PLC0415
+
+    path = Path(path)
+    if route is not None and len(route) != 2:
+        msg = f"--route takes two points LAT,LON LAT,LON, got {len(route)}"
+        raise ConfigError(msg)
+    osm = read_osm(path)
+    graph = _graph(osm)
+    picked, notes = route_between(graph, *route) if route else pick_route(graph)
+    # The local frame: the UTM grid with its origin at the route's start.
+    shift = np.round(picked.xy[0])
+    frame = replace(
+        graph.frame, origin=(graph.frame.origin[0] + shift[0], graph.frame.origin[1] + shift[1])
+    )
+    graph = replace(graph, frame=frame, xy=graph.xy - shift)
+    picked = _route_of(graph, list(picked.nodes), list(picked.ways), list(picked.forward))
+    assert picked is not None  # the same path, moved
+    street, street_notes = _street(graph, picked, _world_name(path, route), path.name)
+    rng = np.random.default_rng(seed)
+    cars = parked_cars(street, rng)
+    buildings, real, dropped = _buildings(graph, street, rng)
+    notes += street_notes
+    notes.append(
+        f"{real} real building footprints kept ({dropped} dropped: the drawn street runs into "
+        f"them), {len(buildings) - real} plain facades added"
+    )
+    # The map stage reads the real extract around the street.
+    ll = frame.to_wgs84(_centre_line(street))
+    margin_lat = _CROP_MARGIN_M / 111_320.0
+    margin_lon = margin_lat / max(math.cos(math.radians(float(ll.lat_deg.mean()))), 0.1)
+    box = BBox(
+        south=float(ll.lat_deg.min() - margin_lat),
+        west=float(ll.lon_deg.min() - margin_lon),
+        north=float(ll.lat_deg.max() + margin_lat),
+        east=float(ll.lon_deg.max() + margin_lon),
+    )
+    world = DemoWorld(
+        street=street, cars=cars, buildings=tuple(buildings), osm=osm.crop(box).to_xml()
+    )
+    return OsmWorldPlan(world=world, route=picked, frame=frame, notes=tuple(notes))
