@@ -251,6 +251,8 @@ def _splat_summary(result: SplatResult) -> str:
         if ev.lpips.mean is not None:
             quality += f", LPIPS {ev.lpips.mean:.3f}"
         parts.append(quality)
+    if result.seconds:
+        parts.append(", ".join(f"{k} {v:.1f} s" for k, v in result.seconds.items()))
     return "; ".join(parts)
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -72,6 +73,8 @@ class SplatResult:
     models_dir: Path
     trained: SceneTrainResult | None
     evaluation: SplatEval | None
+    seconds: dict[str, float] = field(default_factory=dict)
+    """Wall seconds of each step that ran (``prepare``, ``train``, ``evaluate``)."""
 
 
 def run_splat(
@@ -109,9 +112,19 @@ def run_splat(
         logger.info("splat: up to date; skipping")
         return SplatResult(prep_dir, models_dir, None, None)
     trained = evaluation = None
+    seconds: dict[str, float] = {}
+    clock = time.perf_counter()
+
+    def lap(step: str) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        seconds[step] = now - clock
+        clock = now
+
     with stage_run(ws, STAGE, inputs_hash=inputs, config=None):
         if "prepare" in opts.steps:
             prepare_scene(ws, options=opts.prepare, progress=report)
+            lap("prepare")
         if not (prep_dir / "scene.json").is_file():
             msg = f"{prep_dir} holds no prepared scene; run `cam2sim splat {ws.root}` fully"
             raise StageError(msg)
@@ -127,6 +140,8 @@ def run_splat(
             trained = train_scene(
                 prep_dir, options=opts.train, models_dir=models_dir, progress=report, scene=scene
             )
+        if "train" in opts.steps:
+            lap("train")
         if opts.evaluate and "evaluate" in opts.steps:
             notes: list[str] = []
             with _truth_reference(ws, opts, scene, notes) as truth:
@@ -142,7 +157,8 @@ def run_splat(
             if notes:
                 evaluation = evaluation.model_copy(update={"notes": [*evaluation.notes, *notes]})
                 evaluation.save(ws.splat_dir / "eval.json")
-    return SplatResult(prep_dir, models_dir, trained, evaluation)
+            lap("evaluate")
+    return SplatResult(prep_dir, models_dir, trained, evaluation, seconds)
 
 
 @contextlib.contextmanager
