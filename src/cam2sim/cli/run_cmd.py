@@ -42,6 +42,13 @@ class DriveCamera(StrEnum):
     NONE = "none"
 
 
+class Judge(StrEnum):
+    """Where leaving the road and collisions are judged."""
+
+    MAP = "map"
+    TRUTH = "truth"
+
+
 def _carla(ws: Path, sim: SimChoice, host: str | None, port: int | None) -> object:
     """CARLA options: config.yaml's ``carla`` block, with --carla-host/--carla-port on top."""
     if sim is not SimChoice.CARLA or (host is None and port is None):
@@ -187,6 +194,13 @@ def drive(
     sim: SimOption = SimChoice.BUILTIN,
     carla_host: CarlaHostOption = None,
     carla_port: CarlaPortOption = None,
+    judge: Annotated[
+        Judge,
+        typer.Option(
+            help="Where leaving the road and collisions are judged: map (the reconstructed "
+            "map and parked vehicles) or truth (the workspace's ground-truth world).",
+        ),
+    ] = Judge.MAP,
 ) -> None:
     """Closed-loop runs in the builtin simulator (or CARLA); each run ends on an event.
 
@@ -210,6 +224,7 @@ def drive(
             simulator=sim.value,
             carla=_carla(workspace, sim, carla_host, carla_port),
             variation=_variation(vary),
+            judge="truth" if judge is Judge.TRUTH else "map",
         )
         ws = Workspace.open(workspace)
         with progress_bars(enabled=sys.stderr.isatty()) as sink:

@@ -20,6 +20,7 @@ models are scored against off the recorded path).
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal, Self
 
@@ -33,7 +34,9 @@ if TYPE_CHECKING:
     import numpy.typing as npt
 
     from cam2sim.detect.synthetic import SceneBox, StreetScene
+    from cam2sim.map.query import RoadMap
     from cam2sim.render.raster import RasterRenderer, RasterResult, RasterScene
+    from cam2sim.scenario.model import ScenarioVehicle
 
 __all__ = [
     "TRUTH_WORLD_FILE",
@@ -48,6 +51,11 @@ __all__ = [
 TRUTH_WORLD_FILE = Path("truth") / "world.json"
 """Where a workspace keeps its ground-truth world, relative to the workspace root."""
 _FIT_HALF_M = 500.0
+_GEOMETRY = re.compile(r"<geometry\b[^>]*>")
+_ATTR = re.compile(r'\b(\w+)="([^"]*)"')
+_ATTR_X = re.compile(r'\bx="[^"]*"')
+_ATTR_Y = re.compile(r'\by="[^"]*"')
+_ATTR_HDG = re.compile(r'\bhdg="[^"]*"')
 """Half extent of the grid the truth frame -> world frame transform is fitted on."""
 
 
@@ -132,23 +140,57 @@ class TruthWorld(Artifact):
             RasterOptions,
             RasterScene,
         )
-        from cam2sim.scenario.model import ScenarioVehicle  # noqa: PLC0415
 
-        vehicles = [
-            ScenarioVehicle(
-                id=f"pv_{k:03d}",
-                position=(c.x, c.y, 0.0),
-                heading=c.yaw,
-                size=(c.length, c.width, c.height),
-                size_class="medium",
-                side=c.side,
-                orientation="parallel",
-            )
-            for k, c in enumerate(self.cars)
-        ]
+        vehicles = self._vehicles(np.eye(4))
         buildings = [BuildingFootprint(np.asarray(b.xy), b.height_m) for b in self.buildings]
         options = RasterOptions(lane_markings=self.lane_markings)
         return RasterScene(RoadMap.from_xodr(self.xodr), vehicles, buildings, options=options)
+
+    def in_world_frame(self, proj_string: str | None) -> tuple[RoadMap, list[ScenarioVehicle]]:
+        """The road and the parked cars moved into the workspace world frame (``proj_string``).
+
+        What a drive judged in the ground truth checks against (off the road, collisions):
+        the same rigid transform as the truth camera's, applied to every ``<geometry>`` of the
+        street's plan view and to every car.
+        """
+        from cam2sim.map.query import RoadMap  # noqa: PLC0415
+
+        T = np.linalg.inv(truth_from_world(self, proj_string))
+        yaw = math.atan2(T[1, 0], T[0, 0])
+
+        def move(match: re.Match[str]) -> str:
+            attrs = dict(_ATTR.findall(match.group(0)))
+            x, y = (
+                float(v) for v in (T[:2, :2] @ [float(attrs["x"]), float(attrs["y"])]) + T[:2, 3]
+            )
+            hdg = float(attrs["hdg"]) + yaw
+            out = _ATTR_X.sub(f'x="{x!r}"', match.group(0), count=1)
+            out = _ATTR_Y.sub(f'y="{y!r}"', out, count=1)
+            return _ATTR_HDG.sub(f'hdg="{hdg!r}"', out, count=1)
+
+        xodr = _GEOMETRY.sub(move, self.xodr)
+        return RoadMap.from_xodr(xodr), self._vehicles(T)
+
+    def _vehicles(self, T: npt.NDArray[np.float64]) -> list[ScenarioVehicle]:
+        """The parked cars as scenario vehicles, moved by ``T`` (truth frame -> target)."""
+        from cam2sim.scenario.model import ScenarioVehicle  # noqa: PLC0415
+
+        yaw = math.atan2(T[1, 0], T[0, 0])
+        out = []
+        for k, c in enumerate(self.cars):
+            x, y = (T[:2, :2] @ [c.x, c.y]) + T[:2, 3]
+            out.append(
+                ScenarioVehicle(
+                    id=f"pv_{k:03d}",
+                    position=(float(x), float(y), 0.0),
+                    heading=c.yaw + yaw,
+                    size=(c.length, c.width, c.height),
+                    size_class="medium",
+                    side=c.side,
+                    orientation="parallel",
+                )
+            )
+        return out
 
 
 _WALL_M = 0.3

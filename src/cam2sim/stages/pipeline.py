@@ -105,6 +105,9 @@ class PipelineOptions:
             signal whose name holds ``steer``.
         continue_on_error: Go on after a failed step (later steps may then fail too).
         ads: DAVE-2 training options (None: the defaults, on the steering signal chosen).
+        judge: Where the drives' leaving the road and collisions are judged (see
+            :class:`~cam2sim.stages.runs.DriveOptions`); None: in the ground-truth world when
+            the workspace has one (every camera's runs alike), else on the map.
     """
 
     osm: Path | None = None
@@ -122,6 +125,7 @@ class PipelineOptions:
     steering_signal: str | None = None
     continue_on_error: bool = False
     ads: Any = None
+    judge: Literal["map", "truth"] | None = None
 
     def __post_init__(self) -> None:
         unknown = sorted((set(self.steps) | set(self.skip)) - set(STEPS))
@@ -519,6 +523,13 @@ class _Pipeline:
         self._save_state()
         step.message = result.run_id
 
+    def _judge(self) -> Literal["map", "truth"]:
+        from cam2sim.render.truth import truth_world_path  # noqa: PLC0415
+
+        if self.options.judge is not None:
+            return self.options.judge
+        return "truth" if truth_world_path(self.ws.root).is_file() else "map"
+
     def drive(self, step: _Step) -> None:
         from cam2sim.core.files import file_fingerprint  # noqa: PLC0415
         from cam2sim.stages.runs import DriveOptions, drive  # noqa: PLC0415
@@ -533,6 +544,7 @@ class _Pipeline:
                 runs=self.options.runs,
                 sim=sim,
                 variation=self.options.run_variation,
+                judge=self._judge(),
             )
             for cam in self._drive_cameras()
         ]

@@ -126,6 +126,10 @@ class DriveOptions:
             left of the start heading; heading: counter-clockwise); ``(0, 0)`` keeps it.
         variation: Seeded run-to-run differences (start pose, speed) drawn per run on top of
             ``start_offset`` and the target speed (:mod:`cam2sim.stages.variation`); None: none.
+        judge: The world whose road and parked cars decide when a run left the road or hit a
+            car: ``map`` (the reconstructed map and the scenario's parked vehicles, as in
+            CARLA) or ``truth`` (the workspace's ground-truth world, ``WS/truth/world.json``:
+            where a real car would have driven; builtin simulator only).
     """
 
     policy: str = "pure-pursuit"
@@ -144,8 +148,14 @@ class DriveOptions:
     carla_client_factory: Any = field(default=None)
     start_offset: tuple[float, float] = (0.0, 0.0)
     variation: RunVariation | None = None
+    judge: Literal["map", "truth"] = "map"
 
     def __post_init__(self) -> None:
+        if self.judge == "truth" and self.simulator != "builtin":
+            msg = (
+                "judging runs in the ground-truth world needs the builtin simulator (--sim builtin)"
+            )
+            raise ConfigError(msg)
         if self.runs < 1 or self.policy_every < 1 or self.max_steps < 1:
             msg = "runs, policy_every and max_steps must be >= 1"
             raise ValueError(msg)
@@ -470,11 +480,32 @@ def _drive_one(
         base = opts.sim or BuiltinOptions(calibration=sc.steering_calibration)
         sim_opts = base.model_copy(update={"seed": seed})
         sim = BuiltinSimulator(sim_opts)
-        sim.load(sc, ctx.road_map)
+        if opts.judge == "truth":
+            sim.load(*_truth_judge(ctx))
+        else:
+            sim.load(sc, ctx.road_map)
     try:
         return _drive_loop(ctx, opts, policy, cameras, sim, sim_opts, target, seed, report)
     finally:
         sim.close()
+
+
+def _truth_judge(ctx: RunContext) -> tuple[Scenario, Any]:
+    """The scenario with the ground truth's parked cars, and the ground truth's road.
+
+    Both in the workspace world frame: what a drive judged in the truth world is checked against.
+    """
+    from cam2sim.render.truth import TRUTH_WORLD_FILE, TruthWorld, truth_world_path  # noqa: PLC0415
+
+    path = truth_world_path(ctx.ws.root)
+    if not path.is_file():
+        msg = (
+            f"{ctx.ws.root} has no ground-truth world ({TRUTH_WORLD_FILE}) to judge runs in; "
+            "judge them on the map instead (--judge map)"
+        )
+        raise StageError(msg)
+    road_map, parked = TruthWorld.load(path).in_world_frame(ctx.scenario.world.proj_string)
+    return ctx.scenario.model_copy(update={"parked": tuple(parked)}), road_map
 
 
 def _carla_options(options: Any, sc: Scenario, seed: int, ws: Workspace | None = None) -> Any:
