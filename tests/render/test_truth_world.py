@@ -145,3 +145,53 @@ def test_an_unmarked_world_draws_no_lane_markings() -> None:
     # The unmarked scene has exactly the marking triangles fewer.
     n_marks = len(marking_mesh(RoadMap.from_xodr(world.xodr)))
     assert len(marked.raster_scene().mesh) - len(world.raster_scene().mesh) == n_marks
+
+
+def test_the_truth_street_and_cars_move_into_the_world_frame() -> None:
+    import shapely
+    from pyproj import Transformer
+
+    from cam2sim.demo.world import demo_world
+
+    demo = demo_world(0)
+    truth = demo.truth_world()
+    frame = WorldFrame.at_crs_point(truth.crs, truth.origin[0] + 40.0, truth.origin[1] - 25.0)
+    road, cars = truth.in_world_frame(frame.proj_string)
+    to_world = Transformer.from_crs(truth.crs, frame.proj_string, always_xy=True)
+
+    def world(xy: np.ndarray) -> np.ndarray:
+        x, y = to_world.transform(xy[:, 0] + truth.origin[0], xy[:, 1] + truth.origin[1])
+        return np.column_stack([x, y])
+
+    # The driven lane's centre (truth frame) lies on a driving lane of the moved road...
+    s = np.linspace(0.0, demo.street.length_m, 50)
+    route, _ = demo.street.route_points(s)
+    assert road.on_lane(world(route), "driving").all()
+    # ...and the sidewalk beyond the parking lane does not.
+    kerb, _ = demo.street.route_points(s, -(demo.street.lane_m / 2 + demo.street.parking_m + 1.0))
+    assert not road.on_lane(world(kerb)).any()
+    # The cars keep their place and their heading (up to the grid's convergence).
+    moved = np.array([c.position[:2] for c in cars])
+    original = np.array([[c.x, c.y] for c in demo.cars])
+    assert np.abs(moved - world(original)).max() < 0.02
+    area = road.drivable_area()
+    assert isinstance(area, shapely.Geometry)
+
+
+def test_real_outlines_are_cast_as_walls_and_rectangles_as_boxes() -> None:
+    from cam2sim.render.truth import TruthBuilding
+
+    rect = TruthBuilding(xy=((0.0, 0.0), (10.0, 0.0), (10.0, 6.0), (0.0, 6.0)), height_m=9.0)
+    ell = TruthBuilding(
+        xy=((20.0, 0.0), (30.0, 0.0), (30.0, 4.0), (24.0, 4.0), (24.0, 10.0), (20.0, 10.0)),
+        height_m=6.0,
+    )
+    scene = TruthWorld(crs=UTM, origin=ORIGIN, xodr="<OpenDRIVE/>", buildings=(rect, ell))
+    boxes = scene.lidar_scene().structures
+    assert len(boxes) == 1 + 6
+    assert boxes[0].center[:2] == pytest.approx((5.0, 3.0))
+    # Each wall's outer face lies on its edge: the L's inner corner edge (30,4)->(24,4).
+    wall = boxes[3]
+    assert wall.size[0] == pytest.approx(6.0)
+    c = np.asarray(wall.center[:2])
+    assert c[1] == pytest.approx(4.0 - 0.15)  # inside the outline (south), 0.15 m from the edge

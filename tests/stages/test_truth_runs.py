@@ -59,6 +59,49 @@ def test_the_truth_camera_needs_a_ground_truth_world(tmp_path: Path) -> None:
         drive(ws, options=DriveOptions(camera="truth"))
 
 
+def _events(ws: Workspace, judge: str) -> list[str]:
+    options = DriveOptions(policy="pure-pursuit", camera="none", judge=judge)  # type: ignore[arg-type]
+    (run,) = drive(ws, options=options)
+    return [e["kind"] for e in run.events]
+
+
+def test_runs_can_be_judged_in_the_ground_truth_world(tmp_path: Path) -> None:
+    import re
+
+    # The truth street lies 12 m north of the map's: the recorded route is not on its road.
+    ws = _with_truth(tmp_path / "ws", cars=False)
+    world = TruthWorld.load(truth_world_path(ws.root))
+    moved = re.sub(
+        r'(<geometry\b[^>]*\by=")([^"]*)"',
+        lambda m: f'{m.group(1)}{float(m.group(2)) + 12.0}"',
+        world.xodr,
+    )
+    world.model_copy(update={"xodr": moved}).save(truth_world_path(ws.root))
+    assert "off_road" not in _events(ws, "map")
+    assert _events(ws, "truth")[0] == "off_road"
+    # A truth car standing in the lane: a collision only where the truth is the judge.
+    ws2 = _with_truth(tmp_path / "ws2", cars=False)
+    world = TruthWorld.load(truth_world_path(ws2.root))
+    sc = Scenario.load(ws2.scenario_dir / "scenario.json")
+    x, y = sc.trajectory.center[len(sc.trajectory.center) // 2][:2]
+    car = TruthCar(x=x, y=y, yaw=0.0, length=4.5, width=1.8, height=1.5)
+    world.model_copy(update={"cars": (car,)}).save(truth_world_path(ws2.root))
+    assert "collision" not in _events(ws2, "map")
+    assert "collision" in _events(ws2, "truth")
+
+
+def test_judging_in_the_truth_needs_the_builtin_simulator_and_a_truth_world(
+    tmp_path: Path,
+) -> None:
+    from cam2sim.core.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="builtin simulator"):
+        DriveOptions(judge="truth", simulator="carla", camera="none")
+    ws = street_workspace(tmp_path / "ws", SPEC)
+    with pytest.raises(StageError, match="--judge map"):
+        _events(ws, "truth")
+
+
 @needs_gl
 def test_a_drive_in_the_ground_truth_world_is_a_real_run(tmp_path: Path) -> None:
     ws = _with_truth(tmp_path / "ws")
