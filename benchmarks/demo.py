@@ -9,6 +9,7 @@ completion and a summary for seed groups (``--groups 0-2,3-5``), and writes it a
 
 Usage:
     python benchmarks/demo.py OUT [--runs 6] [--groups 0-2,3-5] [--world paper] [--json result.json]
+    python benchmarks/demo.py OUT --osm ../shared/data/osm/munich.osm [--route LAT,LON LAT,LON]
 
 On a CUDA machine the demo trains the splat with gsplat (the GPU preset) automatically; the
 recipe for the GPU machine is in docs/benchmarks.md.
@@ -120,9 +121,9 @@ def main() -> int:
     parser.add_argument("out", type=Path)
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--groups", default="0-2")
-    parser.add_argument(
-        "--world", default="l-street", help="the demo street (cam2sim demo --world)"
-    )
+    parser.add_argument("--world", help="the demo street (cam2sim demo --world)")
+    parser.add_argument("--osm", type=Path, help="a real OSM file (cam2sim demo --osm)")
+    parser.add_argument("--route", nargs=2, metavar="LAT,LON", help="with --osm")
     parser.add_argument("--json", type=Path)
     parser.add_argument("--no-run", action="store_true", help="only read an existing OUT")
     args = parser.parse_args()
@@ -137,9 +138,10 @@ def main() -> int:
             str(args.out),
             "--runs",
             str(args.runs),
-            "--world",
-            args.world,
         ]
+        cmd += ["--world", args.world] if args.world else []
+        cmd += ["--osm", str(args.osm)] if args.osm else []
+        cmd += ["--route", *args.route] if args.route else []
         subprocess.run(cmd, check=True)
     wall = time.perf_counter() - started
     result = summarise(args.out / "ws", _groups(args.groups))
