@@ -3,11 +3,13 @@
 :func:`osm_demo_world` turns an OSM file into the ground-truth world of a demo recording:
 
 * **The route.** Given two points (``route``), the shortest drivable path between the road
-  nodes nearest them; else the best path the file has (:func:`pick_route`): 300-500 m on
-  ``highway=residential|unclassified|tertiary`` ways (both directions open, no U-turns), with at
-  least two bends, preferring about 350 m near the middle of the extract; without a path that
-  has two bends, the one with most bends and closest to that length, saying so in the world's
-  notes. Every corner of the way geometry is rounded by the largest arc that fits
+  nodes nearest them (cut at 500 m); else the best path the file has (:func:`pick_route`):
+  300-400 m (paths that run on are cut at 400 m: the demo's time grows with the route) on
+  ``highway=residential|unclassified|tertiary`` ways (both directions open, no U-turns, no loop
+  around a block narrower than 60 m), with at least two bends, preferring about 350 m near the
+  middle of the extract; without such a path, the one with most bends and closest to that
+  length, or without any of 300 m the longest, saying so in the world's notes. Every corner of
+  the way geometry is rounded by the largest arc that fits
   (:meth:`~cam2sim.demo.route.PiecewiseRoute.from_polyline`, at least 20 m: a corner sharper
   than that is not drivable at the demo's speed and its paths are skipped).
 * **The street** (:class:`~cam2sim.demo.world.DemoStreet`): the cross-section from the tags of
@@ -71,6 +73,8 @@ ROUTE_MIN_M: Final = 300.0
 ROUTE_SHORTEST_M: Final = 100.0
 """The shortest route taken when an extract has no path of :data:`ROUTE_MIN_M`."""
 ROUTE_MAX_M: Final = 500.0
+PICK_CUT_M: Final = 400.0
+"""Picked paths that run on are cut here: the demo's time grows with the route."""
 ROUTE_TARGET_M: Final = 350.0
 """The preferred length: long enough for three bends, short enough for 15 minutes on 2 cores."""
 MIN_RADIUS_M: Final = 20.0
@@ -207,15 +211,19 @@ def _graph(osm: OsmData) -> _Graph:
 
 
 def _route_of(
-    graph: _Graph, nodes: Sequence[int], ways: Sequence[int], forward: Sequence[bool]
+    graph: _Graph,
+    nodes: Sequence[int],
+    ways: Sequence[int],
+    forward: Sequence[bool],
+    cut_m: float = ROUTE_MAX_M,
 ) -> OsmRoute | None:
-    """The path through ``nodes`` cut at :data:`ROUTE_MAX_M`; None when not drivable."""
+    """The path through ``nodes`` cut at ``cut_m``; None when not drivable."""
     xy = graph.xy[list(nodes)]
     seg = np.hypot(*np.diff(xy, axis=0).T)
     cum = np.r_[0.0, np.cumsum(seg)]
-    if cum[-1] > ROUTE_MAX_M:
-        j = int(np.searchsorted(cum, ROUTE_MAX_M))  # the segment (j-1, j) holds the cut
-        f = (ROUTE_MAX_M - cum[j - 1]) / seg[j - 1]
+    if cum[-1] > cut_m:
+        j = int(np.searchsorted(cum, cut_m))  # the segment (j-1, j) holds the cut
+        f = (cut_m - cum[j - 1]) / seg[j - 1]
         end = xy[j - 1] + f * (xy[j] - xy[j - 1])
         xy = np.vstack([xy[:j], end])
         nodes, ways, forward = nodes[: j + 1], ways[:j], forward[:j]
@@ -247,7 +255,7 @@ def _loops_back(route: PiecewiseRoute) -> bool:
 
 
 def _paths(graph: _Graph) -> Iterator[tuple[list[int], list[int], list[bool]]]:
-    """Simple paths of 100-500 m (cut at 500 m) ending at junctions or dead ends (or the cut).
+    """Simple paths of 100-400 m ending at junctions or dead ends, or cut at 400 m.
 
     They start from the junctions and dead ends nearest the extract's middle.
     """
@@ -260,9 +268,9 @@ def _paths(graph: _Graph) -> Iterator[tuple[list[int], list[int], list[bool]]]:
         while stack and budget > 0:
             nodes, ways, fwd, length = stack.pop()
             here = nodes[-1]
-            if length >= ROUTE_SHORTEST_M and (length >= ROUTE_MAX_M or graph.links[here] != 2):
+            if length >= ROUTE_SHORTEST_M and (length >= PICK_CUT_M or graph.links[here] != 2):
                 yield nodes, ways, fwd
-            if length >= ROUTE_MAX_M:
+            if length >= PICK_CUT_M:
                 continue
             budget -= 1
             for nxt, way, forward in graph.adjacency[here]:
@@ -291,7 +299,7 @@ def pick_route(graph: _Graph) -> tuple[OsmRoute, list[str]]:
     seen = 0
     for nodes, ways, fwd in _paths(graph):
         seen += 1
-        cand = _route_of(graph, nodes, ways, fwd)
+        cand = _route_of(graph, nodes, ways, fwd, PICK_CUT_M)
         if cand is None:
             continue
         length = cand.route.length_m
