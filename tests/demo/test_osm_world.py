@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cam2sim.core.errors import ConfigError, StageError
-from cam2sim.demo.osm_world import ROUTE_MAX_M, osm_demo_world
+from cam2sim.demo.osm_world import MIN_RADIUS_M, ROUTE_MAX_M, osm_demo_world
 from cam2sim.demo.route import PiecewiseRoute
 
 OSM_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "osm"
@@ -86,14 +86,14 @@ def test_real_extracts_give_a_drivable_route_with_two_bends(name: str, crs: str)
     assert street.crs == crs
     assert 295.0 <= street.length_m <= ROUTE_MAX_M
     assert len(street.route.bend_turns()) >= 2
-    assert all(abs(k) <= 1 / 20.0 + 1e-9 for _, k in plan.route.route.pieces)
+    assert all(abs(k) <= 1 / MIN_RADIUS_M + 1e-9 for _, k in plan.route.route.pieces)
     # The street's reference line follows the OSM way; the car drives half a lane right of it.
     s = np.arange(0.0, street.length_m, 2.0)
     xy, _ = street.route_points(s, street.lane_m / 2.0)
     way = shapely.LineString(plan.route.xy)
     off = shapely.distance(shapely.points(xy), way)
     assert float(np.max(off)) < 8.0  # corners are rounded by at most 20-60 m
-    assert float(np.median(off)) < 0.1
+    assert float(np.median(off)) < 0.3
     drive, _ = street.route_points(s)
     assert float(np.median(shapely.distance(shapely.points(drive), way))) == pytest.approx(
         street.lane_m / 2.0, abs=0.1

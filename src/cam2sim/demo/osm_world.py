@@ -10,7 +10,7 @@
   middle of the extract; without such a path, the one with most bends and closest to that
   length, or without any of 300 m the longest, saying so in the world's notes. Every corner of
   the way geometry is rounded by the largest arc that fits
-  (:meth:`~cam2sim.demo.route.PiecewiseRoute.from_polyline`, at least 20 m: a corner sharper
+  (:meth:`~cam2sim.demo.route.PiecewiseRoute.from_polyline`, at least 26 m: a corner sharper
   than that is not drivable at the demo's speed and its paths are skipped).
 * **The street** (:class:`~cam2sim.demo.world.DemoStreet`): the cross-section from the tags of
   the way the route follows longest (``width`` / ``lanes`` give the lane width, kept within
@@ -77,10 +77,14 @@ PICK_CUT_M: Final = 400.0
 """Picked paths that run on are cut here: the demo's time grows with the route."""
 ROUTE_TARGET_M: Final = 350.0
 """The preferred length: long enough for three bends, short enough for 15 minutes on 2 cores."""
-MIN_RADIUS_M: Final = 20.0
-JUNCTION_RADIUS_M: Final = 20.0
-"""Corners at junctions are turns: rounded by at most this (a street's own curves by 60 m)."""
 OSM_SPEED_MPS: Final = 25.0 / 3.6
+COMFORT_ACCEL: Final = 2.0
+"""Lateral acceleration (m/s^2) the recorded driver keeps to in bends, at constant speed."""
+MIN_RADIUS_M: Final = 26.0
+"""The tightest corner a route may have: OSM_SPEED_MPS^2 / COMFORT_ACCEL = 24 m for the right
+lane, half a lane inside a right turn of the street's centre line."""
+JUNCTION_RADIUS_M: Final = MIN_RADIUS_M
+"""Corners at junctions are turns: rounded by at most this (a street's own curves by 60 m)."""
 _MAX_DEFLECTION_RAD: Final = math.radians(100.0)
 _SEARCH_BUDGET: Final = 40_000
 """Paths the route search extends before it settles for the best found."""
