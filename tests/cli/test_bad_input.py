@@ -82,7 +82,47 @@ def _ws(root: Path) -> str:
     return str(root / "ws")
 
 
+_FOOTWAY_OSM = (
+    b"<?xml version='1.0' encoding='UTF-8'?><osm version='0.6'>"
+    b"<node id='1' lat='48.0' lon='11.0' version='1'/><node id='2' lat='48.0' lon='11.001' "
+    b"version='1'/><way id='9' version='1'><nd ref='1'/><nd ref='2'/>"
+    b"<tag k='highway' v='footway'/></way></osm>"
+)
+
+
 CASES = [
+    Case(
+        "a demo route without an OSM file",
+        _nothing,
+        lambda root: ["demo", "-o", str(root / "d"), "--route", "48.1,11.5", "48.2,11.5"],
+        ("--route needs --osm",),
+    ),
+    Case(
+        "a demo with both a built-in world and an OSM file",
+        _write("x.osm", _FOOTWAY_OSM),
+        lambda root: [
+            "demo",
+            "-o",
+            str(root / "d"),
+            "--world",
+            "paper",
+            "--osm",
+            str(root / "x.osm"),
+        ],
+        ("give --world or --osm, not both",),
+    ),
+    Case(
+        "a demo from an OSM file without drivable roads",
+        _write("x.osm", _FOOTWAY_OSM),
+        lambda root: ["demo", "-o", str(root / "d"), "--osm", str(root / "x.osm")],
+        ("no drivable road", "footway (1)", "Export an area with residential streets"),
+    ),
+    Case(
+        "drives judged in a ground truth the workspace does not have",
+        _nothing,
+        lambda root: ["drive", _ws(root), "--camera", "none", "--judge", "truth"],
+        ("has no ground-truth world", "--judge map"),
+    ),
     Case(
         "an empty folder as workspace",
         lambda root: (root / "empty").mkdir(),
