@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from cam2sim.ads.dave2 import METADATA_KEY, Dave2Config
+from cam2sim.core.backends import onnx_session
 from cam2sim.core.errors import BackendUnavailableError, StageError
 from cam2sim.core.files import write_bytes_atomic
 from cam2sim.core.schema import Artifact
@@ -139,9 +140,7 @@ def export_onnx(
     rng = np.random.default_rng(seed)
     rand = rng.uniform(0.0, 255.0, (random_inputs, 3, ih, iw)).astype(np.float32)
     real = np.zeros((0, 3, ih, iw), np.float32) if real_inputs is None else real_inputs
-    options = ort.SessionOptions()
-    options.log_severity_level = 3
-    session = ort.InferenceSession(data, sess_options=options, providers=["CPUExecutionProvider"])
+    session = onnx_session(data, "the ONNX export's parity check", cuda=False)
 
     def max_diff(x: npt.NDArray[np.float32]) -> float:
         worst = 0.0

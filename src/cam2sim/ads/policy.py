@@ -51,13 +51,13 @@ from cam2sim.ads.dave2 import METADATA_KEY as DAVE2_METADATA
 from cam2sim.ads.dave2 import Dave2Config, preprocess
 from cam2sim.core.backends import (
     ONNX_FLOAT_TYPES,
-    ONNX_HINT,
     TORCH_HINT,
     checked_size,
     fixed_dim,
     image_tensor,
     load_torch_model,
     local_file,
+    onnx_session,
     require_module,
     to_numpy,
 )
@@ -380,18 +380,7 @@ class _OnnxSteering:
 
     def __init__(self, path: Path, input_size: tuple[int, int] | None) -> None:
         self.name = f"onnx:{path.name}"
-        ort = require_module("onnxruntime", ONNX_HINT, "the ONNX steering policy")
-        options = ort.SessionOptions()
-        options.log_severity_level = 3
-        available = set(ort.get_available_providers())
-        providers = [p for p in ("CUDAExecutionProvider", "CPUExecutionProvider") if p in available]
-        try:
-            self._session = ort.InferenceSession(
-                str(path), sess_options=options, providers=providers
-            )
-        except Exception as err:  # onnxruntime's errors derive from Exception only
-            msg = f"cannot load ONNX model {str(path)!r}: {err}"
-            raise ConfigError(msg) from err
+        self._session = onnx_session(path, "the ONNX steering policy")
         inputs: list[Any] = list(self._session.get_inputs())  # Any: onnxruntime NodeArgs
         outputs: list[Any] = list(self._session.get_outputs())
 

@@ -62,13 +62,13 @@ import numpy as np
 
 from cam2sim.core.backends import (
     ONNX_FLOAT_TYPES,
-    ONNX_HINT,
     TORCH_HINT,
     checked_size,
     fixed_dim,
     image_tensor,
     load_torch_model,
     local_file,
+    onnx_session,
     require_module,
     to_numpy,
 )
@@ -316,18 +316,7 @@ class _OnnxModel:
 
     def __init__(self, path: Path, role: str) -> None:
         self.path = local_file(path, "ONNX model")
-        ort = require_module("onnxruntime", ONNX_HINT, f"the ONNX {role} detector")
-        options = ort.SessionOptions()
-        options.log_severity_level = 3
-        available = set(ort.get_available_providers())
-        providers = [p for p in ("CUDAExecutionProvider", "CPUExecutionProvider") if p in available]
-        try:
-            self._session = ort.InferenceSession(
-                str(self.path), sess_options=options, providers=providers
-            )
-        except Exception as err:  # onnxruntime's errors derive from Exception only
-            msg = f"cannot load ONNX model {str(self.path)!r}: {err}"
-            raise ConfigError(msg) from err
+        self._session = onnx_session(self.path, f"the ONNX {role} detector")
         # Any: onnxruntime is untyped; its NodeArg has .name, .shape (int | str | None), .type
         self.inputs: list[Any] = list(self._session.get_inputs())
         self.outputs: list[Any] = list(self._session.get_outputs())
@@ -338,7 +327,7 @@ class _OnnxModel:
         if "boxes" not in names or "scores" not in names or (isinstance(last, int) and last < 7):
             msg = f"{role} model outputs must include boxes (M, 7) and scores (M,)"
             raise self.error(msg)
-        _log.info("ONNX %s model %s on %s", role, self.path.name, providers[0])
+        _log.info("ONNX %s model %s on %s", role, self.path.name, self._session.get_providers()[0])
 
     def describe(self) -> str:
         """The model's actual inputs and outputs, for error messages."""
