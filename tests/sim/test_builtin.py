@@ -12,6 +12,7 @@ from cam2sim.core.dataset import MountRecord
 from cam2sim.core.errors import ConfigError, StageError
 from cam2sim.core.workspace import WorldFrameRecord
 from cam2sim.map.query import RoadMap
+from cam2sim.scenario.calibration import fit_steering_calibration
 from cam2sim.scenario.model import (
     HeroStart,
     Scenario,
@@ -27,7 +28,6 @@ from cam2sim.sim.interface import (
     Simulator,
     SteeringCalibration,
     VehicleState,
-    fit_steering_calibration,
 )
 
 DRIVES = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "reference-drives"

@@ -66,7 +66,7 @@ from cam2sim.core.errors import ConfigError, StageError
 if TYPE_CHECKING:
     import numpy.typing as npt
 
-    from cam2sim.sim.interface import SteeringCalibration, VehicleState
+    from cam2sim.core.vehicle import SteeringCalibration, VehicleState
 
 __all__ = [
     "ConstantPolicy",

@@ -53,7 +53,7 @@ import numpy as np
 
 from cam2sim.ads.policy import Observation, SteeringPolicy, load_policy
 from cam2sim.core.errors import ConfigError, StageError
-from cam2sim.sim.interface import SteeringCalibration, VehicleState
+from cam2sim.core.vehicle import SteeringCalibration, VehicleState
 
 if TYPE_CHECKING:
     from collections.abc import Callable

@@ -13,8 +13,8 @@ import pydantic
 
 from cam2sim.core.dataset import CameraIntrinsics, MountRecord
 from cam2sim.core.schema import Artifact
+from cam2sim.core.vehicle import SteeringCalibration
 from cam2sim.core.workspace import WorldFrameRecord
-from cam2sim.sim.interface import SteeringCalibration
 
 __all__ = [
     "BodyPoint",

@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING, Literal
 import pydantic
 
 from cam2sim.core.errors import ConfigError
+from cam2sim.core.vehicle import SteeringCalibration
 from cam2sim.sim.control import EpisodeRuleOptions, VehicleControlOptions
-from cam2sim.sim.interface import SteeringCalibration
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence

@@ -20,7 +20,7 @@ from cam2sim.sim.interface import SimEvent
 if TYPE_CHECKING:
     import numpy.typing as npt
 
-    from cam2sim.sim.interface import Control, EventKind, SteeringCalibration
+    from cam2sim.core.vehicle import Control, EventKind, SteeringCalibration
 
 __all__ = [
     "EpisodeRuleOptions",

@@ -28,11 +28,11 @@ if TYPE_CHECKING:
     from pathlib import Path
 
     from cam2sim.core.dataset import Calibration
+    from cam2sim.core.vehicle import SteeringCalibration
     from cam2sim.detect.vehicles import ParkedVehicle
     from cam2sim.map.query import RoadMap
     from cam2sim.scenario.checks import CheckOptions
     from cam2sim.scenario.model import Scenario, ScenarioVehicle, SizeClass
-    from cam2sim.sim.interface import SteeringCalibration
 
 __all__ = ["ScenarioOptions", "ScenarioResult", "run_scenario", "size_class"]
 
@@ -253,7 +253,8 @@ def steering_calibration(ws: Workspace) -> SteeringCalibration:
     """
     from cam2sim.core.errors import ConfigError  # noqa: PLC0415
     from cam2sim.core.table import read_table  # noqa: PLC0415
-    from cam2sim.sim.interface import SteeringCalibration, fit_steering_calibration  # noqa: PLC0415
+    from cam2sim.core.vehicle import SteeringCalibration  # noqa: PLC0415
+    from cam2sim.scenario.calibration import fit_steering_calibration  # noqa: PLC0415
 
     paths = dataset_paths(ws.dataset_dir)
     signal = paths.signal_file(STEERING_SIGNAL)

@@ -1,0 +1,140 @@
+"""Fitting the steering calibration from a recording: curvature per steering unit.
+
+The recorded path's curvature (from the poses, resampled by arc length and smoothed over a few
+metres) is regressed on the recorded steering signal at the same times; the slope is the
+:class:`~cam2sim.core.vehicle.SteeringCalibration`'s ``curvature_per_unit``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from cam2sim.core.errors import ConfigError
+from cam2sim.core.polyline import arc_length
+from cam2sim.core.vehicle import SteeringCalibration
+
+__all__ = ["fit_steering_calibration"]
+
+
+def _window_mean(values: npt.NDArray[np.float64], half: int) -> npt.NDArray[np.float64]:
+    """Centred moving average over ``2 * half + 1`` samples (shrunk at the ends)."""
+    c = np.concatenate([[0.0], np.cumsum(values)])
+    idx = np.arange(values.shape[0])
+    lo = np.clip(idx - half, 0, values.shape[0])
+    hi = np.clip(idx + half + 1, 0, values.shape[0])
+    out: npt.NDArray[np.float64] = (c[hi] - c[lo]) / (hi - lo)
+    return out
+
+
+_MIN_CALIBRATION_CORR = 0.5  # steering must explain the curvature to calibrate it
+_MIN_RESIDUAL_SCALE = 1e-4  # 1/m: below any real curvature noise
+
+
+def fit_steering_calibration(  # noqa: PLR0913
+    t_steer: npt.ArrayLike,
+    steering: npt.ArrayLike,
+    t_pose: npt.ArrayLike,
+    xy: npt.ArrayLike,
+    heading: npt.ArrayLike,
+    speed: npt.ArrayLike,
+    *,
+    min_speed: float = 2.0,
+    spacing_m: float = 0.5,
+    window_m: float = 3.0,
+) -> SteeringCalibration:
+    """Fit the curvature per steering unit from a recording.
+
+    The path is resampled by arc length (so bursty pose timestamps do not matter), its
+    curvature is the change of the recorded heading over a centred window of ``2 * window_m``
+    metres, and the steering signal, read at the time each arc-length sample was reached, is
+    averaged over the same window. Samples below ``min_speed`` are dropped (standing still,
+    position jitter makes curvature meaningless). ``kappa = k * steering + offset`` is fitted by
+    least squares, then refitted without outliers beyond 3 robust standard deviations.
+
+    Args:
+        t_steer: ``(M,)`` steering timestamps, seconds.
+        steering: ``(M,)`` steering signal in the policy's unit.
+        t_pose: ``(N,)`` pose timestamps, seconds.
+        xy: ``(N, 2)`` positions, metres.
+        heading: ``(N,)`` headings, radians counter-clockwise from east.
+        speed: ``(N,)`` speeds, m/s.
+        min_speed: Slowest sample kept, m/s.
+        spacing_m: Arc-length resampling step.
+        window_m: Half window of the curvature estimate.
+
+    Raises:
+        ConfigError: Too little driving above ``min_speed`` or no steering variation to fit.
+    """
+    ts = np.asarray(t_steer, dtype=np.float64).reshape(-1)
+    st = np.asarray(steering, dtype=np.float64).reshape(-1)
+    tp = np.asarray(t_pose, dtype=np.float64).reshape(-1)
+    p = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    hd = np.asarray(heading, dtype=np.float64).reshape(-1)
+    sp = np.asarray(speed, dtype=np.float64).reshape(-1)
+    if not (ts.shape == st.shape and tp.shape[0] == p.shape[0] == hd.shape[0] == sp.shape[0]):
+        msg = (
+            f"steering has {ts.shape[0]} stamps for {st.shape[0]} values and the poses "
+            f"{tp.shape[0]} stamps for {p.shape[0]} positions, {hd.shape[0]} headings and "
+            f"{sp.shape[0]} speeds; pass matching arrays"
+        )
+        raise ConfigError(msg)
+    order = np.argsort(tp, kind="stable")
+    tp, p, hd, sp = tp[order], p[order], np.unwrap(hd[order]), sp[order]
+    so = np.argsort(ts, kind="stable")
+    ts, st = ts[so], st[so]
+
+    s = arc_length(p)
+    grid = np.arange(0.0, s[-1], spacing_m) if s[-1] > spacing_m else np.zeros(0)
+    # Arc length only grows while moving; take the first pose reaching each grid station.
+    keep = np.concatenate([[True], np.diff(s) > 0])
+    s_k, t_k, h_k, v_k = s[keep], tp[keep], hd[keep], sp[keep]
+    half = max(1, round(window_m / spacing_m))
+    if grid.shape[0] < 2 * half + 3:
+        msg = (
+            f"the recording drives {s[-1]:.1f} m; fitting the steering calibration needs at "
+            f"least {(2 * half + 3) * spacing_m:.0f} m of driving (or give curvature_per_unit)"
+        )
+        raise ConfigError(msg)
+    t_g = np.interp(grid, s_k, t_k)
+    h_g = np.interp(grid, s_k, h_k)
+    v_g = np.interp(grid, s_k, v_k)
+    idx = np.arange(grid.shape[0])
+    lo = np.clip(idx - half, 0, grid.shape[0] - 1)
+    hi = np.clip(idx + half, 0, grid.shape[0] - 1)
+    kappa = (h_g[hi] - h_g[lo]) / (grid[hi] - grid[lo])
+    steer_g = _window_mean(np.interp(t_g, ts, st), half)
+    v_min = np.minimum(np.minimum(v_g[lo], v_g[hi]), v_g)
+    ok = (hi - lo == 2 * half) & (v_min >= min_speed)
+    ok &= (t_g >= ts[0]) & (t_g <= ts[-1])
+    x, y = steer_g[ok], kappa[ok]
+    if x.shape[0] < 10 or np.ptp(x) <= 0:
+        msg = (
+            f"only {x.shape[0]} samples above {min_speed} m/s with steering variation; the "
+            "recording cannot calibrate steering (give curvature_per_unit instead)"
+        )
+        raise ConfigError(msg)
+    a = np.stack([x, np.ones_like(x)], -1)
+    coef = np.linalg.lstsq(a, y, rcond=None)[0]
+    res = y - a @ coef
+    centre = float(np.median(res))
+    # Robust spread (MAD), floored: clean data can have almost every residual identical.
+    scale = max(1.4826 * float(np.median(np.abs(res - centre))), _MIN_RESIDUAL_SCALE)
+    inl = np.abs(res - centre) <= 3.0 * scale
+    coef = np.linalg.lstsq(a[inl], y[inl], rcond=None)[0]
+    res = y[inl] - a[inl] @ coef
+    corr = float(np.corrcoef(x[inl], y[inl])[0, 1]) if inl.sum() > 2 else 0.0
+    if not (np.isfinite(coef[0]) and coef[0] > 0 and corr >= _MIN_CALIBRATION_CORR):
+        msg = (
+            f"the recorded steering does not explain the path's curvature (slope {coef[0]:.3g} "
+            f"1/m per unit, correlation {corr:.2f}); it may be another signal or unsynchronised "
+            "(give curvature_per_unit instead)"
+        )
+        raise ConfigError(msg)
+    return SteeringCalibration(
+        curvature_per_unit=float(coef[0]),
+        offset=float(coef[1]),
+        source="fitted",
+        samples=int(inl.sum()),
+        rms_residual=float(np.sqrt(np.mean(res**2))),
+    )
