@@ -627,7 +627,8 @@ def osm_demo_world(
         north=float(ll.lat_deg.max() + margin_lat),
         east=float(ll.lon_deg.max() + margin_lon),
     )
-    world = DemoWorld(
-        street=street, cars=cars, buildings=tuple(buildings), osm=osm.crop(box).to_xml()
-    )
+    # Ways run on past an extract's declared bounds with all their nodes; a route that follows
+    # them there is mapped by them, so the written extract declares the box around the street.
+    extract = replace(osm.crop(box), bounds=box)
+    world = DemoWorld(street=street, cars=cars, buildings=tuple(buildings), osm=extract.to_xml())
     return OsmWorldPlan(world=world, route=picked, frame=frame, notes=tuple(notes))
