@@ -118,9 +118,17 @@ def test_real_buildings_are_used_where_the_extract_has_them() -> None:
 
 
 def test_a_small_extract_gives_its_longest_route_and_says_so() -> None:
+    from cam2sim.map.osm import parse_osm_xml
+
     plan = osm_demo_world(_real("tram_crossing.osm"))
     assert any("took the longest" in n for n in plan.notes)
     assert 100.0 <= plan.world.street.length_m < 300.0
+    # The route follows ways past the file's bounds: the extract written for the map stage
+    # declares bounds that hold the whole drive (else the map stage refuses the recording).
+    written = parse_osm_xml(plan.world.osm_xml().encode(), source="demo.osm")
+    ll = plan.frame.to_wgs84(plan.route.xy)
+    assert written.bounds is not None
+    assert written.bounds.contains(ll.lat_deg, ll.lon_deg).all()
 
 
 def test_route_between_two_points_and_bad_points() -> None:
