@@ -446,7 +446,7 @@ def _street(
     seg = np.hypot(*np.diff(route.xy, axis=0).T)
     on_way: Counter[int] = Counter()
     for way, length in zip(route.ways, seg, strict=True):
-        on_way[way] += float(length)
+        on_way[way] += round(float(length) * 1000)  # mm: Counter counts integers
     main = osm.ways[on_way.most_common(1)[0][0]].tags
     notes: list[str] = []
     lanes = _number(main.get("lanes"))
@@ -561,14 +561,14 @@ def _buildings(
             if street.route.in_bend([s], 12.0)[0]:
                 continue
             c, h = street.route_points([s], lateral)
-            ring = footprint_ring(c[0], float(h[0]), length, depth)
-            poly = shapely.Polygon(ring)
+            facade = footprint_ring(c[0], float(h[0]), length, depth)
+            poly = shapely.Polygon(facade)
             near = poly.buffer(_FACADE_GAP_M - depth / 2.0)
             if poly.intersects(corridor) or (real is not None and near.intersects(real)):
                 continue
             if any(poly.intersects(shapely.Polygon(o.xy)) for o in out[len(kept) :]):
                 continue
-            out.append(DemoBuilding(xy=ring, levels=int(rng.integers(2, 6))))
+            out.append(DemoBuilding(xy=facade, levels=int(rng.integers(2, 6))))
     return out, len(kept), dropped
 
 
@@ -606,8 +606,9 @@ def osm_demo_world(
         graph.frame, origin=(graph.frame.origin[0] + shift[0], graph.frame.origin[1] + shift[1])
     )
     graph = replace(graph, frame=frame, xy=graph.xy - shift)
-    picked = _route_of(graph, list(picked.nodes), list(picked.ways), list(picked.forward))
-    assert picked is not None  # the same path, moved
+    moved = _route_of(graph, list(picked.nodes), list(picked.ways), list(picked.forward))
+    assert moved is not None  # the same path, moved
+    picked = moved
     street, street_notes = _street(graph, picked, _world_name(path, route), path.name)
     rng = np.random.default_rng(seed)
     cars = parked_cars(street, rng)

@@ -155,7 +155,7 @@ class TruthWorld(Artifact):
         """
         from cam2sim.map.query import RoadMap  # noqa: PLC0415
 
-        T = np.linalg.inv(truth_from_world(self, proj_string))
+        T = np.asarray(np.linalg.inv(truth_from_world(self, proj_string)), dtype=np.float64)
         yaw = math.atan2(T[1, 0], T[0, 0])
 
         def move(match: re.Match[str]) -> str:
