@@ -444,10 +444,10 @@ def _street(
     """The demo street along ``route``: cross-section, speed, parking, in the local frame."""
     osm = graph.osm
     seg = np.hypot(*np.diff(route.xy, axis=0).T)
-    on_way: Counter[int] = Counter()
+    on_way: dict[int, float] = {}
     for way, length in zip(route.ways, seg, strict=True):
-        on_way[way] += round(float(length) * 1000)  # mm: Counter counts integers
-    main = osm.ways[on_way.most_common(1)[0][0]].tags
+        on_way[way] = on_way.get(way, 0.0) + float(length)
+    main = osm.ways[max(on_way, key=on_way.__getitem__)].tags
     notes: list[str] = []
     lanes = _number(main.get("lanes"))
     width = _number(main.get("width"))

@@ -449,10 +449,14 @@ def drive(
     )
     results: list[RunResult] = []
     try:
+        # What the runs are judged in: read once for all of them.
+        judged = _truth_judge(ctx) if opts.judge == "truth" else (sc, ctx.road_map)
         cams: tuple[CameraName, ...] = () if opts.camera == "none" else (opts.camera,)
         with Cameras(ctx, cams) as cameras:
             results.extend(
-                _drive_one(ctx, opts, policy, cameras, opts.seed + r, progress or no_progress)
+                _drive_one(
+                    ctx, opts, policy, cameras, opts.seed + r, progress or no_progress, judged
+                )
                 for r in range(opts.runs)
             )
     finally:
@@ -467,7 +471,9 @@ def _drive_one(
     cameras: Cameras,
     seed: int,
     report: ProgressCallback,
+    judged: tuple[Scenario, Any],
 ) -> RunResult:
+    """One run; the builtin simulator checks road and collisions in ``judged``."""
     from cam2sim.sim.builtin import BuiltinOptions, BuiltinSimulator  # noqa: PLC0415
 
     sc = ctx.scenario
@@ -480,10 +486,7 @@ def _drive_one(
         base = opts.sim or BuiltinOptions(calibration=sc.steering_calibration)
         sim_opts = base.model_copy(update={"seed": seed})
         sim = BuiltinSimulator(sim_opts)
-        if opts.judge == "truth":
-            sim.load(*_truth_judge(ctx))
-        else:
-            sim.load(sc, ctx.road_map)
+        sim.load(*judged)
     try:
         return _drive_loop(ctx, opts, policy, cameras, sim, sim_opts, target, seed, report)
     finally:
