@@ -23,7 +23,7 @@ from cam2sim.scenario.model import (
 from cam2sim.sim.builtin import BuiltinOptions, BuiltinSimulator
 from cam2sim.sim.interface import (
     Control,
-    Pose,
+    PlanarPose,
     SimEvent,
     Simulator,
     SteeringCalibration,
@@ -167,7 +167,7 @@ def test_implements_the_protocol_and_needs_load(road_map: RoadMap) -> None:
 def test_constant_wheel_angle_drives_a_circle(road_map: RoadMap) -> None:
     sim = _sim(road_map, _straight(), max_steer_rate_rad_s=100.0, target_speed=4.0)
     delta = 0.2
-    s0 = sim.reset(Pose(50.0, 0.0, 0.3, 4.0))
+    s0 = sim.reset(PlanarPose(50.0, 0.0, 0.3, 4.0))
     states = _run(sim, Control(wheel_angle=delta), 900)
     radius = L / math.tan(delta)
     h = s0.heading
@@ -200,7 +200,7 @@ def test_steering_angle_and_rate_limits(road_map: RoadMap) -> None:
 
 def test_pid_reaches_and_holds_the_target_speed(road_map: RoadMap) -> None:
     sim = _sim(road_map, _straight(), timeout_s=100.0)
-    sim.reset(Pose(-100.0, LANE_Y, 0.0, 0.0))
+    sim.reset(PlanarPose(-100.0, LANE_Y, 0.0, 0.0))
     states = _run(sim, Control(target_speed=8.0), 600)
     v = np.array([s.speed for s in states])
     acc = np.diff(np.concatenate([[0.0], v])) * 30
@@ -264,7 +264,7 @@ def test_route_completed_on_the_curve(road_map: RoadMap) -> None:
     a0, r = 0.1, 51.75
     rear = (r * math.sin(a0), 450.0 - r * math.cos(a0))
     fwd = (math.cos(a0), math.sin(a0))
-    s0 = sim.reset(Pose(rear[0] - REAR_X * fwd[0], rear[1] - REAR_X * fwd[1], a0, SPEED))
+    s0 = sim.reset(PlanarPose(rear[0] - REAR_X * fwd[0], rear[1] - REAR_X * fwd[1], a0, SPEED))
     assert s0.progress_m == pytest.approx(-REAR_X, abs=0.1)  # the centre is ahead
     delta = math.atan(L / r)
     states = [sim.step(Control(wheel_angle=delta))]
@@ -295,7 +295,7 @@ def test_timeout(road_map: RoadMap) -> None:
     assert sim.events[0].t == pytest.approx(3.0, abs=1e-6)
     # default: twice the recorded 28 s plus 10 s
     sim = _sim(road_map, _straight())
-    sim.reset(Pose(-100.0, LANE_Y, 0.0, 0.0))
+    sim.reset(PlanarPose(-100.0, LANE_Y, 0.0, 0.0))
     _run(sim, Control(target_speed=0.5), 30 * 67)
     assert "timeout" in _kinds(sim.events)
     assert next(e.t for e in sim.events if e.kind == "timeout") == pytest.approx(66.0, abs=0.05)

@@ -26,7 +26,7 @@ from cam2sim.sim.carla_backend import (
     CarlaSimulator,
     select_blueprint,
 )
-from cam2sim.sim.interface import Control, Pose, Simulator
+from cam2sim.sim.interface import Control, PlanarPose, Simulator
 
 if TYPE_CHECKING:
     from cam2sim.scenario.model import Scenario
@@ -218,9 +218,7 @@ def test_collision_sensor_and_leaving_the_road_are_events(street: tuple[Scenario
         assert ev.kind == "collision"
         assert "vehicle.seat.leon" in ev.reason
         start = scenario.hero_start
-        from cam2sim.sim.interface import Pose
-
-        sim.reset(Pose(start.position[0], start.position[1] + 30.0, start.heading))
+        sim.reset(PlanarPose(start.position[0], start.position[1] + 30.0, start.heading))
         sim.step(Control())
         assert [e.kind for e in sim.events] == ["off_road"]
 
@@ -252,7 +250,9 @@ def test_speed_control_modes(street: tuple[Scenario, str], mode: str) -> None:
     sim, client = _sim(xodr, speed_control=mode)
     with sim:
         sim.load(scenario, RoadMap.from_xodr(xodr))
-        state = sim.reset(Pose(*scenario.hero_start.position[:2], scenario.hero_start.heading))
+        state = sim.reset(
+            PlanarPose(*scenario.hero_start.position[:2], scenario.hero_start.heading)
+        )
         assert state.speed == pytest.approx(0.0)
         state = sim.step(Control(target_speed=5.0))
         assert client.world is not None

@@ -21,6 +21,7 @@ import numpy.typing as npt
 import pydantic
 
 from cam2sim.core.errors import StageError
+from cam2sim.detect.boxes import footprint_corners
 from cam2sim.sim.control import (
     EpisodeRuleOptions,
     EventLog,
@@ -33,7 +34,7 @@ from cam2sim.sim.control import (
 from cam2sim.sim.interface import (
     Control,
     EventKind,
-    Pose,
+    PlanarPose,
     SimEvent,
     SteeringCalibration,
     VehicleState,
@@ -99,8 +100,6 @@ class BuiltinSimulator:
         """
         import shapely  # noqa: PLC0415
 
-        from cam2sim.detect.boxes import footprint_corners  # noqa: PLC0415
-
         o = self.options
         area = road_map.drivable_area(o.road_lane_types)
         if area.is_empty:
@@ -141,7 +140,7 @@ class BuiltinSimulator:
         self.reset()
 
     # -- episode ---------------------------------------------------------------------------
-    def reset(self, pose: Pose | None = None, *, seed: int | None = None) -> VehicleState:
+    def reset(self, pose: PlanarPose | None = None, *, seed: int | None = None) -> VehicleState:
         """Place the vehicle at ``pose`` (default: the hero start) and clear the events.
 
         Raises:
@@ -152,7 +151,7 @@ class BuiltinSimulator:
             raise StageError(msg)
         if pose is None:
             s = self._start
-            pose = Pose(s.position[0], s.position[1], s.heading, s.speed)
+            pose = PlanarPose(s.position[0], s.position[1], s.heading, s.speed)
         self._rng = np.random.default_rng(self.options.seed if seed is None else seed)
         self._t = 0.0
         self._heading = pose.heading

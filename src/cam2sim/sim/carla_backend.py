@@ -55,8 +55,13 @@ from cam2sim.core.frames.carla import (
     pose_to_carla,
     world_to_carla,
 )
-from cam2sim.core.frames.pose import Pose as FramePose
-from cam2sim.core.frames.rotation import quat_from_yaw, yaw_from_quat
+from cam2sim.core.frames.pose import Pose
+from cam2sim.core.frames.rotation import (
+    quat_from_matrix,
+    quat_from_yaw,
+    quat_to_matrix,
+    yaw_from_quat,
+)
 from cam2sim.sim.carla_options import DEFAULT_BLUEPRINTS, CarlaOptions, select_blueprint
 from cam2sim.sim.control import (
     EventLog,
@@ -68,7 +73,7 @@ from cam2sim.sim.control import (
 from cam2sim.sim.interface import (
     Control,
     EventKind,
-    Pose,
+    PlanarPose,
     SimEvent,
     VehicleState,
 )
@@ -143,7 +148,7 @@ def _default_client_factory(host: str, port: int, timeout_s: float) -> Any:
     return client
 
 
-def _to_carla_transform(carla: Any, pose: FramePose) -> Any:
+def _to_carla_transform(carla: Any, pose: Pose) -> Any:
     t = pose_to_carla(pose)
     loc = t.location
     return carla.Transform(
@@ -158,7 +163,7 @@ def _location(carla: Any, x: float, y: float, z: float) -> Any:
     return carla.Location(x=float(c[0]), y=float(c[1]), z=float(c[2]))
 
 
-def _from_carla_transform(tf: Any) -> FramePose:
+def _from_carla_transform(tf: Any) -> Pose:
     loc, rot = tf.location, tf.rotation
     ct = CarlaTransform(
         location=np.array([loc.x, loc.y, loc.z], dtype=np.float64),
@@ -169,24 +174,22 @@ def _from_carla_transform(tf: Any) -> FramePose:
     return pose_from_carla(ct)
 
 
-def _ground_pose(x: float, y: float, z: float, heading: float) -> FramePose:
-    return FramePose(np.array([x, y, z], dtype=np.float64), quat_from_yaw(heading))
+def _ground_pose(x: float, y: float, z: float, heading: float) -> Pose:
+    return Pose(np.array([x, y, z], dtype=np.float64), quat_from_yaw(heading))
 
 
 # Camera optical axes (x right, y down, z forward) -> link axes (x forward, y left, z up).
 _OPTICAL_TO_LINK = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
 
 
-def camera_link_pose(scenario: Scenario) -> FramePose:
+def camera_link_pose(scenario: Scenario) -> Pose:
     """The camera's link-axes pose (x forward, y left, z up) in the vehicle frame."""
-    from cam2sim.core.frames.rotation import quat_from_matrix, quat_to_matrix  # noqa: PLC0415
-
     m = scenario.camera_mount
     rot = quat_to_matrix(np.asarray(m.quat_xyzw, dtype=np.float64))
     if m.axes == "optical":
         rot = rot @ _OPTICAL_TO_LINK
     t = np.asarray(m.translation_m, dtype=np.float64) + np.asarray(scenario.vehicle.reference_xyz)
-    return FramePose(t, quat_from_matrix(rot))
+    return Pose(t, quat_from_matrix(rot))
 
 
 def horizontal_fov_deg(scenario: Scenario) -> float:
@@ -473,7 +476,7 @@ class CarlaSimulator:
                 self._pending.append(("off_road", f"crossed a {bad[0].lower()} marking"))
 
     # -- episode ---------------------------------------------------------------------------
-    def reset(self, pose: Pose | None = None) -> VehicleState:
+    def reset(self, pose: PlanarPose | None = None) -> VehicleState:
         """Place the hero at ``pose`` (default: the hero start), tick once, clear the events.
 
         Raises:
@@ -485,7 +488,7 @@ class CarlaSimulator:
         c = self._carla
         if pose is None:
             s = self._start
-            pose = Pose(s.position[0], s.position[1], s.heading, s.speed)
+            pose = PlanarPose(s.position[0], s.position[1], s.heading, s.speed)
         z = self._surface_z(pose.x, pose.y, self._start.position[2]) + self.options.spawn_lift_m
         hero = self._hero
         hero.set_transform(_to_carla_transform(c, _ground_pose(pose.x, pose.y, z, pose.heading)))

@@ -15,6 +15,7 @@ import numpy as np
 import pydantic
 
 from cam2sim.core.errors import ConfigError
+from cam2sim.core.polyline import ReferencePath
 from cam2sim.sim.interface import SimEvent
 
 if TYPE_CHECKING:
@@ -158,8 +159,6 @@ class RouteTracker:
     """Monotone progress (metres) of the vehicle centre along the recorded centre route."""
 
     def __init__(self, center_xy: npt.ArrayLike, *, max_lateral_m: float) -> None:
-        from cam2sim.core.polyline import ReferencePath  # noqa: PLC0415
-
         self.route = ReferencePath.from_polyline(
             np.asarray(center_xy, dtype=np.float64)[:, :2], spacing_m=1.0
         )

@@ -5,8 +5,10 @@ workspace's world frame (x east, y north, metres); headings are radians counter-
 east; speeds are m/s; the wheel angle is the bicycle model's front wheel angle (radians,
 positive = left).
 
-The vehicle's vocabulary (controls, states, events, the steering calibration) lives in
-:mod:`cam2sim.core.vehicle` and is re-exported here; the calibration is fitted by the scenario
+An episode starts at a :class:`PlanarPose` (2-D, with a speed), not at an SE(3)
+:class:`cam2sim.core.frames.Pose`. The vehicle's vocabulary (controls, states, events, the
+steering calibration) lives in :mod:`cam2sim.core.vehicle` and is re-exported here; the
+calibration is fitted by the scenario
 (:func:`cam2sim.scenario.calibration.fit_steering_calibration`).
 """
 
@@ -33,7 +35,7 @@ __all__ = [
     "DEFAULT_CURVATURE_PER_UNIT",
     "Control",
     "EventKind",
-    "Pose",
+    "PlanarPose",
     "SimEvent",
     "Simulator",
     "SteeringCalibration",
@@ -42,13 +44,28 @@ __all__ = [
 
 
 @dataclass(frozen=True, slots=True)
-class Pose:
-    """A vehicle pose to reset to: centre on the road surface, heading and speed."""
+class PlanarPose:
+    """Where an episode starts: a 2-D planar pose of the vehicle and the speed it starts at.
+
+    This is not a rigid transform: the simulators place the vehicle on the road surface (the
+    height and the roll and pitch come from the road), so only the planar part is given. The
+    full SE(3) pose is :class:`cam2sim.core.frames.Pose`.
+
+    Attributes:
+        x: Vehicle centre east, metres, world frame.
+        y: Vehicle centre north, metres, world frame.
+        heading: Forward axis, radians counter-clockwise from east.
+        speed: Speed at the start, m/s.
+    """
 
     x: float
     y: float
     heading: float
     speed: float = 0.0
+
+
+# The old name, kept only while ``stages/runs.py`` still imports it (issue 23); not exported.
+Pose = PlanarPose
 
 
 @runtime_checkable
@@ -58,7 +75,7 @@ class Simulator(Protocol):
     def load(self, scenario: Scenario, road_map: RoadMap) -> None:
         """Build the world of a scenario: roads, parked vehicles, the recorded route."""
 
-    def reset(self, pose: Pose | None = None) -> VehicleState:
+    def reset(self, pose: PlanarPose | None = None) -> VehicleState:
         """Place the ego vehicle at ``pose`` (default: the hero start) and clear the events."""
 
     def step(self, control: Control) -> VehicleState:
