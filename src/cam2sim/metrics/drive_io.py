@@ -24,13 +24,13 @@ import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
 from cam2sim.core.errors import WorkspaceError
-from cam2sim.core.files import read_json
+from cam2sim.core.run_record import RunEvents, RunRecord
 from cam2sim.core.workspace import run_paths
 
 if TYPE_CHECKING:
@@ -167,13 +167,15 @@ def load_real_drive(path: Path, *, crs: str = "EPSG:32632", method: str = "real"
 
 
 def load_run_dir(path: Path, *, method: str | None = None) -> DriveRun:
-    """Load one of our run folders (``WS/runs/<id>/``)."""
+    """Load one of our run folders (``WS/runs/<id>/``).
+
+    Raises:
+        WorkspaceError: A file of the run is broken (the message names it and the fix).
+        SchemaVersionError: A newer cam2sim wrote the run.
+    """
     path = Path(path)
     files = run_paths(path)
-    meta: dict[str, Any] = {}
-    fix = "delete the run folder and drive again"
-    if files.run_json.is_file():
-        meta = read_json(files.run_json, fix=fix)
+    meta = RunRecord.load(files.run_json) if files.run_json.is_file() else RunRecord()
     cols = _read_csv_columns(files.trajectory_csv)
     steer_t = steer = np.zeros(0)
     if files.steering_csv.is_file():
@@ -181,20 +183,18 @@ def load_run_dir(path: Path, *, method: str | None = None) -> DriveRun:
         steer_t, steer = sc["t"], sc["value"]
     events: list[RunEvent] = []
     if files.events_json.is_file():
-        raw = read_json(files.events_json, fix=fix)
-        items = raw.get("events", raw) if isinstance(raw, dict) else raw
         events = [
-            RunEvent(kind=str(e["kind"]), t=float(e.get("t", 0.0)), reason=str(e.get("reason", "")))
-            for e in items
+            RunEvent(kind=e.kind, t=e.t, reason=e.reason)
+            for e in RunEvents.load(files.events_json).events
         ]
-    label = method or str(meta.get("method") or meta.get("camera") or "sim")
+    label = method or meta.label
     return DriveRun(
         name=f"{label}/{path.name}",
         method=label,
         real=False,
         t=cols["t"],
         xy=np.stack([cols["x"], cols["y"]], -1),
-        crs=meta.get("proj_string"),
+        crs=meta.proj_string,
         steering_t=steer_t,
         steering=steer,
         events=tuple(events),
@@ -203,20 +203,19 @@ def load_run_dir(path: Path, *, method: str | None = None) -> DriveRun:
     )
 
 
-def _splat_quality(path: Path, meta: dict[str, Any]) -> SplatPathQuality | None:
+def _splat_quality(path: Path, meta: RunRecord) -> SplatPathQuality | None:
     """``run.json``'s ``splat_quality`` block, if it has one."""
     import pydantic  # noqa: PLC0415
 
     from cam2sim.core.schema import format_validation_error  # noqa: PLC0415
     from cam2sim.metrics.splat_gate import SplatPathQuality  # noqa: PLC0415
 
-    raw = meta.get("splat_quality")
-    if raw is None:
+    if meta.splat_quality is None:
         return None
     try:
-        return SplatPathQuality.model_validate(raw)
+        return SplatPathQuality.model_validate(meta.splat_quality)
     except pydantic.ValidationError as err:
-        msg = format_validation_error(err, source=f"{path / 'run.json'} splat_quality")
+        msg = format_validation_error(err, source=f"{run_paths(path).run_json} splat_quality")
         raise WorkspaceError(msg) from None
 
 

@@ -29,8 +29,9 @@ import numpy as np
 
 from cam2sim import __version__
 from cam2sim.core.errors import Cam2SimError
-from cam2sim.core.files import read_json, write_text_atomic
+from cam2sim.core.files import write_text_atomic
 from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.run_record import RunRecord
 from cam2sim.core.workspace import run_paths
 
 if TYPE_CHECKING:
@@ -92,7 +93,7 @@ class _Context:
     warnings: list[str] = field(default_factory=list)
     scenario: Scenario | None = None
     runs: list[Path] = field(default_factory=list)
-    meta: dict[str, dict[str, Any]] = field(default_factory=dict)
+    meta: dict[str, RunRecord] = field(default_factory=dict)
     drives: dict[str, DriveRun] = field(default_factory=dict)
     evaluation: DriveEvaluation | None = None
 
@@ -145,13 +146,14 @@ def _gather(ctx: _Context) -> None:
         if not run_paths(run).trajectory_csv.is_file():
             continue
         try:
-            meta = read_json(run_paths(run).run_json, fix="delete the run folder and drive again")
+            files = run_paths(run)
+            meta = RunRecord.load(files.run_json) if files.run_json.is_file() else RunRecord()
             ctx.drives[run.name] = load_run_dir(run)
         except (OSError, ValueError, Cam2SimError) as err:
             ctx.warnings.append(f"run {run.name} unreadable: {err}")
             continue
         ctx.runs.append(run)
-        ctx.meta[run.name] = meta if isinstance(meta, dict) else {}
+        ctx.meta[run.name] = meta
 
 
 def _real_drives(ctx: _Context, real_runs: Sequence[Path], real_crs: str) -> list[DriveRun]:
@@ -177,7 +179,7 @@ def _evaluate(ctx: _Context, real_runs: Sequence[Path], real_crs: str) -> str | 
     """Evaluate the closed-loop runs; return why not, or None when done."""
     from cam2sim.metrics.behaviour import evaluate_with_real_runs  # noqa: PLC0415
 
-    sims = [ctx.drives[p.name] for p in ctx.runs if ctx.meta[p.name].get("kind") != "replay"]
+    sims = [ctx.drives[p.name] for p in ctx.runs if ctx.meta[p.name].kind != "replay"]
     if not sims:
         return "no closed-loop run"
     try:
@@ -375,13 +377,12 @@ def _runs(ctx: _Context, tmp: Path) -> str:
     rows = []
     for run in ctx.runs:
         meta = ctx.meta[run.name]
-        events = read_json(run_paths(run).events_json, fix="drive again").get("events", [])
-        kinds = ", ".join(str(e.get("kind")) for e in events) or "-"
         drv = ctx.drives[run.name]
+        kinds = ", ".join(e.kind for e in drv.events) or "-"
         m = per_run.get(drv.name)
         rows.append((
-            run.name, meta.get("kind", "?"), drv.method, meta.get("policy", "-"),
-            len(drv), f"{float(meta.get('seconds', 0.0)):.2f}", kinds,
+            run.name, meta.kind or "?", drv.method, meta.policy or "-",
+            len(drv), f"{meta.seconds or 0.0:.2f}", kinds,
             _fmt(m.completion if m else None, ".2f"), (m.failure or "ok") if m else "-",
             _splat_cell(meta),
         ))  # fmt: skip
@@ -398,10 +399,10 @@ def _runs(ctx: _Context, tmp: Path) -> str:
     return "".join(parts)
 
 
-def _splat_cell(meta: dict[str, Any]) -> str:
+def _splat_cell(meta: RunRecord) -> str:
     """A run's splat gate verdict and driven coverage; "-" for runs without the splat camera."""
-    quality, gate = meta.get("splat_quality"), meta.get("splat_gate")
-    if not isinstance(quality, dict) or not isinstance(gate, dict):
+    quality, gate = meta.splat_quality, meta.splat_gate
+    if quality is None or gate is None:
         return "-"
     verdict = "fit" if gate.get("fit") else "unfit"
     mean, top = quality.get("coverage_mean"), quality.get("coverage_max")
@@ -449,7 +450,7 @@ def _frames(ctx: _Context) -> str:
     parts = []
     for run, folder in found[-3:]:
         files = sorted(folder.glob("*.png"))
-        cams = ctx.meta[run.name].get("cameras") or [ctx.meta[run.name].get("camera", "?")]
+        cams = ctx.meta[run.name].cameras or [ctx.meta[run.name].camera or "?"]
         panels = " | ".join(["real (when recorded)", *map(str, cams)])
         what = f"side by side: {panels}" if folder.name == "side_by_side" else folder.name
         parts.append(f"<h3>{_e(run.name)}</h3><p class='note'>{_e(what)}</p>")

@@ -32,8 +32,8 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 
 from cam2sim.core.errors import Cam2SimError, ConfigError, StageError
-from cam2sim.core.files import write_text_atomic
 from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.run_record import RunEvents, RunRecord
 from cam2sim.core.workspace import run_paths
 from cam2sim.stages.cameras import (
     TRUTH_CAMERA,
@@ -247,9 +247,11 @@ def _write_tables(
 
 
 def _write_meta(folder: Path, meta: dict[str, Any], events: list[dict[str, Any]]) -> None:
+    """Write ``events.json`` and ``run.json`` through their records (validated, atomic)."""
     files = run_paths(folder)
-    write_text_atomic(files.events_json, json.dumps({"events": events}, indent=1) + "\n")
-    write_text_atomic(files.run_json, json.dumps(meta, indent=1, default=str) + "\n")
+    RunEvents.model_validate({"events": events}).save(files.events_json)
+    # Options hold tuples, nested dataclasses and, for tests, callables: JSON them first.
+    RunRecord.model_validate(json.loads(json.dumps(meta, default=str))).save(files.run_json)
 
 
 # -- replay --------------------------------------------------------------------------------------
