@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Literal, Protocol, runtime_checkable
 
 from cam2sim.core.errors import ConfigError
+from cam2sim.detect.lidar import GeometricDetector
 
 if TYPE_CHECKING:
     import numpy as np
@@ -80,7 +81,7 @@ def load_detector(spec: str, source: Source) -> LidarDetector | CameraDetector:
             source.
         BackendUnavailableError: The model needs a package that is not installed.
     """
-    from cam2sim.detect import learned  # noqa: PLC0415
+    from cam2sim.detect import learned  # noqa: PLC0415 -- lazy: imports cv2
 
     if spec == "geometric":
         if source != "lidar":
@@ -89,7 +90,6 @@ def load_detector(spec: str, source: Source) -> LidarDetector | CameraDetector:
                 "model: --model path/to/model.onnx (or .pt TorchScript, or fcos3d:CONFIG:CKPT)"
             )
             raise ConfigError(msg)
-        from cam2sim.detect.lidar import GeometricDetector  # noqa: PLC0415
 
         return GeometricDetector()
     kind, _, rest = spec.partition(":")

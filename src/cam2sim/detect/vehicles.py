@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Literal
 
 import pydantic
 
+from cam2sim.core.files import write_bytes_atomic
 from cam2sim.core.schema import Artifact
 
 if TYPE_CHECKING:
@@ -103,8 +104,6 @@ def save_parked_vehicles(doc: ParkedVehicles, detections_dir: Path) -> Path | No
         The path of the archived previous version, or None when there was none.
     """
     import datetime as dt  # noqa: PLC0415
-
-    from cam2sim.core.files import write_bytes_atomic  # noqa: PLC0415
 
     path = parked_vehicles_path(detections_dir)
     archived = None

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any, Literal, Self
 import numpy as np
 
 from cam2sim.core.errors import RecordingError
+from cam2sim.recording.pointcloud import pointcloud_message_fields
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -161,8 +162,6 @@ class BagWriter:
             receive_ns: Bag time; None: the stamp.
             frame_id: Header frame.
         """
-        from cam2sim.recording.pointcloud import pointcloud_message_fields  # noqa: PLC0415
-
         cloud = points
         if points.dtype.names is None:
             names = ("x", "y", "z", "intensity")

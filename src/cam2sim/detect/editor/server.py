@@ -46,6 +46,7 @@ import numpy as np
 import pydantic
 
 from cam2sim.core.errors import Cam2SimError, ConfigError, WorkspaceError
+from cam2sim.core.files import process_lock
 from cam2sim.core.polyline import resample_indices
 from cam2sim.core.schema import format_validation_error
 from cam2sim.core.table import read_table
@@ -151,7 +152,7 @@ def _lanes(ws: Workspace) -> list[dict[str, object]]:
     """The map's lane outlines by type, simplified; empty without ``WS/map/map.xodr``."""
     import shapely  # noqa: PLC0415
 
-    from cam2sim.map.query import RoadMap  # noqa: PLC0415
+    from cam2sim.map.query import RoadMap  # noqa: PLC0415 -- lazy: imports shapely
 
     if not ws.map_xodr_path.is_file():
         return []
@@ -655,8 +656,6 @@ def serve_editor(
     Raises:
         WorkspaceError: Another editor is open on ``ws``.
     """
-    from cam2sim.core.files import process_lock  # noqa: PLC0415
-
     busy = (
         f"another cam2sim editor is open on {ws.root}; use that one (two would overwrite "
         "each other's edits) or stop it first"
