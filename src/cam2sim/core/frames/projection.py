@@ -8,8 +8,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-import pyproj
-from pyproj.exceptions import CRSError
 
 from cam2sim.core.errors import ConfigError
 from cam2sim.core.frames._common import (
@@ -25,6 +23,7 @@ from cam2sim.core.frames.rotation import quat_from_yaw, quat_multiply, quat_norm
 
 if TYPE_CHECKING:
     import numpy.typing as npt
+    import pyproj
 
 __all__ = [
     "GridFrame",
@@ -40,6 +39,8 @@ __all__ = [
 
 def _crs(crs: str) -> pyproj.CRS:
     """Parse a CRS string, translating pyproj errors into ConfigError."""
+    from pyproj.exceptions import CRSError  # noqa: PLC0415 -- lazy: pyproj takes ~65 ms to import
+
     if not isinstance(crs, str) or not crs.strip():
         msg = f"CRS must be a non-empty string, got {crs!r}; {_CRS_EXAMPLE}"
         raise ConfigError(msg)
@@ -52,11 +53,15 @@ def _crs(crs: str) -> pyproj.CRS:
 
 @functools.lru_cache(maxsize=64)
 def _parse_crs(crs: str) -> pyproj.CRS:
+    import pyproj  # noqa: PLC0415 -- lazy: pyproj takes ~65 ms to import
+
     return pyproj.CRS.from_user_input(crs)
 
 
 @functools.lru_cache(maxsize=64)
 def _cached_transformer(first: str, second: str) -> pyproj.Transformer:
+    import pyproj  # noqa: PLC0415 -- lazy: pyproj takes ~65 ms to import
+
     return pyproj.Transformer.from_crs(_parse_crs(first), _parse_crs(second), always_xy=True)
 
 
