@@ -88,3 +88,45 @@ def test_relative_config_paths_resolve_inside_the_workspace(tmp_path: Path) -> N
 def test_hash_inputs_is_stable_and_order_independent_for_dicts() -> None:
     assert hash_inputs({"a": 1, "b": [1, 2]}) == hash_inputs({"b": [1, 2], "a": 1})
     assert hash_inputs({"a": 1}) != hash_inputs({"a": 2})
+
+
+def test_step_outcomes_and_made_runs_are_kept_in_the_manifest(tmp_path: Path) -> None:
+    ws = Workspace.create(tmp_path / "ws", Config())
+    started = dt.datetime.now(dt.UTC)
+    ws.record_stage("drive", state="done", started=started, inputs_hash="sha256:d", runs=("a",))
+    ws.record_step("drive", state="up_to_date", seconds=1.23456, message="1 run(s)")
+    manifest = Workspace.open(ws.root).read_manifest()
+    assert manifest.stages["drive"].runs == ("a",)
+    assert manifest.steps["drive"].state == "up_to_date"
+    assert manifest.steps["drive"].seconds == 1.235
+
+
+def test_an_older_pipeline_json_is_merged_into_the_manifest_once(tmp_path: Path) -> None:
+    from cam2sim.core.workspace import LEGACY_PIPELINE_FILE
+
+    ws = Workspace.create(tmp_path / "ws", Config())
+    ws.runs_dir.mkdir()
+    legacy = ws.runs_dir / LEGACY_PIPELINE_FILE
+    step = {"state": "done", "seconds": 2.0, "finished": "2026-01-02T03:04:05"}
+    state = {
+        "replay": {"inputs": "sha256:r", "runs": ["r1"]},
+        "drive": {"inputs": "sha256:d", "runs": ["d1", "d2"]},
+        "steps": {"drive": step},
+    }
+    legacy.write_text(json.dumps(state))
+    manifest = ws.read_manifest()
+    assert not legacy.exists()
+    assert manifest.stages["drive"].runs == ("d1", "d2")
+    assert ws.is_up_to_date("replay", "sha256:r")
+    assert manifest.steps["drive"].finished == dt.datetime(2026, 1, 2, 3, 4, 5, tzinfo=dt.UTC)
+    assert ws.read_manifest() == manifest  # written once, read back the same
+
+
+def test_a_broken_older_pipeline_json_is_dropped(tmp_path: Path) -> None:
+    from cam2sim.core.workspace import LEGACY_PIPELINE_FILE
+
+    ws = Workspace.create(tmp_path / "ws", Config())
+    ws.runs_dir.mkdir()
+    (ws.runs_dir / LEGACY_PIPELINE_FILE).write_text("{")
+    assert ws.read_manifest().stages == {}
+    assert not (ws.runs_dir / LEGACY_PIPELINE_FILE).exists()

@@ -13,11 +13,10 @@ from typer.testing import CliRunner
 
 from cam2sim.cli.report_cmd import report
 from cam2sim.core.config import Config, RecordingConfig
-from cam2sim.core.workspace import Workspace
+from cam2sim.core.workspace import LEGACY_PIPELINE_FILE, Workspace
 from cam2sim.report.html import SECTION_IDS, write_report
 from cam2sim.scenario.synthetic import StreetSpec
 from cam2sim.splat.evaluate import SplatEval
-from cam2sim.stages.pipeline import STATE_FILE, STEPS_KEY
 from cam2sim.stages.runs import DriveOptions, ReplayOptions, drive, replay
 from conftest import has_egl, launch_chromium, playwright_with_chromium, street_workspace
 
@@ -113,7 +112,9 @@ def test_the_latest_pipeline_steps_are_listed_and_a_failed_one_is_a_warning(
         "replay": {"state": "done", "seconds": 18.7, "finished": "2026-11-22T06:22:45"},
         "drive": {"state": "failed", "seconds": 2.0, "message": "policy missing", "finished": "x"},
     }
-    (ws.runs_dir / STATE_FILE).write_text(json.dumps({STEPS_KEY: steps}), encoding="utf-8")
+    # An older cam2sim's pipeline state: merged into the manifest, the one state store.
+    legacy = ws.runs_dir / LEGACY_PIPELINE_FILE
+    legacy.write_text(json.dumps({"steps": steps}), encoding="utf-8")
     html = write_report(ws).read_text(encoding="utf-8")
     summary = re.search(r'<section id="summary">(.*?)</section>', html, re.DOTALL)
     assert summary is not None
@@ -121,6 +122,8 @@ def test_the_latest_pipeline_steps_are_listed_and_a_failed_one_is_a_warning(
     assert "Pipeline steps" in body
     assert "<td>replay</td><td>done</td><td>2026-11-22 06:22:45</td><td>18.7</td>" in body
     assert "step drive failed: policy missing" in body
+    assert not legacy.exists()
+    assert ws.read_manifest().steps["drive"].message == "policy missing"
 
 
 def _app() -> typer.Typer:

@@ -28,9 +28,7 @@ from cam2sim.detect.synthetic import Ground, LidarModel, SceneBox, StreetScene, 
 from cam2sim.map.convert import has_carla
 from cam2sim.recording.bagwriter import BagWriter
 from cam2sim.stages.pipeline import (
-    STATE_FILE,
     STEPS,
-    STEPS_KEY,
     PipelineOptions,
     PipelineResult,
     run_pipeline,
@@ -171,10 +169,11 @@ def test_pipeline_runs_every_fast_step_then_resumes_up_to_date(
     assert json.loads(metrics.read_text(encoding="utf-8"))
     runs = sorted(p.name for p in ws.runs_dir.iterdir() if p.is_dir())
     # The latest outcome of every step that ran is kept for the report's step timings.
-    kept = json.loads((ws.runs_dir / STATE_FILE).read_text(encoding="utf-8"))[STEPS_KEY]
+    kept = ws.read_manifest().steps
     assert list(kept) == [s for s in STEPS if s in FAST]
-    assert kept["drive"]["state"] == "done"
-    assert kept["drive"]["seconds"] == pytest.approx(first.outcome("drive").seconds, abs=1e-3)
+    assert kept["drive"].state == "done"
+    assert kept["drive"].seconds == pytest.approx(first.outcome("drive").seconds, abs=1e-3)
+    assert not (ws.runs_dir / "pipeline.json").exists()  # the manifest is the one state store
 
     second = run_pipeline(ws, options=_fast(osm))
     assert {_states(second)[s] for s in FAST} == {"up_to_date"}, second.outcomes

@@ -6,7 +6,8 @@ a :class:`Workspace` for paths and never build file names of another stage thems
 Layout::
 
     WS/
-      workspace.json     manifest: tool version, config snapshot, world frame, stage states
+      workspace.json     manifest: tool version, config snapshot, world frame, stage states,
+                         the latest `cam2sim run`'s step outcomes (the one state store)
       config.yaml        the user's recording config
       dataset/           stage extract / import
       detections/ map/ scenario/ splat/ ads/ runs/ report/
@@ -14,9 +15,11 @@ Layout::
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import hashlib
 import json
+import logging
 from pathlib import Path
 from typing import ClassVar, Literal
 
@@ -28,15 +31,21 @@ from cam2sim.core.errors import WorkspaceError
 from cam2sim.core.schema import Artifact
 
 __all__ = [
+    "LEGACY_PIPELINE_FILE",
     "SCENARIO_FILE",
     "Manifest",
     "StageRecord",
+    "StepRecord",
+    "StepState",
     "Workspace",
     "WorldFrameRecord",
     "hash_inputs",
 ]
 
+logger = logging.getLogger(__name__)
+
 StageState = Literal["done", "failed"]
+StepState = Literal["done", "skipped", "up_to_date", "failed", "not_applicable"]
 
 
 def _now() -> dt.datetime:
@@ -60,6 +69,20 @@ class StageRecord(pydantic.BaseModel):
     finished: dt.datetime
     message: str | None = None
     tool_version: str = __version__
+    runs: tuple[str, ...] = pydantic.Field(
+        (), description="Run folders (WS/runs/<id>) the stage made: replay and drive"
+    )
+
+
+class StepRecord(pydantic.BaseModel):
+    """The outcome of one step of the latest ``cam2sim run`` (the report's step timings)."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+    state: StepState
+    seconds: float = 0.0
+    message: str = ""
+    finished: dt.datetime = pydantic.Field(default_factory=_now)
 
 
 class WorldFrameRecord(pydantic.BaseModel):
@@ -99,6 +122,74 @@ class Manifest(Artifact):
     )
     world: WorldFrameRecord | None = None
     stages: dict[str, StageRecord] = pydantic.Field(default_factory=dict)
+    steps: dict[str, StepRecord] = pydantic.Field(
+        default_factory=dict,
+        description="The latest cam2sim run: each step's outcome, in pipeline order",
+    )
+
+
+LEGACY_PIPELINE_FILE = "pipeline.json"
+"""``WS/runs/pipeline.json``: where an older cam2sim kept the pipeline's runs and steps.
+
+It is read once, merged into the manifest (the one state store) and removed."""
+
+
+class _LegacyRuns(pydantic.BaseModel):
+    """An entry of the old ``pipeline.json``: the inputs a step last ran with, its runs."""
+
+    model_config = pydantic.ConfigDict(extra="ignore", frozen=True)
+
+    inputs: str | None = None
+    runs: tuple[str, ...] = ()
+
+
+class _LegacyStep(pydantic.BaseModel):
+    """A step outcome of the old ``pipeline.json`` (``finished``: ISO 8601 text)."""
+
+    model_config = pydantic.ConfigDict(extra="ignore", frozen=True)
+
+    state: StepState
+    seconds: float = 0.0
+    message: str = ""
+    finished: str = ""
+
+    def record(self, when: dt.datetime) -> StepRecord:
+        """The step as a manifest record (``when`` where its time is unreadable)."""
+        try:
+            finished = dt.datetime.fromisoformat(self.finished)
+        except ValueError:
+            finished = when
+        if finished.tzinfo is None:
+            finished = finished.replace(tzinfo=dt.UTC)
+        return StepRecord(
+            state=self.state, seconds=self.seconds, message=self.message, finished=finished
+        )
+
+
+class _LegacyPipelineState(Artifact):
+    """The old ``WS/runs/pipeline.json`` (no ``schema_version``: version 1)."""
+
+    model_config = pydantic.ConfigDict(extra="ignore", frozen=True)
+
+    replay: _LegacyRuns | None = None
+    drive: _LegacyRuns | None = None
+    evaluate: _LegacyRuns | None = None
+    steps: dict[str, _LegacyStep] = pydantic.Field(default_factory=dict)
+
+    def merged_into(self, manifest: Manifest, *, when: dt.datetime) -> Manifest:
+        """``manifest`` with what the old file knew that it does not (the manifest wins)."""
+        stages = dict(manifest.stages)
+        for name in ("replay", "drive", "evaluate"):
+            entry: _LegacyRuns | None = getattr(self, name)
+            if entry is None or entry.inputs is None or name in stages:
+                continue
+            stages[name] = StageRecord(
+                state="done", inputs_hash=entry.inputs, started=when, finished=when,
+                runs=entry.runs,
+            )  # fmt: skip
+        steps = {name: step.record(when) for name, step in self.steps.items()}
+        steps |= manifest.steps
+        return manifest.model_copy(update={"stages": stages, "steps": steps})
 
 
 SCENARIO_FILE = "scenario.json"
@@ -170,8 +261,34 @@ class Workspace:
         return self.root / self.CONFIG
 
     def read_manifest(self) -> Manifest:
-        """Load and validate ``workspace.json``."""
-        return Manifest.load(self.manifest_path)
+        """Load and validate ``workspace.json``.
+
+        A workspace of an older cam2sim that kept the pipeline's state in
+        ``WS/runs/pipeline.json`` has it merged into the manifest here, once.
+        """
+        manifest = Manifest.load(self.manifest_path)
+        legacy = self.runs_dir / LEGACY_PIPELINE_FILE
+        if legacy.is_file():
+            manifest = self._merge_legacy_pipeline(manifest, legacy)
+        return manifest
+
+    def _merge_legacy_pipeline(self, manifest: Manifest, legacy: Path) -> Manifest:
+        """Move the old ``pipeline.json`` into the manifest and remove it.
+
+        A broken file is dropped with a warning in the log: replay and drive then run again,
+        as they did when it was the pipeline's own file.
+        """
+        try:
+            state = _LegacyPipelineState.load(legacy)
+        except WorkspaceError as err:
+            logger.warning("%s is unreadable (%s); replay and drive run again", legacy, err)
+        else:
+            when = dt.datetime.fromtimestamp(legacy.stat().st_mtime, dt.UTC)
+            manifest = state.merged_into(manifest, when=when)
+            self.write_manifest(manifest)
+        with contextlib.suppress(FileNotFoundError):  # another process merged it first
+            legacy.unlink()
+        return manifest
 
     def write_manifest(self, manifest: Manifest) -> None:
         """Write ``workspace.json`` atomically."""
@@ -205,6 +322,7 @@ class Workspace:
         message: str | None = None,
         config: Config | None = None,
         world: WorldFrameRecord | None = None,
+        runs: tuple[str, ...] = (),
     ) -> None:
         """Record a stage outcome in the manifest (atomically)."""
         manifest = self.read_manifest()
@@ -215,6 +333,7 @@ class Workspace:
             started=started,
             finished=_now(),
             message=message,
+            runs=runs,
         )
         update: dict[str, object] = {"stages": stages, "tool_version": __version__}
         if config is not None:
@@ -222,6 +341,13 @@ class Workspace:
         if world is not None:
             update["world"] = world
         self.write_manifest(manifest.model_copy(update=update))
+
+    def record_step(self, step: str, *, state: StepState, seconds: float, message: str) -> None:
+        """Record the outcome of a ``cam2sim run`` step in the manifest (atomically)."""
+        manifest = self.read_manifest()
+        record = StepRecord(state=state, seconds=round(seconds, 3), message=message)
+        steps = {**manifest.steps, step: record}
+        self.write_manifest(manifest.model_copy(update={"steps": steps}))
 
     def world_frame(self) -> WorldFrameRecord | None:
         """The workspace's world frame, once a stage has fixed it."""

@@ -39,7 +39,7 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
 
-    from cam2sim.core.workspace import Workspace
+    from cam2sim.core.workspace import Manifest, Workspace
     from cam2sim.metrics.drive_io import DriveRun
     from cam2sim.metrics.drive_quality import DriveEvaluation
     from cam2sim.metrics.image_quality import MetricStats
@@ -194,25 +194,14 @@ def _evaluate(ctx: _Context, real_runs: Sequence[Path], real_crs: str) -> str | 
 
 
 # -- sections -----------------------------------------------------------------------------------
-def _pipeline_steps(ctx: _Context) -> list[tuple[str, ...]]:
-    """Each step's latest outcome from ``cam2sim run``'s state file; failures become warnings."""
-    from cam2sim.stages.pipeline import STATE_FILE, STEPS_KEY  # noqa: PLC0415
-
-    path = ctx.ws.runs_dir / STATE_FILE
-    try:
-        steps = json.loads(path.read_text(encoding="utf-8")).get(STEPS_KEY, {})
-    except (OSError, ValueError, AttributeError):
-        return []
+def _pipeline_steps(ctx: _Context, manifest: Manifest) -> list[tuple[str, ...]]:
+    """Each step's latest outcome of ``cam2sim run`` (the manifest); failures become warnings."""
     rows: list[tuple[str, ...]] = []
-    for name, rec in steps.items():
-        if not isinstance(rec, dict):
-            continue
-        state = str(rec.get("state", "?"))
-        finished = str(rec.get("finished", "")).replace("T", " ")
-        seconds = f"{float(rec.get('seconds', 0.0)):.1f}"
-        rows.append((name, state, finished, seconds, str(rec.get("message", ""))))
-        if state == "failed":
-            ctx.warnings.insert(0, f"step {name} failed: {rec.get('message') or 'no message'}")
+    for name, rec in manifest.steps.items():
+        finished = rec.finished.strftime("%Y-%m-%d %H:%M:%S")
+        rows.append((name, rec.state, finished, f"{rec.seconds:.1f}", rec.message))
+        if rec.state == "failed":
+            ctx.warnings.insert(0, f"step {name} failed: {rec.message or 'no message'}")
     return rows
 
 
@@ -248,7 +237,7 @@ def _summary(ctx: _Context) -> str:
         parts.append(_table(["stage", "state", "started", "seconds", "message"], rows, "Stages"))
     else:
         parts.append(_na("Stage timings", f"cam2sim extract {ctx.ws.root}"))
-    steps = _pipeline_steps(ctx)
+    steps = _pipeline_steps(ctx, manifest)
     if steps:
         parts.append(_table(["step", "state", "finished", "seconds", "message"], steps,
                             "Pipeline steps (the latest cam2sim run)"))  # fmt: skip

@@ -4,10 +4,12 @@ The pipeline calls the stage functions (extract, map, detect, scenario, splat, a
 drive, evaluate, report) with defaults. Stages that record themselves in the manifest skip on
 their own when up to date; the pipeline notices (their record did not change) and reports them
 ``up_to_date``. Replay and drive write a new run folder each time, so the pipeline remembers the
-runs it made in ``WS/runs/pipeline.json`` with the inputs they were made from, and makes them
-again only when the scenario or the options changed (or a run folder disappeared). The same
-file keeps the latest outcome of every step that ran (state, seconds, message), which the
-report's summary lists.
+runs it made in the workspace manifest (the ``replay`` and ``drive`` stage records: the
+inputs hash and the run ids), and makes them again only when the scenario or the options
+changed (or a run folder disappeared). The manifest also keeps the latest outcome of every step
+that ran (``Manifest.steps``: state, seconds, message), which the report's summary lists. The
+manifest is the workspace's one state store; an older ``WS/runs/pipeline.json`` is merged into
+it when read (:meth:`~cam2sim.core.workspace.Workspace.read_manifest`).
 """
 
 from __future__ import annotations
@@ -15,17 +17,16 @@ from __future__ import annotations
 import dataclasses
 import datetime as dt
 import importlib
-import json
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, Literal
 
 from cam2sim.core.errors import Cam2SimError, ConfigError, StageError
 from cam2sim.core.files import write_text_atomic
 from cam2sim.core.progress import ProgressCallback, no_progress
-from cam2sim.core.workspace import hash_inputs, run_paths
+from cam2sim.core.workspace import StepState, hash_inputs, run_paths
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -36,9 +37,7 @@ if TYPE_CHECKING:
     from cam2sim.stages.variation import RunVariation
 
 __all__ = [
-    "STATE_FILE",
     "STEPS",
-    "STEPS_KEY",
     "PipelineOptions",
     "PipelineResult",
     "StepOutcome",
@@ -61,10 +60,6 @@ STEPS: Final = (
     "evaluate",
     "report",
 )
-StepState = Literal["done", "skipped", "up_to_date", "failed", "not_applicable"]
-STATE_FILE: Final = "pipeline.json"
-STEPS_KEY: Final = "steps"
-"""Key of the state file holding each step's latest outcome (state, seconds, message, finished)."""
 DRIVE_EVAL_DIR: Final = "drive"
 DEMO_CPU_SPLAT_BUDGET_S: Final = 240.0
 """Most training seconds of the demo's CPU splat, all chunks together: 2 x 700 steps take
@@ -278,7 +273,6 @@ class _Pipeline:
     options: PipelineOptions
     progress: ProgressCallback
     report: Path | None = None
-    state: dict[str, Any] = field(default_factory=dict)
 
     # -- bookkeeping ------------------------------------------------------------------------
     def _finished(self, stage: str) -> object:
@@ -291,37 +285,22 @@ class _Pipeline:
         call()
         step.up_to_date = before is not None and self._finished(stage) == before
 
-    def _state_path(self) -> Path:
-        return self.ws.runs_dir / STATE_FILE
-
-    def _load_state(self) -> None:
-        path = self._state_path()
-        try:
-            self.state = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
-        except (OSError, ValueError):
-            logger.warning("%s is unreadable; replay and drive run again", path)
-            self.state = {}
-
-    def _save_state(self) -> None:
-        self.ws.runs_dir.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(self._state_path(), json.dumps(self.state, indent=1) + "\n")
-
     def record(self, outcome: StepOutcome) -> None:
-        """Keep a step's latest outcome in the state file (the report's step timings)."""
-        steps = self.state.setdefault(STEPS_KEY, {})
-        steps[outcome.name] = {
-            "state": outcome.state,
-            "seconds": round(outcome.seconds, 3),
-            "message": outcome.message,
-            "finished": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-        }
-        self._save_state()
+        """Keep a step's latest outcome in the manifest (the report's step timings)."""
+        self.ws.record_step(
+            outcome.name, state=outcome.state, seconds=outcome.seconds, message=outcome.message
+        )
+
+    def _made_runs(self, stage: str) -> list[str]:
+        """The runs the pipeline's last successful ``stage`` (replay, drive) made."""
+        record = self.ws.stage_record(stage)
+        return [] if record is None or record.state != "done" else list(record.runs)
 
     def _runs_current(self, key: str, inputs: str) -> list[str] | None:
-        entry = self.state.get(key)
-        if not isinstance(entry, dict) or entry.get("inputs") != inputs:
+        record = self.ws.stage_record(key)
+        if record is None or record.state != "done" or record.inputs_hash != inputs:
             return None
-        runs = [str(r) for r in entry.get("runs", [])]
+        runs = list(record.runs)
         done = (run_paths(self.ws.runs_dir / r).trajectory_csv.is_file() for r in runs)
         if not runs or not all(done):
             return None
@@ -518,9 +497,11 @@ class _Pipeline:
             step.up_to_date = True
             step.message = runs[0]
             return
+        started = dt.datetime.now(dt.UTC)
         result = replay(self.ws, options=opts, progress=self.progress)
-        self.state["replay"] = {"inputs": inputs, "runs": [result.run_id]}
-        self._save_state()
+        self.ws.record_stage(
+            "replay", state="done", started=started, inputs_hash=inputs, runs=(result.run_id,)
+        )
         step.message = result.run_id
 
     def _judge(self) -> Literal["map", "truth"]:
@@ -560,13 +541,15 @@ class _Pipeline:
         )
         runs = self._runs_current("drive", inputs)
         if runs is None:
+            started = dt.datetime.now(dt.UTC)
             runs = [
                 r.run_id
                 for opts in all_opts
                 for r in drive(self.ws, options=opts, progress=self.progress)
             ]
-            self.state["drive"] = {"inputs": inputs, "runs": runs}
-            self._save_state()
+            self.ws.record_stage(
+                "drive", state="done", started=started, inputs_hash=inputs, runs=tuple(runs)
+            )
         else:
             step.up_to_date = True
         cams = ", ".join(self._drive_cameras())
@@ -574,24 +557,21 @@ class _Pipeline:
 
     def evaluate(self, step: _Step) -> None:
         self._require_motion("there are no drives to score")
-        runs = [str(r) for r in self.state.get("drive", {}).get("runs", [])]
+        runs = self._made_runs("drive")
         if not runs:
             msg = "no drive runs to evaluate; the drive step must run first"
             raise StageError(msg)
         out = self.ws.report_dir / DRIVE_EVAL_DIR
-        replay = [str(r) for r in self.state.get("replay", {}).get("runs", [])]
+        replay = self._made_runs("replay")
         inputs = hash_inputs({"scenario": self._scenario_hash(), "runs": runs, "replay": replay})
-        if (
-            self.state.get("evaluate", {}).get("inputs") == inputs
-            and (out / "metrics.json").is_file()
-        ):
+        if self.ws.is_up_to_date("evaluate", inputs) and (out / "metrics.json").is_file():
             step.up_to_date = True
             step.message = str(out / "metrics.json")
             return
+        started = dt.datetime.now(dt.UTC)
         evaluate_workspace_drives(self.ws, runs, out)
         notes = self._evaluate_reconstruction(replay)
-        self.state["evaluate"] = {"inputs": inputs}
-        self._save_state()
+        self.ws.record_stage("evaluate", state="done", started=started, inputs_hash=inputs)
         step.message = "; ".join([str(out / "metrics.json"), *notes])
 
     def _evaluate_reconstruction(self, replay: list[str]) -> list[str]:
@@ -692,7 +672,6 @@ def run_pipeline(
     opts = options or PipelineOptions()
     report = progress or no_progress
     pipe = _Pipeline(ws, opts, report)
-    pipe._load_state()  # noqa: SLF001 - the class is this module's own
     handlers: dict[str, Callable[[_Step], None]] = {
         "extract": pipe.extract,
         "map": pipe.map,
