@@ -15,19 +15,18 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cam2sim.scenario.model import VehicleGeometry
+
 if TYPE_CHECKING:
     import numpy.typing as npt
 
     from cam2sim.core.config import VehicleConfig
-    from cam2sim.scenario.model import VehicleGeometry
 
 __all__ = ["body_point_positions", "vehicle_geometry"]
 
 
 def vehicle_geometry(cfg: VehicleConfig) -> VehicleGeometry:
     """The scenario's vehicle record from the config's ``vehicle`` block."""
-    from cam2sim.scenario.model import VehicleGeometry  # noqa: PLC0415
-
     return VehicleGeometry(
         length_m=cfg.length_m,
         width_m=cfg.width_m,

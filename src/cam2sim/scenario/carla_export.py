@@ -24,7 +24,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cam2sim.core.files import write_text_atomic
-from cam2sim.core.frames import carla_to_world, heading_to_carla_yaw_deg, world_to_carla
+from cam2sim.core.frames import (
+    carla_to_world,
+    carla_yaw_deg_to_heading,
+    heading_to_carla_yaw_deg,
+    world_to_carla,
+)
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -67,8 +72,6 @@ def trajectory_from_carla(
     entries: list[dict[str, Any]],
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """World positions ``(N, 3)`` and headings ``(N,)`` back from CARLA trajectory entries."""
-    from cam2sim.core.frames import carla_yaw_deg_to_heading  # noqa: PLC0415
-
     loc = np.array(
         [[e["transform"]["location"][k] for k in ("x", "y", "z")] for e in entries],
         dtype=np.float64,

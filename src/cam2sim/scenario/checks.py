@@ -21,6 +21,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cam2sim.detect.boxes import footprint_corners
+
 if TYPE_CHECKING:
     import numpy.typing as npt
 
@@ -49,8 +51,6 @@ class CheckOptions:
 def footprints(vehicles: list[ParkedVehicle]) -> npt.NDArray[np.object_]:
     """Shapely polygons of the vehicles' footprints."""
     import shapely  # noqa: PLC0415
-
-    from cam2sim.detect.boxes import footprint_corners  # noqa: PLC0415
 
     if not vehicles:
         return np.empty(0, dtype=object)

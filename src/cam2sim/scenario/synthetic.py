@@ -10,15 +10,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cam2sim.core import frames as fr
+from cam2sim.core.config import VehicleConfig
 from cam2sim.core.dataset import CameraIntrinsics, MountRecord
 from cam2sim.core.workspace import WorldFrameRecord
-
-if TYPE_CHECKING:
-    from cam2sim.scenario.model import Scenario
+from cam2sim.scenario.body import body_point_positions, vehicle_geometry
+from cam2sim.scenario.model import HeroStart, Scenario, ScenarioTrajectory, ScenarioVehicle
 
 __all__ = ["StreetSpec", "lane_section_xml", "synthetic_street"]
 
@@ -109,16 +109,6 @@ def synthetic_street(spec: StreetSpec | None = None) -> tuple[Scenario, str]:
     The recorded reference point is the rear axle (the default vehicle); the camera is an
     800x503 pinhole 1.4 m up, 1.6 m ahead of the rear axle, looking forward.
     """
-    from cam2sim.core import frames as fr  # noqa: PLC0415
-    from cam2sim.core.config import VehicleConfig  # noqa: PLC0415
-    from cam2sim.scenario.body import body_point_positions, vehicle_geometry  # noqa: PLC0415
-    from cam2sim.scenario.model import (  # noqa: PLC0415
-        HeroStart,
-        ScenarioTrajectory,
-        ScenarioVehicle,
-    )
-    from cam2sim.scenario.model import Scenario as _Scenario  # noqa: PLC0415
-
     spec = spec or StreetSpec()
     geom = vehicle_geometry(VehicleConfig())
     n = int(spec.length_m / spec.speed_mps * spec.rate_hz) + 1
@@ -156,7 +146,7 @@ def synthetic_street(spec: StreetSpec | None = None) -> tuple[Scenario, str]:
     # Camera: optical axes (x right, y down, z forward) = body (x fwd, y left, z up) turned.
     R = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
     q = fr.quat_from_matrix(R)
-    scenario = _Scenario(
+    scenario = Scenario(
         map_file="map/map.xodr",
         world=WorldFrameRecord(proj_string=None),
         vehicle=geom,
