@@ -16,14 +16,8 @@ import numpy as np
 import pytest
 
 from cam2sim.ads.policy import ConstantPolicy, Observation, RemotePolicy
-from cam2sim.ads.serve import (
-    PolicyServer,
-    control_message,
-    decode_image,
-    encode_image,
-    frame,
-    serve,
-)
+from cam2sim.ads.serve import PolicyServer, serve
+from cam2sim.ads.wire import control_message, decode_image, encode_image, frame
 from cam2sim.core.errors import ConfigError, StageError
 from cam2sim.sim.interface import VehicleState
 

@@ -47,6 +47,7 @@ from typing import TYPE_CHECKING, Any, Final, Protocol, cast, runtime_checkable
 import cv2
 import numpy as np
 
+from cam2sim.ads import wire
 from cam2sim.ads.dave2 import METADATA_KEY as DAVE2_METADATA
 from cam2sim.ads.dave2 import Dave2Config, preprocess
 from cam2sim.core.backends import (
@@ -562,7 +563,7 @@ def _parse_address(address: str) -> tuple[str, int]:
 
 
 class RemotePolicy:
-    """A policy served by another process (wire protocol in :mod:`cam2sim.ads.serve`).
+    """A policy served by another process (wire protocol in :mod:`cam2sim.ads.wire`).
 
     Speaks the published tool's protocol, so it drives either a :mod:`cam2sim.ads.serve`
     server (``cam2sim ads serve``) or the published model server. Connects when built, so an
@@ -590,8 +591,6 @@ class RemotePolicy:
         smoothing: float | None = None,
         control: bool = True,
     ) -> None:
-        from cam2sim.ads import serve as wire  # noqa: PLC0415  (serve imports this module)
-
         self.host, self.port = _parse_address(address)
         if encoding not in wire.ENCODINGS:
             msg = f"remote policy encoding {encoding!r} must be one of {', '.join(wire.ENCODINGS)}"
@@ -602,7 +601,6 @@ class RemotePolicy:
         if not (math.isfinite(timeout_s) and timeout_s > 0):
             msg = f"timeout_s must be a positive number of seconds, got {timeout_s!r}"
             raise ConfigError(msg)
-        self._wire = wire
         self._encoding = cast("wire.Encoding", encoding)
         self._timeout = float(timeout_s)
         self._controls = wire.control_message(smoothing=smoothing) if smoothing is not None else b""
@@ -645,13 +643,13 @@ class RemotePolicy:
         if self._sock is None:
             raise ConnectionResetError
         try:
-            self._sock.sendall(self._wire.frame(payload))
-            reply = self._wire.recv_message(self._sock, 1 << 20)
+            self._sock.sendall(wire.frame(payload))
+            reply = wire.recv_message(self._sock, 1 << 20)
         except TimeoutError as err:
             self.close()
             msg = f"{self._where()} sent no reply within {self._timeout:g} s; is it hung?"
             raise StageError(msg) from err
-        except self._wire.ProtocolError as err:
+        except wire.ProtocolError as err:
             raise ConnectionResetError(str(err)) from err
         if reply is None:
             msg = "the server closed the connection"
@@ -674,17 +672,17 @@ class RemotePolicy:
     def reset(self) -> None:
         """Start of a run: the server forgets this connection's smoothing state."""
         if self._control:
-            self._call(self._wire.control_message(reset=True))
+            self._call(wire.control_message(reset=True))
 
     def predict(self, obs: Observation) -> float:
         """Send ``obs.image`` and return the server's steering (throttle: ``last_throttle``)."""
         if obs.image is None:
             msg = f"the {self._where()} steers from the camera image, but the run has none"
             raise StageError(msg)
-        payload = self._wire.encode_image(obs.image, self._encoding)
+        payload = wire.encode_image(obs.image, self._encoding)
         try:
-            steering, self.last_throttle = self._wire.parse_reply(self._call(payload))
-        except self._wire.ProtocolError as err:
+            steering, self.last_throttle = wire.parse_reply(self._call(payload))
+        except wire.ProtocolError as err:
             msg = f"{self._where()}: {err}"
             raise StageError(msg) from err
         return steering

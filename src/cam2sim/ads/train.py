@@ -39,6 +39,8 @@ from cam2sim.core.errors import StageError
 from cam2sim.core.files import write_bytes_atomic
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.schema import Artifact
+from cam2sim.core.table import read_table
+from cam2sim.report.plotting import pyplot, save_figure
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -267,8 +269,6 @@ class TrainedModel:
 
 
 def _frame_times(paths: DatasetPaths) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
-    from cam2sim.core.table import read_table  # noqa: PLC0415
-
     source = paths.poses_csv if paths.poses_csv.is_file() else paths.frames_csv
     if not source.is_file():
         msg = f"the dataset at {paths.root} has no camera frames (no poses.csv or frames.csv)"
@@ -280,8 +280,6 @@ def _frame_times(paths: DatasetPaths) -> tuple[npt.NDArray[np.int64], npt.NDArra
 def _signal_at(
     paths: DatasetPaths, name: str, stamps: npt.NDArray[np.int64]
 ) -> npt.NDArray[np.float64]:
-    from cam2sim.core.table import read_table  # noqa: PLC0415
-
     path = paths.signal_file(name)
     if not path.is_file():
         have = sorted(p.stem for p in paths.signals_dir.glob("*.csv"))
@@ -685,8 +683,6 @@ def load_model(ads_dir: Path) -> tuple[torch.nn.Module, Dave2ModelInfo]:
 
 
 def _figure(trained: TrainedModel, path: Path) -> None:
-    from cam2sim.report.plotting import pyplot, save_figure  # noqa: PLC0415
-
     plt = pyplot()
     report = trained.report
     fig, (ax_loss, ax_val) = plt.subplots(2, 1, figsize=(9, 7))
