@@ -21,6 +21,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from cam2sim.render.meshes import Label
+
 if TYPE_CHECKING:
     import numpy.typing as npt
 
@@ -142,8 +144,6 @@ def photographic_look(
         rng: Draws the sensor noise; None renders without it (everything else unchanged).
         seed: Seeds the world textures (keep it fixed over a recording).
     """
-    from cam2sim.render.meshes import Label  # noqa: PLC0415
-
     tex = _textures(seed)
     h, w = labels.shape
     img = rgb.astype(np.float32) / 255.0

@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any, Final, Self
 import numpy as np
 
 from cam2sim.core.errors import BackendUnavailableError
+from cam2sim.core.labels import Palette
 from cam2sim.render.meshes import (
     BuildingFootprint,
     Label,
@@ -53,7 +54,6 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
 
-    from cam2sim.core.labels import Palette
     from cam2sim.map.query import RoadMap
     from cam2sim.scenario.model import ScenarioVehicle
 
@@ -121,8 +121,6 @@ def raster_palette() -> Palette:
 
     Road and car come first, as in :meth:`~cam2sim.core.labels.Palette.cityscapes`.
     """
-    from cam2sim.core.labels import Palette  # noqa: PLC0415
-
     return Palette.from_mapping(
         {
             "road": (128, 64, 128),

@@ -29,14 +29,21 @@ import pydantic
 
 from cam2sim.core.errors import StageError
 from cam2sim.core.schema import Artifact
+from cam2sim.detect.synthetic import Ground, SceneBox, StreetScene
+from cam2sim.render.look import frame_noise_rng, photographic_look
+from cam2sim.render.raster import (
+    BuildingFootprint,
+    RasterOptions,
+    RasterRenderer,
+    RasterResult,
+    RasterScene,
+)
+from cam2sim.scenario.model import ScenarioVehicle
 
 if TYPE_CHECKING:
     import numpy.typing as npt
 
-    from cam2sim.detect.synthetic import SceneBox, StreetScene
     from cam2sim.map.query import RoadMap
-    from cam2sim.render.raster import RasterRenderer, RasterResult, RasterScene
-    from cam2sim.scenario.model import ScenarioVehicle
 
 __all__ = [
     "TRUTH_WORLD_FILE",
@@ -120,8 +127,6 @@ class TruthWorld(Artifact):
         ray passes under it) up to its height; any other footprint (a real outline from OSM) is
         a 0.3 m thick wall box inside each of its edges, so rays stop at the outline itself.
         """
-        from cam2sim.detect.synthetic import Ground, SceneBox, StreetScene  # noqa: PLC0415
-
         cars = tuple(
             SceneBox((c.x, c.y, c.height / 2.0), (c.length, c.width, c.height), c.yaw)
             for c in self.cars
@@ -134,12 +139,7 @@ class TruthWorld(Artifact):
 
     def raster_scene(self) -> RasterScene:
         """The scene the raster renderer draws (street, cars, buildings)."""
-        from cam2sim.map.query import RoadMap  # noqa: PLC0415
-        from cam2sim.render.raster import (  # noqa: PLC0415
-            BuildingFootprint,
-            RasterOptions,
-            RasterScene,
-        )
+        from cam2sim.map.query import RoadMap  # noqa: PLC0415 -- lazy: imports shapely
 
         vehicles = self._vehicles(np.eye(4))
         buildings = [BuildingFootprint(np.asarray(b.xy), b.height_m) for b in self.buildings]
@@ -153,7 +153,7 @@ class TruthWorld(Artifact):
         the same rigid transform as the truth camera's, applied to every ``<geometry>`` of the
         street's plan view and to every car.
         """
-        from cam2sim.map.query import RoadMap  # noqa: PLC0415
+        from cam2sim.map.query import RoadMap  # noqa: PLC0415 -- lazy: imports shapely
 
         T = np.asarray(np.linalg.inv(truth_from_world(self, proj_string)), dtype=np.float64)
         yaw = math.atan2(T[1, 0], T[0, 0])
@@ -173,8 +173,6 @@ class TruthWorld(Artifact):
 
     def _vehicles(self, T: npt.NDArray[np.float64]) -> list[ScenarioVehicle]:
         """The parked cars as scenario vehicles, moved by ``T`` (truth frame -> target)."""
-        from cam2sim.scenario.model import ScenarioVehicle  # noqa: PLC0415
-
         yaw = math.atan2(T[1, 0], T[0, 0])
         out = []
         for k, c in enumerate(self.cars):
@@ -198,8 +196,6 @@ _WALL_M = 0.3
 
 def _building_boxes(ring: npt.NDArray[np.float64], height_m: float) -> list[SceneBox]:
     """Boxes a ray-cast LiDAR sees of one footprint (see :meth:`TruthWorld.lidar_scene`)."""
-    from cam2sim.detect.synthetic import SceneBox  # noqa: PLC0415
-
     if len(ring) > 3 and np.allclose(ring[0], ring[-1]):
         ring = ring[:-1]
     z, tall = (height_m - 3.0) / 2.0, height_m + 3.0
@@ -275,8 +271,6 @@ class TruthRenderer:
 
     def __init__(self, world: TruthWorld, proj_string: str | None) -> None:
         """Build the truth scene and the transform from the world frame (``proj_string``)."""
-        from cam2sim.render.raster import RasterRenderer  # noqa: PLC0415
-
         self.world = world
         self.T_truth_world = truth_from_world(world, proj_string)
         self._raster: RasterRenderer = RasterRenderer(world.raster_scene())
@@ -312,9 +306,6 @@ class TruthRenderer:
         grading and vignetting stay): the noise-free image of the pose, the same every time,
         which models are scored against (:mod:`cam2sim.splat.envelope`).
         """
-        from cam2sim.render.look import frame_noise_rng, photographic_look  # noqa: PLC0415
-        from cam2sim.render.raster import RasterResult  # noqa: PLC0415
-
         T = self.T_truth_world @ np.asarray(T_world_cam, dtype=np.float64)
         frame = self._raster.render(T, K, w, h)
         look = self.world.look
