@@ -8,13 +8,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pytest
 
+from cam2sim.demo.rig import CAMERA_SIZE, TOPICS, camera_matrix
 from cam2sim.demo.world import (
-    CAMERA_SIZE,
     L_STREET,
-    TOPICS,
     DemoRecording,
     build_demo_recording,
-    camera_matrix,
     demo_world,
     load_demo_recording,
 )

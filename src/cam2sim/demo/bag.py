@@ -3,7 +3,7 @@
 :func:`write_bag` drives the world's street (:meth:`~cam2sim.demo.world.DemoStreet.drive_points`:
 the route plus the driver's weave) at the street's speed and writes odometry (in the street's
 CRS, x-left axes) and steering at 50 Hz, a ray-cast LiDAR at 5 Hz and the photographic camera
-(JPEG) with its camera info at :data:`~cam2sim.demo.world.CAMERA_HZ`.
+(JPEG) with its camera info at :data:`~cam2sim.demo.rig.CAMERA_HZ`.
 """
 
 from __future__ import annotations
@@ -13,7 +13,8 @@ from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 
-from cam2sim.demo.world import (
+from cam2sim.core.frames import Pose
+from cam2sim.demo.rig import (
     CAMERA_HZ,
     CAMERA_SIZE,
     CURVATURE_PER_STEERING,
@@ -26,7 +27,10 @@ from cam2sim.demo.world import (
     body_pose,
     camera_matrix,
 )
-from cam2sim.render.look import photographic_look
+from cam2sim.detect.synthetic import LidarModel, scan_scene
+from cam2sim.recording.bagwriter import BagWriter
+from cam2sim.render.look import frame_noise_rng, photographic_look
+from cam2sim.render.raster import RasterRenderer
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -72,12 +76,7 @@ def _camera_info(stamp: int) -> dict[str, Any]:
 
 def write_bag(path: Path, world: DemoWorld, *, seed: int, progress: ProgressCallback) -> int:
     """Write the demo drive through ``world`` as a ROS2 MCAP bag; return the camera frames."""
-    from cam2sim.core.frames import Pose  # noqa: PLC0415
-    from cam2sim.detect.synthetic import LidarModel, scan_scene  # noqa: PLC0415
-    from cam2sim.recording.bagwriter import BagWriter  # noqa: PLC0415
-    from cam2sim.recording.image import compressed_image_fields  # noqa: PLC0415
-    from cam2sim.render.look import frame_noise_rng  # noqa: PLC0415
-    from cam2sim.render.raster import RasterRenderer  # noqa: PLC0415
+    from cam2sim.recording.image import compressed_image_fields  # noqa: PLC0415 -- lazy: imports cv2
 
     street = world.street
     origin = street.origin

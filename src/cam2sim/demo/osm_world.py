@@ -45,15 +45,17 @@ from typing import TYPE_CHECKING, Final
 import numpy as np
 
 from cam2sim.core.errors import ConfigError, StageError
+from cam2sim.core.frames import GridFrame
 from cam2sim.demo.route import PiecewiseRoute
 from cam2sim.demo.world import DemoBuilding, DemoStreet, DemoWorld, footprint_ring, parked_cars
+from cam2sim.map.buildings import building_footprints
+from cam2sim.map.osm import BBox, read_osm
 
 if TYPE_CHECKING:
     from collections.abc import Iterator, Mapping, Sequence
 
     import numpy.typing as npt
 
-    from cam2sim.core.frames import GridFrame
     from cam2sim.map.osm import OsmData
 
 __all__ = [
@@ -163,8 +165,6 @@ def _oneway(tags: Mapping[str, str]) -> int:
 
 
 def _graph(osm: OsmData) -> _Graph:
-    from cam2sim.core.frames import GridFrame  # noqa: PLC0415
-
     ways = tuple(
         k
         for k, w in enumerate(osm.ways)
@@ -530,8 +530,6 @@ def _buildings(
     """
     import shapely  # noqa: PLC0415
 
-    from cam2sim.map.buildings import building_footprints  # noqa: PLC0415
-
     line = shapely.LineString(_centre_line(street))
     half = street.lane_m + street.parking_m + street.sidewalk_m
     corridor = line.buffer(half + 0.5)
@@ -591,8 +589,6 @@ def osm_demo_world(
         StageError: The file cannot be read, holds no drivable road or no drivable path.
         ConfigError: ``route`` is malformed, off the roads or not drivable.
     """
-    from cam2sim.map.osm import BBox, read_osm  # noqa: PLC0415
-
     path = Path(path)
     if route is not None and len(route) != 2:
         msg = f"--route takes two points LAT,LON LAT,LON, got {len(route)}"

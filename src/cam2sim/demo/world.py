@@ -16,10 +16,12 @@ unmarked, cars narrowing the lane, 20 km/h).
   buildings as closed ``building=yes`` ways with ``building:levels``, in WGS84;
 * ``recording/bag``: a ROS2 MCAP bag of a drive along the route at the street's speed, weaving
   gently about the lane centre (:meth:`DemoStreet.weave`, as a human driver does), with a
-  JPEG camera (:data:`CAMERA_SIZE` at 20 Hz, rendered by the raster renderer and made to look
-  photographic by :func:`photographic_look`), its camera info, odometry in UTM 32N with the
-  reference car's axes (x to the left, y forward) at 50 Hz, a LiDAR ray-cast from the scene at
-  5 Hz and the steering signal at 50 Hz (curvature / :data:`CURVATURE_PER_STEERING`);
+  JPEG camera (:data:`~cam2sim.demo.rig.CAMERA_SIZE` at 20 Hz, rendered by the raster
+  renderer and made to look photographic by :func:`photographic_look`), its camera info,
+  odometry in UTM 32N with the reference car's axes (x to the left, y forward) at 50 Hz, a
+  LiDAR ray-cast from the scene at 5 Hz and the steering signal at 50 Hz (curvature /
+  :data:`~cam2sim.demo.rig.CURVATURE_PER_STEERING`); the sensors are
+  :mod:`cam2sim.demo.rig`'s;
 * ``config.yaml``: the cam2sim config of that recording (topics, intrinsics, mounts, pose CRS
   and axis convention);
 * ``truth.json``: the parked cars (ground-truth boxes) and buildings in the local frame;
@@ -42,36 +44,55 @@ from typing import TYPE_CHECKING, Final
 
 import numpy as np
 
+from cam2sim.core.config import (
+    AxisConvention,
+    CameraConfig,
+    Config,
+    IntrinsicsConfig,
+    LidarConfig,
+    MountConfig,
+    PoseConfig,
+    RecordingConfig,
+    SignalConfig,
+    TopicsConfig,
+    save_config,
+)
+from cam2sim.core.errors import ConfigError
 from cam2sim.core.files import atomic_folder, write_text_atomic
+from cam2sim.core.progress import no_progress
+from cam2sim.demo.bag import write_bag
+from cam2sim.demo.rig import (
+    CAMERA_MOUNT,
+    CAMERA_SIZE,
+    LIDAR_MOUNT,
+    TOPICS,
+    body_pose,
+    camera_matrix,
+)
 from cam2sim.demo.route import PiecewiseRoute
 from cam2sim.render.look import photographic_look
+from cam2sim.render.truth import TruthBuilding, TruthCar, TruthLook, TruthWorld
 from cam2sim.scenario.synthetic import lane_section_xml
 
 if TYPE_CHECKING:
     import numpy.typing as npt
 
-    from cam2sim.core.config import Config
     from cam2sim.core.progress import ProgressCallback
     from cam2sim.detect.synthetic import StreetScene
     from cam2sim.render.raster import RasterScene
-    from cam2sim.render.truth import TruthWorld
 
 __all__ = [
-    "CAMERA_SIZE",
     "CRS",
-    "CURVATURE_PER_STEERING",
     "L_STREET",
     "ORIGIN_UTM",
     "PAPER_STREET",
     "STREETS",
-    "TOPICS",
     "DemoBuilding",
     "DemoRecording",
     "DemoStreet",
     "DemoWorld",
     "ParkedCar",
     "build_demo_recording",
-    "camera_matrix",
     "demo_street",
     "demo_world",
     "footprint_ring",
@@ -86,24 +107,6 @@ CRS: Final = "EPSG:32632"
 """UTM 32N: the odometry's CRS."""
 ORIGIN_UTM: Final = (691_000.0, 5_336_000.0)
 """Easting, northing of the local frame's origin (Munich)."""
-CURVATURE_PER_STEERING: Final = 0.022
-"""The steering calibration: curvature (1/m) = steering * this."""
-CAMERA_SIZE: Final = (320, 200)
-CAMERA_FOCAL_PX: Final = 200.0
-CAMERA_MOUNT: Final = (1.6, 0.0, 1.4)
-LIDAR_MOUNT: Final = (1.0, 0.0, 1.9)
-CAMERA_HZ: Final = 20
-ODOM_HZ: Final = 50
-LIDAR_HZ: Final = 5
-LIDAR_BEAMS: Final = 16
-LIDAR_AZIMUTHS: Final = 720
-TOPICS: Final = {
-    "camera": "/camera/image_raw/compressed",
-    "camera_info": "/camera/camera_info",
-    "pose": "/odom",
-    "lidar": "/lidar/points",
-    "steering": "/vehicle/steering",
-}
 _MARKER: Final = "demo.json"
 _TRUTH_WORLD: Final = "truth_world.json"
 _VERSION: Final = 3
@@ -319,22 +322,6 @@ class DemoRecording:
     duration_s: float
 
 
-def camera_matrix() -> npt.NDArray[np.float64]:
-    """The demo camera's ``(3, 3)`` intrinsics."""
-    w, h = CAMERA_SIZE
-    return np.array(
-        [[CAMERA_FOCAL_PX, 0.0, (w - 1) / 2.0], [0.0, CAMERA_FOCAL_PX, (h - 1) / 2.0], [0, 0, 1.0]]
-    )
-
-
-def body_pose(xy: npt.NDArray[np.float64], heading: float) -> npt.NDArray[np.float64]:
-    c, s = math.cos(heading), math.sin(heading)
-    pose = np.eye(4)
-    pose[:2, :2] = [[c, -s], [s, c]]
-    pose[:2, 3] = xy
-    return pose
-
-
 # -- the world -------------------------------------------------------------------------------
 
 
@@ -411,13 +398,6 @@ class DemoWorld:
 
     def truth_world(self, *, seed: int = 0) -> TruthWorld:
         """The world as the workspace's ground truth (the truth camera's world, UTM 32N)."""
-        from cam2sim.render.truth import (  # noqa: PLC0415
-            TruthBuilding,
-            TruthCar,
-            TruthLook,
-            TruthWorld,
-        )
-
         return TruthWorld(
             crs=self.street.crs,
             origin=self.street.origin,
@@ -548,19 +528,6 @@ def demo_world(seed: int = 0, street: DemoStreet = L_STREET) -> DemoWorld:
 
 def demo_config(bag: Path, crs: str = CRS) -> Config:
     """The cam2sim config of the demo bag (odometry in ``crs``)."""
-    from cam2sim.core.config import (  # noqa: PLC0415
-        AxisConvention,
-        CameraConfig,
-        Config,
-        IntrinsicsConfig,
-        LidarConfig,
-        MountConfig,
-        PoseConfig,
-        RecordingConfig,
-        SignalConfig,
-        TopicsConfig,
-    )
-
     k = camera_matrix()
     width, height = CAMERA_SIZE
     return Config(
@@ -593,8 +560,6 @@ def demo_street(name: str) -> DemoStreet:
     Raises:
         ConfigError: No such street (the message lists them).
     """
-    from cam2sim.core.errors import ConfigError  # noqa: PLC0415
-
     if name not in STREETS:
         msg = f"no demo world {name!r}; choose one of {', '.join(sorted(STREETS))}"
         raise ConfigError(msg)
@@ -673,10 +638,6 @@ def build_demo_recording(
         BackendUnavailableError: No headless OpenGL for the raster renderer (the message says
             what to install).
     """
-    from cam2sim.core.config import save_config  # noqa: PLC0415
-    from cam2sim.core.progress import no_progress  # noqa: PLC0415
-    from cam2sim.demo.bag import write_bag  # noqa: PLC0415
-
     root = Path(out_dir)
     root.mkdir(parents=True, exist_ok=True)
     if world is None:
