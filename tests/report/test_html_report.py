@@ -17,6 +17,7 @@ from cam2sim.core.workspace import LEGACY_PIPELINE_FILE, Workspace
 from cam2sim.report.html import SECTION_IDS, write_report
 from cam2sim.scenario.synthetic import StreetSpec
 from cam2sim.splat.evaluate import SplatEval
+from cam2sim.stages.evaluate import EvaluateOptions, evaluate_workspace
 from cam2sim.stages.runs import DriveOptions, ReplayOptions, drive, replay
 from conftest import has_egl, launch_chromium, playwright_with_chromium, street_workspace
 
@@ -52,6 +53,7 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspace, Path, bo
     if rendered:
         run = replay(ws, options=ReplayOptions(cameras=("raster",), image_size=(160, 100)))
         _image_metrics(ws, run.folder / "frames" / "raster")
+    evaluate_workspace(ws, options=EvaluateOptions(replay_runs=()))  # the report only reads
     calls: list[tuple[str, int, int | None]] = []
     path = write_report(ws, progress=lambda *a: calls.append(a))
     assert calls[-1][1] == calls[-1][2]
@@ -224,6 +226,7 @@ def test_the_report_shows_the_splat_envelope_and_an_unfit_splat_plainly(tmp_path
         "splat_gate": gate_run(quality).model_dump(mode="json"),
     }
     (run.folder / "run.json").write_text(json.dumps(meta), encoding="utf-8")
+    evaluate_workspace(ws)  # the report only reads the evaluate stage's metrics
     html = write_report(ws).read_text(encoding="utf-8")
     sections = dict(re.findall(r'<section id="(\w+)">(.*?)</section>', html, re.DOTALL))
     behaviour, splat = sections["behaviour"], sections["splat"]
@@ -242,3 +245,22 @@ def test_the_report_shows_the_splat_envelope_and_an_unfit_splat_plainly(tmp_path
     splat = dict(re.findall(r'<section id="(\w+)">(.*?)</section>', html, re.DOTALL))["splat"]
     assert "Not scored against a ground truth" in splat
     assert "Validity envelope, measured" not in splat
+
+
+def test_the_report_reads_the_drive_metrics_and_says_which_command_writes_them(
+    tmp_path: Path,
+) -> None:
+    ws = _workspace(tmp_path / "ws")
+    drive(ws, options=DriveOptions(camera="none", runs=1))
+    html = write_report(ws).read_text(encoding="utf-8")
+    sections = dict(re.findall(r'<section id="(\w+)">(.*?)</section>', html, re.DOTALL))
+    command = f"not available: run <code>cam2sim evaluate workspace {ws.root}</code>"
+    assert command in sections["behaviour"]
+    assert command in sections["runs"]
+    assert not (ws.report_dir / "drive").exists()  # the report computed nothing
+    evaluate_workspace(ws)
+    drive(ws, options=DriveOptions(camera="none", runs=1, seed=5))  # not scored yet
+    html = write_report(ws).read_text(encoding="utf-8")
+    sections = dict(re.findall(r'<section id="(\w+)">(.*?)</section>', html, re.DOTALL))
+    assert "Min-Fréchet" in sections["behaviour"]
+    assert "1 drive run(s) not in" in sections["summary"]

@@ -1,8 +1,8 @@
 """The campaign's results: every run scored, and a table per recording, policy and camera.
 
 Each workspace's finished runs are scored against its recorded drive with
-:func:`cam2sim.stages.pipeline.evaluate_workspace_drives` (``CAMPAIGN/metrics/<ws>/``: the
-``metrics.json`` and figures of ``cam2sim evaluate drive``). ``runs.csv`` holds one row per spec
+:func:`cam2sim.stages.evaluate.evaluate_workspace_drives` (``CAMPAIGN/metrics/<ws>/``: the
+``metrics.json``, table and figures of the evaluate stage). ``runs.csv`` holds one row per spec
 (its status and metrics), ``summary.csv`` and ``summary.json`` one row per recording, policy
 and camera.
 """
@@ -93,7 +93,7 @@ def score_runs(
     """Score every finished run against its recorded drive; spec id to metrics."""
     from cam2sim.core.workspace import Workspace  # noqa: PLC0415
     from cam2sim.metrics.drive_quality import DriveMetrics  # noqa: PLC0415
-    from cam2sim.stages.pipeline import evaluate_workspace_drives  # noqa: PLC0415
+    from cam2sim.stages.evaluate import evaluate_workspace_drives  # noqa: PLC0415
 
     by_ws: dict[str, list[RunSpec]] = {}
     for spec in specs:

@@ -1,4 +1,4 @@
-"""``cam2sim evaluate``: score simulated images and segmentations against the real ones."""
+"""``cam2sim evaluate``: score drives, images and segmentations against the real ones."""
 
 from __future__ import annotations
 
@@ -23,6 +23,7 @@ from cam2sim.core.errors import Cam2SimError
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
+    from cam2sim.metrics.drive_quality import DriveMetrics
     from cam2sim.metrics.image_quality import MetricStats
 
 __all__ = ["evaluate_app"]
@@ -244,26 +245,30 @@ def drive(
 
     Example: cam2sim evaluate drive --real ../shared/data/reference-drives --sim ws/runs -o eval/
     """
-    from cam2sim.metrics.behaviour import evaluate_with_real_runs  # noqa: PLC0415
     from cam2sim.metrics.drive_io import load_runs  # noqa: PLC0415
     from cam2sim.metrics.drive_quality import DriveOptions, Segment  # noqa: PLC0415
-    from cam2sim.report.drive_figures import write_drive_figures  # noqa: PLC0415
+    from cam2sim.stages.evaluate import write_drive_evaluation  # noqa: PLC0415
 
     try:
         real_runs = load_runs(real, real=True, crs=real_crs)
         sim_runs = load_runs(sim, real=False, xodr=xodr) if sim else []
         seg = Segment.load(segment) if segment else None
-        ev = evaluate_with_real_runs(  # runs in a ground-truth world (method real) are real
-            real_runs, sim_runs, segment=seg, options=DriveOptions(frechet_points=frechet_points)
+        ev = write_drive_evaluation(  # runs in a ground-truth world (method real) are real
+            real_runs,
+            sim_runs,
+            out,
+            segment=seg,
+            options=DriveOptions(frechet_points=frechet_points),
         )
-        out.mkdir(parents=True, exist_ok=True)
-        ev.metrics.save(out / "metrics.json")
-        ev.metrics.segment.save(out / "segment.json")
-        figures = write_drive_figures(ev, out)
     except Cam2SimError as err:
         error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
         raise typer.Exit(1) from None
-    m = ev.metrics
+    _print_drive_metrics(ev.metrics)
+    console.print(f"wrote {out / 'metrics.json'} and 3 figures", highlight=False)
+
+
+def _print_drive_metrics(m: DriveMetrics) -> None:
+    """The segment, the per-method table, the paper's table and the failed runs."""
     console.print(
         f"segment {m.segment.length_m:.1f} m (from {m.segment.reference_run}); corridor mean "
         f"width {m.corridor_mean_width_m:.2f} m",
@@ -310,4 +315,47 @@ def drive(
             f"  failed: {r.name}: {r.failure}{detail}, completion {r.completion:.2f}{notes}",
             highlight=False,
         )
-    console.print(f"wrote {out / 'metrics.json'} and {len(figures)} figures", highlight=False)
+
+
+@evaluate_app.command()
+def workspace(
+    workspace: Annotated[Path, typer.Argument(help="The workspace folder.")],
+    *,
+    real: Annotated[
+        list[Path] | None,
+        typer.Option(
+            help="Real drives: trajectory*.csv files or folders (default: WS/real/ when it "
+            "exists, else the scenario's recorded drive)."
+        ),
+    ] = None,
+    real_crs: Annotated[
+        str, typer.Option(help="CRS of the real drives' x, y (UTM 32N for the reference car).")
+    ] = "EPSG:32632",
+    force: Annotated[bool, typer.Option(help="Evaluate even when up to date.")] = False,
+) -> None:
+    """Score a workspace's drives (and its replay frames, its world's labels) into WS/report/.
+
+    Writes WS/report/drive/metrics.json and figures, which cam2sim report reads.
+
+    Example: cam2sim evaluate workspace ws --real ../shared/data/reference-drives
+    """
+    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
+    from cam2sim.metrics.drive_quality import DriveMetrics  # noqa: PLC0415
+    from cam2sim.stages.evaluate import EvaluateOptions, evaluate_workspace  # noqa: PLC0415
+
+    try:
+        ws = Workspace.open(workspace)
+        given = tuple(real or ())
+        found = (ws.root / "real",) if (ws.root / "real").is_dir() else ()
+        options = EvaluateOptions(real=given or found, real_crs=real_crs, force=force)
+        with progress_bars(enabled=_show_progress()) as sink:
+            result = evaluate_workspace(ws, options=options, progress=sink)
+        metrics = DriveMetrics.load(result.metrics)
+    except Cam2SimError as err:
+        error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
+        raise typer.Exit(1) from None
+    _print_drive_metrics(metrics)
+    for note in result.notes:
+        console.print(note, highlight=False)
+    done = "up to date" if result.up_to_date else "wrote"
+    console.print(f"{done}: {result.metrics}", highlight=False, soft_wrap=True)

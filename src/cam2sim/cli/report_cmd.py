@@ -20,7 +20,11 @@ def report(
     *,
     real: Annotated[
         list[Path] | None,
-        typer.Option(help="Real drives: trajectory*.csv files or folders (default: WS/real/)."),
+        typer.Option(
+            help="Real drives (trajectory*.csv files or folders): score the drives against them "
+            "first (cam2sim evaluate workspace --real); without it the report reads the metrics "
+            "the evaluate stage wrote."
+        ),
     ] = None,
     real_crs: Annotated[
         str, typer.Option(help="CRS of the real drives' x, y (UTM 32N for the reference car).")
@@ -36,11 +40,15 @@ def report(
     """
     from cam2sim.core.workspace import Workspace  # noqa: PLC0415
     from cam2sim.report.html import write_report  # noqa: PLC0415
+    from cam2sim.stages.evaluate import EvaluateOptions, evaluate_workspace  # noqa: PLC0415
 
     try:
         ws = Workspace.open(workspace)
         with progress_bars(enabled=sys.stderr.isatty()) as sink:
-            path = write_report(ws, out=out, real_runs=real or (), real_crs=real_crs, progress=sink)
+            if real:  # scored against these drives first; the report itself only reads
+                options = EvaluateOptions(real=tuple(real), real_crs=real_crs)
+                evaluate_workspace(ws, options=options, progress=sink)
+            path = write_report(ws, out=out, progress=sink)
     except Cam2SimError as err:
         error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
         raise typer.Exit(1) from None

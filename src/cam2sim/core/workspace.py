@@ -21,7 +21,7 @@ import hashlib
 import json
 import logging
 from pathlib import Path
-from typing import ClassVar, Literal
+from typing import TYPE_CHECKING, ClassVar, Literal
 
 import pydantic
 
@@ -29,6 +29,9 @@ from cam2sim import __version__
 from cam2sim.core.config import Config, load_config, save_config
 from cam2sim.core.errors import WorkspaceError
 from cam2sim.core.schema import Artifact
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
 
 __all__ = [
     "LEGACY_PIPELINE_FILE",
@@ -399,10 +402,27 @@ class Workspace:
         """Replay and closed-loop runs, one folder each."""
         return self.root / "runs"
 
+    def iter_runs(self) -> Iterator[Path]:
+        """The finished run folders (``runs/<run-id>/``), oldest first; half-built ones hidden."""
+        if not self.runs_dir.is_dir():
+            return
+        yield from sorted(
+            p for p in self.runs_dir.iterdir() if p.is_dir() and not p.name.startswith(".")
+        )
+
     @property
     def report_dir(self) -> Path:
         """Metrics and the HTML report."""
         return self.root / "report"
+
+    @property
+    def drive_eval_dir(self) -> Path:
+        """``report/drive/``: the evaluate stage's drive metrics, table and figures.
+
+        ``metrics.json``, ``segment.json``, ``behaviour.md`` and the PNG figures; the report
+        reads them.
+        """
+        return self.report_dir / "drive"
 
 
 def run_paths(run_dir: Path) -> RunPaths:

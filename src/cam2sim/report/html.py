@@ -3,7 +3,9 @@
 Everything is embedded: figures and frames as base64 data URIs, the run video as a base64
 ``<video>`` source when it is small enough, plain HTML and inline CSS, no script and no external
 resource. Every section is always present; a section whose inputs are missing says which command
-makes them. Every string read from files is escaped.
+makes them. Every string read from files is escaped. The report only reads artifacts: the drive
+metrics and figures come from the evaluate stage (``WS/report/drive/``,
+:mod:`cam2sim.stages.evaluate`), never from scoring runs here.
 
 Sections (stable ids): ``summary`` (inputs, stage timings, warnings), ``map`` (route, parked cars,
 every run's trajectory), ``behaviour`` (drive metrics per method, the paper's layout; a splat
@@ -19,7 +21,6 @@ from __future__ import annotations
 import base64
 import datetime as dt
 import json
-import tempfile
 from dataclasses import dataclass, field
 from html import escape
 from pathlib import Path
@@ -33,6 +34,7 @@ from cam2sim.core.files import write_text_atomic
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.run_record import RunRecord
 from cam2sim.core.workspace import run_paths
+from cam2sim.metrics.behaviour import REAL_METHOD
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Sequence
@@ -41,7 +43,7 @@ if TYPE_CHECKING:
 
     from cam2sim.core.workspace import Manifest, Workspace
     from cam2sim.metrics.drive_io import DriveRun
-    from cam2sim.metrics.drive_quality import DriveEvaluation
+    from cam2sim.metrics.drive_quality import DriveMetrics
     from cam2sim.metrics.image_quality import MetricStats
     from cam2sim.scenario.model import Scenario
     from cam2sim.splat.evaluate import MetricSummary
@@ -95,7 +97,7 @@ class _Context:
     runs: list[Path] = field(default_factory=list)
     meta: dict[str, RunRecord] = field(default_factory=dict)
     drives: dict[str, DriveRun] = field(default_factory=dict)
-    evaluation: DriveEvaluation | None = None
+    metrics: DriveMetrics | None = None
 
 
 # -- small HTML helpers ---------------------------------------------------------------------------
@@ -134,7 +136,6 @@ def _section(sid: str, title: str, body: str) -> str:
 def _gather(ctx: _Context) -> None:
     from cam2sim.metrics.drive_io import load_run_dir  # noqa: PLC0415
     from cam2sim.scenario.model import Scenario  # noqa: PLC0415
-    from cam2sim.stages.runs import iter_runs  # noqa: PLC0415
 
     path = ctx.ws.scenario_path
     if path.is_file():
@@ -142,7 +143,7 @@ def _gather(ctx: _Context) -> None:
             ctx.scenario = Scenario.load(path)
         except Cam2SimError as err:
             ctx.warnings.append(f"scenario.json unreadable: {err}")
-    for run in iter_runs(ctx.ws):
+    for run in ctx.ws.iter_runs():
         if not run_paths(run).trajectory_csv.is_file():
             continue
         try:
@@ -156,40 +157,42 @@ def _gather(ctx: _Context) -> None:
         ctx.meta[run.name] = meta
 
 
-def _real_drives(ctx: _Context, real_runs: Sequence[Path], real_crs: str) -> list[DriveRun]:
-    """The real reference drives: given, found in ``WS/real/``, or the scenario's recording."""
-    from cam2sim.metrics.drive_io import load_runs  # noqa: PLC0415
+def _drives(ctx: _Context) -> list[str]:
+    """Names of the closed-loop runs (as the metrics name them), oldest first."""
+    return [ctx.drives[p.name].name for p in ctx.runs if ctx.meta[p.name].kind != "replay"]
 
-    sources = list(real_runs) or ([ctx.ws.root / "real"] if (ctx.ws.root / "real").is_dir() else [])
-    if sources:
-        return load_runs(sources, real=True, crs=real_crs)
-    if ctx.scenario is None:
-        return []
-    from cam2sim.metrics.behaviour import REAL_METHOD, recorded_drive  # noqa: PLC0415
 
-    if not any(d.method == REAL_METHOD for d in ctx.drives.values()):
+def _evaluate_command(ctx: _Context) -> str:
+    return f"cam2sim evaluate workspace {ctx.ws.root}"
+
+
+def _read_metrics(ctx: _Context) -> str | None:
+    """Read the evaluate stage's ``metrics.json``; return why there is none, or None."""
+    from cam2sim.metrics.drive_quality import DriveMetrics  # noqa: PLC0415
+
+    if not _drives(ctx):
+        return "no closed-loop run"
+    path = ctx.ws.drive_eval_dir / "metrics.json"
+    if not path.is_file():
+        return "the drives are not evaluated"
+    try:
+        ctx.metrics = DriveMetrics.load(path)
+    except Cam2SimError as err:
+        ctx.warnings.append(f"drive metrics unreadable: {err}")
+        return "metrics.json unreadable"
+    m = ctx.metrics
+    scored = {r.name for r in m.runs}
+    missing = [name for name in _drives(ctx) if name not in scored]
+    if missing:
+        ctx.warnings.append(
+            f"{len(missing)} drive run(s) not in {path} (it scores the runs it was run on, e.g. "
+            f"{missing[-1]}): run `{_evaluate_command(ctx)}` to score them all"
+        )
+    if [r.name for r in m.runs if r.real] == [f"{REAL_METHOD}/recorded"]:
         ctx.warnings.append(
             "no real drives given (--real or WS/real/) and no run in the ground-truth world: the "
             "scenario's recorded trajectory is the only reference, so the corridor has zero width"
         )
-    return [recorded_drive(ctx.scenario, source=str(ctx.ws.scenario_path))]
-
-
-def _evaluate(ctx: _Context, real_runs: Sequence[Path], real_crs: str) -> str | None:
-    """Evaluate the closed-loop runs; return why not, or None when done."""
-    from cam2sim.metrics.behaviour import evaluate_with_real_runs  # noqa: PLC0415
-
-    sims = [ctx.drives[p.name] for p in ctx.runs if ctx.meta[p.name].kind != "replay"]
-    if not sims:
-        return "no closed-loop run"
-    try:
-        real = _real_drives(ctx, real_runs, real_crs)
-        if not real:
-            return "no real drive and no scenario"
-        ctx.evaluation = evaluate_with_real_runs(real, sims)
-    except Cam2SimError as err:
-        ctx.warnings.append(f"drive evaluation failed: {err}")
-        return f"drive evaluation failed ({err});"
     return None
 
 
@@ -311,12 +314,12 @@ def _map(ctx: _Context) -> str:
 
 
 def _behaviour(ctx: _Context, why: str | None) -> str:
-    ev = ctx.evaluation
-    if ev is None:
-        return _na(f"Behaviour metrics ({why or 'no runs'}):", f"cam2sim drive {ctx.ws.root}")
+    m = ctx.metrics
+    if m is None:
+        command = _evaluate_command(ctx) if _drives(ctx) else f"cam2sim drive {ctx.ws.root}"
+        return _na(f"Behaviour metrics ({why or 'no runs'}):", command)
     from cam2sim.metrics.behaviour import behaviour_table  # noqa: PLC0415
 
-    m = ev.metrics
     paper = behaviour_table(m)
     parts = [
         _table(
@@ -359,10 +362,10 @@ def _behaviour(ctx: _Context, why: str | None) -> str:
     return "".join(parts)
 
 
-def _runs(ctx: _Context, tmp: Path) -> str:
+def _runs(ctx: _Context) -> str:
     if not ctx.runs:
         return _na("Runs", f"cam2sim drive {ctx.ws.root}")
-    per_run = {r.name: r for r in ctx.evaluation.metrics.runs} if ctx.evaluation else {}
+    per_run = {r.name: r for r in ctx.metrics.runs} if ctx.metrics else {}
     rows = []
     for run in ctx.runs:
         meta = ctx.meta[run.name]
@@ -378,13 +381,13 @@ def _runs(ctx: _Context, tmp: Path) -> str:
     headers = ["run", "kind", "method", "policy", "steps", "seconds", "events", "completion",
                "outcome", "splat gate (coverage mean / max)"]  # fmt: skip
     parts = [_table(headers, rows, "Runs")]
-    if ctx.evaluation is None:
-        parts.append(_na("Lateral offset and steering plots", f"cam2sim drive {ctx.ws.root}"))
+    # The evaluate stage's figures (its trajectories figure is the map section's job).
+    figures = [ctx.ws.drive_eval_dir / f"{name}.png" for name in ("lateral_offset", "steering")]
+    if ctx.metrics is None or not all(f.is_file() for f in figures):
+        command = _evaluate_command(ctx) if _drives(ctx) else f"cam2sim drive {ctx.ws.root}"
+        parts.append(_na("Lateral offset and steering plots", command))
         return "".join(parts)
-    from cam2sim.report.drive_figures import write_drive_figures  # noqa: PLC0415
-
-    figures = write_drive_figures(ctx.evaluation, tmp)
-    parts += [_img(p.read_bytes(), p.stem.replace("_", " ")) for p in figures[1:]]
+    parts += [_img(p.read_bytes(), p.stem.replace("_", " ")) for p in figures]
     return "".join(parts)
 
 
@@ -639,7 +642,7 @@ def _splat(ctx: _Context) -> str:
         "(docs/metrics.md)."
     )
     parts.append(f'<p class="note">{rule}</p>')
-    verdicts = ctx.evaluation.metrics.splat_gate if ctx.evaluation is not None else []
+    verdicts = ctx.metrics.splat_gate if ctx.metrics is not None else []
     for v in verdicts:
         text = (
             f"{v.method}: unfit ({v.unfit_runs}/{v.runs} runs): {v.reason}"
@@ -658,18 +661,18 @@ def write_report(
     ws: Workspace,
     *,
     out: Path | None = None,
-    real_runs: Sequence[Path] = (),
-    real_crs: str = "EPSG:32632",
     progress: ProgressCallback | None = None,
 ) -> Path:
     """Build the self-contained HTML report of a workspace and write it atomically.
 
+    The report only reads what the stages wrote: the drive metrics and figures of the evaluate
+    stage (``WS/report/drive/``; ``cam2sim evaluate workspace`` or ``cam2sim run`` write them),
+    the runs, the splat's ``eval.json``, the image and semantic metrics. A section whose inputs
+    are missing says which command writes them.
+
     Args:
         ws: The workspace.
         out: Output file; default ``WS/report/report.html``.
-        real_runs: Real drives (``trajectory*.csv`` files or folders) the runs are scored
-            against; default ``WS/real/`` if it exists, else the scenario's recorded trajectory.
-        real_crs: CRS of the real drives' x, y.
         progress: Called as ``progress("report", done, total)``.
 
     Returns:
@@ -679,24 +682,22 @@ def write_report(
     ctx = _Context(ws)
     total = len(SECTION_IDS) + 1
     _gather(ctx)
-    why = _evaluate(ctx, real_runs, real_crs)
+    why = _read_metrics(ctx)
     report("report", 1, total)
     body: dict[str, str] = {}
-    steps: tuple[tuple[str, str, Callable[[], str]], ...]
-    with tempfile.TemporaryDirectory(prefix="cam2sim-report-") as tmp:
-        steps = (
-            ("map", "Map, route and trajectories", lambda: _map(ctx)),
-            ("behaviour", "Behaviour", lambda: _behaviour(ctx, why)),
-            ("runs", "Runs", lambda: _runs(ctx, Path(tmp))),
-            ("splat", "Splat quality: held out, against the ground truth, the gate",
-             lambda: _splat(ctx)),
-            ("frames", "Frames: real | splat | simulator", lambda: _frames(ctx)),
-            ("semantic", "Semantic IoU", lambda: _semantic(ctx)),
-            ("images", "Image quality", lambda: _images(ctx)),
-        )  # fmt: skip
-        for k, (sid, title, build) in enumerate(steps, start=2):
-            body[sid] = _section(sid, title, build())
-            report("report", k, total)
+    steps: tuple[tuple[str, str, Callable[[], str]], ...] = (
+        ("map", "Map, route and trajectories", lambda: _map(ctx)),
+        ("behaviour", "Behaviour", lambda: _behaviour(ctx, why)),
+        ("runs", "Runs", lambda: _runs(ctx)),
+        ("splat", "Splat quality: held out, against the ground truth, the gate",
+         lambda: _splat(ctx)),
+        ("frames", "Frames: real | splat | simulator", lambda: _frames(ctx)),
+        ("semantic", "Semantic IoU", lambda: _semantic(ctx)),
+        ("images", "Image quality", lambda: _images(ctx)),
+    )  # fmt: skip
+    for k, (sid, title, build) in enumerate(steps, start=2):
+        body[sid] = _section(sid, title, build())
+        report("report", k, total)
     body["summary"] = _section("summary", "Pipeline summary", _summary(ctx))
     report("report", total, total)
     nav = "".join(f'<a href="#{sid}">{sid}</a>' for sid in SECTION_IDS)

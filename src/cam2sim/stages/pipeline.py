@@ -23,8 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, Literal
 
-from cam2sim.core.errors import Cam2SimError, ConfigError, StageError
-from cam2sim.core.files import write_text_atomic
+from cam2sim.core.errors import ConfigError, StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.workspace import StepState, hash_inputs, run_paths
 
@@ -60,7 +59,6 @@ STEPS: Final = (
     "evaluate",
     "report",
 )
-DRIVE_EVAL_DIR: Final = "drive"
 DEMO_CPU_SPLAT_BUDGET_S: Final = 240.0
 """Most training seconds of the demo's CPU splat, all chunks together: 2 x 700 steps take
 about 140 s on the 2-core machine (docs/benchmarks.md); a slower one stops at the budget, so
@@ -556,54 +554,28 @@ class _Pipeline:
         step.message = f"{len(runs)} run(s), policy {policy}, camera {cams}"
 
     def evaluate(self, step: _Step) -> None:
+        from cam2sim.stages.evaluate import (  # noqa: PLC0415
+            EVALUATE_STAGE,
+            EvaluateOptions,
+            EvaluateResult,
+            evaluate_workspace,
+        )
+
         self._require_motion("there are no drives to score")
         runs = self._made_runs("drive")
         if not runs:
             msg = "no drive runs to evaluate; the drive step must run first"
             raise StageError(msg)
-        out = self.ws.report_dir / DRIVE_EVAL_DIR
-        replay = self._made_runs("replay")
-        inputs = hash_inputs({"scenario": self._scenario_hash(), "runs": runs, "replay": replay})
-        if self.ws.is_up_to_date("evaluate", inputs) and (out / "metrics.json").is_file():
-            step.up_to_date = True
-            step.message = str(out / "metrics.json")
-            return
-        started = dt.datetime.now(dt.UTC)
-        evaluate_workspace_drives(self.ws, runs, out)
-        notes = self._evaluate_reconstruction(replay)
-        self.ws.record_stage("evaluate", state="done", started=started, inputs_hash=inputs)
-        step.message = "; ".join([str(out / "metrics.json"), *notes])
-
-    def _evaluate_reconstruction(self, replay: list[str]) -> list[str]:
-        """Image quality of the replay's cameras and semantic IoU of the world, where possible."""
-        from cam2sim.render.truth import truth_world_path  # noqa: PLC0415
-        from cam2sim.stages.reconstruction import (  # noqa: PLC0415
-            evaluate_replay_images,
-            evaluate_world_semantics,
+        opts = EvaluateOptions(drive_runs=tuple(runs), replay_runs=tuple(self._made_runs("replay")))
+        results: list[EvaluateResult] = []
+        self._recorded(
+            EVALUATE_STAGE,
+            lambda: results.append(
+                evaluate_workspace(self.ws, options=opts, progress=self.progress)
+            ),
+            step,
         )
-
-        notes = []
-        folder = self.ws.runs_dir / replay[0] if replay else None
-        if folder is None or not (folder / "frames").is_dir():
-            notes.append("no replay frames: image quality not computed")
-        else:
-            try:
-                _, note = evaluate_replay_images(
-                    self.ws, folder, self.ws.report_dir / "images", progress=self.progress
-                )
-                notes += [note] if note else []
-            except Cam2SimError as err:  # the drive metrics stand without it
-                notes.append(f"image quality not computed: {err}")
-        if not truth_world_path(self.ws.root).is_file():
-            notes.append("no ground-truth world: semantic IoU not computed")
-            return notes
-        try:
-            evaluate_world_semantics(
-                self.ws, self.ws.report_dir / "semantic", progress=self.progress
-            )
-        except Cam2SimError as err:
-            notes.append(f"semantic IoU not computed: {err}")
-        return notes
+        step.message = "; ".join([str(results[0].metrics), *results[0].notes])
 
     def report_step(self, step: _Step) -> None:
         try:
@@ -615,41 +587,6 @@ class _Pipeline:
         if path is not None:
             self.report = path
             step.message = str(path)
-
-
-def evaluate_workspace_drives(ws: Workspace, run_ids: list[str], out: Path) -> Path:
-    """Score drive runs against the recorded drive; write ``out/metrics.json`` and figures.
-
-    The recorded drive is the scenario's reference trajectory (the point runs are recorded at).
-    Runs in the ground-truth world (method ``real``) join it in the Real group
-    (:func:`~cam2sim.metrics.behaviour.evaluate_with_real_runs`); ``out/behaviour.md`` is the
-    behaviour table in the paper's layout.
-
-    Returns:
-        The ``metrics.json`` path.
-    """
-    from cam2sim.metrics.behaviour import (  # noqa: PLC0415
-        behaviour_table,
-        evaluate_with_real_runs,
-        recorded_drive,
-    )
-    from cam2sim.metrics.drive_io import load_run_dir  # noqa: PLC0415
-    from cam2sim.report.drive_figures import write_drive_figures  # noqa: PLC0415
-    from cam2sim.scenario.model import Scenario  # noqa: PLC0415
-
-    path = ws.scenario_path
-    if not path.is_file():
-        msg = f"{ws.root} has no scenario; run `cam2sim scenario {ws.root}` first"
-        raise StageError(msg)
-    real = recorded_drive(Scenario.load(path), source=str(path))
-    runs = [load_run_dir(ws.runs_dir / r) for r in run_ids]
-    ev = evaluate_with_real_runs([real], runs)
-    out.mkdir(parents=True, exist_ok=True)
-    ev.metrics.save(out / "metrics.json")
-    ev.metrics.segment.save(out / "segment.json")
-    write_text_atomic(out / "behaviour.md", behaviour_table(ev.metrics).markdown())
-    write_drive_figures(ev, out)
-    return out / "metrics.json"
 
 
 def run_pipeline(

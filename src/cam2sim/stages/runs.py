@@ -783,7 +783,5 @@ def _splat_ground(sc: Scenario, state: Any, camera: str) -> float:
 
 
 def iter_runs(ws: Workspace) -> Iterator[Path]:
-    """The finished run folders of a workspace, oldest first."""
-    if not ws.runs_dir.is_dir():
-        return
-    yield from sorted(p for p in ws.runs_dir.iterdir() if p.is_dir() and not p.name.startswith("."))
+    """The finished run folders of a workspace, oldest first (:meth:`Workspace.iter_runs`)."""
+    return ws.iter_runs()

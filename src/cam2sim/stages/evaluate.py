@@ -1,0 +1,248 @@
+"""The evaluate stage: drives scored against the real drive, the reconstruction against reality.
+
+Every caller goes through this module: ``cam2sim evaluate drive`` (any runs, any real drives),
+``cam2sim evaluate workspace`` and the pipeline's ``evaluate`` step (a workspace's runs), and
+the campaign (its runs per workspace). The report reads what it writes and computes nothing.
+
+- :func:`write_drive_evaluation`: score runs against real drives (the Real group joined by the
+  runs in the ground-truth world, :func:`~cam2sim.metrics.behaviour.evaluate_with_real_runs`);
+  write ``metrics.json``, ``segment.json``, ``behaviour.md`` (the paper's table) and the figures
+  (``trajectories.png``, ``lateral_offset.png``, ``steering.png``).
+- :func:`evaluate_workspace_drives`: a workspace's runs against its recorded drive (the
+  scenario's reference trajectory) or given real drives.
+- :func:`evaluate_workspace`: the stage. The drive metrics in ``WS/report/drive/``, the image
+  quality of a replay's cameras in ``WS/report/images/`` and the semantic IoU of the world in
+  ``WS/report/semantic/`` (:mod:`cam2sim.stages.reconstruction`), where possible. It records
+  itself in the manifest as ``evaluate`` with the hash of its inputs and skips when up to date.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Final
+
+from cam2sim.core.errors import Cam2SimError, StageError
+from cam2sim.core.files import write_text_atomic
+from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.run_record import RunRecord
+from cam2sim.core.workspace import hash_inputs, run_paths
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from pathlib import Path
+
+    from cam2sim.core.workspace import Workspace
+    from cam2sim.metrics.drive_io import DriveRun
+    from cam2sim.metrics.drive_quality import DriveEvaluation, DriveOptions, Segment
+
+__all__ = [
+    "EVALUATE_STAGE",
+    "EvaluateOptions",
+    "EvaluateResult",
+    "evaluate_workspace",
+    "evaluate_workspace_drives",
+    "write_drive_evaluation",
+]
+
+logger = logging.getLogger(__name__)
+
+EVALUATE_STAGE: Final = "evaluate"
+"""The stage's name in the manifest."""
+
+
+@dataclass(frozen=True)
+class EvaluateOptions:
+    """What the evaluate stage scores.
+
+    Attributes:
+        drive_runs: Run ids of the drives to score; None: every drive run of the workspace.
+        replay_runs: Run ids of replays whose saved frames are scored against the recorded
+            frames (the first one with frames); None: the newest replay with frames.
+        real: Real drives (``trajectory*.csv`` files or folders) as references; empty: the
+            scenario's recorded drive.
+        real_crs: CRS of the real drives' x, y.
+        force: Evaluate even when up to date.
+    """
+
+    drive_runs: tuple[str, ...] | None = None
+    replay_runs: tuple[str, ...] | None = None
+    real: tuple[Path, ...] = ()
+    real_crs: str = "EPSG:32632"
+    force: bool = False
+
+
+@dataclass(frozen=True)
+class EvaluateResult:
+    """What the stage wrote.
+
+    Attributes:
+        metrics: ``WS/report/drive/metrics.json``.
+        notes: What was not computed, and why (no replay frames, no ground-truth world...).
+        up_to_date: Nothing was done: the inputs had not changed.
+    """
+
+    metrics: Path
+    notes: tuple[str, ...] = ()
+    up_to_date: bool = False
+
+
+def write_drive_evaluation(
+    real: Sequence[DriveRun],
+    runs: Sequence[DriveRun],
+    out: Path,
+    *,
+    segment: Segment | None = None,
+    options: DriveOptions | None = None,
+) -> DriveEvaluation:
+    """Score ``runs`` against the ``real`` drives; write the metrics and figures into ``out``.
+
+    Runs of method ``real`` (driven in the ground-truth world) join the Real group.
+
+    Returns:
+        The evaluation (``out/metrics.json`` holds its metrics).
+    """
+    from cam2sim.metrics.behaviour import behaviour_table, evaluate_with_real_runs  # noqa: PLC0415
+    from cam2sim.report.drive_figures import write_drive_figures  # noqa: PLC0415
+
+    ev = evaluate_with_real_runs(real, runs, segment=segment, options=options)
+    out.mkdir(parents=True, exist_ok=True)
+    ev.metrics.save(out / "metrics.json")
+    ev.metrics.segment.save(out / "segment.json")
+    write_text_atomic(out / "behaviour.md", behaviour_table(ev.metrics).markdown())
+    write_drive_figures(ev, out)
+    return ev
+
+
+def _real_drives(ws: Workspace, real: Sequence[Path], real_crs: str) -> list[DriveRun]:
+    """The given real drives, else the scenario's recorded drive."""
+    if real:
+        from cam2sim.metrics.drive_io import load_runs  # noqa: PLC0415
+
+        return load_runs(list(real), real=True, crs=real_crs)
+    from cam2sim.metrics.behaviour import recorded_drive  # noqa: PLC0415
+    from cam2sim.scenario.model import Scenario  # noqa: PLC0415
+
+    path = ws.scenario_path
+    if not path.is_file():
+        msg = f"{ws.root} has no scenario; run `cam2sim scenario {ws.root}` first"
+        raise StageError(msg)
+    return [recorded_drive(Scenario.load(path), source=str(path))]
+
+
+def evaluate_workspace_drives(
+    ws: Workspace,
+    run_ids: Sequence[str],
+    out: Path,
+    *,
+    real: Sequence[Path] = (),
+    real_crs: str = "EPSG:32632",
+) -> Path:
+    """Score a workspace's drive runs; write ``out/metrics.json``, the table and the figures.
+
+    The references are the ``real`` drives, else the scenario's recorded drive (its reference
+    point, the point runs are recorded at).
+
+    Returns:
+        The ``metrics.json`` path.
+    """
+    from cam2sim.metrics.drive_io import load_run_dir  # noqa: PLC0415
+
+    references = _real_drives(ws, real, real_crs)
+    runs = [load_run_dir(ws.runs_dir / r) for r in run_ids]
+    write_drive_evaluation(references, runs, out)
+    return out / "metrics.json"
+
+
+def _runs_of_kind(ws: Workspace, kind: str) -> list[str]:
+    """Ids of the workspace's finished runs of ``kind`` (``drive``, ``replay``), oldest first."""
+    found = []
+    for folder in ws.iter_runs():
+        files = run_paths(folder)
+        readable = files.trajectory_csv.is_file() and files.run_json.is_file()
+        if readable and RunRecord.load(files.run_json).kind == kind:
+            found.append(folder.name)
+    return found
+
+
+def _scenario_hash(ws: Workspace) -> str | None:
+    record = ws.stage_record("scenario")
+    return None if record is None or record.state != "done" else record.inputs_hash
+
+
+def evaluate_workspace(
+    ws: Workspace,
+    *,
+    options: EvaluateOptions | None = None,
+    progress: ProgressCallback | None = None,
+) -> EvaluateResult:
+    """The evaluate stage: drive metrics, image quality and semantic IoU of a workspace.
+
+    Args:
+        ws: The workspace.
+        options: Which runs and references; defaults score every drive run against the
+            recorded drive.
+        progress: Receives the image and semantic evaluations' tasks.
+
+    Returns:
+        What was written, and notes on what could not be computed.
+
+    Raises:
+        StageError: No drive run to score, or no scenario (and no real drives given).
+    """
+    from cam2sim.stages._runner import stage_run  # noqa: PLC0415
+
+    opts = options or EvaluateOptions()
+    runs = list(opts.drive_runs) if opts.drive_runs is not None else _runs_of_kind(ws, "drive")
+    if not runs:
+        msg = f"{ws.root} has no drive runs to evaluate; run `cam2sim drive {ws.root}` first"
+        raise StageError(msg)
+    replay = list(opts.replay_runs) if opts.replay_runs is not None else _runs_of_kind(ws, "replay")
+    if opts.replay_runs is None:
+        replay = [r for r in reversed(replay) if (ws.runs_dir / r / "frames").is_dir()][:1]
+    out = ws.drive_eval_dir
+    inputs = {"scenario": _scenario_hash(ws), "runs": runs, "replay": replay}
+    if opts.real:
+        inputs["real"] = [str(p) for p in opts.real]
+    inputs_hash = hash_inputs(inputs)
+    metrics = out / "metrics.json"
+    if not opts.force and ws.is_up_to_date(EVALUATE_STAGE, inputs_hash) and metrics.is_file():
+        logger.info("stage evaluate up to date")
+        return EvaluateResult(metrics, up_to_date=True)
+    with stage_run(ws, EVALUATE_STAGE, inputs_hash=inputs_hash, config=None):
+        evaluate_workspace_drives(ws, runs, out, real=opts.real, real_crs=opts.real_crs)
+        notes = _evaluate_reconstruction(ws, replay, progress or no_progress)
+    logger.info("stage evaluate: %d drive run(s) scored", len(runs))
+    return EvaluateResult(metrics, tuple(notes))
+
+
+def _evaluate_reconstruction(
+    ws: Workspace, replay: list[str], progress: ProgressCallback
+) -> list[str]:
+    """Image quality of the replay's cameras and semantic IoU of the world, where possible."""
+    from cam2sim.render.truth import truth_world_path  # noqa: PLC0415
+    from cam2sim.stages.reconstruction import (  # noqa: PLC0415
+        evaluate_replay_images,
+        evaluate_world_semantics,
+    )
+
+    notes = []
+    folder = ws.runs_dir / replay[0] if replay else None
+    if folder is None or not (folder / "frames").is_dir():
+        notes.append("no replay frames: image quality not computed")
+    else:
+        try:
+            _, note = evaluate_replay_images(
+                ws, folder, ws.report_dir / "images", progress=progress
+            )
+            notes += [note] if note else []
+        except Cam2SimError as err:  # the drive metrics stand without it
+            notes.append(f"image quality not computed: {err}")
+    if not truth_world_path(ws.root).is_file():
+        notes.append("no ground-truth world: semantic IoU not computed")
+        return notes
+    try:
+        evaluate_world_semantics(ws, ws.report_dir / "semantic", progress=progress)
+    except Cam2SimError as err:
+        notes.append(f"semantic IoU not computed: {err}")
+    return notes
