@@ -22,9 +22,11 @@ from typing import TYPE_CHECKING, Any
 from cam2sim.core.cluster import ray_session
 from cam2sim.core.errors import StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.splat.parallel import ChunkOutcomes
+from cam2sim.splat.scene import SceneRecord
+from cam2sim.splat.train import time_share, train_chunk
 
 if TYPE_CHECKING:
-    from cam2sim.splat.scene import SceneRecord
     from cam2sim.splat.train import SceneTrainResult, TrainOptions, TrainResult
 
 __all__ = ["train_scene_on_ray"]
@@ -37,8 +39,6 @@ def _train_one(
 ) -> tuple[TrainResult, int | None]:
     """Ray task: train one chunk; its result and the peak CUDA memory (None on CPU)."""
     import torch  # noqa: PLC0415
-
-    from cam2sim.splat.train import train_chunk  # noqa: PLC0415
 
     result = train_chunk(scene, chunk_id, Path(prep_dir), options, models_dir=Path(models))
     device = result.device
@@ -75,10 +75,6 @@ def train_scene_on_ray(
             the others finished).
         BackendUnavailableError: Ray is not installed.
     """
-    from cam2sim.splat.parallel import ChunkOutcomes  # noqa: PLC0415
-    from cam2sim.splat.scene import SceneRecord  # noqa: PLC0415
-    from cam2sim.splat.train import time_share  # noqa: PLC0415
-
     start = time.perf_counter()
     prep_dir = Path(prep_dir).resolve()
     models = prep_dir.parent / "models" if models_dir is None else Path(models_dir).resolve()

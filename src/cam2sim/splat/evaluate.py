@@ -46,9 +46,14 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 import pydantic
 
-from cam2sim.core.errors import StageError
+from cam2sim.core.errors import Cam2SimError, StageError
+from cam2sim.core.images import read_mask, read_rgb
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.schema import Artifact
+from cam2sim.metrics.image_quality import psnr, ssim
+from cam2sim.metrics.lpips import load_lpips
+from cam2sim.splat.pose_refine import corrected_pose, interpolated_correction
+from cam2sim.splat.render import RenderOptions, SplatRenderer
 from cam2sim.splat.scene import FrameRecord, SceneRecord
 
 if TYPE_CHECKING:
@@ -57,7 +62,6 @@ if TYPE_CHECKING:
     from cam2sim.metrics.lpips import Lpips, LpipsNet
     from cam2sim.splat.envelope import RenderCache, TruthReference
     from cam2sim.splat.raster import RasterBackend
-    from cam2sim.splat.render import SplatRenderer
     from cam2sim.splat.scene import FrameRecord
 
 __all__ = [
@@ -246,8 +250,6 @@ def score_pair(
     lpips: Lpips | None,
 ) -> PairScores:
     """Score ``sim`` against ``real`` (``(H, W, 3)`` uint8) outside ``exclude`` (True: out)."""
-    from cam2sim.metrics.image_quality import psnr, ssim  # noqa: PLC0415
-
     lp = None
     if lpips is not None:
         batch_exclude = None if exclude is None else exclude[None]
@@ -257,8 +259,6 @@ def score_pair(
 
 def frame_exclusion(prep_dir: Path, frame: FrameRecord) -> npt.NDArray[np.bool_] | None:
     """``(H, W)`` bool, True where the frame's mask leaves a pixel out; None without a mask."""
-    from cam2sim.core.images import read_mask  # noqa: PLC0415
-
     path = prep_dir / "masks" / f"{frame.index:06d}.png"
     if not path.is_file():
         return None
@@ -277,7 +277,7 @@ def _offset_scores(
     lower_fraction: float,
     cache: RenderCache,
 ) -> list[OffsetScore]:
-    from cam2sim.splat.envelope import perturbed_pose  # noqa: PLC0415
+    from cam2sim.splat.envelope import perturbed_pose  # noqa: PLC0415 -- cycle: envelope imports evaluate
 
     out = []
     for offset in offsets:
@@ -319,9 +319,6 @@ def _load_lpips(
     Weights that are not cached (and cannot be downloaded) leave LPIPS out with a note; weights
     given explicitly must load.
     """
-    from cam2sim.core.errors import Cam2SimError  # noqa: PLC0415
-    from cam2sim.metrics.lpips import load_lpips  # noqa: PLC0415
-
     if not opts.lpips:
         return None, ["LPIPS not computed (lpips=False)"]
     try:
@@ -337,8 +334,6 @@ def _load_lpips(
 
 def _aligned(held: list[FrameRecord], renderer: SplatRenderer) -> list[FrameRecord]:
     """The held-out frames with the training views' pose corrections interpolated onto them."""
-    from cam2sim.splat.pose_refine import corrected_pose, interpolated_correction  # noqa: PLC0415
-
     views = [
         (v.index, v.correction)
         for h in renderer.headers.values()
@@ -388,9 +383,6 @@ def evaluate_splat(
         StageError: The scene has no held-out frame, or a mask does not fit its frame.
         WorkspaceError: Missing models or images.
     """
-    from cam2sim.core.images import read_rgb  # noqa: PLC0415
-    from cam2sim.splat.render import RenderOptions, SplatRenderer  # noqa: PLC0415
-
     opts = options or EvalOptions()
     prep_dir, models_dir = Path(prep_dir), Path(models_dir)
     out_path = prep_dir.parent / "eval.json" if out_path is None else Path(out_path)
@@ -445,7 +437,7 @@ def evaluate_splat(
         )
         progress("splat eval frames", total, total)
     if truth is not None:
-        from cam2sim.splat.envelope import truth_envelope  # noqa: PLC0415
+        from cam2sim.splat.envelope import truth_envelope  # noqa: PLC0415 -- cycle: envelope imports evaluate
 
         # Colours only (no street share): a 320x200 demo frame on 2 CPU cores takes 0.22 s
         # instead of 0.31 s.

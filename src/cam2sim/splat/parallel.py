@@ -36,12 +36,14 @@ from typing import TYPE_CHECKING, Any
 
 from cam2sim.core.errors import StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.splat.raster import build_gsplat
+from cam2sim.splat.train import SceneTrainResult, train_scene
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
     from cam2sim.splat.scene import SceneRecord
-    from cam2sim.splat.train import SceneTrainResult, TrainOptions, TrainResult
+    from cam2sim.splat.train import TrainOptions, TrainResult
 
 __all__ = ["ChunkOutcomes", "train_chunks_in_processes"]
 
@@ -90,8 +92,6 @@ class ChunkOutcomes:
         Raises:
             StageError: Chunks failed; the message names each with its error, then ``hint``.
         """
-        from cam2sim.splat.train import SceneTrainResult  # noqa: PLC0415
-
         if self.failures:
             names = ", ".join(
                 f"chunk {c}: {why.splitlines()[0] if why else 'no reason given'}"
@@ -145,8 +145,6 @@ def _worker(
     root.setLevel(level)
     try:
         import torch  # noqa: PLC0415
-
-        from cam2sim.splat.train import train_scene  # noqa: PLC0415
 
         if threads > 0:
             torch.set_num_threads(threads)
@@ -345,8 +343,6 @@ def train_chunks_in_processes(
         BackendUnavailableError: gsplat's CUDA extension does not build.
     """
     import torch  # noqa: PLC0415
-
-    from cam2sim.splat.raster import build_gsplat  # noqa: PLC0415
 
     start = time.perf_counter()
     if options.backend == "gsplat":

@@ -42,6 +42,7 @@ from cam2sim.core.files import atomic_folder
 from cam2sim.core.progress import no_progress
 from cam2sim.core.table import read_table
 from cam2sim.core.workspace import DatasetPaths
+from cam2sim.splat import masks
 from cam2sim.splat.geometry import (
     Undistorter,
     camera_poses,
@@ -239,8 +240,6 @@ def _write_png(path: Path, image: npt.NDArray[Any], *, rgb: bool = False) -> Non
 
 def _hood(files: Sequence[Path], size: tuple[int, int], opts: PrepareOptions) -> tuple[Any, str]:
     """The hood in recorded-image pixels (bool (H, W) or None) and a note saying where from."""
-    from cam2sim.splat import masks  # noqa: PLC0415
-
     w, h = size
     if opts.hood_polygon_px is not None:
         return masks.hood_mask_from_polygon(h, w, opts.hood_polygon_px), "hood: config polygon"
@@ -256,8 +255,6 @@ def _hood(files: Sequence[Path], size: tuple[int, int], opts: PrepareOptions) ->
 
 
 def _sky_masks(images: list[npt.NDArray[np.uint8]], opts: PrepareOptions) -> list[Any]:
-    from cam2sim.splat import masks  # noqa: PLC0415
-
     if opts.segformer is not None:
         return masks.sky_mask_segformer(images, opts.segformer, device=opts.device)
     return [masks.sky_mask_classical(im) for im in images]

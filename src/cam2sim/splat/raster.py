@@ -230,7 +230,7 @@ def rasterize(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's signa
         "backgrounds": backgrounds,
     }
     if chosen == "torch":
-        from cam2sim.splat import raster_torch  # noqa: PLC0415
+        from cam2sim.splat import raster_torch  # noqa: PLC0415 -- lazy: imports torch
 
         return raster_torch.rasterization(*args, **options)  # type: ignore[arg-type]
     gsplat = importlib.import_module("gsplat")

@@ -55,7 +55,7 @@ def available() -> bool:
 @functools.cache
 def _kernels() -> tuple[Any, Any]:
     """The forward and backward kernels (compiled on first use, or loaded from numba's cache)."""
-    from cam2sim.splat import _composite_kernels as k  # noqa: PLC0415 -- imports numba
+    from cam2sim.splat import _composite_kernels as k  # noqa: PLC0415 -- lazy: imports numba
 
     return k.forward, k.backward
 

@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Literal, Self
 import numpy as np
 
 from cam2sim.core.errors import WorkspaceError
+from cam2sim.splat.raster import rasterize, resolve_backend, resolve_device
 
 if TYPE_CHECKING:
     from types import TracebackType
@@ -175,8 +176,7 @@ class SplatRenderer:
             WorkspaceError: No chunk model in ``models_dir``.
             BackendUnavailableError: The asked device or backend cannot run here.
         """
-        from cam2sim.splat.model import load_chunk_header  # noqa: PLC0415
-        from cam2sim.splat.raster import resolve_backend, resolve_device  # noqa: PLC0415
+        from cam2sim.splat.model import load_chunk_header  # noqa: PLC0415 -- lazy: imports torch
 
         self.models_dir = Path(models_dir)
         self.options = options or RenderOptions()
@@ -252,7 +252,7 @@ class SplatRenderer:
     def _load(self, chunk_id: int) -> _Loaded:
         import torch  # noqa: PLC0415
 
-        from cam2sim.splat.model import load_chunk_model  # noqa: PLC0415
+        from cam2sim.splat.model import load_chunk_model  # noqa: PLC0415 -- lazy: imports torch
 
         if chunk_id in self._loaded:
             self._loaded.move_to_end(chunk_id)
@@ -318,8 +318,7 @@ class SplatRenderer:
         """
         import torch  # noqa: PLC0415
 
-        from cam2sim.splat.raster import rasterize  # noqa: PLC0415
-        from cam2sim.splat.raster_torch import rgb_from_sh  # noqa: PLC0415
+        from cam2sim.splat.raster_torch import rgb_from_sh  # noqa: PLC0415 -- lazy: imports torch
 
         viewmat, k, campos = camera
         with_street = self.options.street_alpha

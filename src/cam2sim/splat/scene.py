@@ -22,6 +22,7 @@ import numpy as np
 import numpy.typing as npt
 import pydantic
 
+from cam2sim.core.files import write_bytes_atomic
 from cam2sim.core.schema import Artifact
 
 __all__ = ["ChunkRecord", "FrameRecord", "SceneRecord", "load_points", "save_points"]
@@ -87,8 +88,6 @@ def save_points(
 ) -> None:
     """Write ``points.npz`` (see module doc)."""
     import io  # noqa: PLC0415
-
-    from cam2sim.core.files import write_bytes_atomic  # noqa: PLC0415
 
     buffer = io.BytesIO()
     np.savez(

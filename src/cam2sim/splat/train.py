@@ -50,6 +50,12 @@ import numpy as np
 
 from cam2sim.core.errors import StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.splat.losses import apply_affine, masked_psnr, photometric_loss, ssim
+from cam2sim.splat.optim import adam_step
+from cam2sim.splat.pose_refine import corrected_pose, correction_sizes, se3_exp
+from cam2sim.splat.profiling import PhaseTimer, profiling_requested
+from cam2sim.splat.raster import build_gsplat, rasterize, resolve_backend, resolve_device
+from cam2sim.splat.robust import robust_keep
 from cam2sim.splat.scene import ChunkRecord, SceneRecord, load_points
 from cam2sim.splat.train_options import (
     DensifyOptions,
@@ -59,6 +65,7 @@ from cam2sim.splat.train_options import (
     TrainOptions,
     TrainResult,
 )
+from cam2sim.splat.views import downsample_views, load_views, loss_constants, sky_colour
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -200,13 +207,7 @@ class _ChunkTrainer:
         if not frames:
             msg = f"chunk {chunk.id} has no training views (all held out?); re-run preparation"
             raise StageError(msg)
-        from cam2sim.splat.densify import Densifier  # noqa: PLC0415
-        from cam2sim.splat.profiling import PhaseTimer, profiling_requested  # noqa: PLC0415
-        from cam2sim.splat.views import (  # noqa: PLC0415
-            downsample_views,
-            load_views,
-            loss_constants,
-        )
+        from cam2sim.splat.densify import Densifier  # noqa: PLC0415 -- lazy: imports torch
 
         self.views = load_views(prep_dir, frames, options.downscale, device)
         # Level k: the views at 1/2**k size with their loss constants (level 0 = full size).
@@ -254,8 +255,7 @@ class _ChunkTrainer:
 
     # -- set-up ------------------------------------------------------------------------------
     def _build_models(self, points: tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]) -> None:
-        from cam2sim.splat.model import SeedOptions, seed_models  # noqa: PLC0415
-        from cam2sim.splat.views import sky_colour  # noqa: PLC0415
+        from cam2sim.splat.model import SeedOptions, seed_models  # noqa: PLC0415 -- lazy: torch
 
         opts = self.options
         seeded = seed_models(
@@ -353,9 +353,7 @@ class _ChunkTrainer:
         self, view: int, degree: int, *, absgrad: bool = False, level: int = 0
     ) -> tuple[RasterOutput, torch.Tensor, torch.Tensor]:
         """Render training view ``view``: (raster output, [H, W, 3] rgb, [H, W] sky share)."""
-        from cam2sim.splat.losses import apply_affine  # noqa: PLC0415
-        from cam2sim.splat.model import gather_splats  # noqa: PLC0415
-        from cam2sim.splat.raster import rasterize  # noqa: PLC0415
+        from cam2sim.splat.model import gather_splats  # noqa: PLC0415 -- lazy: imports torch
 
         v = self.levels[level][0]
         inputs = gather_splats(
@@ -363,8 +361,6 @@ class _ChunkTrainer:
         )
         viewmats = v.viewmats[view : view + 1]
         if self.pose_delta is not None:
-            from cam2sim.splat.pose_refine import se3_exp  # noqa: PLC0415
-
             viewmats = se3_exp(self.pose_delta[view : view + 1]) @ viewmats
         out = rasterize(
             inputs.means,
@@ -389,8 +385,6 @@ class _ChunkTrainer:
     def _loss(
         self, view: int, rgb: torch.Tensor, sky_share: torch.Tensor, level: int
     ) -> torch.Tensor:
-        from cam2sim.splat.losses import photometric_loss  # noqa: PLC0415
-
         (v, c), opts = self.levels[level], self.options
         sky = None
         if (
@@ -409,8 +403,6 @@ class _ChunkTrainer:
         target = v.images[view].float() / 255.0
         mask, l1_scale = v.masks[view], c.l1_scale[view]
         if opts.robust.active(self.step_no):
-            from cam2sim.splat.robust import robust_keep  # noqa: PLC0415
-
             used = mask
             mask = robust_keep(rgb, target, used, opts.robust)
             kept = mask.sum()
@@ -430,8 +422,6 @@ class _ChunkTrainer:
     def step(self) -> None:
         """Run one optimisation step (and a validation when one is due)."""
         import torch  # noqa: PLC0415
-
-        from cam2sim.splat.optim import adam_step  # noqa: PLC0415
 
         start = time.perf_counter()
         timer = self.timer
@@ -470,8 +460,6 @@ class _ChunkTrainer:
 
     def _validate(self, spent: float) -> None:
         import torch  # noqa: PLC0415
-
-        from cam2sim.splat.losses import masked_psnr, ssim  # noqa: PLC0415
 
         opts = self.options
         degree = min(opts.sh_degree, self.step_no // opts.sh_degree_interval)
@@ -539,7 +527,7 @@ class _ChunkTrainer:
     # -- output ------------------------------------------------------------------------------
     def save(self, models_dir: Path) -> TrainResult:
         """Write the chunk model and return the result."""
-        from cam2sim.splat.model import (  # noqa: PLC0415
+        from cam2sim.splat.model import (  # noqa: PLC0415 -- lazy: imports torch
             ChunkHeader,
             ChunkModel,
             ViewRecord,
@@ -552,8 +540,6 @@ class _ChunkTrainer:
         correction = None
         deltas: list[list[float] | None] = [None] * len(poses)
         if self.pose_delta is not None:
-            from cam2sim.splat.pose_refine import corrected_pose, correction_sizes  # noqa: PLC0415
-
             delta = self.pose_delta.detach().cpu().double().numpy()
             poses = corrected_pose(poses, delta)
             correction = correction_sizes(self.pose_delta)
@@ -697,12 +683,6 @@ def train_scene(
     """
     import torch  # noqa: PLC0415
 
-    from cam2sim.splat.raster import (  # noqa: PLC0415
-        build_gsplat,
-        resolve_backend,
-        resolve_device,
-    )
-
     start = time.perf_counter()
     options = options or TrainOptions()
     prep_dir = Path(prep_dir)
@@ -718,7 +698,7 @@ def train_scene(
     backend = resolve_backend(options.backend, device)
     in_flight = options.concurrent_chunks or (2 if device.startswith("cuda") else 1)
     if in_flight > 1 and len(wanted) > 1:
-        from cam2sim.splat.parallel import train_chunks_in_processes  # noqa: PLC0415
+        from cam2sim.splat.parallel import train_chunks_in_processes  # noqa: PLC0415 -- cycle: parallel imports train
 
         slots = min(in_flight, len(wanted))
         return train_chunks_in_processes(

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from cam2sim.core.errors import StageError
+from cam2sim.core.images import read_rgb
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -70,8 +71,6 @@ def load_views(
     """
     import cv2  # noqa: PLC0415
     import torch  # noqa: PLC0415
-
-    from cam2sim.core.images import read_rgb  # noqa: PLC0415
 
     sizes = {(f.width, f.height) for f in frames}
     if len(sizes) != 1:
