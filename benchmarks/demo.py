@@ -27,6 +27,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from cam2sim.core.workspace import Workspace
+
 
 def _groups(text: str) -> list[tuple[int, int]]:
     out = []
@@ -58,7 +60,10 @@ def _seed(run: dict[str, Any]) -> int | None:
 
 def summarise(ws: Path, groups: list[tuple[int, int]]) -> dict[str, Any]:
     """What the demo wrote under ``ws``, per step, per seed and per seed group."""
-    steps = json.loads((ws / "runs" / "pipeline.json").read_text(encoding="utf-8"))["steps"]
+    steps = {
+        name: step.model_dump(mode="json")
+        for name, step in Workspace.open(ws).read_manifest().steps.items()
+    }
     metrics = json.loads((ws / "report" / "drive" / "metrics.json").read_text(encoding="utf-8"))
     splat_eval = ws / "splat" / "eval.json"
     ev = json.loads(splat_eval.read_text(encoding="utf-8")) if splat_eval.is_file() else {}
