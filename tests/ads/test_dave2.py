@@ -122,6 +122,25 @@ def test_preprocess_batch_matches_reference_and_other_sizes() -> None:
         Dave2Config(crop_rows=(300, 600))
 
 
+@pytest.mark.parametrize("height", [50, 120, 200, 300, 503, 1000])
+def test_rows_read_are_all_the_network_sees(height: int) -> None:
+    """Rows outside rows_read may be black: the input is the same bit for bit."""
+    rng = np.random.default_rng(height)
+    img = rng.integers(0, 256, (height, 160, 3), dtype=np.uint8)
+    first, stop = Dave2Config().rows_read(height)
+    assert 0 <= first < stop <= height
+    band = np.zeros_like(img)
+    band[first:stop] = img[first:stop]
+    np.testing.assert_array_equal(preprocess(band), preprocess(img))
+    # The crop's share of the frame (264 of 503 rows) and at most the two interpolation rows.
+    assert stop - first <= np.ceil(264 * height / 503) + 2
+    rows_above = img.copy()
+    rows_above[:first] = 255 - rows_above[:first]
+    np.testing.assert_array_equal(preprocess(rows_above), preprocess(img))
+    with pytest.raises(ValueError, match="positive"):
+        Dave2Config().rows_read(0)
+
+
 def test_model_output_shape() -> None:
     model = build_dave2().eval()
     with torch.inference_mode():

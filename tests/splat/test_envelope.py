@@ -241,3 +241,57 @@ def test_a_drive_with_the_splat_camera_records_its_quality_and_the_gate(
     assert loaded.method == "drive-splat"
     assert loaded.splat_quality is not None
     assert loaded.splat_quality.frames == 15
+
+
+class _BandPolicy:
+    """Steers straight and keeps what it saw; reads only rows ``rows`` of each frame."""
+
+    name = "band"
+    needs_image = True
+
+    def __init__(self, rows: tuple[int, int]) -> None:
+        self.rows = rows
+        self.seen: list[np.ndarray] = []
+
+    def image_rows(self, height: int) -> tuple[int, int]:
+        assert height == H
+        return self.rows
+
+    def reset(self) -> None:
+        self.seen.clear()
+
+    def predict(self, obs: object) -> float:
+        self.seen.append(np.array(obs.image))  # type: ignore[attr-defined]
+        return 0.0
+
+    def close(self) -> None:
+        pass
+
+
+def test_a_policy_that_reads_a_band_gets_the_splat_camera_render_only_that_band(
+    scored: tuple[Path, SplatEval], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import cam2sim.ads.policy as policies
+    from cam2sim.core.workspace import Workspace
+    from cam2sim.stages.runs import DriveOptions, drive
+
+    prep, _ = scored
+    ws = Workspace.open(prep.parent.parent)
+    rows = (H // 3, 2 * H // 3)
+    policy = _BandPolicy(rows)
+    monkeypatch.setattr(policies, "load_policy", lambda *_a, **_k: policy)
+    (banded,) = drive(ws, options=DriveOptions(camera="splat", image_size=(W, H), max_steps=9))
+    band_frames = list(policy.seen)
+    # Kept frames are what people look at: whole frames then.
+    options = DriveOptions(camera="splat", image_size=(W, H), max_steps=9, save_frames=True)
+    (whole,) = drive(ws, options=options)
+    assert len(band_frames) == len(policy.seen) == 3
+    for band, full in zip(band_frames, policy.seen, strict=True):
+        assert band.shape == full.shape == (H, W, 3)
+        np.testing.assert_array_equal(band[rows[0] : rows[1]], full[rows[0] : rows[1]])
+        assert not band[: rows[0]].any()
+        assert not band[rows[1] :].any()
+        assert full[: rows[0]].any()  # the whole frame has something there
+    meta = json.loads((banded.folder / "run.json").read_text(encoding="utf-8"))
+    assert meta["rendered_rows"] == list(rows)
+    assert "rendered_rows" not in json.loads((whole.folder / "run.json").read_text("utf-8"))

@@ -106,3 +106,22 @@ def test_environment_turns_the_compiled_path_off(monkeypatch: pytest.MonkeyPatch
     assert not raster_cpu.available()
     monkeypatch.delenv(raster_cpu.ENV_VAR)
     assert raster_cpu.available()
+
+
+@pytest.mark.parametrize("compositing", ["compiled", "torch"])
+@pytest.mark.parametrize("rows", [(0, 20), (13, 38), (30, H)])
+def test_a_band_of_rows_is_those_rows_of_the_whole_image(
+    compositing: str, rows: tuple[int, int]
+) -> None:
+    t = _scene(300, 3, 3)
+    args = [t[k] for k in ("means", "quats", "scales", "opacities", "colors", "viewmats", "Ks")]
+    kwargs = {"backgrounds": t["backgrounds"], "compositing": compositing}
+    whole = rasterization(*args, W, H, **kwargs)  # type: ignore[arg-type]
+    band = rasterization(*args, W, H, rows=rows, **kwargs)  # type: ignore[arg-type]
+    first, stop = rows
+    assert band.colors.shape == (1, stop - first, W, 3)
+    # Gaussians centred outside the band (large ones reach in) keep the whole image's shapes.
+    np.testing.assert_allclose(band.colors, whole.colors[:, first:stop], atol=1e-5)
+    np.testing.assert_allclose(band.alphas, whole.alphas[:, first:stop], atol=1e-5)
+    with pytest.raises(ValueError, match="rows"):
+        rasterization(*args, W, H, rows=(10, H + 1), **kwargs)  # type: ignore[arg-type]

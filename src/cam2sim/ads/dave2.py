@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 from typing import TYPE_CHECKING, Any, Final
 
 import cv2
@@ -70,6 +71,27 @@ class Dave2Config(pydantic.BaseModel):
             msg = f"input_size {self.input_size} is too small for five convolutions (>= 61x61)"
             raise ValueError(msg)
         return self
+
+    def rows_read(self, height: int) -> tuple[int, int]:
+        """Rows ``[first, stop)`` of a frame ``height`` rows high that :func:`preprocess` reads.
+
+        The frame is first resized to :attr:`source_size` bilinearly (OpenCV's two-tap
+        ``INTER_LINEAR`` in both directions): source row ``y`` samples the frame at
+        ``(y + 0.5) * height / source_height - 0.5`` from the two rows around it. Rows outside
+        the returned range never reach the network, so a camera may leave them unrendered
+        (``cam2sim drive`` does for the splat camera) and the input stays bit for bit the same.
+        """
+        if height < 1:
+            msg = f"frame height must be positive, got {height}"
+            raise ValueError(msg)
+        top, bottom = self.crop_rows
+        source_h = self.source_size[1]
+        if height == source_h:
+            return top, bottom
+        scale = height / source_h
+        first = math.floor((top + 0.5) * scale - 0.5)
+        last = math.floor((bottom - 0.5) * scale - 0.5) + 1
+        return max(0, first), min(height, last + 1)
 
     def to_json(self) -> str:
         """Compact JSON (the ONNX metadata value and ``dave2.json``)."""

@@ -74,6 +74,7 @@ __all__ = [
     "ModelPolicy",
     "Observation",
     "PurePursuitPolicy",
+    "ReadsImageRows",
     "RemotePolicy",
     "SteeringPolicy",
     "load_policy",
@@ -130,6 +131,23 @@ class SteeringPolicy(Protocol):
 
     def close(self) -> None:
         """Release models, sessions and connections."""
+        ...
+
+
+@runtime_checkable
+class ReadsImageRows(Protocol):
+    """A policy that reads only a band of rows of each camera frame.
+
+    A run may then render only that band (the rest of the frame stays black): the policy's
+    input is the same and the camera does less work. :class:`ModelPolicy` with DAVE-2
+    preprocessing reads the rows its crop keeps.
+    """
+
+    def image_rows(self, height: int) -> tuple[int, int] | None:
+        """Rows ``[first, stop)`` of a frame ``height`` rows high that ``predict`` reads.
+
+        None = all of them.
+        """
         ...
 
 
@@ -535,6 +553,14 @@ class ModelPolicy:
 
     def reset(self) -> None:
         """Nothing to forget (the model is stateless)."""
+
+    def image_rows(self, height: int) -> tuple[int, int] | None:
+        """The rows the DAVE-2 crop reads (:meth:`Dave2Config.rows_read`).
+
+        None for models without DAVE-2 preprocessing: they see the whole frame.
+        """
+        dave2 = self._model.dave2
+        return None if dave2 is None else dave2.rows_read(height)
 
     def predict(self, obs: Observation) -> float:
         """The model's steering for ``obs.image``."""

@@ -52,6 +52,8 @@ class RunRecord(Artifact):
         steps_per_s: Simulated steps per wall second.
         render_ms: Mean camera time per policy decision, milliseconds.
         policy_ms: Mean policy time per decision, milliseconds.
+        rendered_rows: The rows ``[first, stop)`` of the camera's frames a drive rendered,
+            when the policy reads only those (the splat camera); absent = whole frames.
         options: The replay's or drive's options, as JSON.
         simulator: The simulator's options, as JSON.
         proj_string: pyproj string of the world frame the trajectory is written in.
@@ -76,6 +78,7 @@ class RunRecord(Artifact):
     steps_per_s: float | None = None
     render_ms: float | None = None
     policy_ms: float | None = None
+    rendered_rows: tuple[int, int] | None = None
     options: JsonObject | None = None
     simulator: JsonObject | None = None
     proj_string: str | None = None

@@ -64,10 +64,6 @@ class PlanarPose:
     speed: float = 0.0
 
 
-# The old name, kept only while ``stages/runs.py`` still imports it (issue 23); not exported.
-Pose = PlanarPose
-
-
 @runtime_checkable
 class Simulator(Protocol):
     """A driving simulator backend."""

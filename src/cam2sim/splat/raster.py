@@ -187,6 +187,7 @@ def rasterize(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's signa
     backgrounds: torch.Tensor | None = None,
     backend: RasterBackend = "auto",
     absgrad: bool = False,
+    rows: tuple[int, int] | None = None,
 ) -> RasterOutput:
     """Render Gaussians into ``C`` images with the chosen backend.
 
@@ -209,6 +210,10 @@ def rasterize(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's signa
         backend: ``"auto"``, ``"gsplat"`` or ``"torch"``.
         absgrad: Also accumulate the absolute per-pixel gradients of the projected centres
             into ``means2d.absgrad`` during ``backward()`` (AbsGS densification; gsplat only).
+        rows: Only rows ``[first, stop)`` of the ``width`` x ``height`` image (None = all):
+            the images are ``stop - first`` rows high and show what the whole image shows
+            there. The torch backend composites only those rows (the cost of a CPU frame is
+            mostly compositing); gsplat renders the whole image and keeps them.
 
     Returns:
         The images and per-Gaussian screen-space data.
@@ -232,7 +237,7 @@ def rasterize(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's signa
     if chosen == "torch":
         from cam2sim.splat import raster_torch  # noqa: PLC0415 -- lazy: imports torch
 
-        return raster_torch.rasterization(*args, **options)  # type: ignore[arg-type]
+        return raster_torch.rasterization(*args, **options, rows=rows)  # type: ignore[arg-type]
     gsplat = importlib.import_module("gsplat")
     render_colors, render_alphas, meta = gsplat.rasterization(
         *args,
@@ -241,6 +246,11 @@ def rasterize(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's signa
         rasterize_mode="classic",
         absgrad=absgrad,
     )
+    if rows is not None:
+        from cam2sim.splat.raster_torch import row_window  # noqa: PLC0415 -- lazy: imports torch
+
+        first, stop = row_window(rows, height)
+        render_colors, render_alphas = render_colors[:, first:stop], render_alphas[:, first:stop]
     return RasterOutput(
         colors=render_colors,
         alphas=render_alphas,

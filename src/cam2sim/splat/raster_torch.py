@@ -53,6 +53,7 @@ __all__ = [
     "quats_to_rotmats",
     "rasterization",
     "rgb_from_sh",
+    "row_window",
     "sh_basis",
 ]
 
@@ -285,6 +286,17 @@ def rgb_from_sh(coeffs: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.
 # ------------------------------------------------------------------------- tiles, composite
 
 
+def row_window(rows: tuple[int, int] | None, height: int) -> tuple[int, int]:
+    """``rows`` checked against an image ``height`` rows high; None = all rows."""
+    if rows is None:
+        return 0, height
+    first, stop = rows
+    if not 0 <= first < stop <= height:
+        msg = f"rows {rows} must satisfy 0 <= first < stop <= height ({height})"
+        raise ValueError(msg)
+    return first, stop
+
+
 def _tile_intersections(
     means2d: torch.Tensor,
     radii: torch.Tensor,
@@ -489,6 +501,7 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
     backgrounds: torch.Tensor | None = None,
     max_elements: int = _MAX_ELEMENTS,
     compositing: Literal["auto", "compiled", "torch"] = "auto",
+    rows: tuple[int, int] | None = None,
 ) -> RasterOutput:
     """Render Gaussians into ``C`` images (see :func:`cam2sim.splat.raster.rasterize`).
 
@@ -513,6 +526,9 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
             numba, float32; several times faster), ``"torch"`` (this module's batched
             tensors, any device and dtype) or ``"auto"`` (compiled for float32 on the CPU
             when numba is installed).
+        rows: Composite only rows ``[first, stop)`` of the ``width`` x ``height`` image; the
+            projection is the whole image's (the same covariances, the same pixels), only
+            fewer pixels are composited. The images are ``stop - first`` rows high.
 
     Returns:
         Images, alphas and screen-space data (``backend="torch"``).
@@ -547,8 +563,12 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
         msg = f"colours must be [N, D] or [C, N, D] with C={n_cams}, N={n}, got {colors.shape}"
         raise ValueError(msg)
 
+    first, stop = row_window(rows, height)
+    band_h = stop - first
+    # Pixels of the band are the image's rows shifted by ``first``: so are the centres.
+    shift = torch.tensor([0.0, float(first)], dtype=proj.means2d.dtype, device=means.device)
     tiles_x = math.ceil(width / TILE_SIZE)
-    tiles_y = math.ceil(height / TILE_SIZE)
+    tiles_y = math.ceil(band_h / TILE_SIZE)
     compiled = compositing == "compiled" or (
         compositing == "auto"
         and means.device.type == "cpu"
@@ -557,14 +577,15 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
     )
     images, alphas = [], []
     for cam in range(n_cams):
+        means2d = proj.means2d[cam] - shift if first else proj.means2d[cam]
         tile_ids, gauss_ids = _tile_intersections(
-            proj.means2d[cam], proj.radii[cam], proj.depths[cam], tiles_x, tiles_y
+            means2d, proj.radii[cam], proj.depths[cam], tiles_x, tiles_y
         )
         kwargs = {"tiles_x": tiles_x, "tiles_y": tiles_y}
         if not compiled:
             kwargs["max_elements"] = max_elements
         rgb, acc = (raster_cpu.composite if compiled else _composite)(
-            proj.means2d[cam],
+            means2d,
             proj.conics[cam],
             opacities,
             per_cam[cam],
@@ -572,7 +593,7 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
             gauss_ids,
             **kwargs,
         )
-        rgb, acc = rgb[:height, :width], acc[:height, :width]
+        rgb, acc = rgb[:band_h, :width], acc[:band_h, :width]
         if backgrounds is not None:
             rgb = rgb + (1.0 - acc)[..., None] * backgrounds[cam]
         images.append(rgb)

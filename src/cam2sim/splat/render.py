@@ -38,7 +38,7 @@ import math
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, Self
+from typing import TYPE_CHECKING, ClassVar, Literal, Self
 
 import numpy as np
 
@@ -168,6 +168,9 @@ class SplatRenderer:
 
     Use as a context manager, or call :meth:`close` to free the device memory.
     """
+
+    RENDERS_ROWS: ClassVar[bool] = True
+    """:meth:`render` takes ``rows``: a band of the image for a fraction of the cost."""
 
     def __init__(self, models_dir: Path, *, options: RenderOptions | None = None) -> None:
         """Read the chunk headers of ``models_dir`` (``WS/splat/models``).
@@ -306,6 +309,7 @@ class SplatRenderer:
         size: tuple[int, int],
         progress_m: float,
         appearance: str,
+        rows: tuple[int, int] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Return ``[H, W, 3]`` colour and ``[H, W]`` street share (or None) of one chunk.
 
@@ -315,6 +319,7 @@ class SplatRenderer:
             size: ``(width, height)``.
             progress_m: Progress of the pose (for the colour transform).
             appearance: ``"none"`` or ``"interpolate"``.
+            rows: Only these rows ``[first, stop)`` of the image (:func:`rasterize`).
         """
         import torch  # noqa: PLC0415
 
@@ -345,6 +350,7 @@ class SplatRenderer:
             sh_degree=degree,
             backgrounds=background,
             backend=self.backend,
+            rows=rows,
         )
         image = out.colors[0]
         colour = image[..., :3]
@@ -361,6 +367,7 @@ class SplatRenderer:
         height: int,
         *,
         appearance: Literal["none", "interpolate"] | None = None,
+        rows: tuple[int, int] | None = None,
     ) -> RenderResult:
         """Render the view of a pinhole camera.
 
@@ -370,6 +377,8 @@ class SplatRenderer:
             width: Image width, pixels.
             height: Image height, pixels.
             appearance: Overrides ``options.appearance`` for this frame.
+            rows: Render only rows ``[first, stop)`` of the image (what the image shows there,
+                at a fraction of the cost on the CPU); the result is ``stop - first`` rows high.
 
         Returns:
             The image, its coverage and the chunk weights used.
@@ -400,7 +409,12 @@ class SplatRenderer:
         street_alpha = None
         with torch.inference_mode():
             parts = [
-                (w, *self._render_chunk(self._load(cid), cam_t, (width, height), progress, mode))
+                (
+                    w,
+                    *self._render_chunk(
+                        self._load(cid), cam_t, (width, height), progress, mode, rows
+                    ),
+                )
                 for cid, w in weights.items()
             ]
             colour = parts[0][0] * parts[0][1]

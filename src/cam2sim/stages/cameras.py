@@ -234,11 +234,34 @@ class Cameras:
             raise
 
     def render(
-        self, name: str, T: npt.NDArray[np.float64], K: npt.NDArray[np.float64], w: int, h: int
+        self,
+        name: str,
+        T: npt.NDArray[np.float64],
+        K: npt.NDArray[np.float64],
+        w: int,
+        h: int,
+        rows: tuple[int, int] | None = None,
     ) -> npt.NDArray[np.uint8]:
-        """RGB of camera ``name`` at ``T`` (camera -> world, optical axes), ``K``, ``w`` x ``h``."""
-        rgb: npt.NDArray[np.uint8] = self.renderers[name].render(T, K, w, h).rgb
-        return rgb
+        """RGB of camera ``name`` at ``T`` (camera -> world, optical axes), ``K``, ``w`` x ``h``.
+
+        With ``rows = (first, stop)`` only those rows, ``stop - first`` high: rendered alone by
+        cameras that can (:meth:`renders_rows`), cut from the whole image by the others.
+        """
+        renderer = self.renderers[name]
+        if rows is not None and self.renders_rows(name):
+            band: npt.NDArray[np.uint8] = renderer.render(T, K, w, h, rows=rows).rgb
+            return band
+        rgb: npt.NDArray[np.uint8] = renderer.render(T, K, w, h).rgb
+        return rgb if rows is None else rgb[rows[0] : rows[1]]
+
+    def renders_rows(self, name: str) -> bool:
+        """Whether camera ``name`` renders a band of rows for less than the whole image.
+
+        The splat renderer does (its pixels do not depend on the image's size); the others
+        render whole images (the truth camera's sensor noise and vignetting are laid out over
+        the whole frame).
+        """
+        return bool(getattr(self.renderers.get(name), "RENDERS_ROWS", False))
 
     def coverage(self, name: str, T: npt.NDArray[np.float64]) -> float:
         """The splat camera ``name``'s coverage of pose ``T`` (0 on a training view, toward 1)."""

@@ -389,10 +389,10 @@ def _replay_frames(
 
 def _carla_view(sim: Any, tr: Any, i: int) -> npt.NDArray[np.uint8]:
     """Teleport CARLA's hero to recorded sample ``i`` and return its camera image."""
-    from cam2sim.sim.interface import Pose  # noqa: PLC0415
+    from cam2sim.sim.interface import PlanarPose  # noqa: PLC0415
 
     cx, cy, _ = tr.center[i]
-    sim.reset(Pose(cx, cy, tr.heading[i], tr.speed[i]))
+    sim.reset(PlanarPose(cx, cy, tr.heading[i], tr.speed[i]))
     rgb: npt.NDArray[np.uint8] = sim.camera_images().rgb
     return rgb
 
@@ -546,7 +546,7 @@ def _open_carla(ctx: RunContext, options: Any, client_factory: Any) -> Any:
     return sim
 
 
-def _drive_loop(  # noqa: PLR0913, PLR0915, PLR0917 - one run: setup, step loop, writing
+def _drive_loop(  # noqa: PLR0912, PLR0913, PLR0915, PLR0917 - one run: setup, step loop, writing
     ctx: RunContext,
     opts: DriveOptions,
     policy: Any,
@@ -566,6 +566,7 @@ def _drive_loop(  # noqa: PLR0913, PLR0915, PLR0917 - one run: setup, step loop,
     policy.reset()
     cam_name = "carla" if opts.camera == "carla" else next(iter(cameras.renderers), None)
     K, w, h = scaled_intrinsics(sc, opts.image_size) if cam_name else (np.eye(3), 0, 0)
+    band = _policy_band(policy, cameras, cam_name, h, opts)
     run_id, tmp = _new_run_dir(ctx.ws, "drive", f"{policy.name}-{cam_name or 'none'}-s{seed}")
     rows: dict[str, list[float]] = {
         k: [] for k in ("t", "x", "y", "z", "heading", "speed", "steering", "wheel_angle")
@@ -589,7 +590,7 @@ def _drive_loop(  # noqa: PLR0913, PLR0915, PLR0917 - one run: setup, step loop,
                     image = (
                         sim.camera_images().rgb
                         if cam_name == "carla"
-                        else _vehicle_view(sc, state, cameras, cam_name, (K, w, h), coverage)
+                        else _vehicle_view(sc, state, cameras, cam_name, (K, w, h), coverage, band)
                     )
                     render_s += time.perf_counter() - t0
                     where = run_paths(tmp).frames_dir(cam_name)
@@ -624,6 +625,8 @@ def _drive_loop(  # noqa: PLR0913, PLR0915, PLR0917 - one run: setup, step loop,
         _write_tables(tmp, rows, decisions)
         timing = {"seconds": seconds, "render_s": render_s, "policy_s": policy_s}
         meta = _drive_meta(opts, policy.name, cam_name, seed, steps, len(decisions), timing)
+        if band is not None:
+            meta["rendered_rows"] = band
         meta |= {"simulator": sim_opts.model_dump(mode="json"), "proj_string": sc.world.proj_string}
         if drawn is not None:
             meta["variation"] = asdict(drawn)
@@ -688,7 +691,7 @@ def _start_pose(sc: Scenario, offset: tuple[float, float]) -> Any:
     """The hero start moved by ``offset = (lateral_m, heading_deg)``; None when not moved."""
     import math  # noqa: PLC0415
 
-    from cam2sim.sim.interface import Pose  # noqa: PLC0415
+    from cam2sim.sim.interface import PlanarPose  # noqa: PLC0415
 
     lateral, heading_deg = offset
     if lateral == 0.0 and heading_deg == 0.0:
@@ -696,7 +699,7 @@ def _start_pose(sc: Scenario, offset: tuple[float, float]) -> Any:
     s = sc.hero_start
     x = s.position[0] - lateral * math.sin(s.heading)
     y = s.position[1] + lateral * math.cos(s.heading)
-    return Pose(x, y, s.heading + math.radians(heading_deg), s.speed)
+    return PlanarPose(x, y, s.heading + math.radians(heading_deg), s.speed)
 
 
 def _record(rows: dict[str, list[float]], state: Any, ref_xyz: tuple[float, float, float]) -> None:
@@ -748,6 +751,28 @@ def _splat_quality(ws: Workspace, run_id: str, coverage: list[float]) -> dict[st
     }
 
 
+def _policy_band(
+    policy: Any, cameras: Cameras, cam_name: str | None, height: int, opts: DriveOptions
+) -> tuple[int, int] | None:
+    """The rows of the camera's frames a drive renders, or None for whole frames.
+
+    A band when the policy reads only one (DAVE-2's crop) and the camera renders a band for
+    less (:meth:`Cameras.renders_rows`: the splat camera, the costly one on a CPU); the
+    policy's input is what the whole frame would give it. Whole frames when they are kept
+    (PNG frames or video: what people look at).
+    """
+    from cam2sim.ads.policy import ReadsImageRows  # noqa: PLC0415
+
+    if cam_name is None or opts.save_frames or opts.video or not cameras.renders_rows(cam_name):
+        return None
+    if not isinstance(policy, ReadsImageRows):
+        return None
+    rows = policy.image_rows(height)
+    if rows is None or rows == (0, height):
+        return None
+    return rows
+
+
 def _vehicle_view(
     sc: Scenario,
     state: Any,
@@ -755,8 +780,12 @@ def _vehicle_view(
     cam_name: str,
     camera: tuple[npt.NDArray[np.float64], int, int],
     coverage: list[float],
+    band: tuple[int, int] | None = None,
 ) -> npt.NDArray[np.uint8]:
-    """What the vehicle's camera sees in its current state (the splat's coverage appended)."""
+    """What the vehicle's camera sees in its current state (the splat's coverage appended).
+
+    With ``band = (first, stop)`` only those rows are rendered; the others stay black.
+    """
     from cam2sim.scenario.body import body_point_positions  # noqa: PLC0415
 
     ref_xyz = sc.vehicle.reference_xyz
@@ -772,7 +801,11 @@ def _vehicle_view(
     K, w, h = camera
     if cam_name == "splat":
         coverage.append(cameras.coverage(cam_name, T))
-    return cameras.render(cam_name, T, K, w, h)
+    if band is None:
+        return cameras.render(cam_name, T, K, w, h)
+    frame = np.zeros((h, w, 3), np.uint8)
+    frame[band[0] : band[1]] = cameras.render(cam_name, T, K, w, h, rows=band)
+    return frame
 
 
 def _splat_ground(sc: Scenario, state: Any, camera: str) -> float:
