@@ -213,6 +213,8 @@ def test_a_perturbed_pose_moves_right_and_turns_left_about_the_vertical() -> Non
     assert np.allclose(left[:3, 1], T[:3, 1])  # still upright
     assert even_picks(10, 4) == [0, 3, 6, 9]
     assert even_picks(3, 12) == [0, 1, 2]
+    # The relative offsets are taken on the frames the truth envelope picks (renders reused).
+    assert EvalOptions().max_offset_frames == TruthEnvelopeOptions().max_frames
 
 
 def test_a_drive_with_the_splat_camera_records_its_quality_and_the_gate(

@@ -51,6 +51,7 @@ from cam2sim.splat.evaluate import (
     PairScores,
     TruthEnvelope,
     TruthScore,
+    even_picks,
     score_pair,
     summarise,
 )
@@ -173,15 +174,6 @@ def perturbed_pose(
         c, s = math.cos(a), math.sin(a)
         pose[:3, :3] = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ pose[:3, :3]
     return pose
-
-
-def even_picks(n: int, k: int | None) -> list[int]:
-    """Indices of at most ``k`` of ``n`` items spread evenly, first and last included."""
-    if n <= 0:
-        return []
-    if k is None or k >= n:
-        return list(range(n))
-    return sorted({round(i * (n - 1) / max(1, k - 1)) for i in range(k)})
 
 
 def truth_envelope(
