@@ -40,8 +40,10 @@ __all__ = [
     "camera_poses",
     "ground_height_at",
     "load_run_context",
+    "policy_band",
     "register_camera",
     "scaled_intrinsics",
+    "vehicle_view",
     "write_png",
 ]
 
@@ -280,3 +282,60 @@ class Cameras:
             r.close()
         if self.carla is not None:
             self.carla.close()
+
+
+def policy_band(
+    policy: object, cameras: Cameras, cam_name: str | None, height: int, *, keep_frames: bool
+) -> tuple[int, int] | None:
+    """The rows of the camera's frames a drive renders, or None for whole frames.
+
+    A band when the policy reads only one (DAVE-2's crop,
+    :class:`~cam2sim.ads.policy.ReadsImageRows`) and the camera renders a band for less
+    (:meth:`Cameras.renders_rows`: the splat camera, the costly one on a CPU); the policy's
+    input is what the whole frame would give it. Whole frames when they are kept
+    (``keep_frames``: PNG frames or video, what people look at).
+    """
+    from cam2sim.ads.policy import ReadsImageRows  # noqa: PLC0415
+
+    if cam_name is None or keep_frames or not cameras.renders_rows(cam_name):
+        return None
+    if not isinstance(policy, ReadsImageRows):
+        return None
+    rows = policy.image_rows(height)
+    if rows is None or rows == (0, height):
+        return None
+    return rows
+
+
+def vehicle_view(
+    sc: Scenario,
+    state: Any,
+    cameras: Cameras,
+    cam_name: str,
+    camera: tuple[npt.NDArray[np.float64], int, int],
+    coverage: list[float],
+    band: tuple[int, int] | None = None,
+) -> npt.NDArray[np.uint8]:
+    """What the vehicle's camera sees in its current state (the splat's coverage appended).
+
+    With ``band = (first, stop)`` only those rows are rendered; the others stay black.
+    """
+    from cam2sim.scenario.body import body_point_positions  # noqa: PLC0415
+
+    ref_xyz = sc.vehicle.reference_xyz
+    ref_now = body_point_positions(
+        [[state.x, state.y, 0.0]], [state.heading], (0.0, 0.0, 0.0), ref_xyz
+    )[0]
+    # The raster and truth worlds' road is z = 0; the splat models live at the recorded heights.
+    ground = ground_height_at(sc, np.array([state.x, state.y])) if cam_name == "splat" else 0.0
+    T = camera_poses(
+        sc, ref_now[None, :2], np.array([state.heading]), np.array([ref_xyz[2] + ground])
+    )[0]
+    K, w, h = camera
+    if cam_name == "splat":
+        coverage.append(cameras.coverage(cam_name, T))
+    if band is None:
+        return cameras.render(cam_name, T, K, w, h)
+    frame = np.zeros((h, w, 3), np.uint8)
+    frame[band[0] : band[1]] = cameras.render(cam_name, T, K, w, h, rows=band)
+    return frame

@@ -41,9 +41,10 @@ from cam2sim.stages.cameras import (
     Cameras,
     RunContext,
     camera_poses,
-    ground_height_at,
     load_run_context,
+    policy_band,
     scaled_intrinsics,
+    vehicle_view,
     write_png,
 )
 
@@ -566,7 +567,7 @@ def _drive_loop(  # noqa: PLR0912, PLR0913, PLR0915, PLR0917 - one run: setup, s
     policy.reset()
     cam_name = "carla" if opts.camera == "carla" else next(iter(cameras.renderers), None)
     K, w, h = scaled_intrinsics(sc, opts.image_size) if cam_name else (np.eye(3), 0, 0)
-    band = _policy_band(policy, cameras, cam_name, h, opts)
+    band = policy_band(policy, cameras, cam_name, h, keep_frames=opts.save_frames or opts.video)
     run_id, tmp = _new_run_dir(ctx.ws, "drive", f"{policy.name}-{cam_name or 'none'}-s{seed}")
     rows: dict[str, list[float]] = {
         k: [] for k in ("t", "x", "y", "z", "heading", "speed", "steering", "wheel_angle")
@@ -590,7 +591,7 @@ def _drive_loop(  # noqa: PLR0912, PLR0913, PLR0915, PLR0917 - one run: setup, s
                     image = (
                         sim.camera_images().rgb
                         if cam_name == "carla"
-                        else _vehicle_view(sc, state, cameras, cam_name, (K, w, h), coverage, band)
+                        else vehicle_view(sc, state, cameras, cam_name, (K, w, h), coverage, band)
                     )
                     render_s += time.perf_counter() - t0
                     where = run_paths(tmp).frames_dir(cam_name)
@@ -749,70 +750,6 @@ def _splat_quality(ws: Workspace, run_id: str, coverage: list[float]) -> dict[st
         "splat_quality": quality.model_dump(mode="json"),
         "splat_gate": gate.model_dump(mode="json"),
     }
-
-
-def _policy_band(
-    policy: Any, cameras: Cameras, cam_name: str | None, height: int, opts: DriveOptions
-) -> tuple[int, int] | None:
-    """The rows of the camera's frames a drive renders, or None for whole frames.
-
-    A band when the policy reads only one (DAVE-2's crop) and the camera renders a band for
-    less (:meth:`Cameras.renders_rows`: the splat camera, the costly one on a CPU); the
-    policy's input is what the whole frame would give it. Whole frames when they are kept
-    (PNG frames or video: what people look at).
-    """
-    from cam2sim.ads.policy import ReadsImageRows  # noqa: PLC0415
-
-    if cam_name is None or opts.save_frames or opts.video or not cameras.renders_rows(cam_name):
-        return None
-    if not isinstance(policy, ReadsImageRows):
-        return None
-    rows = policy.image_rows(height)
-    if rows is None or rows == (0, height):
-        return None
-    return rows
-
-
-def _vehicle_view(
-    sc: Scenario,
-    state: Any,
-    cameras: Cameras,
-    cam_name: str,
-    camera: tuple[npt.NDArray[np.float64], int, int],
-    coverage: list[float],
-    band: tuple[int, int] | None = None,
-) -> npt.NDArray[np.uint8]:
-    """What the vehicle's camera sees in its current state (the splat's coverage appended).
-
-    With ``band = (first, stop)`` only those rows are rendered; the others stay black.
-    """
-    from cam2sim.scenario.body import body_point_positions  # noqa: PLC0415
-
-    ref_xyz = sc.vehicle.reference_xyz
-    ref_now = body_point_positions(
-        [[state.x, state.y, 0.0]], [state.heading], (0.0, 0.0, 0.0), ref_xyz
-    )[0]
-    T = camera_poses(
-        sc,
-        ref_now[None, :2],
-        np.array([state.heading]),
-        np.array([ref_xyz[2] + _splat_ground(sc, state, cam_name)]),
-    )[0]
-    K, w, h = camera
-    if cam_name == "splat":
-        coverage.append(cameras.coverage(cam_name, T))
-    if band is None:
-        return cameras.render(cam_name, T, K, w, h)
-    frame = np.zeros((h, w, 3), np.uint8)
-    frame[band[0] : band[1]] = cameras.render(cam_name, T, K, w, h, rows=band)
-    return frame
-
-
-def _splat_ground(sc: Scenario, state: Any, camera: str) -> float:
-    """Ground height under the vehicle for a camera: 0 for raster, recorded for splat."""
-    if camera != "splat":
-        return 0.0
-    return ground_height_at(sc, np.array([state.x, state.y]))
 
 
 def iter_runs(ws: Workspace) -> Iterator[Path]:
