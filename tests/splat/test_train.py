@@ -285,6 +285,7 @@ def test_time_share_divides_the_budget_by_the_rounds(
 ) -> None:
     assert time_share(600.0, n_chunks, slots) == pytest.approx(share)
     assert time_share(None, n_chunks, slots) is None
+    assert time_share(600.0, n_chunks, slots, per_chunk=True) == 600.0
 
 
 def test_steps_that_fit_follow_the_recent_pace() -> None:

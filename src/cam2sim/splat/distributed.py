@@ -96,8 +96,10 @@ def train_scene_on_ray(
         if options is not None and options.time_budget_s is not None:
             # Each chunk's share of the budget: as many run at once as the cluster has room for.
             slots = int(have // gpus) if gpus > 0 else int(ray.cluster_resources().get("CPU", 1))
-            share = time_share(options.time_budget_s, len(ids), slots)
-            options = dataclasses.replace(options, time_budget_s=share)
+            share = time_share(
+                options.time_budget_s, len(ids), slots, per_chunk=options.budget_per_chunk
+            )
+            options = dataclasses.replace(options, time_budget_s=share, budget_per_chunk=True)
         pending: dict[Any, int] = {
             task.remote(scene, c, str(prep_dir), options, str(models)): c for c in ids
         }

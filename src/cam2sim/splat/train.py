@@ -23,7 +23,8 @@ Reads ``WS/splat/prep/`` (:mod:`cam2sim.splat.scene`), writes ``WS/splat/models/
   validation (PSNR swings of ±0.5 dB between checks are common) from ending training while the
   fine structure still improves.
 - **Time budget** (``time_budget_s``, optional): the chunks of one call share the seconds, each
-  getting the budget divided by the rounds in which they train (:func:`time_share`). At every
+  getting the budget divided by the rounds in which they train (:func:`time_share`), or each
+  chunk the whole budget with ``budget_per_chunk`` (a longer route trains longer). At every
   validation a chunk measures its pace over the last interval and moves its step cap to the step
   its share runs out at (never above ``max_steps``): the means' learning rate is re-aimed to
   reach its final value there and no opacity reset falls within ``reset_every`` steps of it. One
@@ -129,7 +130,9 @@ def plateau_reached(
     return psnr_trend < min_gain_db and ssim_trend < min_gain_ssim
 
 
-def time_share(budget_s: float | None, n_chunks: int, slots: int) -> float | None:
+def time_share(
+    budget_s: float | None, n_chunks: int, slots: int, *, per_chunk: bool = False
+) -> float | None:
     """Seconds each of ``n_chunks`` chunks may train so that all end within ``budget_s``.
 
     The chunks train ``slots`` at a time, a new one starting when one ends; with chunks of about
@@ -139,12 +142,13 @@ def time_share(budget_s: float | None, n_chunks: int, slots: int) -> float | Non
         budget_s: Seconds for all of them, or None (no budget).
         n_chunks: Chunks to train.
         slots: Chunks trained at the same time (1 = one after another or interleaved).
+        per_chunk: ``budget_s`` is already each chunk's (``TrainOptions.budget_per_chunk``).
 
     Returns:
         Each chunk's seconds, or None without a budget.
     """
-    if budget_s is None:
-        return None
+    if budget_s is None or per_chunk:
+        return budget_s
     rounds = -(-max(1, n_chunks) // max(1, min(slots, n_chunks)))
     return budget_s / rounds
 
@@ -709,7 +713,10 @@ def train_scene(
                 options,
                 device=device,
                 backend=backend,
-                time_budget_s=time_share(options.time_budget_s, len(wanted), slots),
+                time_budget_s=time_share(
+                    options.time_budget_s, len(wanted), slots, per_chunk=options.budget_per_chunk
+                ),
+                budget_per_chunk=True,  # the share above is each worker's chunk's
             ),
             models_dir=models_dir,
             in_flight=slots,
@@ -721,7 +728,8 @@ def train_scene(
     if device.startswith("cuda"):
         torch.cuda.reset_peak_memory_stats(device)
     xyz, rgb, _ = load_points(prep_dir / "points.npz")
-    share = time_share(options.time_budget_s, len(wanted), 1)  # interleaved: one at a time
+    # Interleaved: one at a time.
+    share = time_share(options.time_budget_s, len(wanted), 1, per_chunk=options.budget_per_chunk)
     trainers = [
         _ChunkTrainer(known[c], scene, prep_dir, (xyz, rgb), options, device, backend, share)
         for c in wanted

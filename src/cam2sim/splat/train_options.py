@@ -162,6 +162,9 @@ class TrainOptions:
             validations; not loading them, nor gsplat's one-time build), shared out by
             :func:`time_share`; each chunk fits its step cap to its share (module doc).
             None = no budget: the plateau or ``max_steps`` ends training.
+        budget_per_chunk: ``time_budget_s`` is each chunk's seconds, not all chunks' together:
+            a longer route (more chunks) trains longer, each chunk as long as a short route's
+            (the demo on CUDA, whose 183 m street has 2 chunks and the 450 m one 4).
     """
 
     max_steps: int = 30_000
@@ -195,6 +198,7 @@ class TrainOptions:
     profile: bool = False
     concurrent_chunks: int | None = None
     time_budget_s: float | None = None
+    budget_per_chunk: bool = False
 
     def __post_init__(self) -> None:
         problems = []

@@ -1,0 +1,133 @@
+"""Where a splat model's error is (issue 22): per frame, by image third, fine against coarse.
+
+Renders frames of a prepared scene (training and held-out ones) from trained chunk models and
+compares each with the recorded frame:
+
+* ``psnr``: as rendered (the renderer's own colour transform);
+* ``psnr_affine``: after the best per-image affine colour fit (least squares): what exposure
+  and white balance alone would still give;
+* ``psnr_blur2``: both images blurred with a Gaussian of 2 px sigma after that fit: the error
+  left at coarse scale (a large gain = the error is fine detail: texture, edges, misregistered
+  lines);
+* the squared error by image third (top: sky line and trees; middle: horizon, cars,
+  vegetation; bottom: road) and on the sky mask.
+
+``--montage`` writes recorded | render (fitted) | error map for the frames it names.
+
+    python3 benchmarks/splat_errors.py --prep /tmp/r_curves --models WS/splat/models \\
+        --every 6 --montage 36,120,156,216,264 --out errors/
+
+Prints means for training and held-out frames; writes ``errors.json`` (and ``errors.jpg``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+
+from cam2sim.core.files import write_text_atomic
+from cam2sim.core.images import read_mask, read_rgb
+from cam2sim.splat.render import RenderOptions, SplatRenderer
+from cam2sim.splat.scene import SceneRecord
+
+
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    return float(-10.0 * np.log10(np.mean((a - b) ** 2) + 1e-12))
+
+
+def frame_errors(real: np.ndarray, render: np.ndarray, sky: np.ndarray | None) -> dict[str, Any]:
+    """The scores of one frame (``real`` and ``render`` float RGB in ``[0, 1]``)."""
+    h, w = real.shape[:2]
+    x = np.concatenate([render.reshape(-1, 3), np.ones((h * w, 1), np.float32)], axis=1)
+    a, *_ = np.linalg.lstsq(x, real.reshape(-1, 3), rcond=None)
+    fit = (x @ a).reshape(real.shape).astype(np.float32)
+    err = ((fit - real) ** 2).mean(axis=-1)
+
+    def blur(im: np.ndarray) -> np.ndarray:
+        return np.asarray(cv2.GaussianBlur(im, (0, 0), 2.0))
+
+    return {
+        "psnr": _psnr(render, real),
+        "psnr_affine": _psnr(fit, real),
+        "psnr_blur2": _psnr(blur(fit), blur(real)),
+        "mse_top": float(err[: h // 3].mean()),
+        "mse_middle": float(err[h // 3 : 2 * h // 3].mean()),
+        "mse_bottom": float(err[2 * h // 3 :].mean()),
+        "sky_share": float(sky.mean()) if sky is not None else 0.0,
+        "mse_sky": float(err[sky].mean()) if sky is not None and sky.any() else None,
+        "_fit": fit,
+        "_err": err,
+    }
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--prep", required=True, help="prepared scene (WS/splat/prep)")
+    parser.add_argument("--models", required=True, help="trained models (WS/splat/models)")
+    parser.add_argument("--every", type=int, default=6, help="every n-th frame of the scene")
+    parser.add_argument("--montage", default="", help="frame indices for the picture, e.g. 36,120")
+    parser.add_argument("--device", default="auto")
+    parser.add_argument("--out", default="errors", help="output folder")
+    args = parser.parse_args()
+    prep, out = Path(args.prep), Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    scene = SceneRecord.load(prep / "scene.json")
+    wanted = {int(v) for v in args.montage.split(",") if v.strip()}
+    rows: list[dict[str, Any]] = []
+    tiles = []
+    with SplatRenderer(Path(args.models), options=RenderOptions(device=args.device)) as renderer:
+        for frame in scene.frames[:: args.every]:
+            real = read_rgb(prep / "images" / f"{frame.index:06d}.png").astype(np.float32) / 255
+            rgb = renderer.render(frame.T(), frame.K(), frame.width, frame.height).rgb
+            sky_file = prep / "sky" / f"{frame.index:06d}.png"
+            sky = read_mask(sky_file) if sky_file.is_file() else None
+            scores = frame_errors(real, rgb.astype(np.float32) / 255, sky)
+            fit, err = scores.pop("_fit"), scores.pop("_err")
+            rows.append({"index": frame.index, "held_out": frame.held_out, **scores})
+            if frame.index in wanted:
+                heat = np.clip(np.sqrt(err) * 4 * 255, 0, 255).astype(np.uint8)
+                tiles.append(
+                    np.concatenate(
+                        [
+                            (real[..., ::-1] * 255).astype(np.uint8),
+                            (np.clip(fit, 0, 1)[..., ::-1] * 255).astype(np.uint8),
+                            cv2.applyColorMap(heat, cv2.COLORMAP_MAGMA),
+                        ],
+                        axis=1,
+                    )
+                )
+    summary: dict[str, Any] = {}
+    for group, held in (("training", False), ("held_out", True)):
+        picked = [r for r in rows if r["held_out"] == held]
+        if not picked:
+            continue
+        mse = np.mean([[r["mse_top"], r["mse_middle"], r["mse_bottom"]] for r in picked], axis=0)
+        mean = {k: float(np.mean([r[k] for r in picked])) for k in ("psnr", "psnr_affine")}
+        mean["psnr_blur2"] = float(np.mean([r["psnr_blur2"] for r in picked]))
+        thirds = (-10 * np.log10(mse)).tolist()
+        summary[group] = {
+            "frames": len(picked),
+            **mean,
+            "psnr_by_third": dict(zip(("top", "middle", "bottom"), thirds, strict=True)),
+        }
+        print(group, json.dumps(summary[group]))
+    write_text_atomic(
+        out / "errors.json", json.dumps({"summary": summary, "frames": rows}, indent=1)
+    )
+    if tiles:
+        cv2.imwrite(
+            str(out / "errors.jpg"), np.concatenate(tiles, axis=0), [cv2.IMWRITE_JPEG_QUALITY, 85]
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
