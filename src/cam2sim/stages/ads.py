@@ -13,10 +13,14 @@ import logging
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Final
 
-from cam2sim.core.errors import StageError
+from cam2sim.ads.recovery import RecoveryGeometry
+from cam2sim.core.dataset import Calibration, DatasetInfo
+from cam2sim.core.errors import StageError, WorkspaceError
+from cam2sim.core.frames.rotation import quat_rotate
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.workspace import Workspace, dataset_paths, hash_inputs
 from cam2sim.stages._runner import stage_run
+from cam2sim.stages.scenario import steering_calibration
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -26,9 +30,7 @@ if TYPE_CHECKING:
 
     from cam2sim.ads.dave2 import Dave2Config
     from cam2sim.ads.export import ExportReport
-    from cam2sim.ads.recovery import RecoveryGeometry
     from cam2sim.ads.train import TrainedModel, TrainOptions, TrainReport
-    from cam2sim.core.dataset import DatasetInfo
 
 __all__ = [
     "ExportAdsResult",
@@ -67,9 +69,6 @@ class ExportAdsResult:
 
 
 def _dataset(ws: Workspace) -> DatasetInfo:
-    from cam2sim.core.dataset import DatasetInfo  # noqa: PLC0415
-    from cam2sim.core.errors import WorkspaceError  # noqa: PLC0415
-
     record = ws.stage_record("extract")
     if record is None or record.state != "done":
         msg = f"{ws.root} has no dataset; run `cam2sim extract {ws.root}` (or import) first"
@@ -100,7 +99,7 @@ def train_ads(
         StageError: No dataset, no such signal (the message lists those available), too few
             frames, or constant steering.
     """
-    from cam2sim.ads import train as tr  # noqa: PLC0415
+    from cam2sim.ads import train as tr  # noqa: PLC0415 -- lazy: imports cv2, torch
 
     opts = options or tr.TrainOptions()
     report = progress or no_progress
@@ -133,7 +132,7 @@ def train_model(
     Raises:
         StageError: No dataset, no such signal, too few frames, or constant steering.
     """
-    from cam2sim.ads import train as tr  # noqa: PLC0415
+    from cam2sim.ads import train as tr  # noqa: PLC0415 -- lazy: imports cv2, torch
 
     info = _dataset(ws)
     report = progress or no_progress
@@ -153,12 +152,6 @@ def recovery_geometry(ws: Workspace) -> RecoveryGeometry | None:
     import math  # noqa: PLC0415
 
     import numpy as np  # noqa: PLC0415
-
-    from cam2sim.ads.recovery import RecoveryGeometry  # noqa: PLC0415
-    from cam2sim.core.dataset import Calibration  # noqa: PLC0415
-    from cam2sim.core.errors import WorkspaceError  # noqa: PLC0415
-    from cam2sim.core.frames.rotation import quat_rotate  # noqa: PLC0415
-    from cam2sim.stages.scenario import steering_calibration  # noqa: PLC0415
 
     try:
         calib = Calibration.load(dataset_paths(ws.dataset_dir).calibration_json)
@@ -191,7 +184,7 @@ def _real_inputs(ws: Workspace, config: Dave2Config) -> npt.NDArray[np.float32] 
     import cv2  # noqa: PLC0415
     import numpy as np  # noqa: PLC0415
 
-    from cam2sim.ads.dave2 import preprocess  # noqa: PLC0415
+    from cam2sim.ads.dave2 import preprocess  # noqa: PLC0415 -- lazy: imports cv2
 
     try:
         info = _dataset(ws)
@@ -226,8 +219,8 @@ def export_ads(
         StageError: No trained model, or onnxruntime disagrees with torch.
         BackendUnavailableError: onnx or onnxruntime is missing.
     """
-    from cam2sim.ads.export import export_onnx  # noqa: PLC0415
-    from cam2sim.ads.train import load_model  # noqa: PLC0415
+    from cam2sim.ads.export import export_onnx  # noqa: PLC0415 -- lazy: imports cv2, torch
+    from cam2sim.ads.train import load_model  # noqa: PLC0415 -- lazy: imports cv2, torch
 
     report = progress or no_progress
     path = out or ws.ads_dir / ONNX_FILE

@@ -18,7 +18,15 @@ from typing import TYPE_CHECKING, Any, Final, Literal, Protocol, Self
 
 import numpy as np
 
+from cam2sim.core import frames as fr
 from cam2sim.core.errors import StageError
+from cam2sim.core.files import write_bytes_atomic
+from cam2sim.render.meshes import BuildingFootprint
+from cam2sim.render.raster import RasterRenderer, RasterScene
+from cam2sim.render.truth import TruthRenderer
+from cam2sim.scenario.body import body_point_positions
+from cam2sim.scenario.model import Scenario
+from cam2sim.splat.render import SplatRenderer
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -28,7 +36,6 @@ if TYPE_CHECKING:
 
     from cam2sim.core.workspace import Workspace
     from cam2sim.map.query import RoadMap
-    from cam2sim.scenario.model import Scenario
 
 __all__ = [
     "TRUTH_CAMERA",
@@ -54,8 +61,7 @@ TRUTH_CAMERA: Final = "truth"
 
 def write_png(path: Path, rgb: npt.NDArray[np.uint8]) -> None:
     """Write an RGB image as PNG, atomically (the folder is created)."""
-    from cam2sim.core.files import write_bytes_atomic  # noqa: PLC0415
-    from cam2sim.recording.image import encode_image_file  # noqa: PLC0415
+    from cam2sim.recording.image import encode_image_file  # noqa: PLC0415 -- lazy: imports cv2
 
     path.parent.mkdir(parents=True, exist_ok=True)
     write_bytes_atomic(path, encode_image_file(rgb, "png"))
@@ -76,8 +82,7 @@ def load_run_context(ws: Workspace) -> RunContext:
     Raises:
         StageError: The workspace has no scenario yet.
     """
-    from cam2sim.scenario.model import Scenario  # noqa: PLC0415
-    from cam2sim.stages.map import load_road_map  # noqa: PLC0415
+    from cam2sim.stages.map import load_road_map  # noqa: PLC0415 -- lazy: imports shapely
 
     path = ws.scenario_path
     if not path.is_file():
@@ -115,8 +120,6 @@ def camera_poses(
     The car is level (no roll or pitch) at each ``(x, y, z)`` with its ``heading``;
     :func:`cam2sim.core.frames.camera_poses` composes it with the scenario's camera mount.
     """
-    from cam2sim.core import frames as fr  # noqa: PLC0415
-
     mount = scenario.camera_mount
     xy = np.asarray(reference_xy, dtype=np.float64).reshape(-1, 2)
     z = np.broadcast_to(np.asarray(reference_z, dtype=np.float64), (xy.shape[0],))
@@ -177,9 +180,7 @@ def camera_names() -> tuple[str, ...]:
 
 
 def _raster(ctx: RunContext) -> CameraRenderer:
-    from cam2sim.render.meshes import BuildingFootprint  # noqa: PLC0415
-    from cam2sim.render.raster import RasterRenderer, RasterScene  # noqa: PLC0415
-    from cam2sim.stages.map import load_buildings  # noqa: PLC0415
+    from cam2sim.stages.map import load_buildings  # noqa: PLC0415 -- lazy: imports shapely
 
     buildings = [BuildingFootprint(b.xy, b.height_m) for b in load_buildings(ctx.ws)]
     return RasterRenderer(RasterScene(ctx.road_map, ctx.scenario.parked, buildings))
@@ -187,14 +188,10 @@ def _raster(ctx: RunContext) -> CameraRenderer:
 
 def _truth(ctx: RunContext) -> CameraRenderer:
     """The ground-truth world (``WS/truth/world.json``)."""
-    from cam2sim.render.truth import TruthRenderer  # noqa: PLC0415
-
     return TruthRenderer.open(ctx.ws.root, ctx.scenario.world.proj_string)
 
 
 def _splat(ctx: RunContext) -> CameraRenderer:
-    from cam2sim.splat.render import SplatRenderer  # noqa: PLC0415
-
     models = ctx.ws.splat_dir / "models"
     if not models.is_dir():
         msg = f"{ctx.ws.root} has no splat models; run `cam2sim splat {ctx.ws.root}`"
@@ -295,7 +292,7 @@ def policy_band(
     input is what the whole frame would give it. Whole frames when they are kept
     (``keep_frames``: PNG frames or video, what people look at).
     """
-    from cam2sim.ads.policy import ReadsImageRows  # noqa: PLC0415
+    from cam2sim.ads.policy import ReadsImageRows  # noqa: PLC0415 -- lazy: imports cv2
 
     if cam_name is None or keep_frames or not cameras.renders_rows(cam_name):
         return None
@@ -320,8 +317,6 @@ def vehicle_view(
 
     With ``band = (first, stop)`` only those rows are rendered; the others stay black.
     """
-    from cam2sim.scenario.body import body_point_positions  # noqa: PLC0415
-
     ref_xyz = sc.vehicle.reference_xyz
     ref_now = body_point_positions(
         [[state.x, state.y, 0.0]], [state.heading], (0.0, 0.0, 0.0), ref_xyz

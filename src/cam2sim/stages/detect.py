@@ -21,22 +21,30 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from cam2sim.core.errors import StageError
+from cam2sim.core import frames as fr
+from cam2sim.core.dataset import Calibration, DatasetInfo
+from cam2sim.core.errors import StageError, WorkspaceError
 from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.table import read_table, write_table
 from cam2sim.core.workspace import DatasetPaths, Workspace, dataset_paths, hash_inputs
-from cam2sim.detect.fusion import FusionOptions, WorldBoxes
+from cam2sim.detect.bev import BEV_PNG, load_or_build_bev
+from cam2sim.detect.detector import load_detector
+from cam2sim.detect.fusion import FusionOptions, WorldBoxes, boxes_to_world, fuse
+from cam2sim.detect.route import Route
+from cam2sim.detect.snap import snap_to_road_edges
+from cam2sim.detect.vehicles import ParkedVehicles, parked_vehicles_path, save_parked_vehicles
+from cam2sim.recording.pointcloud import xyz_from_points
+from cam2sim.report.detection_figures import plot_parked_vehicles
+from cam2sim.splat.geometry import camera_poses, undistorter
 from cam2sim.stages._runner import stage_run
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
     from pathlib import Path
 
-    from cam2sim.core.dataset import Calibration, DatasetInfo
     from cam2sim.detect.boxes import Boxes
     from cam2sim.detect.detector import CameraDetector, LidarDetector, Source
-    from cam2sim.detect.route import Route
     from cam2sim.detect.snap import SnapOptions
-    from cam2sim.detect.vehicles import ParkedVehicles
 
 __all__ = ["DetectOptions", "DetectResult", "run_detect"]
 
@@ -99,9 +107,6 @@ class _Frames:
 
 
 def _load_dataset(ws: Workspace) -> tuple[DatasetPaths, DatasetInfo, Calibration]:
-    from cam2sim.core.dataset import Calibration, DatasetInfo  # noqa: PLC0415
-    from cam2sim.core.errors import WorkspaceError  # noqa: PLC0415
-
     record = ws.stage_record("extract")
     if record is None or record.state != "done":
         msg = f"{ws.root} has no dataset; run `cam2sim extract {ws.root}` (or import) first"
@@ -115,8 +120,6 @@ def _load_dataset(ws: Workspace) -> tuple[DatasetPaths, DatasetInfo, Calibration
 
 
 def _poses_to_matrices(table: dict[str, npt.NDArray[np.generic]]) -> npt.NDArray[np.float64]:
-    from cam2sim.core import frames as fr  # noqa: PLC0415
-
     q = np.stack([table[c] for c in ("qx", "qy", "qz", "qw")], 1).astype(np.float64)
     T = np.tile(np.eye(4), (q.shape[0], 1, 1))
     T[:, :3, :3] = fr.quat_to_matrix(fr.quat_normalize(q))
@@ -126,8 +129,6 @@ def _poses_to_matrices(table: dict[str, npt.NDArray[np.generic]]) -> npt.NDArray
 
 def scan_points(points: npt.NDArray[np.void]) -> npt.NDArray[np.float32]:
     """``(N, 4)`` float32 x, y, z, intensity in ``[0, 1]`` from a stored scan."""
-    from cam2sim.recording.pointcloud import xyz_from_points  # noqa: PLC0415
-
     xyz = xyz_from_points(points).astype(np.float32)
     names = points.dtype.names or ()
     field_name = next((n for n in ("intensity", "i", "reflectivity") if n in names), None)
@@ -142,8 +143,6 @@ def scan_points(points: npt.NDArray[np.void]) -> npt.NDArray[np.float32]:
 
 
 def _lidar_frames(paths: DatasetPaths, every: int) -> _Frames:
-    from cam2sim.core.table import read_table  # noqa: PLC0415
-
     if not paths.lidar_csv.is_file():
         msg = (
             "the dataset has no LiDAR scans; run with --source camera --model MODEL, or extract "
@@ -164,9 +163,6 @@ def _camera_frames(
     paths: DatasetPaths, info: DatasetInfo, calib: Calibration, every: int
 ) -> tuple[_Frames, npt.NDArray[np.float64]]:
     import cv2  # noqa: PLC0415
-
-    from cam2sim.core.table import read_table  # noqa: PLC0415
-    from cam2sim.splat.geometry import camera_poses, undistorter  # noqa: PLC0415
 
     if info.pose_less:
         msg = (
@@ -208,8 +204,6 @@ def _detect_all(
     report: ProgressCallback,
     task: str,
 ) -> Iterator[WorldBoxes]:
-    from cam2sim.detect.fusion import boxes_to_world  # noqa: PLC0415
-
     total = int(frames.index.shape[0])
 
     def one(k: int) -> WorldBoxes:
@@ -225,9 +219,6 @@ def _detect_all(
 
 def _route(paths: DatasetPaths) -> Route:
     """The driven route (a car that stood still: the line along its heading)."""
-    from cam2sim.core.table import read_table  # noqa: PLC0415
-    from cam2sim.detect.route import Route  # noqa: PLC0415
-
     table = read_table(paths.trajectory_csv)
     xy = np.stack([table["x"], table["y"]], 1).astype(np.float64)
     return Route.from_xy(xy, heading=np.asarray(table["heading"], dtype=np.float64))
@@ -278,14 +269,6 @@ def run_detect(
         ConfigError: An unknown or unusable detector.
         BackendUnavailableError: The detector needs a package that is not installed.
     """
-    from cam2sim.detect.detector import load_detector  # noqa: PLC0415
-    from cam2sim.detect.fusion import fuse  # noqa: PLC0415
-    from cam2sim.detect.vehicles import (  # noqa: PLC0415
-        ParkedVehicles,
-        parked_vehicles_path,
-        save_parked_vehicles,
-    )
-
     opts = options or DetectOptions()
     report = progress or no_progress
     paths, info, calib = _load_dataset(ws)
@@ -313,7 +296,7 @@ def run_detect(
     detector = load_detector(model, source)
     road_map = None
     if opts.snap:
-        from cam2sim.stages.map import load_road_map  # noqa: PLC0415
+        from cam2sim.stages.map import load_road_map  # noqa: PLC0415 -- lazy: imports shapely
 
         road_map = load_road_map(ws)
     with stage_run(ws, STAGE, inputs_hash=inputs, config=None):
@@ -322,8 +305,6 @@ def run_detect(
         vehicles, member = fuse(boxes, route, source=source, options=opts.fusion)
         snapped = False
         if road_map is not None:
-            from cam2sim.detect.snap import snap_to_road_edges  # noqa: PLC0415
-
             vehicles, moved = snap_to_road_edges(vehicles, road_map, opts.snap_options)
             snapped = True
             logger.info("snapped %d of %d vehicles to the road edge", moved, len(vehicles))
@@ -346,8 +327,6 @@ def run_detect(
 
 
 def _write_boxes(path: Path, boxes: WorldBoxes, member: npt.NDArray[np.int64]) -> None:
-    from cam2sim.core.table import write_table  # noqa: PLC0415
-
     write_table(
         path,
         {
@@ -374,9 +353,6 @@ def _figure(
     route: object,
     road_map: object,
 ) -> Path:
-    from cam2sim.detect.bev import BEV_PNG, load_or_build_bev  # noqa: PLC0415
-    from cam2sim.report.detection_figures import plot_parked_vehicles  # noqa: PLC0415
-
     bev = load_or_build_bev(ws)
     background = (
         None

@@ -27,6 +27,13 @@ from cam2sim.core.files import write_text_atomic
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.run_record import RunRecord
 from cam2sim.core.workspace import hash_inputs, run_paths
+from cam2sim.metrics.behaviour import behaviour_table, evaluate_with_real_runs, recorded_drive
+from cam2sim.metrics.drive_io import load_run_dir, load_runs
+from cam2sim.render.truth import truth_world_path
+from cam2sim.report.drive_figures import write_drive_figures
+from cam2sim.scenario.model import Scenario
+from cam2sim.stages._runner import stage_run
+from cam2sim.stages.reconstruction import evaluate_replay_images, evaluate_world_semantics
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -102,9 +109,6 @@ def write_drive_evaluation(
     Returns:
         The evaluation (``out/metrics.json`` holds its metrics).
     """
-    from cam2sim.metrics.behaviour import behaviour_table, evaluate_with_real_runs  # noqa: PLC0415
-    from cam2sim.report.drive_figures import write_drive_figures  # noqa: PLC0415
-
     ev = evaluate_with_real_runs(real, runs, segment=segment, options=options)
     out.mkdir(parents=True, exist_ok=True)
     ev.metrics.save(out / "metrics.json")
@@ -117,11 +121,7 @@ def write_drive_evaluation(
 def _real_drives(ws: Workspace, real: Sequence[Path], real_crs: str) -> list[DriveRun]:
     """The given real drives, else the scenario's recorded drive."""
     if real:
-        from cam2sim.metrics.drive_io import load_runs  # noqa: PLC0415
-
         return load_runs(list(real), real=True, crs=real_crs)
-    from cam2sim.metrics.behaviour import recorded_drive  # noqa: PLC0415
-    from cam2sim.scenario.model import Scenario  # noqa: PLC0415
 
     path = ws.scenario_path
     if not path.is_file():
@@ -146,8 +146,6 @@ def evaluate_workspace_drives(
     Returns:
         The ``metrics.json`` path.
     """
-    from cam2sim.metrics.drive_io import load_run_dir  # noqa: PLC0415
-
     references = _real_drives(ws, real, real_crs)
     runs = [load_run_dir(ws.runs_dir / r) for r in run_ids]
     write_drive_evaluation(references, runs, out)
@@ -190,8 +188,6 @@ def evaluate_workspace(
     Raises:
         StageError: No drive run to score, or no scenario (and no real drives given).
     """
-    from cam2sim.stages._runner import stage_run  # noqa: PLC0415
-
     opts = options or EvaluateOptions()
     runs = list(opts.drive_runs) if opts.drive_runs is not None else _runs_of_kind(ws, "drive")
     if not runs:
@@ -220,12 +216,6 @@ def _evaluate_reconstruction(
     ws: Workspace, replay: list[str], progress: ProgressCallback
 ) -> list[str]:
     """Image quality of the replay's cameras and semantic IoU of the world, where possible."""
-    from cam2sim.render.truth import truth_world_path  # noqa: PLC0415
-    from cam2sim.stages.reconstruction import (  # noqa: PLC0415
-        evaluate_replay_images,
-        evaluate_world_semantics,
-    )
-
     notes = []
     folder = ws.runs_dir / replay[0] if replay else None
     if folder is None or not (folder / "frames").is_dir():

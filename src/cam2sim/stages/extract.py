@@ -45,6 +45,7 @@ from cam2sim.core.table import write_table
 from cam2sim.core.trajectory import Trajectory, heading_from_motion
 from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
 from cam2sim.recording.bag import BagMessage, Recording
+from cam2sim.recording.pointcloud import decode_pointcloud
 from cam2sim.recording.pose import (
     ORIENTATION_MSGTYPES,
     POSE_MSGTYPES,
@@ -442,7 +443,7 @@ class _FrameWriter:
         self.size: tuple[int, int] | None = None
 
     def _work(self, index: int, msgtype: str, msg: Any) -> tuple[int, int]:
-        from cam2sim.recording.image import (  # noqa: PLC0415
+        from cam2sim.recording.image import (  # noqa: PLC0415 -- lazy: imports cv2
             decode_compressed_image,
             decode_image,
             encode_image_file,
@@ -482,8 +483,6 @@ def _stream_sensors(
     paths: DatasetPaths,
     progress: ProgressCallback,
 ) -> _SensorOutput:
-    from cam2sim.recording.pointcloud import decode_pointcloud  # noqa: PLC0415
-
     topics = config.topics
     assert topics.camera is not None
     cam_info = rec.require_topic(topics.camera, key="topics.camera", msgtypes=CAMERA_MSGTYPES)

@@ -434,7 +434,7 @@ def _write_frames(
 ) -> tuple[int, int]:
     import cv2  # noqa: PLC0415
 
-    from cam2sim.recording.image import encode_image_file  # noqa: PLC0415
+    from cam2sim.recording.image import encode_image_file  # noqa: PLC0415 -- lazy: imports cv2
 
     paths.frames_dir.mkdir(parents=True, exist_ok=True)
     size: tuple[int, int] | None = None

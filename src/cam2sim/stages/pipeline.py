@@ -23,16 +23,35 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, Literal
 
+from cam2sim.core.dataset import DatasetInfo
 from cam2sim.core.errors import ConfigError, StageError
+from cam2sim.core.files import file_fingerprint
 from cam2sim.core.progress import ProgressCallback, no_progress
-from cam2sim.core.workspace import StepState, hash_inputs, run_paths
+from cam2sim.core.workspace import StepState, dataset_paths, hash_inputs, run_paths
+from cam2sim.render.truth import truth_world_path
+from cam2sim.scenario.model import Scenario
+from cam2sim.sim.builtin import BuiltinOptions
+from cam2sim.splat.prepare import PrepareOptions
+from cam2sim.splat.train import DensifyOptions, TrainOptions
+from cam2sim.stages.ads import TRAIN_STAGE, export_ads, train_ads
+from cam2sim.stages.detect import DetectOptions, run_detect
+from cam2sim.stages.evaluate import (
+    EVALUATE_STAGE,
+    EvaluateOptions,
+    EvaluateResult,
+    evaluate_workspace,
+)
+from cam2sim.stages.extract import extract
+from cam2sim.stages.runs import DriveOptions, ReplayOptions, drive, replay, stood_still_m
+from cam2sim.stages.scenario import run_scenario
+from cam2sim.stages.splat import SplatStageOptions, run_splat
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
 
     from cam2sim.core.workspace import Workspace
     from cam2sim.stages.cameras import CameraName
-    from cam2sim.stages.splat import SplatResult, SplatStageOptions
+    from cam2sim.stages.splat import SplatResult
     from cam2sim.stages.variation import RunVariation
 
 __all__ = [
@@ -198,10 +217,6 @@ def demo_splat_options(*, cuda: bool = False) -> SplatStageOptions:
     closer to the truth, yet DAVE-2 then left the road at the bend, as it did with every
     GPU-trained model: the closed loop is not monotone in image quality (docs/benchmarks.md).
     """
-    from cam2sim.splat.prepare import PrepareOptions  # noqa: PLC0415
-    from cam2sim.splat.train import DensifyOptions, TrainOptions  # noqa: PLC0415
-    from cam2sim.stages.splat import SplatStageOptions  # noqa: PLC0415
-
     if cuda:
         return SplatStageOptions(
             prepare=PrepareOptions(triangulate=False, lidar_voxel_m=0.2),
@@ -225,9 +240,6 @@ def demo_splat_options(*, cuda: bool = False) -> SplatStageOptions:
 
 def small_splat_options() -> SplatStageOptions:
     """A CPU-sized splat preset: few training steps on quarter-size images, no LPIPS."""
-    from cam2sim.splat.train import TrainOptions  # noqa: PLC0415
-    from cam2sim.stages.splat import SplatStageOptions  # noqa: PLC0415
-
     train = TrainOptions(max_steps=500, min_steps=200, val_every=100, downscale=4)
     return SplatStageOptions(train=train, offsets_m=(-1.0, 1.0))
 
@@ -315,9 +327,6 @@ class _Pipeline:
 
         Retrained splat models (or a new ground-truth world) make new runs.
         """
-        from cam2sim.core.files import file_fingerprint  # noqa: PLC0415
-        from cam2sim.render.truth import truth_world_path  # noqa: PLC0415
-
         inputs: dict[str, object] = {}
         if "splat" in cameras:
             inputs["splat"] = repr(self._finished("splat"))
@@ -327,9 +336,6 @@ class _Pipeline:
         return inputs
 
     def _dataset_info(self) -> Any:
-        from cam2sim.core.dataset import DatasetInfo  # noqa: PLC0415
-        from cam2sim.core.workspace import dataset_paths  # noqa: PLC0415
-
         path = dataset_paths(self.ws.dataset_dir).dataset_json
         if not path.is_file():
             msg = f"{self.ws.root} has no dataset; the extract step must run first"
@@ -345,8 +351,6 @@ class _Pipeline:
 
     def _drive_cameras(self) -> tuple[CameraName, ...]:
         """The replay cameras, after the truth camera when there is a ground-truth world."""
-        from cam2sim.render.truth import truth_world_path  # noqa: PLC0415
-
         cams = self._cameras()
         if self.options.cameras is None and truth_world_path(self.ws.root).is_file():
             return ("truth", *(c for c in cams if c != "truth"))
@@ -356,8 +360,6 @@ class _Pipeline:
         """Builtin simulator options with the steering noise (None: the drive defaults)."""
         if not self.options.steering_noise_std:
             return None
-        from cam2sim.scenario.model import Scenario  # noqa: PLC0415
-        from cam2sim.sim.builtin import BuiltinOptions  # noqa: PLC0415
 
         sc = Scenario.load(self.ws.scenario_path)
         return BuiltinOptions(
@@ -366,12 +368,10 @@ class _Pipeline:
 
     # -- steps ------------------------------------------------------------------------------
     def extract(self, step: _Step) -> None:
-        from cam2sim.stages.extract import extract  # noqa: PLC0415
-
         self._recorded("extract", lambda: extract(self.ws, progress=self.progress), step)
 
     def map(self, step: _Step) -> None:
-        from cam2sim.stages.map import MapOptions, build_map  # noqa: PLC0415
+        from cam2sim.stages.map import MapOptions, build_map  # noqa: PLC0415 -- lazy: imports shapely
 
         osm = self.options.osm
         if osm is not None and not osm.is_file():
@@ -386,8 +386,6 @@ class _Pipeline:
         )
 
     def detect(self, step: _Step) -> None:
-        from cam2sim.stages.detect import DetectOptions, run_detect  # noqa: PLC0415
-
         info = self._dataset_info()
         if info.counts.lidar_scans == 0 and self.options.detect_model is None:
             msg = "no LiDAR scans and no camera detector (pass --detect-model to detect in images)"
@@ -398,15 +396,10 @@ class _Pipeline:
         )
 
     def scenario(self, step: _Step) -> None:
-        from cam2sim.stages.scenario import run_scenario  # noqa: PLC0415
-
         self._recorded("scenario", lambda: run_scenario(self.ws, progress=self.progress), step)
 
     def _require_motion(self, what: str) -> None:
         """Raise not-applicable when the recorded car stood still (``what`` needs motion)."""
-        from cam2sim.scenario.model import Scenario  # noqa: PLC0415
-        from cam2sim.stages.runs import stood_still_m  # noqa: PLC0415
-
         path = self.ws.scenario_path
         if not path.is_file():
             return  # the step itself says what is missing
@@ -416,8 +409,6 @@ class _Pipeline:
             raise _NotApplicableError(msg)
 
     def splat(self, step: _Step) -> None:
-        from cam2sim.stages.splat import run_splat  # noqa: PLC0415
-
         self._require_motion("a splat needs views from a moving camera")
         opts = self.options.splat
         if opts is None:
@@ -448,8 +439,7 @@ class _Pipeline:
         return next((n for n in names if "steer" in n.lower()), None)
 
     def ads(self, step: _Step) -> None:
-        from cam2sim.ads.train import TrainOptions  # noqa: PLC0415
-        from cam2sim.stages.ads import TRAIN_STAGE, export_ads, train_ads  # noqa: PLC0415
+        from cam2sim.ads.train import TrainOptions  # noqa: PLC0415 -- lazy: imports cv2, torch
 
         if self.options.policy is not None:
             msg = f"a policy was given ({self.options.policy}); no model is trained"
@@ -480,8 +470,6 @@ class _Pipeline:
         return str(onnx) if onnx.is_file() and self.options.wants("ads") else "pure-pursuit"
 
     def replay(self, step: _Step) -> None:
-        from cam2sim.stages.runs import ReplayOptions, replay  # noqa: PLC0415
-
         opts = ReplayOptions(
             cameras=self._cameras(), frames=(None, None, self.options.replay_every)
         )
@@ -505,16 +493,11 @@ class _Pipeline:
         step.message = result.run_id
 
     def _judge(self) -> Literal["map", "truth"]:
-        from cam2sim.render.truth import truth_world_path  # noqa: PLC0415
-
         if self.options.judge is not None:
             return self.options.judge
         return "truth" if truth_world_path(self.ws.root).is_file() else "map"
 
     def drive(self, step: _Step) -> None:
-        from cam2sim.core.files import file_fingerprint  # noqa: PLC0415
-        from cam2sim.stages.runs import DriveOptions, drive  # noqa: PLC0415
-
         self._require_motion("closed-loop drives follow the recorded route")
         policy = self._policy()
         sim = self._sim_options()
@@ -556,13 +539,6 @@ class _Pipeline:
         step.message = f"{len(runs)} run(s), policy {policy}, camera {cams}"
 
     def evaluate(self, step: _Step) -> None:
-        from cam2sim.stages.evaluate import (  # noqa: PLC0415
-            EVALUATE_STAGE,
-            EvaluateOptions,
-            EvaluateResult,
-            evaluate_workspace,
-        )
-
         self._require_motion("there are no drives to score")
         runs = self._made_runs("drive")
         if not runs:

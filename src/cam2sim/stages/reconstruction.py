@@ -22,6 +22,23 @@ import numpy as np
 
 from cam2sim.core.errors import Cam2SimError, StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.workspace import dataset_paths
+from cam2sim.metrics.image_quality import (
+    ImageQualityOptions,
+    evaluate_image_folders,
+    write_image_quality,
+)
+from cam2sim.metrics.lpips import load_lpips
+from cam2sim.metrics.semantic import SemanticOptions, evaluate_semantic_folders
+from cam2sim.render.raster import raster_palette
+from cam2sim.stages.cameras import (
+    TRUTH_CAMERA,
+    Cameras,
+    camera_poses,
+    load_run_context,
+    scaled_intrinsics,
+    write_png,
+)
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -36,8 +53,6 @@ logger = logging.getLogger(__name__)
 
 def _lpips() -> tuple[Lpips | None, str]:
     """The LPIPS network from the local cache, or None and why (it is never downloaded here)."""
-    from cam2sim.metrics.lpips import load_lpips  # noqa: PLC0415
-
     try:
         return load_lpips("alex", download=False), ""
     except (Cam2SimError, OSError, RuntimeError) as err:
@@ -52,13 +67,6 @@ def evaluate_replay_images(
     Returns:
         The ``images.json`` paths written (one per camera) and a note (LPIPS skipped, or "").
     """
-    from cam2sim.core.workspace import dataset_paths  # noqa: PLC0415
-    from cam2sim.metrics.image_quality import (  # noqa: PLC0415
-        ImageQualityOptions,
-        evaluate_image_folders,
-        write_image_quality,
-    )
-
     real_dir = dataset_paths(ws.dataset_dir).frames_dir
     cameras = sorted(p for p in (replay_run / "frames").glob("*") if p.is_dir())
     if not cameras:
@@ -88,20 +96,6 @@ def evaluate_world_semantics(
     Raises:
         StageError: No scenario, or no ground-truth world (``WS/truth/world.json``).
     """
-    from cam2sim.metrics.semantic import (  # noqa: PLC0415
-        SemanticOptions,
-        evaluate_semantic_folders,
-    )
-    from cam2sim.render.raster import raster_palette  # noqa: PLC0415
-    from cam2sim.stages.cameras import (  # noqa: PLC0415
-        TRUTH_CAMERA,
-        Cameras,
-        camera_poses,
-        load_run_context,
-        scaled_intrinsics,
-        write_png,
-    )
-
     report = progress or no_progress
     ctx = load_run_context(ws)
     sc = ctx.scenario

@@ -31,10 +31,22 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
+from cam2sim.core.dataset import DatasetInfo
 from cam2sim.core.errors import Cam2SimError, ConfigError, StageError
+from cam2sim.core.polyline import arc_length
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.run_record import RunEvents, RunRecord
-from cam2sim.core.workspace import run_paths
+from cam2sim.core.schema import format_validation_error
+from cam2sim.core.table import write_table
+from cam2sim.core.workspace import dataset_paths, run_paths
+from cam2sim.detect.route import MIN_ROUTE_M
+from cam2sim.metrics.splat_gate import gate_run, path_quality
+from cam2sim.render.truth import TRUTH_WORLD_FILE, TruthWorld, truth_world_path
+from cam2sim.scenario.body import body_point_positions
+from cam2sim.sim.builtin import BuiltinOptions, BuiltinSimulator
+from cam2sim.sim.carla_backend import CarlaOptions, CarlaSimulator
+from cam2sim.sim.interface import Control, PlanarPose
+from cam2sim.splat.evaluate import SplatEval
 from cam2sim.stages.cameras import (
     TRUTH_CAMERA,
     CameraName,
@@ -239,8 +251,6 @@ def side_by_side(images: list[npt.NDArray[np.uint8]], height: int = 360) -> npt.
 def _write_tables(
     folder: Path, rows: dict[str, list[float]], decisions: list[tuple[float, float]]
 ) -> None:
-    from cam2sim.core.table import write_table  # noqa: PLC0415
-
     files = run_paths(folder)
     write_table(files.trajectory_csv, {k: np.asarray(v) for k, v in rows.items()})
     arr = np.asarray(decisions, dtype=np.float64).reshape(-1, 2)
@@ -325,9 +335,6 @@ def _real_frames(ws: Workspace) -> Callable[[int], npt.NDArray[np.uint8] | None]
     """A reader of the dataset's real frames by index (returns None where there is none)."""
     import cv2  # noqa: PLC0415
 
-    from cam2sim.core.dataset import DatasetInfo  # noqa: PLC0415
-    from cam2sim.core.workspace import dataset_paths  # noqa: PLC0415
-
     paths = dataset_paths(ws.dataset_dir)
     fmt = (
         DatasetInfo.load(paths.dataset_json).frame_format if paths.dataset_json.is_file() else None
@@ -390,8 +397,6 @@ def _replay_frames(
 
 def _carla_view(sim: Any, tr: Any, i: int) -> npt.NDArray[np.uint8]:
     """Teleport CARLA's hero to recorded sample ``i`` and return its camera image."""
-    from cam2sim.sim.interface import PlanarPose  # noqa: PLC0415
-
     cx, cy, _ = tr.center[i]
     sim.reset(PlanarPose(cx, cy, tr.heading[i], tr.speed[i]))
     rgb: npt.NDArray[np.uint8] = sim.camera_images().rgb
@@ -405,9 +410,6 @@ def stood_still_m(scenario: Scenario) -> float | None:
     Below :data:`~cam2sim.detect.route.MIN_ROUTE_M` (metres along the reference-point
     trajectory) the recording stood still: closed-loop drives, splats and DAVE-2 need motion.
     """
-    from cam2sim.core.polyline import arc_length  # noqa: PLC0415
-    from cam2sim.detect.route import MIN_ROUTE_M  # noqa: PLC0415
-
     xy = np.asarray(scenario.trajectory.reference, dtype=np.float64)[:, :2]
     length = float(arc_length(xy)[-1]) if len(xy) else 0.0
     return length if length < MIN_ROUTE_M else None
@@ -419,8 +421,6 @@ def require_route(scenario: Scenario) -> None:
     Raises:
         StageError: The recorded car drove less than :data:`~cam2sim.detect.route.MIN_ROUTE_M`.
     """
-    from cam2sim.detect.route import MIN_ROUTE_M  # noqa: PLC0415
-
     length = stood_still_m(scenario)
     if length is not None:
         msg = (
@@ -438,7 +438,7 @@ def drive(
     progress: ProgressCallback | None = None,
 ) -> list[RunResult]:
     """Closed-loop runs of a policy in the builtin simulator (one folder per run)."""
-    from cam2sim.ads.policy import load_policy  # noqa: PLC0415
+    from cam2sim.ads.policy import load_policy  # noqa: PLC0415 -- lazy: imports cv2
 
     opts = options or DriveOptions()
     ctx = load_run_context(ws)
@@ -477,8 +477,6 @@ def _drive_one(
     judged: tuple[Scenario, Any],
 ) -> RunResult:
     """One run; the builtin simulator checks road and collisions in ``judged``."""
-    from cam2sim.sim.builtin import BuiltinOptions, BuiltinSimulator  # noqa: PLC0415
-
     sc = ctx.scenario
     target = None if opts.speed_kmh is None else opts.speed_kmh / 3.6
     sim: Any
@@ -501,8 +499,6 @@ def _truth_judge(ctx: RunContext) -> tuple[Scenario, Any]:
 
     Both in the workspace world frame: what a drive judged in the truth world is checked against.
     """
-    from cam2sim.render.truth import TRUTH_WORLD_FILE, TruthWorld, truth_world_path  # noqa: PLC0415
-
     path = truth_world_path(ctx.ws.root)
     if not path.is_file():
         msg = (
@@ -517,9 +513,6 @@ def _truth_judge(ctx: RunContext) -> tuple[Scenario, Any]:
 def _carla_options(options: Any, sc: Scenario, seed: int, ws: Workspace | None = None) -> Any:
     """The CARLA options of a run: given ones, else config.yaml's ``carla`` block."""
     import pydantic  # noqa: PLC0415
-
-    from cam2sim.core.schema import format_validation_error  # noqa: PLC0415
-    from cam2sim.sim.carla_backend import CarlaOptions  # noqa: PLC0415
 
     base = options
     if base is None:
@@ -536,8 +529,6 @@ def _carla_options(options: Any, sc: Scenario, seed: int, ws: Workspace | None =
 
 
 def _open_carla(ctx: RunContext, options: Any, client_factory: Any) -> Any:
-    from cam2sim.sim.carla_backend import CarlaSimulator  # noqa: PLC0415
-
     sim = CarlaSimulator(options, workspace_root=ctx.ws.root, client_factory=client_factory)
     try:
         sim.load(ctx.scenario, ctx.road_map)
@@ -558,8 +549,7 @@ def _drive_loop(  # noqa: PLR0912, PLR0913, PLR0915, PLR0917 - one run: setup, s
     seed: int,
     report: ProgressCallback,
 ) -> RunResult:
-    from cam2sim.ads.policy import Observation  # noqa: PLC0415
-    from cam2sim.sim.interface import Control  # noqa: PLC0415
+    from cam2sim.ads.policy import Observation  # noqa: PLC0415 -- lazy: imports cv2
 
     sc = ctx.scenario
     offset, target, drawn = _varied(sc, opts, seed, target)
@@ -692,8 +682,6 @@ def _start_pose(sc: Scenario, offset: tuple[float, float]) -> Any:
     """The hero start moved by ``offset = (lateral_m, heading_deg)``; None when not moved."""
     import math  # noqa: PLC0415
 
-    from cam2sim.sim.interface import PlanarPose  # noqa: PLC0415
-
     lateral, heading_deg = offset
     if lateral == 0.0 and heading_deg == 0.0:
         return None
@@ -705,8 +693,6 @@ def _start_pose(sc: Scenario, offset: tuple[float, float]) -> Any:
 
 def _record(rows: dict[str, list[float]], state: Any, ref_xyz: tuple[float, float, float]) -> None:
     """Append one simulator state, at the recorded reference point, to the run's rows."""
-    from cam2sim.scenario.body import body_point_positions  # noqa: PLC0415
-
     ref = body_point_positions(
         [[state.x, state.y, state.z]], [state.heading], (0.0, 0.0, 0.0), ref_xyz
     )[0]
@@ -730,9 +716,6 @@ def _keep_frame(
 
 def _splat_quality(ws: Workspace, run_id: str, coverage: list[float]) -> dict[str, Any]:
     """``run.json``'s ``splat_quality`` and ``splat_gate`` (:mod:`cam2sim.metrics.splat_gate`)."""
-    from cam2sim.metrics.splat_gate import gate_run, path_quality  # noqa: PLC0415
-    from cam2sim.splat.evaluate import SplatEval  # noqa: PLC0415
-
     path = ws.splat_dir / "eval.json"
     evaluation, notes = None, []
     if not path.is_file():

@@ -19,20 +19,38 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
-from cam2sim.core.errors import StageError
+from cam2sim.core.dataset import Calibration, DatasetInfo
+from cam2sim.core.errors import ConfigError, StageError
+from cam2sim.core.files import atomic_folder, file_fingerprint
+from cam2sim.core.frames.rotation import yaw_from_quat
 from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.table import read_table
+from cam2sim.core.trajectory import heading_from_motion
+from cam2sim.core.vehicle import SteeringCalibration
 from cam2sim.core.workspace import SCENARIO_FILE, Workspace, dataset_paths, hash_inputs
+from cam2sim.detect.vehicles import ParkedVehicles, parked_vehicles_path
+from cam2sim.report.scenario_figures import plot_scenario
+from cam2sim.scenario.body import body_point_positions, vehicle_geometry
+from cam2sim.scenario.calibration import fit_steering_calibration
+from cam2sim.scenario.carla_export import write_carla_files
+from cam2sim.scenario.checks import check_parked
+from cam2sim.scenario.model import (
+    HeroStart,
+    Rejection,
+    Scenario,
+    ScenarioTrajectory,
+    ScenarioVehicle,
+)
+from cam2sim.scenario.openscenario import validate_openscenario, write_openscenario
 from cam2sim.stages._runner import stage_run
 
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from cam2sim.core.dataset import Calibration
-    from cam2sim.core.vehicle import SteeringCalibration
     from cam2sim.detect.vehicles import ParkedVehicle
     from cam2sim.map.query import RoadMap
     from cam2sim.scenario.checks import CheckOptions
-    from cam2sim.scenario.model import Scenario, ScenarioVehicle, SizeClass
+    from cam2sim.scenario.model import SizeClass
 
 __all__ = ["ScenarioOptions", "ScenarioResult", "run_scenario", "size_class"]
 
@@ -80,9 +98,6 @@ def size_class(size: tuple[float, float, float]) -> SizeClass:
 
 
 def _inputs(ws: Workspace, opts: ScenarioOptions) -> str:
-    from cam2sim.core.files import file_fingerprint  # noqa: PLC0415
-    from cam2sim.detect.vehicles import parked_vehicles_path  # noqa: PLC0415
-
     extract = ws.stage_record("extract")
     parked = parked_vehicles_path(ws.detections_dir)
     xodr = ws.map_dir / "map.xodr"
@@ -110,8 +125,6 @@ def run_scenario(
         StageError: No dataset, a dataset without poses, or no map.
         BackendUnavailableError: scenariogeneration is not installed.
     """
-    from cam2sim.core.files import atomic_folder  # noqa: PLC0415
-
     opts = options or ScenarioOptions()
     report = progress or no_progress
     record = ws.stage_record("extract")
@@ -135,7 +148,6 @@ def run_scenario(
         with atomic_folder(folder) as tmp:
             scenario.save(tmp / SCENARIO_FILE)
             _write_exports(ws, scenario, tmp, report)
-            from cam2sim.report.scenario_figures import plot_scenario  # noqa: PLC0415
 
             plot_scenario(tmp / "scenario.png", scenario, conflicts, road_map, left_out)
             report("scenario", 4, 4)
@@ -144,12 +156,6 @@ def run_scenario(
 
 def _write_exports(ws: Workspace, scenario: Scenario, tmp: Path, report: ProgressCallback) -> None:
     import os  # noqa: PLC0415
-
-    from cam2sim.scenario.carla_export import write_carla_files  # noqa: PLC0415
-    from cam2sim.scenario.openscenario import (  # noqa: PLC0415
-        validate_openscenario,
-        write_openscenario,
-    )
 
     write_carla_files(scenario, tmp / "carla")
     report("scenario", 2, 4)
@@ -167,19 +173,7 @@ def build_scenario(
     ws: Workspace, opts: ScenarioOptions
 ) -> tuple[Scenario, dict[str, list[str]], RoadMap]:
     """The scenario record, the check findings by vehicle id, and the road map."""
-    from cam2sim.core.dataset import Calibration, DatasetInfo  # noqa: PLC0415
-    from cam2sim.core.frames.rotation import yaw_from_quat  # noqa: PLC0415
-    from cam2sim.core.table import read_table  # noqa: PLC0415
-    from cam2sim.core.trajectory import heading_from_motion  # noqa: PLC0415
-    from cam2sim.scenario.body import body_point_positions, vehicle_geometry  # noqa: PLC0415
-    from cam2sim.scenario.checks import check_parked  # noqa: PLC0415
-    from cam2sim.scenario.model import (  # noqa: PLC0415
-        HeroStart,
-        Rejection,
-        Scenario,
-        ScenarioTrajectory,
-    )
-    from cam2sim.stages.map import load_road_map  # noqa: PLC0415
+    from cam2sim.stages.map import load_road_map  # noqa: PLC0415 -- lazy: imports shapely
 
     paths = dataset_paths(ws.dataset_dir)
     info = DatasetInfo.load(paths.dataset_json)
@@ -251,11 +245,6 @@ def steering_calibration(ws: Workspace) -> SteeringCalibration:
     Without such a signal or a trajectory (or with too little driving to fit), the default
     calibration (the reference drives' 0.022 1/m per unit) is used and the log says so.
     """
-    from cam2sim.core.errors import ConfigError  # noqa: PLC0415
-    from cam2sim.core.table import read_table  # noqa: PLC0415
-    from cam2sim.core.vehicle import SteeringCalibration  # noqa: PLC0415
-    from cam2sim.scenario.calibration import fit_steering_calibration  # noqa: PLC0415
-
     paths = dataset_paths(ws.dataset_dir)
     signal = paths.signal_file(STEERING_SIGNAL)
     if not signal.is_file() or not paths.trajectory_csv.is_file():
@@ -280,8 +269,6 @@ def steering_calibration(ws: Workspace) -> SteeringCalibration:
 
 
 def _parked(ws: Workspace) -> list[ParkedVehicle]:
-    from cam2sim.detect.vehicles import ParkedVehicles, parked_vehicles_path  # noqa: PLC0415
-
     path = parked_vehicles_path(ws.detections_dir)
     if not path.is_file():
         logger.info("no %s: the scenario has no parked vehicles (run `cam2sim detect`)", path)
@@ -290,8 +277,6 @@ def _parked(ws: Workspace) -> list[ParkedVehicle]:
 
 
 def _spawn(v: ParkedVehicle) -> ScenarioVehicle:
-    from cam2sim.scenario.model import ScenarioVehicle  # noqa: PLC0415
-
     return ScenarioVehicle(
         id=v.id,
         position=(v.position[0], v.position[1], 0.0),

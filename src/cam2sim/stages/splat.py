@@ -18,7 +18,16 @@ from typing import TYPE_CHECKING
 from cam2sim.core.errors import Cam2SimError, StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.workspace import Workspace, hash_inputs
+from cam2sim.render.truth import TruthRenderer, truth_world_path
+from cam2sim.scenario.model import Scenario
+from cam2sim.splat.distributed import train_scene_on_ray
+from cam2sim.splat.envelope import TruthEnvelopeOptions, TruthReference
+from cam2sim.splat.evaluate import evaluate_splat
+from cam2sim.splat.prepare import prepare_scene
+from cam2sim.splat.scene import SceneRecord
+from cam2sim.splat.train import train_scene
 from cam2sim.stages._runner import stage_run
+from cam2sim.stages.cameras import ground_height_at
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -27,10 +36,8 @@ if TYPE_CHECKING:
     import numpy as np
     import numpy.typing as npt
 
-    from cam2sim.splat.envelope import TruthEnvelopeOptions, TruthReference
     from cam2sim.splat.evaluate import SplatEval
     from cam2sim.splat.prepare import PrepareOptions
-    from cam2sim.splat.scene import SceneRecord
     from cam2sim.splat.train import SceneTrainResult, TrainOptions
 
 __all__ = ["SplatResult", "SplatStageOptions", "run_splat"]
@@ -94,11 +101,6 @@ def run_splat(
         StageError: No dataset, or a step failed (the message says which).
         BackendUnavailableError: pycolmap, torch or gsplat (on CUDA) is missing.
     """
-    from cam2sim.splat.evaluate import evaluate_splat  # noqa: PLC0415
-    from cam2sim.splat.prepare import prepare_scene  # noqa: PLC0415
-    from cam2sim.splat.scene import SceneRecord  # noqa: PLC0415
-    from cam2sim.splat.train import train_scene  # noqa: PLC0415
-
     opts = options or SplatStageOptions()
     report = progress or no_progress
     record = ws.stage_record("extract")
@@ -130,8 +132,6 @@ def run_splat(
             raise StageError(msg)
         scene = SceneRecord.load(prep_dir / "scene.json")
         if "train" in opts.steps and ray is not None:
-            from cam2sim.splat.distributed import train_scene_on_ray  # noqa: PLC0415
-
             trained = train_scene_on_ray(
                 prep_dir, address=ray, options=opts.train, models_dir=models_dir,
                 progress=report, scene=scene,
@@ -166,9 +166,6 @@ def _truth_reference(
     ws: Workspace, opts: SplatStageOptions, scene: SceneRecord, notes: list[str]
 ) -> Iterator[TruthReference | None]:
     """The workspace's truth camera for the evaluation, or None (and why, in ``notes``)."""
-    from cam2sim.render.truth import TruthRenderer, truth_world_path  # noqa: PLC0415
-    from cam2sim.splat.envelope import TruthEnvelopeOptions, TruthReference  # noqa: PLC0415
-
     if not opts.truth_envelope or not truth_world_path(ws.root).is_file():
         yield None
         return
@@ -194,9 +191,6 @@ def _truth_reference(
 
 def _recorded_ground(ws: Workspace) -> Callable[[npt.NDArray[np.float64]], float] | None:
     """Ground height under a world ``(x, y)`` from the scenario; None without a scenario."""
-    from cam2sim.scenario.model import Scenario  # noqa: PLC0415
-    from cam2sim.stages.cameras import ground_height_at  # noqa: PLC0415
-
     path = ws.scenario_path
     if not path.is_file():
         return None
