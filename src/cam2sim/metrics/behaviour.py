@@ -20,10 +20,13 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Final
 
+from cam2sim.metrics.drive_io import DriveRun
+from cam2sim.metrics.drive_quality import evaluate_drives
+from cam2sim.metrics.splat_gate import gate_methods, unfit_label
+
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from cam2sim.metrics.drive_io import DriveRun
     from cam2sim.metrics.drive_quality import (
         DriveEvaluation,
         DriveMetrics,
@@ -58,8 +61,6 @@ def recorded_drive(scenario: Scenario, *, source: str = "") -> DriveRun:
     """The scenario's recorded drive (its reference-point trajectory) as a real run."""
     import numpy as np  # noqa: PLC0415
 
-    from cam2sim.metrics.drive_io import DriveRun  # noqa: PLC0415
-
     tr = scenario.trajectory
     return DriveRun(
         name=f"{REAL_METHOD}/recorded",
@@ -92,8 +93,6 @@ def evaluate_with_real_runs(
         run, completed ones as references, failed ones scored against them. Its metrics hold
         the splat quality gate's verdict for each method whose runs recorded splat quality.
     """
-    from cam2sim.metrics.drive_quality import evaluate_drives  # noqa: PLC0415
-
     closed = [r for r in runs if r.method == REAL_METHOD]
     others = [r for r in runs if r.method != REAL_METHOD]
     done: set[str] = set()
@@ -103,7 +102,6 @@ def evaluate_with_real_runs(
     references = [*recorded, *(replace(r, real=True) for r in closed if r.name in done)]
     failed = [r for r in closed if r.name not in done]
     ev = evaluate_drives(references, failed + others, segment=segment, options=options)
-    from cam2sim.metrics.splat_gate import gate_methods  # noqa: PLC0415
 
     gates = gate_methods([(r.method, r.splat_quality) for r in runs if r.splat_quality])
     if not gates:
@@ -153,8 +151,6 @@ def behaviour_table(metrics: DriveMetrics) -> BehaviourTable:
     ``OR-CC-OS-US`` counts (out of road, car crash, oversteer, understeer). A method that
     failed the splat quality gate is labelled ``(unfit)``, with a note giving the reason.
     """
-    from cam2sim.metrics.splat_gate import unfit_label  # noqa: PLC0415
-
     methods = _order(metrics.methods)
     gates = {g.method: g for g in metrics.splat_gate}
     labels = {s.method: METHOD_LABELS.get(s.method, s.method) for s in methods}

@@ -31,11 +31,12 @@ import numpy.typing as npt
 
 from cam2sim.core.errors import WorkspaceError
 from cam2sim.core.run_record import RunEvents, RunRecord
+from cam2sim.core.schema import format_validation_error
 from cam2sim.core.workspace import run_paths
+from cam2sim.metrics.splat_gate import SplatPathQuality
 
 if TYPE_CHECKING:
     from cam2sim.core import frames
-    from cam2sim.metrics.splat_gate import SplatPathQuality
 
 __all__ = [
     "LEGACY_ACTOR_OFFSET_M",
@@ -206,9 +207,6 @@ def load_run_dir(path: Path, *, method: str | None = None) -> DriveRun:
 def _splat_quality(path: Path, meta: RunRecord) -> SplatPathQuality | None:
     """``run.json``'s ``splat_quality`` block, if it has one."""
     import pydantic  # noqa: PLC0415
-
-    from cam2sim.core.schema import format_validation_error  # noqa: PLC0415
-    from cam2sim.metrics.splat_gate import SplatPathQuality  # noqa: PLC0415
 
     if meta.splat_quality is None:
         return None

@@ -26,6 +26,7 @@ from cam2sim.core.files import write_text_atomic
 from cam2sim.core.images import read_mask, read_rgb
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.schema import Artifact
+from cam2sim.metrics.lpips import load_lpips
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Iterator
@@ -426,8 +427,6 @@ def evaluate_image_folders(
     hood = read_mask(opts.hood_mask) if opts.hood_mask is not None else None
     model = lpips_model
     if model is None and opts.lpips_net is not None:
-        from cam2sim.metrics.lpips import load_lpips  # noqa: PLC0415
-
         model = load_lpips(opts.lpips_net, weights=opts.lpips_weights)
 
     def loaded() -> Iterator[tuple[ImagePair, npt.NDArray[np.uint8], npt.NDArray[np.uint8]]]:

@@ -243,7 +243,7 @@ def comparison_image(
 
 def write_comparison_image(path: Path, image: npt.NDArray[np.uint8]) -> None:
     """Write an RGB image as PNG atomically."""
-    from cam2sim.recording.image import encode_image_file  # noqa: PLC0415
+    from cam2sim.recording.image import encode_image_file  # noqa: PLC0415 -- lazy: imports cv2
 
     write_bytes_atomic(Path(path), encode_image_file(image, "png"))
 
