@@ -22,6 +22,7 @@ from cam2sim.campaign.executors import Job, LocalPool
 from cam2sim.campaign.plan import expand, load_plan
 from cam2sim.campaign.state import CampaignState, RunOutcome
 from cam2sim.campaign.summary import score_runs, summarize, write_summary
+from cam2sim.core.files import process_lock
 from cam2sim.core.progress import ProgressCallback, no_progress
 
 if TYPE_CHECKING:
@@ -91,8 +92,6 @@ def campaign_lock(folder: Path) -> Iterator[None]:
     Raises:
         WorkspaceError: Another process runs this campaign.
     """
-    from cam2sim.core.files import process_lock  # noqa: PLC0415
-
     busy = f"another cam2sim campaign is running in {folder}; wait for it to end or stop it"
     with process_lock(folder / ".lock", busy=busy):
         yield

@@ -21,6 +21,9 @@ import numpy as np
 
 from cam2sim.core.errors import Cam2SimError
 from cam2sim.core.files import write_text_atomic
+from cam2sim.core.workspace import Workspace
+from cam2sim.metrics.drive_quality import DriveMetrics
+from cam2sim.stages.evaluate import evaluate_workspace_drives
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -91,10 +94,6 @@ def score_runs(
     specs: Sequence[RunSpec], state: CampaignState, folder: Path
 ) -> dict[str, RunMetrics]:
     """Score every finished run against its recorded drive; spec id to metrics."""
-    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
-    from cam2sim.metrics.drive_quality import DriveMetrics  # noqa: PLC0415
-    from cam2sim.stages.evaluate import evaluate_workspace_drives  # noqa: PLC0415
-
     by_ws: dict[str, list[RunSpec]] = {}
     for spec in specs:
         record = state.runs.get(spec.spec_id)

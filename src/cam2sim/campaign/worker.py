@@ -23,6 +23,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from cam2sim.campaign.state import RunOutcome, RunStatus
+from cam2sim.core.workspace import Workspace
+from cam2sim.scenario.model import Scenario
+from cam2sim.sim.builtin import BuiltinOptions
+from cam2sim.stages.runs import DriveOptions, drive
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
@@ -117,17 +121,11 @@ def _deadline(seconds: float | None) -> Iterator[None]:
 
 def _drive(spec: RunSpec) -> str:
     """Run the spec with ``cam2sim drive``'s code; return the run id."""
-    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
-    from cam2sim.stages.runs import DriveOptions, drive  # noqa: PLC0415
-
     ws = Workspace.open(Path(spec.workspace_path))
     d = spec.drive
     sim = None
     scenario = ws.scenario_path
     if d.steering_noise_std and scenario.is_file():
-        from cam2sim.scenario.model import Scenario  # noqa: PLC0415
-        from cam2sim.sim.builtin import BuiltinOptions  # noqa: PLC0415
-
         calibration = Scenario.load(scenario).steering_calibration
         sim = BuiltinOptions(calibration=calibration, steering_noise_std=d.steering_noise_std)
     options = DriveOptions(
