@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cam2sim.core.plots import pyplot, save_figure
 from cam2sim.demo.osm_world import osm_demo_world
-from cam2sim.report.plotting import pyplot, save_figure
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "osm"
 FILES = ("munich.osm", "tram_crossing.osm", "West-Oakland.osm.bz2", "aguascalientes.osm.pbf")

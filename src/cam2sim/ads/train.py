@@ -37,10 +37,10 @@ from cam2sim.ads.dave2 import Dave2Config, build_dave2, preprocess
 from cam2sim.ads.recovery import RecoveryGeometry, recovery_label, recovery_views
 from cam2sim.core.errors import StageError
 from cam2sim.core.files import write_bytes_atomic
+from cam2sim.core.plots import pyplot, save_figure
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.schema import Artifact
 from cam2sim.core.table import read_table
-from cam2sim.report.plotting import pyplot, save_figure
 
 if TYPE_CHECKING:
     from pathlib import Path

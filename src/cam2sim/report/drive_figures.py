@@ -6,8 +6,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cam2sim.report.plotting import pyplot as _pyplot
-from cam2sim.report.plotting import save_figure as _save
+from cam2sim.core.plots import pyplot as _pyplot
+from cam2sim.core.plots import save_figure as _save
 
 if TYPE_CHECKING:
     from pathlib import Path

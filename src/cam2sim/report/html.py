@@ -31,10 +31,20 @@ import numpy as np
 from cam2sim import __version__
 from cam2sim.core.errors import Cam2SimError
 from cam2sim.core.files import write_text_atomic
+from cam2sim.core.plots import pyplot
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.run_record import RunRecord
 from cam2sim.core.workspace import run_paths
-from cam2sim.metrics.behaviour import REAL_METHOD
+from cam2sim.detect.boxes import footprint_corners
+from cam2sim.metrics import splat_gate as gate
+from cam2sim.metrics.behaviour import REAL_METHOD, behaviour_table
+from cam2sim.metrics.drive_io import load_run_dir
+from cam2sim.metrics.drive_quality import DriveMetrics
+from cam2sim.metrics.image_quality import PSNR_CAP_DB, ImageQualityResult
+from cam2sim.metrics.semantic import SemanticResult
+from cam2sim.report.splat_figures import envelope_figure
+from cam2sim.scenario.model import Scenario
+from cam2sim.splat.evaluate import SplatEval
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Sequence
@@ -43,9 +53,7 @@ if TYPE_CHECKING:
 
     from cam2sim.core.workspace import Manifest, Workspace
     from cam2sim.metrics.drive_io import DriveRun
-    from cam2sim.metrics.drive_quality import DriveMetrics
     from cam2sim.metrics.image_quality import MetricStats
-    from cam2sim.scenario.model import Scenario
     from cam2sim.splat.evaluate import MetricSummary
 
 __all__ = ["SECTION_IDS", "VIDEO_CAP_BYTES", "write_report"]
@@ -134,9 +142,6 @@ def _section(sid: str, title: str, body: str) -> str:
 
 # -- gathering ----------------------------------------------------------------------------------
 def _gather(ctx: _Context) -> None:
-    from cam2sim.metrics.drive_io import load_run_dir  # noqa: PLC0415
-    from cam2sim.scenario.model import Scenario  # noqa: PLC0415
-
     path = ctx.ws.scenario_path
     if path.is_file():
         try:
@@ -168,8 +173,6 @@ def _evaluate_command(ctx: _Context) -> str:
 
 def _read_metrics(ctx: _Context) -> str | None:
     """Read the evaluate stage's ``metrics.json``; return why there is none, or None."""
-    from cam2sim.metrics.drive_quality import DriveMetrics  # noqa: PLC0415
-
     if not _drives(ctx):
         return "no closed-loop run"
     path = ctx.ws.drive_eval_dir / "metrics.json"
@@ -257,8 +260,6 @@ def _summary(ctx: _Context) -> str:
 def _figure_bytes(fig: Any) -> bytes:
     import io  # noqa: PLC0415
 
-    from cam2sim.report.plotting import pyplot  # noqa: PLC0415
-
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
     pyplot().close(fig)
@@ -270,14 +271,11 @@ def _map(ctx: _Context) -> str:
         return _na("The map", f"cam2sim scenario {ctx.ws.root}")
     from matplotlib.patches import Polygon  # noqa: PLC0415
 
-    from cam2sim.detect.boxes import footprint_corners  # noqa: PLC0415
-    from cam2sim.report.plotting import pyplot  # noqa: PLC0415
-
     sc = ctx.scenario
     fig, ax = pyplot().subplots(figsize=(10, 8))
     xodr = ctx.ws.map_dir / "map.xodr"
     if xodr.is_file():
-        from cam2sim.map.query import RoadMap  # noqa: PLC0415
+        from cam2sim.map.query import RoadMap  # noqa: PLC0415 -- lazy: imports shapely
 
         try:
             road_map = RoadMap.from_xodr(xodr)
@@ -318,7 +316,6 @@ def _behaviour(ctx: _Context, why: str | None) -> str:
     if m is None:
         command = _evaluate_command(ctx) if _drives(ctx) else f"cam2sim drive {ctx.ws.root}"
         return _na(f"Behaviour metrics ({why or 'no runs'}):", command)
-    from cam2sim.metrics.behaviour import behaviour_table  # noqa: PLC0415
 
     paper = behaviour_table(m)
     parts = [
@@ -506,8 +503,6 @@ def _found(ctx: _Context, name: str) -> list[Path]:
 
 
 def _semantic(ctx: _Context) -> str:
-    from cam2sim.metrics.semantic import SemanticResult  # noqa: PLC0415
-
     parts = []
     for path in _found(ctx, "semantic.json"):
         try:
@@ -534,8 +529,6 @@ def _semantic(ctx: _Context) -> str:
 
 
 def _images(ctx: _Context) -> str:
-    from cam2sim.metrics.image_quality import PSNR_CAP_DB, ImageQualityResult  # noqa: PLC0415
-
     results = []
     for path in _found(ctx, "images.json"):
         try:
@@ -592,10 +585,6 @@ def _summary_rows(
 
 def _splat(ctx: _Context) -> str:
     """Held-out scores, the envelope against the ground truth (table and plot), the gate."""
-    from cam2sim.metrics import splat_gate as gate  # noqa: PLC0415
-    from cam2sim.report.splat_figures import envelope_figure  # noqa: PLC0415
-    from cam2sim.splat.evaluate import SplatEval  # noqa: PLC0415
-
     path = ctx.ws.splat_dir / "eval.json"
     if not path.is_file():
         return _na("Splat quality (WS/splat/eval.json)", f"cam2sim splat {ctx.ws.root}")

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from cam2sim.core.plots import pyplot
+
 if TYPE_CHECKING:
     from cam2sim.splat.evaluate import MetricSummary, TruthEnvelope
 
@@ -24,8 +26,6 @@ def envelope_figure(
         min_ssim: The gate's SSIM threshold (drawn when given).
     """
     import numpy as np  # noqa: PLC0415
-
-    from cam2sim.report.plotting import pyplot  # noqa: PLC0415
 
     metrics: list[tuple[str, str, float | None]] = [
         ("psnr_db", "PSNR (dB)", min_psnr_db),
