@@ -11,6 +11,7 @@ from rich.markup import escape
 
 from cam2sim.cli.display import console, error_console, progress_bars
 from cam2sim.core.errors import Cam2SimError
+from cam2sim.core.workspace import Workspace
 
 if TYPE_CHECKING:
     from cam2sim.ads.train import RecoveryRecord
@@ -59,9 +60,8 @@ def train(
 
     Example: cam2sim ads train ws --signal steering_cmd --epochs 40
     """
-    from cam2sim.ads.train import TrainOptions  # noqa: PLC0415
-    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
-    from cam2sim.stages.ads import train_ads  # noqa: PLC0415
+    from cam2sim.ads.train import TrainOptions  # noqa: PLC0415 -- lazy: imports torch, cv2
+    from cam2sim.stages.ads import train_ads  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     opts = TrainOptions(
         signal=signal,
@@ -115,8 +115,7 @@ def export(
 
     Example: cam2sim ads export ws --onnx
     """
-    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
-    from cam2sim.stages.ads import export_ads  # noqa: PLC0415
+    from cam2sim.stages.ads import export_ads  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     del onnx  # ONNX is the one export format; the flag mirrors the documented command
     try:
@@ -155,8 +154,7 @@ def serve(
 
     Example: cam2sim ads serve ws --port 5090
     """
-    from cam2sim.ads.serve import serve as run_server  # noqa: PLC0415
-    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
+    from cam2sim.ads.serve import serve as run_server  # noqa: PLC0415 -- lazy: imports cv2
 
     try:
         ws = Workspace.open(workspace)

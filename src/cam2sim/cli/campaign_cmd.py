@@ -68,8 +68,8 @@ def campaign(
 
     Example: cam2sim campaign plan.yaml --ray auto
     """
-    from cam2sim.campaign.executors import LocalPool, RayCluster  # noqa: PLC0415
-    from cam2sim.campaign.runner import run_campaign  # noqa: PLC0415
+    from cam2sim.campaign.executors import LocalPool, RayCluster  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.campaign.runner import run_campaign  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     executor = LocalPool(workers) if ray is None else RayCluster(ray, num_cpus=workers)
     try:

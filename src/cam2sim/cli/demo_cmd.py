@@ -12,7 +12,9 @@ from rich.markup import escape
 
 from cam2sim.cli.display import console, error_console, progress_bars
 from cam2sim.cli.options import SkipOption, StepsOption, comma_list
+from cam2sim.cli.run_pipeline_cmd import _finish, _workspace
 from cam2sim.core.errors import Cam2SimError, ConfigError
+from cam2sim.core.files import write_bytes_atomic
 
 __all__ = ["DEMO_STEERING_NOISE", "demo"]
 
@@ -71,23 +73,21 @@ def demo(
     Example: cam2sim demo -o /tmp/demo   (or: cam2sim demo -o /tmp/paper --world paper, or
     cam2sim demo -o /tmp/munich --osm munich.osm)
     """
-    from cam2sim.ads.train import TrainOptions  # noqa: PLC0415
-    from cam2sim.cli.run_pipeline_cmd import _finish, _workspace  # noqa: PLC0415
-    from cam2sim.core.files import write_bytes_atomic  # noqa: PLC0415
-    from cam2sim.demo.world import (  # noqa: PLC0415
+    from cam2sim.ads.train import TrainOptions  # noqa: PLC0415 -- lazy: imports torch, cv2
+    from cam2sim.demo.world import (  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
         build_demo_recording,
         demo_street,
         load_demo_recording,
         recorded_street,
     )
-    from cam2sim.render.truth import truth_world_path  # noqa: PLC0415
-    from cam2sim.stages.pipeline import (  # noqa: PLC0415
+    from cam2sim.render.truth import truth_world_path  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.stages.pipeline import (  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
         STEPS,
         PipelineOptions,
         demo_splat_options,
         run_pipeline,
     )
-    from cam2sim.stages.variation import DEMO_RUN_VARIATION  # noqa: PLC0415
+    from cam2sim.stages.variation import DEMO_RUN_VARIATION  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     started = time.perf_counter()
     try:
@@ -96,7 +96,7 @@ def demo(
             if world is not None:
                 msg = "give --world or --osm, not both"
                 raise ConfigError(msg)
-            from cam2sim.demo.osm_world import osm_demo_world  # noqa: PLC0415
+            from cam2sim.demo.osm_world import osm_demo_world  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
             plan = osm_demo_world(osm, route=route, seed=seed)
             street = plan.world.street

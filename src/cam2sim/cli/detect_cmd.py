@@ -12,6 +12,7 @@ from rich.markup import escape
 
 from cam2sim.cli.display import console, error_console, print_table, progress_bars
 from cam2sim.core.errors import Cam2SimError
+from cam2sim.core.workspace import Workspace
 
 __all__ = ["SourceChoice", "detect", "refine"]
 
@@ -59,9 +60,8 @@ def detect(
 
     Example: cam2sim detect ws --source lidar --snap
     """
-    from cam2sim.core.workspace import Workspace  # noqa: PLC0415 - keep --help light
-    from cam2sim.detect.fusion import FusionOptions  # noqa: PLC0415
-    from cam2sim.stages.detect import DetectOptions, run_detect  # noqa: PLC0415
+    from cam2sim.detect.fusion import FusionOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.stages.detect import DetectOptions, run_detect  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     try:
         options = DetectOptions(
@@ -123,8 +123,7 @@ def refine(
 
     Example: cam2sim refine ws --port 8765
     """
-    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
-    from cam2sim.detect.editor import serve_editor  # noqa: PLC0415
+    from cam2sim.detect.editor import serve_editor  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     def ready(url: str) -> None:
         console.print(f"editor at {url} (Ctrl-C to stop)", highlight=False)

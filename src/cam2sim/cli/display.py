@@ -114,7 +114,7 @@ def print_behaviour(metrics: DriveMetrics) -> None:
     """Print the behaviour table in the paper's layout (Real / splat / Sim), notes under it."""
     from rich.table import Table  # noqa: PLC0415
 
-    from cam2sim.metrics.behaviour import behaviour_table  # noqa: PLC0415
+    from cam2sim.metrics.behaviour import behaviour_table  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     paper = behaviour_table(metrics)
     table = Table(title="Behaviour (averages over successful runs; jitter over all runs)")

@@ -19,6 +19,8 @@ from cam2sim.cli.display import (
     progress_bars,
 )
 from cam2sim.core.errors import Cam2SimError
+from cam2sim.core.files import atomic_folder
+from cam2sim.core.workspace import Workspace
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -103,7 +105,7 @@ def images(
 
     Example: cam2sim evaluate images real/ sim/ --mask-dir sky_masks/ --hood-rows 45 -o eval/
     """
-    from cam2sim.metrics.image_quality import (  # noqa: PLC0415
+    from cam2sim.metrics.image_quality import (  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
         PSNR_CAP_DB,
         ImageQualityOptions,
         evaluate_image_folders,
@@ -171,8 +173,7 @@ def semantic(
     """
     from dataclasses import replace  # noqa: PLC0415
 
-    from cam2sim.core.files import atomic_folder  # noqa: PLC0415
-    from cam2sim.metrics.semantic import (  # noqa: PLC0415
+    from cam2sim.metrics.semantic import (  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
         Palette,
         SemanticOptions,
         evaluate_semantic_folders,
@@ -245,9 +246,9 @@ def drive(
 
     Example: cam2sim evaluate drive --real ../shared/data/reference-drives --sim ws/runs -o eval/
     """
-    from cam2sim.metrics.drive_io import load_runs  # noqa: PLC0415
-    from cam2sim.metrics.drive_quality import DriveOptions, Segment  # noqa: PLC0415
-    from cam2sim.stages.evaluate import write_drive_evaluation  # noqa: PLC0415
+    from cam2sim.metrics.drive_io import load_runs  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.metrics.drive_quality import DriveOptions, Segment  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.stages.evaluate import write_drive_evaluation  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     try:
         real_runs = load_runs(real, real=True, crs=real_crs)
@@ -339,9 +340,8 @@ def workspace(
 
     Example: cam2sim evaluate workspace ws --real ../shared/data/reference-drives
     """
-    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
-    from cam2sim.metrics.drive_quality import DriveMetrics  # noqa: PLC0415
-    from cam2sim.stages.evaluate import EvaluateOptions, evaluate_workspace  # noqa: PLC0415
+    from cam2sim.metrics.drive_quality import DriveMetrics  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.stages.evaluate import EvaluateOptions, evaluate_workspace  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     try:
         ws = Workspace.open(workspace)

@@ -11,6 +11,10 @@ import typer
 import typer.core
 
 from cam2sim import __version__
+from cam2sim.cli.ads_cmd import ads_app
+from cam2sim.cli.campaign_cmd import campaign
+from cam2sim.cli.demo_cmd import demo
+from cam2sim.cli.detect_cmd import detect, refine
 from cam2sim.cli.display import (
     console,
     error_console,
@@ -18,8 +22,16 @@ from cam2sim.cli.display import (
     progress_bars,
     setup_logging,
 )
+from cam2sim.cli.evaluate import evaluate_app
+from cam2sim.cli.map_cmd import map_
+from cam2sim.cli.report_cmd import report
+from cam2sim.cli.run_cmd import drive, replay
+from cam2sim.cli.run_pipeline_cmd import run
+from cam2sim.cli.scenario_cmd import scenario
+from cam2sim.cli.splat_cmd import splat
 from cam2sim.core.config import AxisConvention
 from cam2sim.core.errors import Cam2SimError
+from cam2sim.core.workspace import Workspace
 
 __all__ = ["app", "main"]
 
@@ -92,18 +104,6 @@ _state: dict[str, int | bool] = {"verbose": 0, "progress": True, "debug": False}
 
 
 def _register_subcommands() -> None:
-    from cam2sim.cli.ads_cmd import ads_app  # noqa: PLC0415
-    from cam2sim.cli.campaign_cmd import campaign  # noqa: PLC0415
-    from cam2sim.cli.demo_cmd import demo  # noqa: PLC0415
-    from cam2sim.cli.detect_cmd import detect, refine  # noqa: PLC0415
-    from cam2sim.cli.evaluate import evaluate_app  # noqa: PLC0415
-    from cam2sim.cli.map_cmd import map_  # noqa: PLC0415
-    from cam2sim.cli.report_cmd import report  # noqa: PLC0415
-    from cam2sim.cli.run_cmd import drive, replay  # noqa: PLC0415
-    from cam2sim.cli.run_pipeline_cmd import run  # noqa: PLC0415
-    from cam2sim.cli.scenario_cmd import scenario  # noqa: PLC0415
-    from cam2sim.cli.splat_cmd import splat  # noqa: PLC0415
-
     app.command("detect")(detect)
     app.command("refine")(refine)
     app.command("map")(map_)
@@ -164,7 +164,7 @@ def inspect(
     """
     from rich.table import Table  # noqa: PLC0415
 
-    from cam2sim.recording.summary import summarize_recording  # noqa: PLC0415
+    from cam2sim.recording.summary import summarize_recording  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     try:
         with progress_bars(enabled=bool(_state["progress"])) as sink:
@@ -207,7 +207,7 @@ def init(
 
     Example: cam2sim init ws --bag drive.bag
     """
-    from cam2sim.stages.init import init_workspace  # noqa: PLC0415
+    from cam2sim.stages.init import init_workspace  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     try:
         result = init_workspace(workspace, bag, force=force)
@@ -228,8 +228,7 @@ def extract(
 
     Example: cam2sim extract ws
     """
-    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
-    from cam2sim.stages.extract import extract as run_extract  # noqa: PLC0415
+    from cam2sim.stages.extract import extract as run_extract  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     try:
         ws = Workspace.open(workspace)
@@ -275,7 +274,7 @@ def import_(
 
     Example: cam2sim import ws --images frames/ --poses poses.csv --crs EPSG:32632
     """
-    from cam2sim.stages.image_import import ImportOptions, import_images  # noqa: PLC0415
+    from cam2sim.stages.image_import import ImportOptions, import_images  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     opts = ImportOptions(
         poses=poses, calibration=calibration, crs=crs, axis_convention=axis_convention, fps=fps

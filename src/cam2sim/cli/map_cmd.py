@@ -13,7 +13,9 @@ from rich.markup import escape
 from cam2sim.cli.display import console, error_console, progress_bars
 from cam2sim.cli.options import comma_list
 from cam2sim.core.errors import Cam2SimError
-from cam2sim.map.overpass import DEFAULT_URL
+from cam2sim.core.workspace import Workspace
+from cam2sim.map.convert import CARLA_ROAD_TYPES, ConvertOptions
+from cam2sim.map.overpass import DEFAULT_URL, OverpassOptions
 
 __all__ = ["SidewalkChoice", "map_"]
 
@@ -79,10 +81,7 @@ def map_(
 
     Example: cam2sim map ws --osm area.osm.pbf --margin 150 --sidewalks parking
     """
-    from cam2sim.core.workspace import Workspace  # noqa: PLC0415 - keep --help light
-    from cam2sim.map.convert import CARLA_ROAD_TYPES, ConvertOptions  # noqa: PLC0415
-    from cam2sim.map.overpass import OverpassOptions  # noqa: PLC0415
-    from cam2sim.stages.map import MapOptions, build_map  # noqa: PLC0415
+    from cam2sim.stages.map import MapOptions, build_map  # noqa: PLC0415 -- lazy: imports shapely
 
     try:
         options = MapOptions(

@@ -11,6 +11,7 @@ from rich.markup import escape
 
 from cam2sim.cli.display import console, error_console, progress_bars
 from cam2sim.core.errors import Cam2SimError
+from cam2sim.core.workspace import Workspace
 
 __all__ = ["report"]
 
@@ -38,9 +39,8 @@ def report(
 
     Example: cam2sim report ws --real ../shared/data/reference-drives
     """
-    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
-    from cam2sim.report.html import write_report  # noqa: PLC0415
-    from cam2sim.stages.evaluate import EvaluateOptions, evaluate_workspace  # noqa: PLC0415
+    from cam2sim.report.html import write_report  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.stages.evaluate import EvaluateOptions, evaluate_workspace  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     try:
         ws = Workspace.open(workspace)

@@ -17,7 +17,9 @@ from cam2sim.cli.options import (
     SimChoice,
     SimOption,
 )
-from cam2sim.core.errors import Cam2SimError
+from cam2sim.core.errors import Cam2SimError, ConfigError
+from cam2sim.core.schema import format_validation_error
+from cam2sim.core.workspace import Workspace
 
 __all__ = ["drive", "replay"]
 
@@ -55,10 +57,7 @@ def _carla(ws: Path, sim: SimChoice, host: str | None, port: int | None) -> obje
         return None  # the run reads config.yaml's carla block
     import pydantic  # noqa: PLC0415
 
-    from cam2sim.core.errors import ConfigError  # noqa: PLC0415
-    from cam2sim.core.schema import format_validation_error  # noqa: PLC0415
-    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
-    from cam2sim.sim.carla_backend import CarlaOptions  # noqa: PLC0415
+    from cam2sim.sim.carla_backend import CarlaOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     raw = dict(Workspace.open(ws).load_config().carla)
     raw |= {k: v for k, v in (("host", host), ("port", port)) if v is not None}
@@ -101,7 +100,7 @@ def _variation(text: str | None) -> Any:
     """``--vary LATERAL_M,HEADING_DEG,SPEED`` as a RunVariation (None: no variation)."""
     if not text:
         return None
-    from cam2sim.stages.variation import RunVariation  # noqa: PLC0415
+    from cam2sim.stages.variation import RunVariation  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     parts = text.split(",")
     try:
@@ -136,9 +135,8 @@ def replay(
 
     Example: cam2sim replay ws --camera both --frames 0:300
     """
-    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
-    from cam2sim.stages.runs import ReplayOptions  # noqa: PLC0415
-    from cam2sim.stages.runs import replay as run_replay  # noqa: PLC0415
+    from cam2sim.stages.runs import ReplayOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.stages.runs import replay as run_replay  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     cams = ("raster", "splat") if camera is ReplayCamera.BOTH else (camera.value,)
     if sim is SimChoice.CARLA and "carla" not in cams:
@@ -206,9 +204,8 @@ def drive(
 
     Example: cam2sim drive ws --policy pure-pursuit --camera raster --runs 3 --vary 0.1,0.5,0.03
     """
-    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
-    from cam2sim.stages.runs import DriveOptions  # noqa: PLC0415
-    from cam2sim.stages.runs import drive as run_drive  # noqa: PLC0415
+    from cam2sim.stages.runs import DriveOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.stages.runs import drive as run_drive  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     try:
         opts = DriveOptions(

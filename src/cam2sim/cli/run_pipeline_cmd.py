@@ -18,10 +18,11 @@ from cam2sim.cli.display import (
     progress_bars,
 )
 from cam2sim.cli.options import SkipOption, StepsOption, comma_list
+from cam2sim.core.config import load_config, save_config
 from cam2sim.core.errors import Cam2SimError
+from cam2sim.core.workspace import Workspace
 
 if TYPE_CHECKING:
-    from cam2sim.core.workspace import Workspace
     from cam2sim.stages.pipeline import PipelineResult
 
 __all__ = ["run"]
@@ -37,9 +38,7 @@ _STYLE = {
 
 def _workspace(out: Path, bags: list[Path], config: Path | None) -> Workspace:
     """Open the workspace at ``out``, or create it from the bags (and a given config)."""
-    from cam2sim.core.config import load_config, save_config  # noqa: PLC0415
-    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
-    from cam2sim.stages.init import init_workspace  # noqa: PLC0415
+    from cam2sim.stages.init import init_workspace  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     cfg = None
     if config is not None:
@@ -121,7 +120,7 @@ def run(
 
     Example: cam2sim run drive.mcap -o ws --osm area.osm --skip splat
     """
-    from cam2sim.stages.pipeline import STEPS, PipelineOptions, run_pipeline  # noqa: PLC0415
+    from cam2sim.stages.pipeline import STEPS, PipelineOptions, run_pipeline  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     try:
         options = PipelineOptions(
@@ -149,7 +148,7 @@ def _finish(ws: Workspace, result: PipelineResult, total_s: float) -> None:
     print_table(_summary(result))
     metrics = ws.drive_eval_dir / "metrics.json"
     if metrics.is_file() and result.outcome("evaluate").state in ("done", "up_to_date"):
-        from cam2sim.metrics.drive_quality import DriveMetrics  # noqa: PLC0415
+        from cam2sim.metrics.drive_quality import DriveMetrics  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
         print_behaviour(DriveMetrics.load(metrics))
     console.print(f"workspace {ws.root}; {total_s:.0f} s in all", highlight=False)

