@@ -1,0 +1,177 @@
+"""The pinhole camera: the one owner of intrinsics, their scaling and undistortion.
+
+:class:`PinholeCamera` is what every stage means by "camera intrinsics": focal lengths and
+principal point in pixels, the image size, and the lens distortion of the recorded images
+(OpenCV plumb-bob ``(k1, k2, p1, p2[, k3, ...])`` or equidistant ``(k1..k4)``). Pixel
+coordinates follow OpenCV: pixel centres at integer coordinates, x right, y down; the camera
+frame is optical (x right, y down, z forward).
+
+The persisted records are adapters onto it and keep their file formats: ``config.yaml``'s
+:class:`cam2sim.core.config.IntrinsicsConfig`, ``dataset.json``'s
+:class:`cam2sim.core.dataset.CameraIntrinsics` and ``scene.json``'s frame records each have a
+``camera()`` method. Camera poses (mount composed with the vehicle poses) are owned by
+:func:`cam2sim.core.frames.camera_poses`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+
+from cam2sim.core.errors import ConfigError
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+__all__ = ["DistortionModel", "PinholeCamera", "PixelConvention"]
+
+DistortionModel = Literal["plumb_bob", "equidistant"]
+#: How a resize maps pixel coordinates: ``centres`` keeps pixel centres aligned (the image was
+#: resampled, OpenCV's convention); ``corners`` scales coordinates from the image corner.
+PixelConvention = Literal["centres", "corners"]
+
+
+@dataclass(frozen=True, slots=True)
+class PinholeCamera:
+    """A pinhole camera: ``K = [[fx, skew, cx], [0, fy, cy], [0, 0, 1]]`` and its image size.
+
+    Attributes:
+        fx: Horizontal focal length, pixels (> 0).
+        fy: Vertical focal length, pixels (> 0).
+        cx: Principal point x, pixels.
+        cy: Principal point y, pixels.
+        width: Image width, pixels (> 0).
+        height: Image height, pixels (> 0).
+        distortion: Lens distortion coefficients of ``distortion_model`` (empty: none).
+        distortion_model: ``plumb_bob`` or ``equidistant``.
+        skew: ``K[0, 1]``, pixels (0 for every camera cam2sim makes).
+
+    Raises:
+        ConfigError: A non-positive size or focal length, or a non-finite value.
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    distortion: tuple[float, ...] = ()
+    distortion_model: DistortionModel = "plumb_bob"
+    skew: float = 0.0
+
+    def __post_init__(self) -> None:
+        values = (self.fx, self.fy, self.cx, self.cy, self.skew, *self.distortion)
+        if not all(math.isfinite(v) for v in values):
+            msg = f"camera intrinsics must be finite, got {self!r}"
+            raise ConfigError(msg)
+        if self.fx <= 0 or self.fy <= 0:
+            msg = f"camera focal lengths must be positive, got fx={self.fx!r}, fy={self.fy!r}"
+            raise ConfigError(msg)
+        if self.width <= 0 or self.height <= 0:
+            msg = f"camera image size must be positive, got {self.width!r}x{self.height!r}"
+            raise ConfigError(msg)
+
+    @classmethod
+    def from_K(
+        cls,
+        K: npt.ArrayLike,
+        width: int,
+        height: int,
+        distortion: tuple[float, ...] | list[float] = (),
+        *,
+        distortion_model: DistortionModel = "plumb_bob",
+    ) -> PinholeCamera:
+        """The camera of a ``(3, 3)`` intrinsics matrix (its last row ``[0, 0, 1]``).
+
+        Raises:
+            ConfigError: ``K`` is not 3x3, or not of the upper-triangular pinhole form.
+        """
+        k = np.asarray(K, dtype=np.float64)
+        if k.size != 9:
+            msg = f"camera K must be 3x3, got shape {k.shape}"
+            raise ConfigError(msg)
+        k = k.reshape(3, 3)
+        if k[1, 0] != 0 or k[2, 0] != 0 or k[2, 1] != 0 or k[2, 2] != 1:
+            msg = f"camera K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {k.tolist()}"
+            raise ConfigError(msg)
+        return cls(
+            fx=float(k[0, 0]),
+            fy=float(k[1, 1]),
+            cx=float(k[0, 2]),
+            cy=float(k[1, 2]),
+            width=int(width),
+            height=int(height),
+            distortion=tuple(float(v) for v in distortion),
+            distortion_model=distortion_model,
+            skew=float(k[0, 1]),
+        )
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """``(width, height)``, pixels."""
+        return self.width, self.height
+
+    def K(self) -> npt.NDArray[np.float64]:
+        """``(3, 3)`` float64 intrinsics matrix (a fresh array)."""
+        return np.array(
+            [[self.fx, self.skew, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]],
+            dtype=np.float64,
+        )
+
+    def scaled(
+        self, width: int, height: int, *, convention: PixelConvention = "centres"
+    ) -> PinholeCamera:
+        """This camera for its images resized to ``width`` x ``height`` (distortion kept).
+
+        Focal lengths (and skew) scale by ``sx = width / self.width`` and
+        ``sy = height / self.height``. With ``centres`` (the default) pixel centres stay
+        aligned: ``c' = (c + 0.5) * s - 0.5``; with ``corners`` ``c' = c * s``.
+        """
+        if width <= 0 or height <= 0:
+            msg = f"cannot scale a camera to {width!r}x{height!r}; sizes must be positive"
+            raise ConfigError(msg)
+        sx, sy = width / self.width, height / self.height
+        if convention == "centres":
+            cx = (self.cx + 0.5) * width / self.width - 0.5
+            cy = (self.cy + 0.5) * height / self.height - 0.5
+        else:
+            cx, cy = self.cx * sx, self.cy * sy
+        return PinholeCamera(
+            fx=self.fx * sx,
+            fy=self.fy * sy,
+            cx=cx,
+            cy=cy,
+            width=int(width),
+            height=int(height),
+            distortion=self.distortion,
+            distortion_model=self.distortion_model,
+            skew=self.skew * sx,
+        )
+
+    def undistorted(self) -> PinholeCamera:
+        """The distortion-free camera of this camera's undistorted images (same size).
+
+        alpha = 0 (OpenCV ``getOptimalNewCameraMatrix``; ``balance = 0`` for equidistant
+        lenses): every output pixel sees the scene. Without distortion, the camera itself.
+        """
+        dist = np.asarray(self.distortion, dtype=np.float64)
+        if dist.size == 0 or not np.any(dist):
+            return PinholeCamera(
+                self.fx, self.fy, self.cx, self.cy, self.width, self.height, skew=self.skew
+            )
+        import cv2  # noqa: PLC0415 -- lazy: OpenCV is heavy and only undistortion needs it
+
+        K = self.K()
+        if self.distortion_model == "equidistant":
+            d4 = np.zeros(4)
+            d4[: min(4, dist.size)] = dist[:4]
+            K_new = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(
+                K, d4, self.size, np.eye(3), balance=0.0
+            )
+        else:
+            K_new, _ = cv2.getOptimalNewCameraMatrix(K, dist, self.size, 0.0, self.size)
+        return PinholeCamera.from_K(K_new, self.width, self.height)
