@@ -16,6 +16,7 @@ from typing import Any, Literal, Self
 import pydantic
 import yaml
 
+from cam2sim.core.camera import PinholeCamera
 from cam2sim.core.errors import ConfigError
 from cam2sim.core.files import write_text_atomic
 
@@ -166,6 +167,19 @@ class IntrinsicsConfig(_Model):
     height: int = pydantic.Field(gt=0)
     distortion: list[float] = pydantic.Field(default_factory=list)
     model: Literal["plumb_bob", "equidistant"] = "plumb_bob"
+
+    def camera(self) -> PinholeCamera:
+        """These intrinsics as the one camera type."""
+        return PinholeCamera(
+            fx=self.fx,
+            fy=self.fy,
+            cx=self.cx,
+            cy=self.cy,
+            width=self.width,
+            height=self.height,
+            distortion=tuple(self.distortion),
+            distortion_model=self.model,
+        )
 
 
 class MountConfig(_Model):

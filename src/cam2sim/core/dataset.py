@@ -13,6 +13,7 @@ from typing import Literal
 
 import pydantic
 
+from cam2sim.core.camera import PinholeCamera
 from cam2sim.core.schema import Artifact
 from cam2sim.core.workspace import WorldFrameRecord
 
@@ -62,6 +63,38 @@ class CameraIntrinsics(_Record):
     distortion: tuple[float, ...] = ()
     distortion_model: Literal["plumb_bob", "equidistant"] = "plumb_bob"
     source: str = pydantic.Field(description="config, camera_info topic, or file")
+
+    @classmethod
+    def from_camera(cls, camera: PinholeCamera, source: str) -> CameraIntrinsics:
+        """The record of ``camera`` (where it came from: ``source``)."""
+        K = camera.K()
+        return cls(
+            width=camera.width,
+            height=camera.height,
+            K=(
+                (float(K[0, 0]), float(K[0, 1]), float(K[0, 2])),
+                (float(K[1, 0]), float(K[1, 1]), float(K[1, 2])),
+                (float(K[2, 0]), float(K[2, 1]), float(K[2, 2])),
+            ),
+            distortion=camera.distortion,
+            distortion_model=camera.distortion_model,
+            source=source,
+        )
+
+    def camera(self) -> PinholeCamera:
+        """These intrinsics as the one camera type.
+
+        Raises:
+            ConfigError: ``K`` is not a pinhole matrix, or the size or a focal length is not
+                positive.
+        """
+        return PinholeCamera.from_K(
+            self.K,
+            self.width,
+            self.height,
+            self.distortion,
+            distortion_model=self.distortion_model,
+        )
 
 
 class MountRecord(_Record):

@@ -72,6 +72,7 @@ from cam2sim.core.backends import (
     require_module,
     to_numpy,
 )
+from cam2sim.core.camera import PinholeCamera
 from cam2sim.core.errors import ConfigError
 from cam2sim.detect.boxes import Boxes
 
@@ -301,8 +302,7 @@ def _resize(
     sx, sy = size[0] / w, size[1] / h
     interp = cv2.INTER_AREA if sx * sy < 1.0 else cv2.INTER_LINEAR
     out = np.asarray(cv2.resize(image, size, interpolation=interp), dtype=np.uint8)
-    scale = np.array([[sx, 0.0, 0.5 * sx - 0.5], [0.0, sy, 0.5 * sy - 0.5], [0.0, 0.0, 1.0]])
-    return out, scale @ K
+    return out, PinholeCamera.from_K(K, w, h).scaled(*size).K()
 
 
 def _k_tensor(K: npt.NDArray[np.float64], rank: int, dim: int) -> npt.NDArray[np.float64]:

@@ -22,6 +22,7 @@ import numpy as np
 import numpy.typing as npt
 import pydantic
 
+from cam2sim.core.camera import PinholeCamera
 from cam2sim.core.files import write_bytes_atomic
 from cam2sim.core.schema import Artifact
 
@@ -53,9 +54,13 @@ class FrameRecord(pydantic.BaseModel):
         """``T_world_cam`` as a (4, 4) array."""
         return np.asarray(self.T_world_cam, dtype=np.float64)
 
+    def camera(self) -> PinholeCamera:
+        """The (undistorted, pinhole) camera of this view."""
+        return PinholeCamera(self.fx, self.fy, self.cx, self.cy, self.width, self.height)
+
     def K(self) -> npt.NDArray[np.float64]:
         """(3, 3) intrinsics of the undistorted image."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+        return self.camera().K()
 
 
 class ChunkRecord(pydantic.BaseModel):

@@ -78,7 +78,6 @@ def load_views(
         raise StageError(msg)
     (w0, h0) = sizes.pop()
     w, h = max(1, w0 // downscale), max(1, h0 // downscale)
-    sx, sy = w / w0, h / h0
     images, masks, skies, viewmats, ks = [], [], [], [], []
     any_sky = False
     for f in frames:
@@ -100,10 +99,7 @@ def load_views(
         masks.append(mask > 254)
         skies.append(sky > 127)
         viewmats.append(np.linalg.inv(f.T()))
-        k = f.K()
-        k[0] *= sx
-        k[1] *= sy
-        ks.append(k)
+        ks.append(f.camera().scaled(w, h, convention="corners").K())
     viewmat_t = torch.tensor(np.stack(viewmats), dtype=torch.float32, device=device)
     return TrainViews(
         frames=tuple(frames),

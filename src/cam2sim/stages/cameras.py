@@ -94,21 +94,17 @@ def load_run_context(ws: Workspace) -> RunContext:
 def scaled_intrinsics(
     scenario: Scenario, size: tuple[int, int] | None
 ) -> tuple[npt.NDArray[np.float64], int, int]:
-    """The scenario camera's ``K``, width and height, scaled to ``size`` (None: calibrated)."""
-    cam = scenario.camera
-    if cam is None:
+    """The scenario camera's ``K``, width and height, scaled to ``size`` (None: calibrated).
+
+    Scaling keeps pixel centres aligned (:meth:`cam2sim.core.camera.PinholeCamera.scaled`).
+    """
+    if scenario.camera is None:
         msg = "the scenario has no camera intrinsics; set camera.intrinsics in config.yaml"
         raise StageError(msg)
-    K = np.asarray(cam.K, dtype=np.float64)
-    if size is None:
-        return K, cam.width, cam.height
-    w, h = size
-    S = np.diag([w / cam.width, h / cam.height, 1.0])
-    K2 = S @ K
-    # Pixel-centre convention: centres at integer coordinates.
-    K2[0, 2] = (K[0, 2] + 0.5) * w / cam.width - 0.5
-    K2[1, 2] = (K[1, 2] + 0.5) * h / cam.height - 0.5
-    return K2, w, h
+    cam = scenario.camera.camera()
+    if size is not None:
+        cam = cam.scaled(*size)
+    return cam.K(), cam.width, cam.height
 
 
 def camera_poses(

@@ -23,6 +23,7 @@ import numpy as np
 import numpy.typing as npt
 
 from cam2sim.core import frames
+from cam2sim.core.camera import DistortionModel, PinholeCamera
 from cam2sim.core.config import AXIS_CONVENTION_YAW_OFFSET, Config, MountConfig
 from cam2sim.core.dataset import (
     POSE_PRECISION,
@@ -341,15 +342,7 @@ def _read_trajectory(
 def _intrinsics(config: Config, camera_info: Any) -> CameraIntrinsics | None:
     cfg = config.camera.intrinsics
     if cfg is not None:
-        K = ((cfg.fx, 0.0, cfg.cx), (0.0, cfg.fy, cfg.cy), (0.0, 0.0, 1.0))
-        return CameraIntrinsics(
-            width=cfg.width,
-            height=cfg.height,
-            K=K,
-            distortion=tuple(cfg.distortion),
-            distortion_model=cfg.model,
-            source="config",
-        )
+        return CameraIntrinsics.from_camera(cfg.camera(), "config")
     if camera_info is None:
         return None
     k = np.asarray(getattr(camera_info, "k", getattr(camera_info, "K", None)), dtype=float)
@@ -357,16 +350,17 @@ def _intrinsics(config: Config, camera_info: Any) -> CameraIntrinsics | None:
     if k.size != 9 or not np.isfinite(k).all() or k[0] <= 0:
         msg = "topics.camera_info has no valid K matrix; set camera.intrinsics in config.yaml"
         raise RecordingError(msg)
-    model = "equidistant" if camera_info.distortion_model == "equidistant" else "plumb_bob"
-    K3 = k.reshape(3, 3)
-    return CameraIntrinsics(
-        width=int(camera_info.width),
-        height=int(camera_info.height),
-        K=(tuple(K3[0]), tuple(K3[1]), tuple(K3[2])),
-        distortion=tuple(float(v) for v in d),
-        distortion_model=model,
-        source=f"camera_info topic {config.topics.camera_info}",
+    model: DistortionModel = (
+        "equidistant" if camera_info.distortion_model == "equidistant" else "plumb_bob"
     )
+    try:
+        camera = PinholeCamera.from_K(
+            k, int(camera_info.width), int(camera_info.height), d.tolist(), distortion_model=model
+        )
+    except ConfigError as err:
+        msg = f"topics.camera_info: {err}; set camera.intrinsics in config.yaml"
+        raise RecordingError(msg) from None
+    return CameraIntrinsics.from_camera(camera, f"camera_info topic {config.topics.camera_info}")
 
 
 def _mount(

@@ -23,6 +23,7 @@ import numpy as np
 import numpy.typing as npt
 
 from cam2sim.core import frames
+from cam2sim.core.camera import PinholeCamera
 from cam2sim.core.config import AXIS_CONVENTION_YAW_OFFSET, AxisConvention, Config, PoseConfig
 from cam2sim.core.dataset import (
     POSE_PRECISION,
@@ -212,13 +213,10 @@ def intrinsics_from_file(path: Path) -> tuple[CameraIntrinsics, MountRecord | No
             )
     try:
         K = np.asarray(raw["K"], dtype=float).reshape(3, 3)
-        intr = CameraIntrinsics(
-            width=int(raw["width"]),
-            height=int(raw["height"]),
-            K=tuple(tuple(float(v) for v in row) for row in K),
-            distortion=tuple(float(v) for v in raw.get("distortion", [])),
-            source=f"file {path}",
+        camera = PinholeCamera.from_K(
+            K, int(raw["width"]), int(raw["height"]), [float(v) for v in raw.get("distortion", [])]
         )
+        intr = CameraIntrinsics.from_camera(camera, f"file {path}")
     except (KeyError, TypeError, ValueError) as err:
         msg = f"{path}: expected K (3x3), width, height[, distortion]; {err!r}"
         raise RecordingError(msg) from None
