@@ -11,6 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from cam2sim.core import frames as fr
+from cam2sim.core.camera import DistortionModel, PinholeCamera
 from cam2sim.splat.scene import ChunkRecord
 
 if TYPE_CHECKING:
@@ -28,6 +29,7 @@ __all__ = [
     "distance_travelled",
     "select_by_distance",
     "similarity_from_poses",
+    "undistort_camera",
     "undistorter",
     "voxel_downsample",
 ]
@@ -182,16 +184,29 @@ class Undistorter:
     """Undistortion of one camera to a pinhole camera of the same size.
 
     Attributes:
-        K: ``(3, 3)`` recorded intrinsics.
-        K_new: ``(3, 3)`` intrinsics of the undistorted images.
-        size: ``(width, height)`` pixels.
+        recorded: The recorded camera (with its distortion).
+        camera: The distortion-free camera of the undistorted images.
         maps: OpenCV remap tables, or None when there is no distortion (identity).
     """
 
-    K: npt.NDArray[np.float64]
-    K_new: npt.NDArray[np.float64]
-    size: tuple[int, int]
+    recorded: PinholeCamera
+    camera: PinholeCamera
     maps: tuple[npt.NDArray[Any], npt.NDArray[Any]] | None  # cv2 map dtypes vary (int16/float)
+
+    @property
+    def K(self) -> npt.NDArray[np.float64]:
+        """``(3, 3)`` recorded intrinsics."""
+        return self.recorded.K()
+
+    @property
+    def K_new(self) -> npt.NDArray[np.float64]:
+        """``(3, 3)`` intrinsics of the undistorted images."""
+        return self.camera.K()
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """``(width, height)`` pixels."""
+        return self.camera.size
 
     def apply(self, image: npt.NDArray[Any], *, nearest: bool = False) -> npt.NDArray[Any]:
         """Undistort an image or mask (``nearest`` for masks); out-of-view pixels become 0."""
@@ -206,6 +221,27 @@ class Undistorter:
         return out
 
 
+def undistort_camera(camera: PinholeCamera) -> Undistorter:
+    """Build the undistortion of a camera (alpha = 0: every output pixel sees the scene).
+
+    The undistorted camera is :meth:`PinholeCamera.undistorted`; this adds the remap tables.
+    """
+    import cv2  # noqa: PLC0415
+
+    new = camera.undistorted()
+    dist = np.asarray(camera.distortion, dtype=np.float64)
+    if dist.size == 0 or not np.any(dist):
+        return Undistorter(camera, new, None)
+    K, K_new, size = camera.K(), new.K(), camera.size
+    if camera.distortion_model == "equidistant":
+        d4 = np.zeros(4)
+        d4[: min(4, dist.size)] = dist[:4]
+        maps = cv2.fisheye.initUndistortRectifyMap(K, d4, np.eye(3), K_new, size, cv2.CV_16SC2)
+    else:
+        maps = cv2.initUndistortRectifyMap(K, dist, None, K_new, size, cv2.CV_16SC2)
+    return Undistorter(camera, new, (maps[0], maps[1]))
+
+
 def undistorter(
     K: npt.ArrayLike,
     distortion: Sequence[float],
@@ -213,7 +249,7 @@ def undistorter(
     *,
     model: str = "plumb_bob",
 ) -> Undistorter:
-    """Build the undistortion of a camera (alpha = 0: every output pixel sees the scene).
+    """Build the undistortion of a camera given as a matrix (see :func:`undistort_camera`).
 
     Args:
         K: ``(3, 3)`` intrinsics, pixels.
@@ -224,23 +260,11 @@ def undistorter(
     Returns:
         The new intrinsics and remap tables.
     """
-    import cv2  # noqa: PLC0415
-
-    K = np.asarray(K, dtype=np.float64).reshape(3, 3)
-    dist = np.asarray(distortion, dtype=np.float64)
-    if dist.size == 0 or not np.any(dist):
-        return Undistorter(K, K.copy(), size, None)
-    if model == "equidistant":
-        d4 = np.zeros(4)
-        d4[: min(4, dist.size)] = dist[:4]
-        K_new = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(
-            K, d4, size, np.eye(3), balance=0.0
-        )
-        maps = cv2.fisheye.initUndistortRectifyMap(K, d4, np.eye(3), K_new, size, cv2.CV_16SC2)
-    else:
-        K_new, _ = cv2.getOptimalNewCameraMatrix(K, dist, size, 0.0, size)
-        maps = cv2.initUndistortRectifyMap(K, dist, None, K_new, size, cv2.CV_16SC2)
-    return Undistorter(K, np.asarray(K_new, dtype=np.float64), size, (maps[0], maps[1]))
+    kind: DistortionModel = "equidistant" if model == "equidistant" else "plumb_bob"
+    camera = PinholeCamera.from_K(
+        K, size[0], size[1], tuple(float(v) for v in distortion), distortion_model=kind
+    )
+    return undistort_camera(camera)
 
 
 def similarity_from_poses(

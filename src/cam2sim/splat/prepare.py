@@ -50,6 +50,7 @@ from cam2sim.splat.geometry import (
     chunks_by_distance,
     distance_travelled,
     select_by_distance,
+    undistort_camera,
     undistorter,
     voxel_downsample,
 )
@@ -68,6 +69,7 @@ from cam2sim.splat.sfm import (
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
+    from cam2sim.core.camera import PinholeCamera
     from cam2sim.core.progress import ProgressCallback
     from cam2sim.core.workspace import Workspace
 
@@ -413,8 +415,7 @@ class _Posed:
 
     source: _Source
     poses: npt.NDArray[np.float64]  # (M, 4, 4) T_world_cam
-    K_new: npt.NDArray[np.float64]
-    size: tuple[int, int]
+    camera: PinholeCamera  # of the undistorted images
     views: _Views
     points: _Points
     progress_m: npt.NDArray[np.float64]
@@ -469,7 +470,7 @@ def prepare_scene(
         if source.position is not None and not posed.scale_ambiguous and _has_lidar(paths):
             report("lidar", 0, 1)
             stamps = posed.source.stamp_ns
-            lidar = _lidar_points(paths, stamps, posed.poses, posed.K_new, posed.views, opts)
+            lidar = _lidar_points(paths, stamps, posed.poses, posed.camera.K(), posed.views, opts)
             posed = replace(posed, points=posed.points + lidar)
             posed.notes.append(f"points: {len(lidar.xyz)} from LiDAR")
             report("lidar", 1, 1)
@@ -510,9 +511,7 @@ def _with_poses(
     assert source.position is not None
     assert source.quat is not None
     assert source.progress_m is not None
-    undist = undistorter(
-        camera.K, camera.distortion, (camera.width, camera.height), model=camera.distortion_model
-    )
+    undist = undistort_camera(camera.camera())
     views = _write_views(source.files, undist, hood, out, opts, report)
     poses = camera_poses(source.position, source.quat, mount)
     points, pose_source, notes = _Points.empty(), "recording", []
@@ -537,8 +536,7 @@ def _with_poses(
     return _Posed(
         source,
         poses,
-        undist.K_new,
-        undist.size,
+        undist.camera,
         views,
         points,
         source.progress_m,
@@ -562,14 +560,11 @@ def _with_sfm(
         work = Path(work_name)
         if camera is not None:
             # Known intrinsics: SfM on the undistorted frames with K held fixed.
-            size = (camera.width, camera.height)
-            undist = undistorter(camera.K, camera.distortion, size, model=camera.distortion_model)
+            undist = undistort_camera(camera.camera())
             staged = _write_views(source.files, undist, hood, work, None, report)
-            K = undist.K_new
+            new = undist.camera
             sfm_opts = replace(
-                opts.sfm,
-                camera_model="PINHOLE",
-                camera_params=(K[0, 0], K[1, 1], K[0, 2], K[1, 2]),
+                opts.sfm, camera_model="PINHOLE", camera_params=(new.fx, new.fy, new.cx, new.cy)
             )
             names = [p.name for p in staged.images]
             result = sfm_images_only(staged.images, staged.masks, options=sfm_opts, progress=report)
@@ -581,8 +576,7 @@ def _with_sfm(
                 masks = [work / "hood.png"] * len(source.files)
             names = [p.name for p in source.files]
             result = sfm_images_only(source.files, masks, options=opts.sfm, progress=report)
-            cam = result.camera
-            undist = undistorter(cam.K(), cam.distortion(), (cam.width, cam.height))
+            undist = undistort_camera(result.camera.camera())
     return _posed_from_sfm(
         _SfmInput(source, result, names, calib.camera_mount), undist, hood, out, opts, report
     )
@@ -648,8 +642,7 @@ def _posed_from_sfm(
     return _Posed(
         kept,
         poses,
-        undist.K_new,
-        undist.size,
+        undist.camera,
         views,
         points,
         progress_m,
@@ -677,20 +670,19 @@ def _scene_record(posed: _Posed, notes: list[str], opts: PrepareOptions) -> Scen
             posed.progress_m, centres, chunk_length_m=opts.chunk_length_m, overlap_m=opts.overlap_m
         )
     member = chunk_membership(chunks)
-    K = posed.K_new
-    w, h = posed.size
+    cam = posed.camera
     frame_records = [
         FrameRecord(
             index=i,
             dataset_frame=int(posed.source.frame[i]),
             stamp_ns=int(posed.source.stamp_ns[i]),
             T_world_cam=posed.poses[i].tolist(),
-            fx=float(K[0, 0]),
-            fy=float(K[1, 1]),
-            cx=float(K[0, 2]),
-            cy=float(K[1, 2]),
-            width=w,
-            height=h,
+            fx=cam.fx,
+            fy=cam.fy,
+            cx=cam.cx,
+            cy=cam.cy,
+            width=cam.width,
+            height=cam.height,
             held_out=opts.held_out_every > 0 and i % opts.held_out_every == 0,
             chunks=member.get(i, []),
             progress_m=float(posed.progress_m[i]),

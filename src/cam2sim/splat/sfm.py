@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 import numpy.typing as npt
 
+from cam2sim.core.camera import PinholeCamera
 from cam2sim.core.errors import BackendUnavailableError, StageError
 from cam2sim.splat.geometry import apply_similarity, similarity_from_poses
 
@@ -229,15 +230,19 @@ class SfmCamera:
     height: int
     params: tuple[float, ...]
 
-    def K(self) -> npt.NDArray[np.float64]:
-        """``(3, 3)`` pinhole intrinsics (distortion in :meth:`distortion`)."""
+    def camera(self) -> PinholeCamera:
+        """The pinhole camera with its (plumb-bob) distortion."""
         p = self.params
         if self.model in {"SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"}:
             fx = fy = p[0]
             cx, cy = p[1], p[2]
         else:
             fx, fy, cx, cy = p[0], p[1], p[2], p[3]
-        return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        return PinholeCamera(fx, fy, cx, cy, self.width, self.height, self.distortion())
+
+    def K(self) -> npt.NDArray[np.float64]:
+        """``(3, 3)`` pinhole intrinsics (distortion in :meth:`distortion`)."""
+        return self.camera().K()
 
     def distortion(self) -> tuple[float, ...]:
         """OpenCV plumb-bob coefficients ``(k1, k2, p1, p2)`` (empty when none)."""

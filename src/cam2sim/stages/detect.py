@@ -35,7 +35,7 @@ from cam2sim.detect.snap import snap_to_road_edges
 from cam2sim.detect.vehicles import ParkedVehicles, parked_vehicles_path, save_parked_vehicles
 from cam2sim.recording.pointcloud import xyz_from_points
 from cam2sim.report.detection_figures import plot_parked_vehicles
-from cam2sim.splat.geometry import camera_poses, undistorter
+from cam2sim.splat.geometry import camera_poses, undistort_camera
 from cam2sim.stages._runner import stage_run
 
 if TYPE_CHECKING:
@@ -181,9 +181,7 @@ def _camera_frames(
         np.stack([table[c] for c in ("qx", "qy", "qz", "qw")], 1)[rows],
         calib.camera_mount,
     )
-    und = undistorter(
-        np.asarray(cam.K), cam.distortion, (cam.width, cam.height), model=cam.distortion_model
-    )
+    und = undistort_camera(cam.camera())
 
     def load(i: int) -> npt.NDArray[np.generic]:
         path = paths.frame_file(i, info.frame_format)
