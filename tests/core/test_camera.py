@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from cam2sim.core.camera import PinholeCamera
+from cam2sim.core.config import IntrinsicsConfig
+from cam2sim.core.dataset import CameraIntrinsics
 from cam2sim.core.errors import ConfigError
 
 CAM = PinholeCamera(fx=400.0, fy=380.0, cx=319.5, cy=239.5, width=640, height=480)
@@ -92,3 +94,14 @@ def test_from_K_refuses_a_non_pinhole_matrix() -> None:
 def test_scaling_to_a_non_positive_size_is_refused() -> None:
     with pytest.raises(ConfigError, match="positive"):
         CAM.scaled(0, 240)
+
+
+def test_config_and_dataset_records_adapt_onto_the_camera() -> None:
+    cfg = IntrinsicsConfig(
+        fx=400.0, fy=380.0, cx=319.5, cy=239.5, width=640, height=480, distortion=[0.1, 0.0]
+    )
+    cam = cfg.camera()
+    assert cam == PinholeCamera(400.0, 380.0, 319.5, 239.5, 640, 480, (0.1, 0.0))
+    record = CameraIntrinsics.from_camera(cam, "config")
+    assert record.K == ((400.0, 0.0, 319.5), (0.0, 380.0, 239.5), (0.0, 0.0, 1.0))
+    assert record.camera() == cam
