@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING, Final
 
 import numpy as np
 
+from cam2sim.core.camera import PinholeCamera
+
 if TYPE_CHECKING:
     import numpy.typing as npt
 
@@ -29,6 +31,7 @@ __all__ = [
     "TOPICS",
     "body_pose",
     "camera_matrix",
+    "demo_camera",
 ]
 
 CURVATURE_PER_STEERING: Final = 0.022
@@ -51,12 +54,15 @@ TOPICS: Final = {
 }
 
 
+def demo_camera() -> PinholeCamera:
+    """The demo camera: no distortion, the principal point at the image centre."""
+    w, h = CAMERA_SIZE
+    return PinholeCamera(CAMERA_FOCAL_PX, CAMERA_FOCAL_PX, (w - 1) / 2.0, (h - 1) / 2.0, w, h)
+
+
 def camera_matrix() -> npt.NDArray[np.float64]:
     """The demo camera's ``(3, 3)`` intrinsics."""
-    w, h = CAMERA_SIZE
-    return np.array(
-        [[CAMERA_FOCAL_PX, 0.0, (w - 1) / 2.0], [0.0, CAMERA_FOCAL_PX, (h - 1) / 2.0], [0, 0, 1.0]]
-    )
+    return demo_camera().K()
 
 
 def body_pose(xy: npt.NDArray[np.float64], heading: float) -> npt.NDArray[np.float64]:

@@ -63,11 +63,10 @@ from cam2sim.core.progress import no_progress
 from cam2sim.demo.bag import write_bag
 from cam2sim.demo.rig import (
     CAMERA_MOUNT,
-    CAMERA_SIZE,
     LIDAR_MOUNT,
     TOPICS,
     body_pose,
-    camera_matrix,
+    demo_camera,
 )
 from cam2sim.demo.route import PiecewiseRoute
 from cam2sim.render.look import photographic_look
@@ -528,8 +527,7 @@ def demo_world(seed: int = 0, street: DemoStreet = L_STREET) -> DemoWorld:
 
 def demo_config(bag: Path, crs: str = CRS) -> Config:
     """The cam2sim config of the demo bag (odometry in ``crs``)."""
-    k = camera_matrix()
-    width, height = CAMERA_SIZE
+    cam = demo_camera()
     return Config(
         recording=RecordingConfig(bags=[str(bag.absolute())]),
         topics=TopicsConfig(
@@ -541,12 +539,7 @@ def demo_config(bag: Path, crs: str = CRS) -> Config:
         pose=PoseConfig(crs=crs, axis_convention=AxisConvention.X_LEFT),
         camera=CameraConfig(
             intrinsics=IntrinsicsConfig(
-                fx=float(k[0, 0]),
-                fy=float(k[1, 1]),
-                cx=float(k[0, 2]),
-                cy=float(k[1, 2]),
-                width=width,
-                height=height,
+                fx=cam.fx, fy=cam.fy, cx=cam.cx, cy=cam.cy, width=cam.width, height=cam.height
             ),
             mount=MountConfig(xyz=CAMERA_MOUNT),
         ),
