@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING, Protocol, TypeAlias
 import numpy as np
 
 from cam2sim.core.progress import ProgressCallback, no_progress
-from cam2sim.splat.evaluate import (
+from cam2sim.splat.scores import (
     MetricSummary,
     PairScores,
     TruthEnvelope,
