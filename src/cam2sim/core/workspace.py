@@ -310,10 +310,17 @@ class Workspace:
         """Return the last recorded outcome of ``stage``, if any."""
         return self.read_manifest().stages.get(stage)
 
+    def done_inputs_hash(self, stage: str) -> str | None:
+        """The inputs hash of ``stage``'s last success, or None when it has not succeeded.
+
+        What a later stage's inputs name, so that it runs again when this one's output changed.
+        """
+        record = self.stage_record(stage)
+        return None if record is None or record.state != "done" else record.inputs_hash
+
     def is_up_to_date(self, stage: str, inputs_hash: str) -> bool:
         """Whether ``stage`` last succeeded with exactly these inputs."""
-        record = self.stage_record(stage)
-        return record is not None and record.state == "done" and record.inputs_hash == inputs_hash
+        return inputs_hash == self.done_inputs_hash(stage)
 
     def record_stage(
         self,

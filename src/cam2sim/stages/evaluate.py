@@ -163,11 +163,6 @@ def _runs_of_kind(ws: Workspace, kind: str) -> list[str]:
     return found
 
 
-def _scenario_hash(ws: Workspace) -> str | None:
-    record = ws.stage_record("scenario")
-    return None if record is None or record.state != "done" else record.inputs_hash
-
-
 def evaluate_workspace(
     ws: Workspace,
     *,
@@ -197,7 +192,7 @@ def evaluate_workspace(
     if opts.replay_runs is None:
         replay = [r for r in reversed(replay) if (ws.runs_dir / r / "frames").is_dir()][:1]
     out = ws.drive_eval_dir
-    inputs = {"scenario": _scenario_hash(ws), "runs": runs, "replay": replay}
+    inputs = {"scenario": ws.done_inputs_hash("scenario"), "runs": runs, "replay": replay}
     if opts.real:
         inputs["real"] = [str(p) for p in opts.real]
     inputs_hash = hash_inputs(inputs)

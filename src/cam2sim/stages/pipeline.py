@@ -318,10 +318,6 @@ class _Pipeline:
             return None
         return runs
 
-    def _scenario_hash(self) -> str | None:
-        record = self.ws.stage_record("scenario")
-        return None if record is None or record.state != "done" else record.inputs_hash
-
     def _camera_inputs(self, cameras: Sequence[str]) -> dict[str, object]:
         """What the cameras' images depend on beyond the scenario.
 
@@ -475,7 +471,7 @@ class _Pipeline:
         )
         inputs = hash_inputs(
             {
-                "scenario": self._scenario_hash(),
+                "scenario": self.ws.done_inputs_hash("scenario"),
                 "options": repr(opts),
                 **self._camera_inputs(opts.cameras),
             }
@@ -515,7 +511,7 @@ class _Pipeline:
         model = Path(policy)
         inputs = hash_inputs(
             {
-                "scenario": self._scenario_hash(),
+                "scenario": self.ws.done_inputs_hash("scenario"),
                 "options": [repr(o) for o in all_opts],
                 # A retrained model at the same path makes new runs.
                 "model": file_fingerprint(model) if model.is_file() else None,
