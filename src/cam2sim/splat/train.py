@@ -379,6 +379,7 @@ class _ChunkTrainer:
             backgrounds=self.background,
             backend=self.backend,
             absgrad=absgrad,
+            tile_size=self.options.tile_size,
         )
         image = out.colors[0]
         rgb = image[..., :3]

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path  # noqa: TC003 - a dataclass field's type
 from typing import TYPE_CHECKING, Literal
 
+from cam2sim.splat.raster import GSPLAT_TILE
 from cam2sim.splat.robust import RobustLoss
 
 if TYPE_CHECKING:
@@ -151,6 +152,8 @@ class TrainOptions:
             (:mod:`cam2sim.splat.robust`).
         device: ``"auto"`` (CUDA when available), ``"cpu"``, ``"cuda"``, ``"cuda:1"``, ...
         backend: Rasterizer, see :mod:`cam2sim.splat.raster`.
+        tile_size: gsplat's tile side in pixels while training (the images do not depend on
+            it, only the work; ``docs/benchmarks.md``).
         write_ply: Also write ``chunk_XX.ply`` (3DGS layout) beside each model.
         seed: Seeds view order, subsets and splits.
         profile: Time each step's phases (host and CUDA-event device time) into
@@ -193,6 +196,7 @@ class TrainOptions:
     robust: RobustLoss = field(default_factory=RobustLoss)
     device: str = "auto"
     backend: RasterBackend = "auto"
+    tile_size: int = GSPLAT_TILE
     write_ply: bool = False
     seed: int = 0
     profile: bool = False
