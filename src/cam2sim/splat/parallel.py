@@ -37,13 +37,16 @@ from typing import TYPE_CHECKING, Any
 from cam2sim.core.errors import StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.splat.raster import build_gsplat
-from cam2sim.splat.train import SceneTrainResult, train_scene
+from cam2sim.splat.train_options import SceneTrainResult
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable
+    from collections.abc import Callable, Iterable
 
     from cam2sim.splat.scene import SceneRecord
-    from cam2sim.splat.train import TrainOptions, TrainResult
+    from cam2sim.splat.train_options import TrainOptions, TrainResult
+
+    #: ``train_scene``'s signature: what a worker runs for its one chunk.
+    SceneTrainer = Callable[..., SceneTrainResult]
 
 __all__ = ["ChunkOutcomes", "train_chunks_in_processes"]
 
@@ -121,8 +124,9 @@ class _LogForwarder(logging.handlers.QueueHandler):
         self.queue.put_nowait(("log", self.chunk, record))
 
 
-def _worker(
+def _worker(  # noqa: PLR0913, PLR0917 -- a spawned process's whole job, positional
     chunk: int,
+    train: SceneTrainer,
     scene: SceneRecord,
     prep_dir: Path,
     options: TrainOptions,
@@ -132,6 +136,10 @@ def _worker(
     go: Any,
 ) -> None:
     """Worker process: train chunk ``chunk`` and send ``("done", chunk, (result, peak))``.
+
+    ``train`` is :func:`cam2sim.splat.train.train_scene`, passed in (by reference: spawn
+    pickles a module-level function by name) so that this module does not import the trainer
+    that calls it.
 
     ``settings`` is (log level, torch CPU threads or 0). After loading the chunk and its first
     step (at the first progress report) it sends ``("ready", chunk, None)`` and waits for the
@@ -163,7 +171,7 @@ def _worker(
                 last = now
                 messages.put(("progress", chunk, completed))
 
-        trained = train_scene(
+        trained = train(
             prep_dir,
             options=options,
             chunk_ids=(chunk,),
@@ -312,6 +320,7 @@ class _Pool:
 
 
 def train_chunks_in_processes(
+    train: SceneTrainer,
     prep_dir: Path,
     scene: SceneRecord,
     chunk_ids: tuple[int, ...],
@@ -324,9 +333,10 @@ def train_chunks_in_processes(
     """Train ``chunk_ids`` in worker processes, ``in_flight`` at a time, on one device.
 
     ``options`` should name the resolved device and backend; each worker runs
-    ``train_scene(prep_dir, chunk_ids=(chunk,), options=options with concurrent_chunks=1)``.
+    ``train(prep_dir, chunk_ids=(chunk,), options=options with concurrent_chunks=1)``.
 
     Args:
+        train: :func:`cam2sim.splat.train.train_scene` (a module-level function).
         prep_dir: ``WS/splat/prep``.
         scene: Its scene record.
         chunk_ids: Chunks to train (results come back in this order).
@@ -351,7 +361,7 @@ def train_chunks_in_processes(
     level = logging.getLogger("cam2sim").getEffectiveLevel()
     # On the CPU the workers training at once share this process's threads.
     threads = max(1, torch.get_num_threads() // in_flight) if options.device == "cpu" else 0
-    job = (scene, Path(prep_dir), worker_options, Path(models_dir), (level, threads))
+    job = (train, scene, Path(prep_dir), worker_options, Path(models_dir), (level, threads))
     outcomes = ChunkOutcomes(chunk_ids, "in worker processes")
     logger.info(
         "training %d chunk(s) in worker processes, %d at a time, on %s",

@@ -53,6 +53,7 @@ from cam2sim.core.errors import StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.splat.losses import apply_affine, masked_psnr, photometric_loss, ssim
 from cam2sim.splat.optim import adam_step
+from cam2sim.splat.parallel import train_chunks_in_processes
 from cam2sim.splat.pose_refine import corrected_pose, correction_sizes, se3_exp
 from cam2sim.splat.profiling import PhaseTimer, profiling_requested
 from cam2sim.splat.raster import build_gsplat, rasterize, resolve_backend, resolve_device
@@ -703,10 +704,9 @@ def train_scene(
     backend = resolve_backend(options.backend, device)
     in_flight = options.concurrent_chunks or (2 if device.startswith("cuda") else 1)
     if in_flight > 1 and len(wanted) > 1:
-        from cam2sim.splat.parallel import train_chunks_in_processes  # noqa: PLC0415 -- cycle: parallel imports train
-
         slots = min(in_flight, len(wanted))
         return train_chunks_in_processes(
+            train_scene,
             prep_dir,
             scene,
             tuple(wanted),
