@@ -34,15 +34,13 @@ the thresholds are fixed, not fitted to any policy's sensitivity.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Final, Literal
+from typing import TYPE_CHECKING, Final, Literal, Protocol
 
 import numpy as np
 import pydantic
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
-
-    from cam2sim.splat.evaluate import SplatEval
 
 __all__ = [
     "HELD_OUT_MIN_PSNR_DB",
@@ -56,12 +54,81 @@ __all__ = [
     "MethodGate",
     "SplatGate",
     "SplatPathQuality",
+    "SplatScores",
     "gate_methods",
     "gate_run",
     "path_quality",
     "unfit_label",
     "validated_envelope",
 ]
+
+
+class _Summary(Protocol):
+    @property
+    def mean(self) -> float | None: ...
+
+
+class _Perturbation(Protocol):
+    """One row of a truth envelope: a perturbation and its scores against the truth."""
+
+    @property
+    def lateral_m(self) -> float: ...
+    @property
+    def yaw_deg(self) -> float: ...
+    @property
+    def psnr_db(self) -> _Summary: ...
+    @property
+    def ssim(self) -> _Summary: ...
+    @property
+    def lpips(self) -> _Summary: ...
+    @property
+    def coverage(self) -> _Summary: ...
+
+
+class _Envelope(Protocol):
+    @property
+    def scores(self) -> Sequence[_Perturbation]: ...
+    def on_path(self) -> _Perturbation | None: ...
+
+
+class _Frame(Protocol):
+    @property
+    def coverage(self) -> float: ...
+
+
+class SplatScores(Protocol):
+    """What the gate reads of a splat's evaluation.
+
+    :class:`cam2sim.splat.evaluate.SplatEval` (``WS/splat/eval.json``) is one; the gate reads
+    the scores whoever computed them, and this package does not import the splat package,
+    which imports the image metrics.
+    """
+
+    @property
+    def psnr_db(self) -> _Summary:
+        """Held-out PSNR, dB."""
+        ...
+
+    @property
+    def ssim(self) -> _Summary:
+        """Held-out SSIM."""
+        ...
+
+    @property
+    def lpips(self) -> _Summary:
+        """Held-out LPIPS."""
+        ...
+
+    @property
+    def frames(self) -> Sequence[_Frame]:
+        """The held-out frames, each with its coverage."""
+        ...
+
+    @property
+    def truth(self) -> _Envelope | None:
+        """The scores against the ground-truth world, if there is one."""
+        ...
+
 
 HELD_OUT_MIN_PSNR_DB: Final = 25.0
 """Least mean held-out PSNR against the recorded frames, dB."""
@@ -172,7 +239,7 @@ def _meets(value: float | None, least: float) -> bool:
 
 
 def validated_envelope(
-    evaluation: SplatEval | None,
+    evaluation: SplatScores | None,
 ) -> tuple[float | None, Literal["truth", "held_out"] | None]:
     """The validated envelope (coverage) of an evaluation and where it comes from (module doc)."""
     if evaluation is None:
@@ -194,7 +261,7 @@ def validated_envelope(
 
 
 def path_quality(
-    coverage: Sequence[float], evaluation: SplatEval | None, *, notes: Sequence[str] = ()
+    coverage: Sequence[float], evaluation: SplatScores | None, *, notes: Sequence[str] = ()
 ) -> SplatPathQuality:
     """The splat's quality along a driven path.
 
