@@ -37,6 +37,7 @@ from cam2sim.recording.pointcloud import xyz_from_points
 from cam2sim.report.detection_figures import plot_parked_vehicles
 from cam2sim.splat.geometry import camera_poses, undistort_camera
 from cam2sim.stages._runner import stage_run
+from cam2sim.stages.map import load_road_map
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -294,8 +295,6 @@ def run_detect(
     detector = load_detector(model, source)
     road_map = None
     if opts.snap:
-        from cam2sim.stages.map import load_road_map  # noqa: PLC0415 -- lazy: imports shapely
-
         road_map = load_road_map(ws)
     with stage_run(ws, STAGE, inputs_hash=inputs, config=None):
         boxes, frames_used = _detect_boxes(paths, info, calib, source, detector, opts, report)

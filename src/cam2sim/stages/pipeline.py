@@ -42,6 +42,7 @@ from cam2sim.stages.evaluate import (
     evaluate_workspace,
 )
 from cam2sim.stages.extract import extract
+from cam2sim.stages.map import MapOptions, build_map
 from cam2sim.stages.runs import DriveOptions, ReplayOptions, drive, replay, stood_still_m
 from cam2sim.stages.scenario import run_scenario
 from cam2sim.stages.splat import SplatStageOptions, run_splat
@@ -367,7 +368,6 @@ class _Pipeline:
         self._recorded("extract", lambda: extract(self.ws, progress=self.progress), step)
 
     def map(self, step: _Step) -> None:
-        from cam2sim.stages.map import MapOptions, build_map  # noqa: PLC0415 -- lazy: imports shapely
 
         osm = self.options.osm
         if osm is not None and not osm.is_file():

@@ -43,6 +43,7 @@ from cam2sim.scenario.model import (
 )
 from cam2sim.scenario.openscenario import validate_openscenario, write_openscenario
 from cam2sim.stages._runner import stage_run
+from cam2sim.stages.map import load_road_map
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -173,8 +174,6 @@ def build_scenario(
     ws: Workspace, opts: ScenarioOptions
 ) -> tuple[Scenario, dict[str, list[str]], RoadMap]:
     """The scenario record, the check findings by vehicle id, and the road map."""
-    from cam2sim.stages.map import load_road_map  # noqa: PLC0415 -- lazy: imports shapely
-
     paths = dataset_paths(ws.dataset_dir)
     info = DatasetInfo.load(paths.dataset_json)
     calib: Calibration = Calibration.load(paths.calibration_json)
