@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cam2sim.core.camera import PinholeCamera
 from cam2sim.map.query import RoadMap
 from cam2sim.render.raster import BuildingFootprint, RasterRenderer, RasterScene
 from cam2sim.scenario.model import ScenarioVehicle
@@ -76,7 +77,7 @@ def main() -> None:
     with RasterRenderer(scene) as renderer:
         for width, height in ((512, 512), (200, 66)):
             K = np.array([[0.5 * width, 0, (width - 1) / 2], [0, 0.5 * width, (height - 1) / 2]])
-            K = np.vstack([K, [0.0, 0.0, 1.0]])
+            camera = PinholeCamera.from_K(np.vstack([K, [0.0, 0.0, 1.0]]), width, height)
             poses = np.repeat(np.eye(4)[None], args.frames, axis=0)
             poses[:, :3, :3] = R
             poses[:, :3, 3] = np.column_stack(
@@ -86,10 +87,10 @@ def main() -> None:
                     np.full(args.frames, 1.5),
                 ]
             )
-            renderer.render(poses[0], K, width, height)
+            renderer.render(poses[0], camera)
             t0 = time.perf_counter()
             for pose in poses:
-                renderer.render(pose, K, width, height)
+                renderer.render(pose, camera)
             ms = 1000.0 * (time.perf_counter() - t0) / args.frames
             print(f"{width}x{height}: {ms:.2f} ms/frame over {args.frames} frames")
 

@@ -86,7 +86,7 @@ def main() -> int:
     with SplatRenderer(Path(args.models), options=RenderOptions(device=args.device)) as renderer:
         for frame in scene.frames[:: args.every]:
             real = read_rgb(prep / "images" / f"{frame.index:06d}.png").astype(np.float32) / 255
-            rgb = renderer.render(frame.T(), frame.K(), frame.width, frame.height).rgb
+            rgb = renderer.render(frame.T(), frame.camera()).rgb
             sky_file = prep / "sky" / f"{frame.index:06d}.png"
             sky = read_mask(sky_file) if sky_file.is_file() else None
             scores = frame_errors(real, rgb.astype(np.float32) / 255, sky)

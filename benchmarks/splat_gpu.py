@@ -71,6 +71,7 @@ os.environ.setdefault("MAX_JOBS", "16")  # gsplat's JIT build reads it on first 
 import numpy as np
 import torch
 
+from cam2sim.core.camera import PinholeCamera
 from cam2sim.splat.evaluate import EvalOptions, evaluate_splat
 from cam2sim.splat.raster import rasterize
 from cam2sim.splat.render import RenderOptions, SplatRenderer
@@ -186,33 +187,27 @@ def make_synthetic(root: Path, n_frames: int) -> Path:
     return prep
 
 
-def _scaled_k(k: np.ndarray, size: tuple[int, int], target: tuple[int, int]) -> np.ndarray:
-    out = k.copy()
-    out[0] *= target[0] / size[0]
-    out[1] *= target[1] / size[1]
-    return out
-
-
 def time_rendering(prep: Path, models: Path, frames_wanted: int) -> dict[str, Any]:
     scene = SceneRecord.load(prep / "scene.json")
     size = (800, 503)
-    poses = [(f.T(), _scaled_k(f.K(), (f.width, f.height), size)) for f in scene.frames]
+    # K scaled from the image corner, as resize_prep scales it.
+    poses = [(f.T(), f.camera().scaled(*size, convention="corners")) for f in scene.frames]
     result: dict[str, Any] = {}
     with SplatRenderer(models, options=RenderOptions(device="cuda")) as renderer:
-        n_chunks = [len(renderer.render(pose, k, *size).chunk_weights) for pose, k in poses]
+        n_chunks = [len(renderer.render(pose, cam).chunk_weights) for pose, cam in poses]
         blended = [p for p, n in zip(poses, n_chunks, strict=True) if n > 1]
         single = [p for p, n in zip(poses, n_chunks, strict=True) if n == 1] or poses
         for name, group in (("single_chunk", single), ("overlap_two_chunks", blended)):
             if not group:
                 continue
-            for pose, k in group[:10]:
-                renderer.render(pose, k, *size)
+            for pose, cam in group[:10]:
+                renderer.render(pose, cam)
             torch.cuda.synchronize()
             n = 0
             t0 = time.perf_counter()
             while n < frames_wanted:
-                pose, k = group[n % len(group)]
-                renderer.render(pose, k, *size)
+                pose, cam = group[n % len(group)]
+                renderer.render(pose, cam)
                 n += 1
             seconds = time.perf_counter() - t0
             result[name] = {"frames": n, "fps": n / seconds, "ms_per_frame": 1e3 * seconds / n}
@@ -258,6 +253,7 @@ def time_large_model(n: int, work: Path, frames_wanted: int) -> dict[str, Any]:
     chunk = gm.ChunkModel(header=header, gaussians=street, sky=sky, appearance=appearance)
     gm.save_chunk_model(chunk, gm.chunk_model_path(models, 0))
     k = np.array([[560.0, 0.0, 400.0], [0.0, 560.0, 251.5], [0.0, 0.0, 1.0]])
+    camera = PinholeCamera.from_K(k, 800, 503)
     poses = []
     for y in np.linspace(0.0, 98.0, 50):
         pose = np.eye(4)
@@ -272,11 +268,11 @@ def time_large_model(n: int, work: Path, frames_wanted: int) -> dict[str, Any]:
     for name, options in variants.items():
         with SplatRenderer(models, options=options) as renderer:
             for pose in poses[:10]:
-                renderer.render(pose, k, 800, 503)
+                renderer.render(pose, camera)
             torch.cuda.synchronize()
             t0 = time.perf_counter()
             for i in range(frames_wanted):
-                renderer.render(poses[i % len(poses)], k, 800, 503)
+                renderer.render(poses[i % len(poses)], camera)
             fps = frames_wanted / (time.perf_counter() - t0)
             if name == "default":
                 loaded = renderer._load(0)  # noqa: SLF001 -- benchmark looks inside

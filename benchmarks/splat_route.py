@@ -42,6 +42,7 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
+from cam2sim.core.camera import PinholeCamera
 from cam2sim.core.frames import Pose
 from cam2sim.demo.route import PiecewiseRoute
 from cam2sim.demo.world import (
@@ -172,12 +173,12 @@ def render_frames(
     """Render, look and JPEG-encode every frame into ``out/images``; sky masks into ``out/sky``."""
 
     out = Path(args.out)
-    w, h = args.width, args.height
+    lens = PinholeCamera.from_K(K, args.width, args.height)
     decoded = []
     t0 = time.perf_counter()
     with TruthRenderer(world, None) as camera:
         for i, pose in enumerate(poses):
-            rgb = camera.render(pose, K, w, h).rgb
+            rgb = camera.render(pose, lens).rgb
             ok, jpeg = cv2.imencode(
                 ".jpg",
                 cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR),

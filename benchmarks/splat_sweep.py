@@ -160,7 +160,7 @@ def run_setting(  # noqa: PLR0913, PLR0917 -- one process's whole job
 
         frame = next(f for f in scene.frames if f.index == montage_frame)
         with SplatRenderer(models, options=RenderOptions(device=device)) as renderer:
-            image = renderer.render(frame.T(), frame.K(), frame.width, frame.height).rgb
+            image = renderer.render(frame.T(), frame.camera()).rgb
         np.save(out / f"{name}_render.npy", image)
 
 

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pytest
 
-from cam2sim.demo.rig import CAMERA_SIZE, TOPICS, camera_matrix
+from cam2sim.demo.rig import TOPICS, demo_camera
 from cam2sim.demo.world import (
     L_STREET,
     DemoRecording,
@@ -97,7 +97,7 @@ def test_the_camera_does_not_look_like_the_raster_renderer(recording: DemoRecord
     photo = decode_compressed_image(msg).astype(np.float64)
     pose = L_STREET.camera_pose(L_STREET.speed_mps * 0.05)
     with RasterRenderer(demo_world().raster_scene()) as renderer:
-        frame = renderer.render(pose, camera_matrix(), *CAMERA_SIZE)
+        frame = renderer.render(pose, demo_camera())
     raster = frame.rgb.astype(np.float64)
     assert photo.shape == raster.shape
     assert np.abs(photo - raster).mean() > 8.0
@@ -130,8 +130,8 @@ def test_the_truth_camera_renders_what_the_recording_saw(recording: DemoRecordin
     with TruthRenderer(world, None) as camera, TruthRenderer(other, None) as wrong:
         for k, photo in enumerate(photos):
             pose = L_STREET.camera_pose(L_STREET.speed_mps * (0.05 + 0.05 * k))
-            same = error(camera.render(pose, camera_matrix(), *CAMERA_SIZE).rgb, photo)
-            seeded = error(wrong.render(pose, camera_matrix(), *CAMERA_SIZE).rgb, photo)
+            same = error(camera.render(pose, demo_camera()).rgb, photo)
+            seeded = error(wrong.render(pose, demo_camera()).rgb, photo)
             # The same pixels but for JPEG (which smooths the sensor noise); another look seed
             # (other textures and noise) is much farther off.
             assert same < 4.0

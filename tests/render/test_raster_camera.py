@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cam2sim.core.camera import PinholeCamera
 from cam2sim.core.errors import BackendUnavailableError
 from cam2sim.map.query import RoadMap
 from cam2sim.render.meshes import CAR_PAINTS, Label
@@ -42,6 +43,7 @@ _XODR = """<?xml version="1.0"?>
 )
 W = H = 256
 K = np.array([[128.0, 0.0, 127.5], [0.0, 128.0, 127.5], [0.0, 0.0, 1.0]])
+CAMERA = PinholeCamera.from_K(K, W, H)
 CAR = ScenarioVehicle(
     id="parked",
     position=(25.0, -4.75, 0.0),
@@ -87,7 +89,7 @@ def renderer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RasterRendere
 @pytest.fixture(scope="module")
 def along(renderer: RasterRenderer) -> RasterResult:
     """1.5 m above the right driving lane, looking along the road."""
-    return renderer.render(_pose(5.0, -1.75, 1.5, 0.0), K, W, H)
+    return renderer.render(_pose(5.0, -1.75, 1.5, 0.0), CAMERA)
 
 
 def test_images_have_the_asked_size_and_types(along: RasterResult) -> None:
@@ -146,7 +148,7 @@ def test_car_pixels_have_car_colours(renderer: RasterRenderer, along: RasterResu
 
 
 def test_sky_only_when_looking_up(renderer: RasterRenderer) -> None:
-    up = renderer.render(_pose(60.0, -1.75, 1.5, 0.0, pitch=math.radians(60)), K, W, H)
+    up = renderer.render(_pose(60.0, -1.75, 1.5, 0.0, pitch=math.radians(60)), CAMERA)
     assert set(np.unique(up.labels)) <= {Label.SKY, Label.BACKGROUND}
     assert (up.labels == Label.SKY).mean() > 0.99
     blue = up.rgb[..., 2].astype(int) - up.rgb[..., 0]
@@ -154,7 +156,7 @@ def test_sky_only_when_looking_up(renderer: RasterRenderer) -> None:
 
 
 def test_sidewalk_kerb_and_building_are_labelled(renderer: RasterRenderer) -> None:
-    side = renderer.render(_pose(20.0, -1.75, 1.5, math.pi / 2), K, W, H)
+    side = renderer.render(_pose(20.0, -1.75, 1.5, math.pi / 2), CAMERA)
     labels = set(np.unique(side.labels).tolist())
     assert {Label.ROAD, Label.SIDEWALK, Label.BUILDING, Label.SKY} <= labels
     # Looking across the road to the left, the building stands above the horizon.
@@ -164,7 +166,7 @@ def test_sidewalk_kerb_and_building_are_labelled(renderer: RasterRenderer) -> No
 
 def test_any_size_and_principal_point(renderer: RasterRenderer) -> None:
     k = np.array([[100.0, 0.0, 90.0], [0.0, 100.0, 20.0], [0.0, 0.0, 1.0]])
-    small = renderer.render(_pose(5.0, -1.75, 1.5, 0.0), k, 200, 66)
+    small = renderer.render(_pose(5.0, -1.75, 1.5, 0.0), PinholeCamera.from_K(k, 200, 66))
     assert small.labels.shape == (66, 200)
     road_rows = np.nonzero((small.labels == Label.ROAD).any(axis=1))[0]
     assert road_rows.min() >= 20
@@ -184,9 +186,13 @@ def test_projection_maps_pixel_centres() -> None:
 
 def test_bad_arguments(renderer: RasterRenderer) -> None:
     with pytest.raises(ValueError, match="pose"):
-        renderer.render(np.eye(3), K, W, H)
-    with pytest.raises(ValueError, match="positive size"):
-        renderer.render(np.eye(4), K, 0, H)
+        renderer.render(np.eye(3), CAMERA)
+    with pytest.raises(ValueError, match="size must be positive"):  # the camera refuses it
+        renderer.render(np.eye(4), PinholeCamera.from_K(K, 0, H))
+    distorted = PinholeCamera.from_K(K, W, H, (-0.1, 0.01, 0.0, 0.0))
+    with pytest.raises(ValueError, match=r"distortion .*camera\.undistorted\(\)"):
+        renderer.render(np.eye(4), distorted)
+    renderer.render(np.eye(4), PinholeCamera.from_K(K, W, H, (0.0, 0.0, 0.0, 0.0)))  # all zero
 
 
 def test_palette_keeps_cityscapes_road_and_car() -> None:

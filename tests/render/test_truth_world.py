@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pytest
 
+from cam2sim.core.camera import PinholeCamera
 from cam2sim.core.frames.projection import WorldFrame
 from cam2sim.render.look import frame_noise_rng
 from cam2sim.render.truth import TruthWorld, truth_from_world
@@ -122,11 +123,11 @@ def test_the_truth_camera_renders_without_sensor_noise_on_request() -> None:
     T = np.eye(4)  # optical axes: looking along +x from 1.4 m above the road
     T[:3, :3] = [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]
     T[:3, 3] = [5.0, 0.0, 1.4]
-    K = np.array([[80.0, 0.0, 80.0], [0.0, 80.0, 50.0], [0.0, 0.0, 1.0]])
+    lens = PinholeCamera(fx=80.0, fy=80.0, cx=80.0, cy=50.0, width=160, height=100)
     with TruthRenderer(world, None) as camera:
-        clean = camera.render(T, K, 160, 100, sensor_noise=False).rgb
-        again = camera.render(T, K, 160, 100, sensor_noise=False).rgb
-        noisy = camera.render(T, K, 160, 100).rgb
+        clean = camera.render(T, lens, sensor_noise=False).rgb
+        again = camera.render(T, lens, sensor_noise=False).rgb
+        noisy = camera.render(T, lens).rgb
     assert np.array_equal(clean, again)
     diff = noisy.astype(np.float64) - clean.astype(np.float64)
     assert abs(diff.mean()) < 0.5  # zero-mean noise: no change of textures, grading, vignetting

@@ -19,6 +19,7 @@ pytest.importorskip("torch")
 
 from test_train import fast_options
 
+from cam2sim.core.camera import PinholeCamera
 from cam2sim.render.truth import TruthBuilding, TruthCar, TruthRenderer, TruthWorld
 from cam2sim.scenario.synthetic import StreetSpec, synthetic_street
 from cam2sim.splat.envelope import (
@@ -39,6 +40,7 @@ pytestmark = [
 
 W, H = 64, 40
 K = np.array([[36.0, 0.0, W / 2], [0.0, 36.0, H / 2], [0.0, 0.0, 1.0]])
+CAMERA = PinholeCamera.from_K(K, W, H)
 CAR = TruthCar(x=18.0, y=-4.0, yaw=0.0, length=4.5, width=1.9, height=1.5)
 BUILDINGS = (
     TruthBuilding(xy=((6.0, 9.0), (26.0, 9.0), (26.0, 17.0), (6.0, 17.0)), height_m=9.0),
@@ -101,7 +103,7 @@ def recorded_scene(root: Path, world: TruthWorld) -> Path:
     with TruthRenderer(world, None) as camera:
         for n, x in enumerate(xs):
             T = camera_at(float(x))
-            shot = camera.render(T, K, W, H)  # as recorded: with sensor noise
+            shot = camera.render(T, CAMERA)  # as recorded: with sensor noise
             stem = f"{n:06d}.png"
             cv2.imwrite(str(prep / "images" / stem), shot.rgb[..., ::-1])
             cv2.imwrite(str(prep / "masks" / stem), np.full((H, W), 255, np.uint8))

@@ -16,6 +16,7 @@ pytest.importorskip("torch")
 
 import torch
 
+from cam2sim.core.camera import PinholeCamera
 from cam2sim.core.errors import WorkspaceError
 from cam2sim.splat import model as gm
 from cam2sim.splat.raster import rasterize
@@ -33,6 +34,7 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 K = np.array([[30.0, 0.0, 16.0], [0.0, 30.0, 12.0], [0.0, 0.0, 1.0]])
+CAMERA = PinholeCamera.from_K(K, W, H)
 
 
 def camera_pose(y: float, x: float = 0.0, yaw_deg: float = 0.0) -> np.ndarray:
@@ -149,7 +151,7 @@ def test_touching_chunks_switch_at_the_border() -> None:
 def test_render_hands_over_between_chunks_without_a_jump(two_chunks: Path) -> None:
     with SplatRenderer(two_chunks, options=_cpu(appearance="none")) as renderer:
         ys = np.arange(1.0, 4.0001, 0.1)
-        frames = [renderer.render(camera_pose(y), K, W, H) for y in ys]
+        frames = [renderer.render(camera_pose(y), CAMERA) for y in ys]
         # One chunk alone at the pose where both blend: the jump a hard switch would make.
         pose = camera_pose(2.5)
         camera = (
@@ -174,8 +176,8 @@ def test_render_hands_over_between_chunks_without_a_jump(two_chunks: Path) -> No
 
 def test_coverage_grows_with_distance_from_training_views(two_chunks: Path) -> None:
     with SplatRenderer(two_chunks, options=_cpu()) as renderer:
-        lateral = [renderer.render(camera_pose(1.0, x=x), K, W, H) for x in (0, 0.25, 0.5, 1, 2, 4)]
-        turned = [renderer.render(camera_pose(1.0, yaw_deg=a), K, W, H) for a in (0, 10, 30)]
+        lateral = [renderer.render(camera_pose(1.0, x=x), CAMERA) for x in (0, 0.25, 0.5, 1, 2, 4)]
+        turned = [renderer.render(camera_pose(1.0, yaw_deg=a), CAMERA) for a in (0, 10, 30)]
     cov = [r.coverage for r in lateral]
     assert cov[0] == pytest.approx(0.0, abs=1e-9)
     assert all(a < b for a, b in pairwise(cov))
@@ -188,7 +190,7 @@ def test_coverage_grows_with_distance_from_training_views(two_chunks: Path) -> N
 def test_render_matches_direct_rasterization(two_chunks: Path) -> None:
     pose = camera_pose(0.7)
     with SplatRenderer(two_chunks, options=_cpu(appearance="none", street_alpha=True)) as r:
-        result = r.render(pose, K, W, H)
+        result = r.render(pose, CAMERA)
     chunk = gm.load_chunk_model(gm.chunk_model_path(two_chunks, 0))
     campos = torch.tensor(pose[None, :3, 3], dtype=torch.float32)
     inputs = gm.gather_splats(chunk.gaussians, chunk.sky, campos, 1)
@@ -207,7 +209,7 @@ def test_render_matches_direct_rasterization(two_chunks: Path) -> None:
     assert result.street_alpha[H // 2].mean() > 0.9  # the wall fills the middle rows
     assert result.street_alpha[0].mean() < 0.1  # sky Gaussians draw the top rows
     with SplatRenderer(two_chunks, options=_cpu(appearance="none")) as r:
-        fast = r.render(pose, K, W, H)
+        fast = r.render(pose, CAMERA)
     assert fast.street_alpha is None
     assert np.abs(fast.rgb.astype(float) - result.rgb.astype(float)).max() <= 1.0
 
@@ -217,8 +219,8 @@ def test_appearance_is_interpolated_between_training_views(tmp_path: Path) -> No
     write_chunk(models, 0, (0.0, 1.0), (0.0, 0.0, 0.0), gains=[0.5, 0.7, 1.0])
     with SplatRenderer(models, options=_cpu()) as renderer:
         pose = camera_pose(0.25)
-        plain = renderer.render(pose, K, W, H, appearance="none").rgb.astype(float)
-        tuned = renderer.render(pose, K, W, H).rgb.astype(float)
+        plain = renderer.render(pose, CAMERA, appearance="none").rgb.astype(float)
+        tuned = renderer.render(pose, CAMERA).rgb.astype(float)
     bright = plain > 40
     assert np.median(tuned[bright] / plain[bright]) == pytest.approx(0.6, abs=0.02)
 
@@ -226,9 +228,9 @@ def test_appearance_is_interpolated_between_training_views(tmp_path: Path) -> No
 def test_chunks_load_lazily_and_are_evicted(two_chunks: Path) -> None:
     with SplatRenderer(two_chunks, options=_cpu(max_loaded=1)) as renderer:
         assert not renderer._loaded
-        renderer.render(camera_pose(0.5), K, W, H)
+        renderer.render(camera_pose(0.5), CAMERA)
         assert list(renderer._loaded) == [0]
-        renderer.render(camera_pose(4.5), K, W, H)
+        renderer.render(camera_pose(4.5), CAMERA)
         assert list(renderer._loaded) == [1]
     assert not renderer._loaded
 
@@ -237,4 +239,10 @@ def test_missing_models_and_bad_inputs_raise(tmp_path: Path, two_chunks: Path) -
     with pytest.raises(WorkspaceError, match="no chunk models"):
         SplatRenderer(tmp_path / "empty")
     with SplatRenderer(two_chunks, options=_cpu()) as renderer, pytest.raises(ValueError):
-        renderer.render(np.eye(3), K, W, H)
+        renderer.render(np.eye(3), CAMERA)
+    distorted = PinholeCamera.from_K(K, W, H, (0.0, 0.0, 0.0, 0.0, 0.02))
+    with (
+        SplatRenderer(two_chunks, options=_cpu()) as renderer,
+        pytest.raises(ValueError, match=r"distortion .*camera\.undistorted\(\)"),
+    ):
+        renderer.render(camera_pose(0.5), distorted)

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from cam2sim.core.camera import PinholeCamera
 from cam2sim.core.errors import StageError
 from cam2sim.stages import cameras
 from cam2sim.stages.cameras import Cameras, camera_names, register_camera
@@ -25,8 +26,8 @@ class _Flat:
     colour: int
     closed: list[str] = field(default_factory=list)
 
-    def render(self, T: Any, K: Any, w: int, h: int) -> _Frame:
-        return _Frame(np.full((h, w, 3), self.colour, np.uint8))
+    def render(self, T: Any, camera: PinholeCamera) -> _Frame:
+        return _Frame(np.full((camera.height, camera.width, 3), self.colour, np.uint8))
 
     def close(self) -> None:
         self.closed.append("closed")
@@ -43,7 +44,7 @@ def test_a_registered_camera_renders_and_closes() -> None:
     register_camera("flat", lambda ctx: flat)
     assert {"raster", "splat", "truth", "carla", "flat"} <= set(camera_names())
     with Cameras(None, ("flat", "carla", "none")) as cams:  # type: ignore[arg-type]
-        image = cams.render("flat", np.eye(4), np.eye(3), 8, 4)
+        image = cams.render("flat", np.eye(4), PinholeCamera.from_K(np.eye(3), 8, 4))
         assert set(cams.renderers) == {"flat"}  # carla: rendered by the simulator
     assert image.shape == (4, 8, 3)
     assert (image == 7).all()

@@ -26,6 +26,7 @@ from cam2sim.demo.rig import (
     TOPICS,
     body_pose,
     camera_matrix,
+    demo_camera,
 )
 from cam2sim.detect.synthetic import LidarModel, scan_scene
 from cam2sim.recording.bagwriter import BagWriter
@@ -91,8 +92,8 @@ def write_bag(path: Path, world: DemoWorld, *, seed: int, progress: ProgressCall
     events.sort()
     scene = world.lidar_scene()
     lidar = LidarModel(beams=LIDAR_BEAMS, azimuths=LIDAR_AZIMUTHS)
-    k = camera_matrix()
-    width, height = CAMERA_SIZE
+    camera = demo_camera()
+    k = camera.K()
     with RasterRenderer(world.raster_scene()) as renderer, BagWriter(path, "mcap") as bag:
         for t, _, kind, i in events:
             stamp = _T0_NS + round(t * 1e9)
@@ -126,7 +127,7 @@ def write_bag(path: Path, world: DemoWorld, *, seed: int, progress: ProgressCall
                 bag.write_point_cloud(TOPICS["lidar"], stamp, points)
             else:
                 pose_cam = street.camera_pose(station)
-                frame = renderer.render(pose_cam, k, width, height)
+                frame = renderer.render(pose_cam, camera)
                 rng = frame_noise_rng(seed, pose_cam)  # per pose, as the truth camera draws it
                 image = photographic_look(frame.rgb, frame.labels, pose_cam, k, rng=rng, seed=seed)
                 msg: dict[str, object] = {

@@ -4,7 +4,8 @@
 building footprints into one static triangle mesh (:mod:`cam2sim.render.meshes`).
 :class:`RasterRenderer` draws it with OpenGL 3.3 through ``moderngl`` on a headless EGL context
 (Mesa llvmpipe on CPU, the GPU driver elsewhere); it takes the same arguments as
-:meth:`cam2sim.splat.render.SplatRenderer.render` and returns a :class:`RasterResult` with
+:meth:`cam2sim.splat.render.SplatRenderer.render` (a pose and a
+:class:`~cam2sim.core.camera.PinholeCamera`) and returns a :class:`RasterResult` with
 ``rgb`` (and ``labels``), so the two backends are interchangeable.
 
 **One pass.** The framebuffer has one RGBA8 colour attachment: RGB is the shaded colour and A
@@ -54,6 +55,7 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
 
+    from cam2sim.core.camera import PinholeCamera
     from cam2sim.map.query import RoadMap
     from cam2sim.scenario.model import ScenarioVehicle
 
@@ -274,6 +276,17 @@ def projection_matrix(
     )
 
 
+def _require_pinhole(camera: PinholeCamera) -> None:
+    """Raise ValueError for a camera with lens distortion (the renderer draws pinhole images)."""
+    if any(camera.distortion):
+        msg = (
+            f"the raster renderer draws undistorted pinhole images, but the camera has "
+            f"{camera.distortion_model} distortion {camera.distortion}; render "
+            f"camera.undistorted() (the camera of the undistorted images) instead"
+        )
+        raise ValueError(msg)
+
+
 def _gl_bytes(matrix: npt.NDArray[np.float64]) -> bytes:
     """A row-major numpy matrix as GL's column-major float32 bytes."""
     return np.ascontiguousarray(matrix.T, dtype=np.float32).tobytes()
@@ -390,41 +403,31 @@ class RasterRenderer:
             self._targets[key] = (fbo, np.empty((height, width, 4), dtype=np.uint8))
         return self._targets[key]
 
-    def render(
-        self,
-        T_world_cam: npt.NDArray[np.float64],
-        K: npt.NDArray[np.float64],
-        width: int,
-        height: int,
-    ) -> RasterResult:
+    def render(self, T_world_cam: npt.NDArray[np.float64], camera: PinholeCamera) -> RasterResult:
         """Render RGB and labels of a pinhole camera.
 
         Args:
             T_world_cam: ``(4, 4)`` camera (OpenCV optical axes) -> world, metres.
-            K: ``(3, 3)`` intrinsics of the wanted image, pixels.
-            width: Image width, pixels.
-            height: Image height, pixels.
+            camera: The camera of the wanted image (intrinsics and size, pixels), without lens
+                distortion: the image is an undistorted pinhole image.
 
         Returns:
             The RGB image and the label image.
 
         Raises:
-            ValueError: Wrong shapes or a non-positive size.
+            ValueError: A pose that is not ``(4, 4)``, or a camera with lens distortion.
             RuntimeError: The renderer was closed.
         """
         pose = np.asarray(T_world_cam, dtype=np.float64)
-        k = np.asarray(K, dtype=np.float64)
-        if pose.shape != (4, 4) or k.shape != (3, 3) or width < 1 or height < 1:
-            msg = (
-                f"render needs a (4, 4) pose, a (3, 3) K and a positive size, got "
-                f"{pose.shape}, {k.shape}, {width}x{height}"
-            )
+        if pose.shape != (4, 4):
+            msg = f"render needs a (4, 4) pose, got shape {pose.shape}"
             raise ValueError(msg)
+        _require_pinhole(camera)
         if self._ctx is None:
             msg = "the raster renderer is closed"
             raise RuntimeError(msg)
         with self._ctx:  # current while drawing: several renderers may be open at once
-            return self._draw(pose, k, width, height)
+            return self._draw(pose, camera.K(), camera.width, camera.height)
 
     def _draw(
         self, pose: npt.NDArray[np.float64], k: npt.NDArray[np.float64], width: int, height: int

@@ -43,6 +43,7 @@ from cam2sim.scenario.model import ScenarioVehicle
 if TYPE_CHECKING:
     import numpy.typing as npt
 
+    from cam2sim.core.camera import PinholeCamera
     from cam2sim.map.query import RoadMap
 
 __all__ = [
@@ -294,9 +295,7 @@ class TruthRenderer:
     def render(
         self,
         T_world_cam: npt.NDArray[np.float64],
-        K: npt.NDArray[np.float64],
-        w: int,
-        h: int,
+        camera: PinholeCamera,
         *,
         sensor_noise: bool = True,
     ) -> RasterResult:
@@ -305,14 +304,22 @@ class TruthRenderer:
         ``sensor_noise=False`` leaves out the photographic look's sensor noise (textures, blur,
         grading and vignetting stay): the noise-free image of the pose, the same every time,
         which models are scored against (:mod:`cam2sim.splat.envelope`).
+
+        Args:
+            T_world_cam: ``(4, 4)`` camera (OpenCV optical axes) -> world frame, metres.
+            camera: The camera of the wanted image, without lens distortion.
+            sensor_noise: Whether the photographic look adds its per-pose sensor noise.
+
+        Raises:
+            ValueError: A pose that is not ``(4, 4)``, or a camera with lens distortion.
         """
         T = self.T_truth_world @ np.asarray(T_world_cam, dtype=np.float64)
-        frame = self._raster.render(T, K, w, h)
+        frame = self._raster.render(T, camera)
         look = self.world.look
         if look.kind == "raster":
             return frame
         rng = frame_noise_rng(look.seed, T) if sensor_noise else None
-        rgb = photographic_look(frame.rgb, frame.labels, T, K, rng=rng, seed=look.seed)
+        rgb = photographic_look(frame.rgb, frame.labels, T, camera.K(), rng=rng, seed=look.seed)
         return RasterResult(rgb=rgb, labels=frame.labels)
 
     def close(self) -> None:

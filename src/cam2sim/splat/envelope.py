@@ -61,6 +61,7 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
 
+    from cam2sim.core.camera import PinholeCamera
     from cam2sim.metrics.lpips import Lpips
     from cam2sim.splat.render import SplatRenderer
     from cam2sim.splat.scene import FrameRecord
@@ -126,13 +127,11 @@ class TruthCamera(Protocol):
     def render(
         self,
         T_world_cam: npt.NDArray[np.float64],
-        K: npt.NDArray[np.float64],
-        w: int,
-        h: int,
+        camera: PinholeCamera,
         *,
         sensor_noise: bool = True,
     ) -> _HasRgb:
-        """RGB of a camera at a world-frame pose."""
+        """RGB of a (distortion-free) camera at a world-frame pose."""
         ...
 
 
@@ -213,17 +212,16 @@ def truth_envelope(
         coverage: list[float | None] = []
         for frame, exclude in picked:
             pose = perturbed_pose(frame.T(), lateral_m=lateral, yaw_deg=yaw)
+            camera = frame.camera()
             key = (frame.index, lateral, yaw)
             if key not in renders:
-                r = renderer.render(pose, frame.K(), frame.width, frame.height)
+                r = renderer.render(pose, camera)
                 renders[key] = (r.rgb, r.coverage)
             splat, cov = renders[key]
             truth_pose = pose.copy()
             if reference.ground_z is not None:
                 truth_pose[2, 3] -= reference.ground_z(pose[:2, 3])
-            truth = reference.camera.render(
-                truth_pose, frame.K(), frame.width, frame.height, sensor_noise=False
-            ).rgb
+            truth = reference.camera.render(truth_pose, camera, sensor_noise=False).rgb
             scores.append(score_pair(truth, splat, exclude, lpips))
             coverage.append(cov)
             done += 1

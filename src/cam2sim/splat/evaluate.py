@@ -204,7 +204,7 @@ def _offset_scores(
         lp, ps, holes, cov = [], [], [], []
         for frame, centre, exclude in frames:
             pose = perturbed_pose(frame.T(), lateral_m=offset)
-            r = renderer.render(pose, frame.K(), frame.width, frame.height)
+            r = renderer.render(pose, frame.camera())
             cache[frame.index, float(offset), 0.0] = (r.rgb, r.coverage)
             lower = np.ones((frame.height, frame.width), dtype=bool)
             lower[round(frame.height * (1.0 - lower_fraction)) :] = False
@@ -327,14 +327,13 @@ def evaluate_splat(
             real = read_rgb(prep_dir / "images" / f"{frame.index:06d}.png")
             exclude = frame_exclusion(prep_dir, frame)
             masks.append((frame, exclude))
-            r = renderer.render(frame.T(), frame.K(), frame.width, frame.height)
+            camera = frame.camera()
+            r = renderer.render(frame.T(), camera)
             cache[frame.index, 0.0, 0.0] = (r.rgb, r.coverage)
             s = score_pair(real, r.rgb, exclude, lpips)
             raw = PairScores(None, None, None)
             if opts.compare_appearance:
-                rr = renderer.render(
-                    frame.T(), frame.K(), frame.width, frame.height, appearance="none"
-                )
+                rr = renderer.render(frame.T(), camera, appearance="none")
                 raw = score_pair(real, rr.rgb, exclude, lpips)
             rows.append(
                 HeldOutFrame(

@@ -1,4 +1,4 @@
-"""The ``splat`` camera renderer: a world camera pose and intrinsics in, an RGB image out.
+"""The ``splat`` camera renderer: a world camera pose and a pinhole camera in, an RGB image out.
 
 :class:`SplatRenderer` reads ``WS/splat/models/`` (``chunk_XX.json`` headers at once, the
 ``chunk_XX.pt`` tensors lazily, at most ``max_loaded`` on the device at a time) and renders with
@@ -51,6 +51,7 @@ if TYPE_CHECKING:
     import numpy.typing as npt
     import torch
 
+    from cam2sim.core.camera import PinholeCamera
     from cam2sim.splat.model import ChunkHeader
     from cam2sim.splat.raster import RasterBackend
 
@@ -362,9 +363,7 @@ class SplatRenderer:
     def render(
         self,
         T_world_cam: npt.NDArray[np.float64],
-        K: npt.NDArray[np.float64],
-        width: int,
-        height: int,
+        camera: PinholeCamera,
         *,
         appearance: Literal["none", "interpolate"] | None = None,
         rows: tuple[int, int] | None = None,
@@ -373,9 +372,9 @@ class SplatRenderer:
 
         Args:
             T_world_cam: ``(4, 4)`` camera (OpenCV optical axes) -> world, metres.
-            K: ``(3, 3)`` intrinsics of the wanted image, pixels.
-            width: Image width, pixels.
-            height: Image height, pixels.
+            camera: The camera of the wanted image (intrinsics and size, pixels), without lens
+                distortion: the image is an undistorted pinhole image, as the models were
+                trained on.
             appearance: Overrides ``options.appearance`` for this frame.
             rows: Render only rows ``[first, stop)`` of the image (what the image shows there,
                 at a fraction of the cost on the CPU); the result is ``stop - first`` rows high.
@@ -384,27 +383,31 @@ class SplatRenderer:
             The image, its coverage and the chunk weights used.
 
         Raises:
-            ValueError: Wrong shapes or a non-positive size.
+            ValueError: A pose that is not ``(4, 4)``, or a camera with lens distortion.
         """
         import torch  # noqa: PLC0415
 
         pose = np.asarray(T_world_cam, dtype=np.float64)
-        k = np.asarray(K, dtype=np.float64)
-        if pose.shape != (4, 4) or k.shape != (3, 3) or width < 1 or height < 1:
+        if pose.shape != (4, 4):
+            msg = f"render needs a (4, 4) pose, got shape {pose.shape}"
+            raise ValueError(msg)
+        if any(camera.distortion):
             msg = (
-                f"render needs a (4, 4) pose, a (3, 3) K and a positive size, got "
-                f"{pose.shape}, {k.shape}, {width}x{height}"
+                f"the splat renderer draws undistorted pinhole images, but the camera has "
+                f"{camera.distortion_model} distortion {camera.distortion}; render "
+                f"camera.undistorted() (the camera of the undistorted images) instead"
             )
             raise ValueError(msg)
+        k, width, height = camera.K(), camera.width, camera.height
         progress = self.progress_of(pose[:3, 3])
         weights = chunk_weights(self._extents, progress)
         coverage, distance, angle = self.coverage_of(pose)
         mode = appearance or self.options.appearance
-        camera = np.zeros(28, dtype=np.float32)
-        camera[:16] = np.linalg.inv(pose).ravel()
-        camera[16:25] = k.ravel()
-        camera[25:] = pose[:3, 3]
-        cam = torch.from_numpy(camera).to(self.device)
+        packed = np.zeros(28, dtype=np.float32)
+        packed[:16] = np.linalg.inv(pose).ravel()
+        packed[16:25] = k.ravel()
+        packed[25:] = pose[:3, 3]
+        cam = torch.from_numpy(packed).to(self.device)
         cam_t = (cam[:16].reshape(4, 4), cam[16:25].reshape(3, 3), cam[25:])
         street_alpha = None
         with torch.inference_mode():

@@ -13,7 +13,7 @@ renderer plugs in with ``register_camera("mine", lambda ctx: MyRenderer(ctx.ws))
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Final, Literal, Protocol, Self
 
 import numpy as np
@@ -27,6 +27,7 @@ from cam2sim.render.truth import TruthRenderer
 from cam2sim.scenario.body import body_point_positions
 from cam2sim.scenario.model import Scenario
 from cam2sim.splat.render import SplatRenderer
+from cam2sim.stages.map import load_buildings, load_road_map
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -34,6 +35,7 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
 
+    from cam2sim.core.camera import PinholeCamera
     from cam2sim.core.workspace import Workspace
     from cam2sim.map.query import RoadMap
 
@@ -82,8 +84,6 @@ def load_run_context(ws: Workspace) -> RunContext:
     Raises:
         StageError: The workspace has no scenario yet.
     """
-    from cam2sim.stages.map import load_road_map  # noqa: PLC0415 -- lazy: imports shapely
-
     path = ws.scenario_path
     if not path.is_file():
         msg = f"{ws.root} has no scenario; run `cam2sim scenario {ws.root}` first"
@@ -91,12 +91,13 @@ def load_run_context(ws: Workspace) -> RunContext:
     return RunContext(ws, Scenario.load(path), load_road_map(ws))
 
 
-def scaled_intrinsics(
-    scenario: Scenario, size: tuple[int, int] | None
-) -> tuple[npt.NDArray[np.float64], int, int]:
-    """The scenario camera's ``K``, width and height, scaled to ``size`` (None: calibrated).
+def scaled_intrinsics(scenario: Scenario, size: tuple[int, int] | None) -> PinholeCamera:
+    """The camera runs render: the scenario camera scaled to ``size`` (None: as calibrated).
 
     Scaling keeps pixel centres aligned (:meth:`cam2sim.core.camera.PinholeCamera.scaled`).
+    The renderers draw pinhole images, so the camera is the calibrated ``K`` without the lens
+    distortion (not :meth:`~cam2sim.core.camera.PinholeCamera.undistorted`, whose ``K``
+    differs when there is distortion).
     """
     if scenario.camera is None:
         msg = "the scenario has no camera intrinsics; set camera.intrinsics in config.yaml"
@@ -104,7 +105,7 @@ def scaled_intrinsics(
     cam = scenario.camera.camera()
     if size is not None:
         cam = cam.scaled(*size)
-    return cam.K(), cam.width, cam.height
+    return replace(cam, distortion=(), distortion_model="plumb_bob")
 
 
 def camera_poses(
@@ -147,10 +148,11 @@ class RenderedFrame(Protocol):
 class CameraRenderer(Protocol):
     """A camera of runs: renders world-frame camera poses; closed once at the end."""
 
-    def render(
-        self, T: npt.NDArray[np.float64], K: npt.NDArray[np.float64], w: int, h: int
-    ) -> RenderedFrame:
-        """The view from ``T`` (camera -> world, optical axes) with intrinsics ``K``."""
+    def render(self, T_world_cam: npt.NDArray[np.float64], camera: PinholeCamera) -> RenderedFrame:
+        """The view from ``T_world_cam`` (camera -> world, optical axes) of ``camera``.
+
+        ``camera`` has no lens distortion: runs render undistorted pinhole images.
+        """
         ...
 
     def close(self) -> None:
@@ -176,8 +178,6 @@ def camera_names() -> tuple[str, ...]:
 
 
 def _raster(ctx: RunContext) -> CameraRenderer:
-    from cam2sim.stages.map import load_buildings  # noqa: PLC0415 -- lazy: imports shapely
-
     buildings = [BuildingFootprint(b.xy, b.height_m) for b in load_buildings(ctx.ws)]
     return RasterRenderer(RasterScene(ctx.road_map, ctx.scenario.parked, buildings))
 
@@ -232,21 +232,19 @@ class Cameras:
         self,
         name: str,
         T: npt.NDArray[np.float64],
-        K: npt.NDArray[np.float64],
-        w: int,
-        h: int,
+        camera: PinholeCamera,
         rows: tuple[int, int] | None = None,
     ) -> npt.NDArray[np.uint8]:
-        """RGB of camera ``name`` at ``T`` (camera -> world, optical axes), ``K``, ``w`` x ``h``.
+        """RGB of camera ``name`` at ``T`` (camera -> world, optical axes) through ``camera``.
 
         With ``rows = (first, stop)`` only those rows, ``stop - first`` high: rendered alone by
         cameras that can (:meth:`renders_rows`), cut from the whole image by the others.
         """
         renderer = self.renderers[name]
         if rows is not None and self.renders_rows(name):
-            band: npt.NDArray[np.uint8] = renderer.render(T, K, w, h, rows=rows).rgb
+            band: npt.NDArray[np.uint8] = renderer.render(T, camera, rows=rows).rgb
             return band
-        rgb: npt.NDArray[np.uint8] = renderer.render(T, K, w, h).rgb
+        rgb: npt.NDArray[np.uint8] = renderer.render(T, camera).rgb
         return rgb if rows is None else rgb[rows[0] : rows[1]]
 
     def renders_rows(self, name: str) -> bool:
@@ -305,7 +303,7 @@ def vehicle_view(
     state: Any,
     cameras: Cameras,
     cam_name: str,
-    camera: tuple[npt.NDArray[np.float64], int, int],
+    camera: PinholeCamera,
     coverage: list[float],
     band: tuple[int, int] | None = None,
 ) -> npt.NDArray[np.uint8]:
@@ -322,11 +320,10 @@ def vehicle_view(
     T = camera_poses(
         sc, ref_now[None, :2], np.array([state.heading]), np.array([ref_xyz[2] + ground])
     )[0]
-    K, w, h = camera
     if cam_name == "splat":
         coverage.append(cameras.coverage(cam_name, T))
     if band is None:
-        return cameras.render(cam_name, T, K, w, h)
-    frame = np.zeros((h, w, 3), np.uint8)
-    frame[band[0] : band[1]] = cameras.render(cam_name, T, K, w, h, rows=band)
+        return cameras.render(cam_name, T, camera)
+    frame = np.zeros((camera.height, camera.width, 3), np.uint8)
+    frame[band[0] : band[1]] = cameras.render(cam_name, T, camera, rows=band)
     return frame

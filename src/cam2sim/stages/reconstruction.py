@@ -106,13 +106,13 @@ def evaluate_world_semantics(
     # Both worlds' road is z = 0: the camera stands at its mount height above it.
     z = np.full(idx.size, sc.vehicle.reference_xyz[2])
     poses = camera_poses(sc, ref[:, :2], heading, z)
-    K, w, h = scaled_intrinsics(sc, None)
+    camera = scaled_intrinsics(sc, None)
     with Cameras(ctx, ("raster", TRUTH_CAMERA)) as cameras:
         sim, truth = cameras.renderers["raster"], cameras.renderers[TRUTH_CAMERA]
         for k, i in enumerate(idx.tolist()):
             stem = f"{tr.frame[i]:06d}.png"
-            write_png(out / "real" / stem, truth.render(poses[k], K, w, h).semantic_rgb())
-            write_png(out / "sim" / stem, sim.render(poses[k], K, w, h).semantic_rgb())
+            write_png(out / "real" / stem, truth.render(poses[k], camera).semantic_rgb())
+            write_png(out / "sim" / stem, sim.render(poses[k], camera).semantic_rgb())
             report("semantic frames", k + 1, int(idx.size))
     result = evaluate_semantic_folders(
         out / "real",

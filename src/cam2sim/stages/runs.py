@@ -363,7 +363,7 @@ def _replay_frames(
 ) -> int:
     if not (cameras.renderers or cameras.carla) or not (opts.save_frames or opts.video):
         return 0
-    K, w, h = scaled_intrinsics(ctx.scenario, opts.image_size)
+    camera = scaled_intrinsics(ctx.scenario, opts.image_size)
     tr = ctx.scenario.trajectory
     ground = ref[:, 2] - ctx.scenario.vehicle.reference_xyz[2]
     # The raster and truth worlds' road is z = 0; the splat models live at the recorded heights.
@@ -376,7 +376,7 @@ def _replay_frames(
     try:
         for k, i in enumerate(idx.tolist()):
             names = list(cameras.renderers)
-            views = [cameras.render(n, poses[n][k], K, w, h) for n in names]
+            views = [cameras.render(n, poses[n][k], camera) for n in names]
             if cameras.carla is not None:
                 views.append(_carla_view(cameras.carla, tr, i))
                 names.append("carla")
@@ -556,8 +556,11 @@ def _drive_loop(  # noqa: PLR0912, PLR0913, PLR0915, PLR0917 - one run: setup, s
     state = sim.reset(_start_pose(sc, offset))
     policy.reset()
     cam_name = "carla" if opts.camera == "carla" else next(iter(cameras.renderers), None)
-    K, w, h = scaled_intrinsics(sc, opts.image_size) if cam_name else (np.eye(3), 0, 0)
-    band = policy_band(policy, cameras, cam_name, h, keep_frames=opts.save_frames or opts.video)
+    camera = scaled_intrinsics(sc, opts.image_size) if cam_name else None
+    height = camera.height if camera is not None else 0
+    band = policy_band(
+        policy, cameras, cam_name, height, keep_frames=opts.save_frames or opts.video
+    )
     run_id, tmp = _new_run_dir(ctx.ws, "drive", f"{policy.name}-{cam_name or 'none'}-s{seed}")
     rows: dict[str, list[float]] = {
         k: [] for k in ("t", "x", "y", "z", "heading", "speed", "steering", "wheel_angle")
@@ -576,12 +579,12 @@ def _drive_loop(  # noqa: PLR0912, PLR0913, PLR0915, PLR0917 - one run: setup, s
         for steps in range(1, opts.max_steps + 1):
             if (steps - 1) % opts.policy_every == 0:
                 image = None
-                if cam_name is not None:  # the policy sees each camera frame
+                if cam_name is not None and camera is not None:  # the policy sees each camera frame
                     t0 = time.perf_counter()
                     image = (
                         sim.camera_images().rgb
                         if cam_name == "carla"
-                        else vehicle_view(sc, state, cameras, cam_name, (K, w, h), coverage, band)
+                        else vehicle_view(sc, state, cameras, cam_name, camera, coverage, band)
                     )
                     render_s += time.perf_counter() - t0
                     where = run_paths(tmp).frames_dir(cam_name)
