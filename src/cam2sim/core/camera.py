@@ -152,6 +152,20 @@ class PinholeCamera:
             skew=self.skew * sx,
         )
 
+    def require_undistorted(self, who: str) -> None:
+        """Raise ValueError when this camera has lens distortion.
+
+        ``who`` names the renderer in the message (renderers draw undistorted pinhole images;
+        the fix is to render :meth:`undistorted`).
+        """
+        if any(self.distortion):
+            msg = (
+                f"{who} draws undistorted pinhole images, but the camera has "
+                f"{self.distortion_model} distortion {self.distortion}; render "
+                f"camera.undistorted() (the camera of the undistorted images) instead"
+            )
+            raise ValueError(msg)
+
     def undistorted(self) -> PinholeCamera:
         """The distortion-free camera of this camera's undistorted images (same size).
 

@@ -276,17 +276,6 @@ def projection_matrix(
     )
 
 
-def _require_pinhole(camera: PinholeCamera) -> None:
-    """Raise ValueError for a camera with lens distortion (the renderer draws pinhole images)."""
-    if any(camera.distortion):
-        msg = (
-            f"the raster renderer draws undistorted pinhole images, but the camera has "
-            f"{camera.distortion_model} distortion {camera.distortion}; render "
-            f"camera.undistorted() (the camera of the undistorted images) instead"
-        )
-        raise ValueError(msg)
-
-
 def _gl_bytes(matrix: npt.NDArray[np.float64]) -> bytes:
     """A row-major numpy matrix as GL's column-major float32 bytes."""
     return np.ascontiguousarray(matrix.T, dtype=np.float32).tobytes()
@@ -422,7 +411,7 @@ class RasterRenderer:
         if pose.shape != (4, 4):
             msg = f"render needs a (4, 4) pose, got shape {pose.shape}"
             raise ValueError(msg)
-        _require_pinhole(camera)
+        camera.require_undistorted("the raster renderer")
         if self._ctx is None:
             msg = "the raster renderer is closed"
             raise RuntimeError(msg)

@@ -391,13 +391,7 @@ class SplatRenderer:
         if pose.shape != (4, 4):
             msg = f"render needs a (4, 4) pose, got shape {pose.shape}"
             raise ValueError(msg)
-        if any(camera.distortion):
-            msg = (
-                f"the splat renderer draws undistorted pinhole images, but the camera has "
-                f"{camera.distortion_model} distortion {camera.distortion}; render "
-                f"camera.undistorted() (the camera of the undistorted images) instead"
-            )
-            raise ValueError(msg)
+        camera.require_undistorted("the splat renderer")
         k, width, height = camera.K(), camera.width, camera.height
         progress = self.progress_of(pose[:3, 3])
         weights = chunk_weights(self._extents, progress)
