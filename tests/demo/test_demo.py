@@ -8,14 +8,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pytest
 
+from cam2sim.demo.recording import DemoRecording, build_demo_recording, load_demo_recording
 from cam2sim.demo.rig import TOPICS, demo_camera
-from cam2sim.demo.world import (
-    L_STREET,
-    DemoRecording,
-    build_demo_recording,
-    demo_world,
-    load_demo_recording,
-)
+from cam2sim.demo.world import L_STREET, demo_world
 from cam2sim.map.convert import has_carla
 
 if TYPE_CHECKING:

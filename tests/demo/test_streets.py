@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from cam2sim.core.errors import ConfigError
+from cam2sim.demo.recording import recorded_street
 from cam2sim.demo.world import (
     L_STREET,
     PAPER_STREET,
     STREETS,
     demo_street,
     demo_world,
-    recorded_street,
 )
 
 if TYPE_CHECKING:

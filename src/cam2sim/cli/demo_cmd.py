@@ -74,12 +74,12 @@ def demo(
     cam2sim demo -o /tmp/munich --osm munich.osm)
     """
     from cam2sim.ads.train import TrainOptions  # noqa: PLC0415 -- lazy: imports torch, cv2
-    from cam2sim.demo.world import (  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.demo.recording import (  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
         build_demo_recording,
-        demo_street,
         load_demo_recording,
         recorded_street,
     )
+    from cam2sim.demo.world import demo_street  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.render.truth import truth_world_path  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.stages.pipeline import (  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
         STEPS,

@@ -31,7 +31,7 @@ from cam2sim.splat.model import GaussianModel, duplicate, remove, reset_opacity,
 
 if TYPE_CHECKING:
     from cam2sim.splat.raster import RasterOutput
-    from cam2sim.splat.train import DensifyOptions
+    from cam2sim.splat.train_options import DensifyOptions
 
 __all__ = ["Densifier"]
 

@@ -22,10 +22,10 @@ from __future__ import annotations
 import functools
 import importlib
 import logging
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Literal
 
 from cam2sim.core.errors import BackendUnavailableError
+from cam2sim.splat.raster_output import RasterOutput, row_window
 
 if TYPE_CHECKING:
     import torch
@@ -58,32 +58,6 @@ images are the same for every size."""
 
 INSTALL_HINT = "pip install 'cam2sim[splat-cuda]' on a machine with an NVIDIA GPU and CUDA"
 """What to install for the gsplat backend."""
-
-
-@dataclass(frozen=True)
-class RasterOutput:
-    """What one rasterization returns.
-
-    Attributes:
-        colors: ``[C, H, W, D]`` composited colours (background included).
-        alphas: ``[C, H, W, 1]`` accumulated opacity, ``1 - T`` after the last Gaussian.
-        means2d: ``[C, N, 2]`` projected centres in pixels; part of the autograd graph, so its
-            ``.grad`` (after ``retain_grad()`` and ``backward()``) drives densification.
-        radii: ``[C, N, 2]`` int32 pixel half-extents of the screen boxes; 0 = culled.
-        depths: ``[C, N]`` camera-space z of each centre, metres.
-        info: The backend's own metadata (gsplat's ``meta`` dict on ``"gsplat"``, the same keys
-            that ``gsplat.strategy.DefaultStrategy`` reads on ``"torch"``).
-        backend: The backend that ran.
-    """
-
-    colors: torch.Tensor
-    alphas: torch.Tensor
-    means2d: torch.Tensor
-    radii: torch.Tensor
-    depths: torch.Tensor
-    # Any: gsplat's meta dict holds tensors, ints and None side by side.
-    info: dict[str, Any]
-    backend: Literal["gsplat", "torch"]
 
 
 def has_cuda() -> bool:
@@ -260,8 +234,6 @@ def rasterize(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's signa
         tile_size=tile_size,
     )
     if rows is not None:
-        from cam2sim.splat.raster_torch import row_window  # noqa: PLC0415 -- lazy: imports torch
-
         first, stop = row_window(rows, height)
         render_colors, render_alphas = render_colors[:, first:stop], render_alphas[:, first:stop]
     return RasterOutput(

@@ -39,7 +39,7 @@ import torch
 from torch.nn import functional as tnf
 
 from cam2sim.splat import raster_cpu
-from cam2sim.splat.raster import RasterOutput
+from cam2sim.splat.raster_output import RasterOutput, row_window
 
 __all__ = [
     "ALPHA_MAX",
@@ -284,17 +284,6 @@ def rgb_from_sh(coeffs: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.
 
 
 # ------------------------------------------------------------------------- tiles, composite
-
-
-def row_window(rows: tuple[int, int] | None, height: int) -> tuple[int, int]:
-    """``rows`` checked against an image ``height`` rows high; None = all rows."""
-    if rows is None:
-        return 0, height
-    first, stop = rows
-    if not 0 <= first < stop <= height:
-        msg = f"rows {rows} must satisfy 0 <= first < stop <= height ({height})"
-        raise ValueError(msg)
-    return first, stop
 
 
 def _tile_intersections(
