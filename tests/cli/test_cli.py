@@ -30,6 +30,8 @@ HEAVY_MODULES = (
     "transformers",
     "onnxruntime",
     "pycolmap",
+    "numpy",  # what the CLI's lazy imports keep --help from loading
+    "shapely",
 )
 COMMANDS = ("inspect", "init", "extract", "import")
 

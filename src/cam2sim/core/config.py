@@ -11,14 +11,16 @@ import difflib
 import math
 from enum import StrEnum
 from pathlib import Path
-from typing import Any, Literal, Self
+from typing import TYPE_CHECKING, Any, Literal, Self
 
 import pydantic
 import yaml
 
-from cam2sim.core.camera import PinholeCamera
 from cam2sim.core.errors import ConfigError
 from cam2sim.core.files import write_text_atomic
+
+if TYPE_CHECKING:
+    from cam2sim.core.camera import PinholeCamera
 
 __all__ = [
     "AXIS_CONVENTION_YAW_OFFSET",
@@ -170,6 +172,8 @@ class IntrinsicsConfig(_Model):
 
     def camera(self) -> PinholeCamera:
         """These intrinsics as the one camera type."""
+        from cam2sim.core.camera import PinholeCamera  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+
         return PinholeCamera(
             fx=self.fx,
             fy=self.fy,
