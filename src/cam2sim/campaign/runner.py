@@ -114,7 +114,7 @@ def run_campaign(
 
     Raises:
         ConfigError: The plan is invalid (the message names the key and the fix).
-        StageError: Another process runs the same campaign.
+        WorkspaceError: Another process runs the same campaign (its lock is held).
         BackendUnavailableError: Ray was asked for but is not installed.
     """
     plan_path = Path(plan_path)

@@ -11,8 +11,9 @@ building footprints into one static triangle mesh (:mod:`cam2sim.render.meshes`)
 **One pass.** The framebuffer has one RGBA8 colour attachment: RGB is the shaded colour and A
 the :class:`~cam2sim.render.meshes.Label` id (written unblended, read back exactly). A
 full-screen sky pass (gradient by the elevation of each pixel's ray, labelled sky; rays below
-the horizon get the ground colour, labelled background) runs first without depth test, then
-the scene with it; one ``glReadPixels`` returns both images.
+the horizon get the ground colour, labelled background) runs last, at the far plane with the
+depth test ``<=``, so it fills only the pixels the scene left empty; one ``glReadPixels``
+returns both images.
 
 **Projection.** Poses are ``T_world_cam`` with OpenCV optical axes (x right, y down,
 z forward). Pixel ``(u, v)`` (centre of the top-left pixel at ``(0, 0)``) is drawn at window
