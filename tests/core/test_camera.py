@@ -68,6 +68,72 @@ def test_undistorted_camera_is_distortion_free_and_same_size() -> None:
     assert new.fx > 0
 
 
+# The reference car's calibration (../shared/data/reference-drives/camera.json): strong barrel.
+REFERENCE = PinholeCamera(
+    772.906855, 777.596896, 424.980372, 258.452509, 800, 503,
+    (-0.274231, 0.034838, 0.00226, -0.000972, 0.0),
+)  # fmt: skip
+
+
+def test_no_distortion_needs_no_remap() -> None:
+    assert CAM.pinhole_remap() is None
+
+
+@pytest.mark.parametrize(
+    "cam",
+    [
+        REFERENCE,
+        PinholeCamera(300.0, 300.0, 320.0, 240.0, 640, 480, (0.1, -0.02, 0.01, 0.0),
+                      distortion_model="equidistant"),
+    ],
+    ids=["plumb-bob", "equidistant"],
+)  # fmt: skip
+def test_the_remap_sends_each_pixel_to_its_ray_in_the_pinhole_image(
+    cam: PinholeCamera,
+) -> None:
+    import cv2
+
+    rng = np.random.default_rng(0)
+    # Points in front of the camera that land inside the distorted image.
+    pts = np.column_stack([rng.uniform(-0.5, 0.5, 400), rng.uniform(-0.3, 0.3, 400), np.ones(400)])
+    if cam.distortion_model == "equidistant":
+        d = np.asarray(cam.distortion[:4], dtype=np.float64)
+        seen = cv2.fisheye.projectPoints(pts[:, None, :], np.zeros(3), np.zeros(3), cam.K(), d)[0]
+    else:
+        d = np.asarray(cam.distortion, dtype=np.float64)
+        seen = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), cam.K(), d)[0]
+    seen = seen.reshape(-1, 2)
+    inside = (seen[:, 0] > 1) & (seen[:, 0] < cam.width - 2) & (seen[:, 1] > 1)
+    inside &= seen[:, 1] < cam.height - 2
+    assert inside.sum() > 100
+    remap = cam.pinhole_remap()
+    assert remap is not None
+    pinhole, map_x, map_y = remap
+    assert map_x.shape == (cam.height, cam.width)
+    assert (pinhole.fx, pinhole.fy, pinhole.distortion) == (cam.fx, cam.fy, ())
+    # Every pixel's ray is inside the pinhole image (with a pixel to spare for bilinear reads).
+    assert map_x.min() >= 1.0
+    assert map_x.max() <= pinhole.width - 2
+    assert map_y.min() >= 1.0
+    assert map_y.max() <= pinhole.height - 2
+    # Where the map sends the distorted pixel (bilinear between the table's entries) ...
+    u, v = seen[inside, 0], seen[inside, 1]
+    x0, y0 = np.floor(u).astype(int), np.floor(v).astype(int)
+    fx, fy = u - x0, v - y0
+
+    def bilinear(table: np.ndarray) -> np.ndarray:
+        return (
+            table[y0, x0] * (1 - fx) * (1 - fy) + table[y0, x0 + 1] * fx * (1 - fy)
+            + table[y0 + 1, x0] * (1 - fx) * fy + table[y0 + 1, x0 + 1] * fx * fy
+        )  # fmt: skip
+
+    # ... is where the pinhole camera sees the same point.
+    ideal = (pinhole.K() @ pts[inside].T).T
+    ideal = ideal[:, :2] / ideal[:, 2:]
+    err = np.hypot(bilinear(map_x) - ideal[:, 0], bilinear(map_y) - ideal[:, 1])
+    assert np.percentile(err, 99) < 0.05, np.percentile(err, [50, 99, 100])
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [

@@ -189,3 +189,44 @@ class PinholeCamera:
         else:
             K_new, _ = cv2.getOptimalNewCameraMatrix(K, dist, self.size, 0.0, self.size)
         return PinholeCamera.from_K(K_new, self.width, self.height)
+
+    def pinhole_remap(
+        self,
+    ) -> tuple[PinholeCamera, npt.NDArray[np.float32], npt.NDArray[np.float32]] | None:
+        """How to show this camera's view with a pinhole renderer: a camera and remap tables.
+
+        Returns ``(pinhole, map_x, map_y)``: render ``pinhole`` (this camera's focal lengths,
+        an image just large enough to hold every ray this camera sees), then
+        ``cv2.remap(image, map_x, map_y, ...)`` gives the image as this camera records it,
+        lens distortion included. Entry ``(v, u)`` of the tables is where this camera's pixel
+        ``(u, v)`` lies in the pinhole image (always inside it). None without distortion: render
+        this camera itself.
+        """
+        dist = np.asarray(self.distortion, dtype=np.float64)
+        if dist.size == 0 or not np.any(dist):
+            return None
+        import cv2  # noqa: PLC0415 -- lazy: OpenCV is heavy and only distortion needs it
+
+        u, v = np.meshgrid(
+            np.arange(self.width, dtype=np.float64), np.arange(self.height, dtype=np.float64)
+        )
+        pixels = np.stack([u.ravel(), v.ravel()], axis=-1)[:, None, :]
+        if self.distortion_model == "equidistant":
+            d4 = np.zeros(4)
+            d4[: min(4, dist.size)] = dist[:4]
+            rays = cv2.fisheye.undistortPoints(pixels, self.K(), d4)
+        else:
+            rays = cv2.undistortPoints(pixels, self.K(), dist)
+        xy = np.asarray(rays, dtype=np.float64).reshape(self.height, self.width, 2)
+        # Pixel coordinates at this camera's focal lengths, shifted so every ray lands inside.
+        px = xy[..., 0] * self.fx
+        py = xy[..., 1] * self.fy
+        cx, cy = 1.0 - float(px.min()), 1.0 - float(py.min())
+        width = math.ceil(float(px.max()) + cx) + 2
+        height = math.ceil(float(py.max()) + cy) + 2
+        pinhole = PinholeCamera(self.fx, self.fy, cx, cy, width, height)
+        return (
+            pinhole,
+            np.ascontiguousarray(px + cx, dtype=np.float32),
+            np.ascontiguousarray(py + cy, dtype=np.float32),
+        )

@@ -51,6 +51,7 @@ __all__ = [
     "load_run_context",
     "policy_band",
     "register_camera",
+    "run_camera",
     "scaled_intrinsics",
     "vehicle_view",
     "write_png",
@@ -91,21 +92,29 @@ def load_run_context(ws: Workspace) -> RunContext:
     return RunContext(ws, Scenario.load(path), load_road_map(ws))
 
 
-def scaled_intrinsics(scenario: Scenario, size: tuple[int, int] | None) -> PinholeCamera:
-    """The camera runs render: the scenario camera scaled to ``size`` (None: as calibrated).
+def run_camera(scenario: Scenario, size: tuple[int, int] | None) -> PinholeCamera:
+    """The camera replays and closed-loop drives see through: the recorded one, lens included.
 
-    Scaling keeps pixel centres aligned (:meth:`cam2sim.core.camera.PinholeCamera.scaled`).
-    The renderers draw pinhole images, so the camera is the calibrated ``K`` without the lens
-    distortion (not :meth:`~cam2sim.core.camera.PinholeCamera.undistorted`, whose ``K``
-    differs when there is distortion).
+    The scenario's camera scaled to ``size`` (None: as calibrated; scaling keeps pixel centres
+    aligned, :meth:`cam2sim.core.camera.PinholeCamera.scaled`) with its lens distortion:
+    :meth:`Cameras.render` draws its view with a pinhole renderer and lays the image out as
+    the recorded camera would have taken it, so a policy trained on recorded frames sees the
+    same geometry in simulation.
     """
     if scenario.camera is None:
         msg = "the scenario has no camera intrinsics; set camera.intrinsics in config.yaml"
         raise StageError(msg)
     cam = scenario.camera.camera()
-    if size is not None:
-        cam = cam.scaled(*size)
-    return replace(cam, distortion=(), distortion_model="plumb_bob")
+    return cam if size is None else cam.scaled(*size)
+
+
+def scaled_intrinsics(scenario: Scenario, size: tuple[int, int] | None) -> PinholeCamera:
+    """:func:`run_camera` without its lens distortion: a pinhole camera with the calibrated K.
+
+    For comparisons between our own renderers (the reconstruction stage's real and simulated
+    label images), where the lens plays no part.
+    """
+    return replace(run_camera(scenario, size), distortion=(), distortion_model="plumb_bob")
 
 
 def camera_poses(
@@ -213,6 +222,8 @@ class Cameras:
         """
         self.renderers: dict[str, Any] = {}
         self.carla: Any = None  # a CarlaSimulator whose hero is teleported (replay)
+        # Per camera with lens distortion: the pinhole camera to render and the remap tables.
+        self._lenses: dict[PinholeCamera, Any] = {}
         unknown = [n for n in names if n not in _CAMERAS and n != "none"]
         if unknown:
             msg = f"no camera {', '.join(unknown)}; the cameras are {', '.join(camera_names())}"
@@ -239,8 +250,22 @@ class Cameras:
 
         With ``rows = (first, stop)`` only those rows, ``stop - first`` high: rendered alone by
         cameras that can (:meth:`renders_rows`), cut from the whole image by the others.
+
+        A ``camera`` with lens distortion is drawn through its pinhole camera and remapped
+        (:meth:`~cam2sim.core.camera.PinholeCamera.pinhole_remap`): the image is what that
+        camera records (always whole before ``rows`` are cut from it).
         """
         renderer = self.renderers[name]
+        if camera not in self._lenses:
+            self._lenses[camera] = camera.pinhole_remap()
+        lens = self._lenses[camera]
+        if lens is not None:
+            import cv2  # noqa: PLC0415 -- lazy: imports cv2
+
+            pinhole, map_x, map_y = lens
+            image = renderer.render(T, pinhole).rgb
+            seen: npt.NDArray[np.uint8] = cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR)
+            return seen if rows is None else seen[rows[0] : rows[1]]
         if rows is not None and self.renders_rows(name):
             band: npt.NDArray[np.uint8] = renderer.render(T, camera, rows=rows).rgb
             return band

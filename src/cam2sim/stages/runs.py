@@ -55,7 +55,7 @@ from cam2sim.stages.cameras import (
     camera_poses,
     load_run_context,
     policy_band,
-    scaled_intrinsics,
+    run_camera,
     vehicle_view,
     write_png,
 )
@@ -363,7 +363,7 @@ def _replay_frames(
 ) -> int:
     if not (cameras.renderers or cameras.carla) or not (opts.save_frames or opts.video):
         return 0
-    camera = scaled_intrinsics(ctx.scenario, opts.image_size)
+    camera = run_camera(ctx.scenario, opts.image_size)
     tr = ctx.scenario.trajectory
     ground = ref[:, 2] - ctx.scenario.vehicle.reference_xyz[2]
     # The raster and truth worlds' road is z = 0; the splat models live at the recorded heights.
@@ -556,7 +556,7 @@ def _drive_loop(  # noqa: PLR0912, PLR0913, PLR0915, PLR0917 - one run: setup, s
     state = sim.reset(_start_pose(sc, offset))
     policy.reset()
     cam_name = "carla" if opts.camera == "carla" else next(iter(cameras.renderers), None)
-    camera = scaled_intrinsics(sc, opts.image_size) if cam_name else None
+    camera = run_camera(sc, opts.image_size) if cam_name else None
     height = camera.height if camera is not None else 0
     band = policy_band(
         policy, cameras, cam_name, height, keep_frames=opts.save_frames or opts.video
