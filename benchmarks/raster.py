@@ -7,6 +7,11 @@ wall time of :meth:`RasterRenderer.render` (draw, read-back and the copies of bo
 
 Target (issue 8): 512x512 RGB + labels in under 10 ms on the 2-core machine.
 
+Then the runs' camera of the reference car (800x503 calibration with its plumb-bob lens, scaled
+to DAVE-2's 320x200) through :meth:`cam2sim.stages.cameras.Cameras.render`: without the lens
+(the calibrated K as a pinhole camera) and with it (the lens's pinhole camera rendered, then
+remapped into the lens's pixels): what seeing through the recorded lens costs a frame.
+
 Run from the repository root::
 
     python benchmarks/raster.py [--frames 200]
@@ -25,6 +30,13 @@ from cam2sim.core.camera import PinholeCamera
 from cam2sim.map.query import RoadMap
 from cam2sim.render.raster import BuildingFootprint, RasterRenderer, RasterScene
 from cam2sim.scenario.model import ScenarioVehicle
+from cam2sim.stages import cameras
+
+# The reference car's camera (../shared/data/reference-drives/camera.json), scaled for DAVE-2.
+REFERENCE = PinholeCamera(
+    772.906855, 777.596896, 424.980372, 258.452509, 800, 503,
+    (-0.274231, 0.034838, 0.00226, -0.000972, 0.0),
+).scaled(320, 200)  # fmt: skip
 
 _LANES = "".join(
     f'<lane id="{i}" type="{t}"><width sOffset="0" a="{w}" b="0" c="0" d="0"/></lane>'
@@ -93,6 +105,16 @@ def main() -> None:
                 renderer.render(pose, camera)
             ms = 1000.0 * (time.perf_counter() - t0) / args.frames
             print(f"{width}x{height}: {ms:.2f} ms/frame over {args.frames} frames")
+        cameras.register_camera("bench", lambda _ctx: renderer)
+        runs = cameras.Cameras(None, ("bench",))  # type: ignore[arg-type]
+        flat = PinholeCamera.from_K(REFERENCE.K(), REFERENCE.width, REFERENCE.height)
+        for label, camera in (("pinhole", flat), ("through the lens", REFERENCE)):
+            runs.render("bench", poses[0], camera)  # builds the remap tables once
+            t0 = time.perf_counter()
+            for pose in poses:
+                runs.render("bench", pose, camera)
+            ms = 1000.0 * (time.perf_counter() - t0) / args.frames
+            print(f"reference camera 320x200, {label}: {ms:.2f} ms/frame")
 
 
 if __name__ == "__main__":
