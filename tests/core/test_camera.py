@@ -88,8 +88,9 @@ def test_no_distortion_needs_no_remap() -> None:
     ],
     ids=["plumb-bob", "equidistant"],
 )  # fmt: skip
+@pytest.mark.parametrize("centred", [False, True], ids=["tight", "centred"])
 def test_the_remap_sends_each_pixel_to_its_ray_in_the_pinhole_image(
-    cam: PinholeCamera,
+    cam: PinholeCamera, *, centred: bool
 ) -> None:
     import cv2
 
@@ -106,11 +107,16 @@ def test_the_remap_sends_each_pixel_to_its_ray_in_the_pinhole_image(
     inside = (seen[:, 0] > 1) & (seen[:, 0] < cam.width - 2) & (seen[:, 1] > 1)
     inside &= seen[:, 1] < cam.height - 2
     assert inside.sum() > 100
-    remap = cam.pinhole_remap()
+    remap = cam.pinhole_remap(centred=centred)
     assert remap is not None
     pinhole, map_x, map_y = remap
     assert map_x.shape == (cam.height, cam.width)
-    assert (pinhole.fx, pinhole.fy, pinhole.distortion) == (cam.fx, cam.fy, ())
+    assert pinhole.distortion == ()
+    if centred:  # as CARLA's sensors: one focal length, the principal point at the centre
+        assert pinhole.fx == pinhole.fy == max(cam.fx, cam.fy)
+        assert (pinhole.cx, pinhole.cy) == (pinhole.width / 2, pinhole.height / 2)
+    else:
+        assert (pinhole.fx, pinhole.fy) == (cam.fx, cam.fy)
     # Every pixel's ray is inside the pinhole image (with a pixel to spare for bilinear reads).
     assert map_x.min() >= 1.0
     assert map_x.max() <= pinhole.width - 2

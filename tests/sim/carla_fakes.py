@@ -159,9 +159,11 @@ class FakeWorld:
                 a.transform = carla.Transform(loc, tf.rotation)
                 a.velocity = (v * math.cos(yaw), v * math.sin(yaw), 0.0)
             if a.type_id.startswith("sensor.camera") and a.callback is not None:
-                w, h = 8, 5
+                w = int(a.attributes.get("image_size_x", 8))
+                h = int(a.attributes.get("image_size_y", 5))
                 raw = np.zeros((h, w, 4), np.uint8)
                 raw[..., 0], raw[..., 2] = 10, 7  # B, R
+                raw[h - h // 2 :, :, 1] = 200  # G: the lower half
                 a.callback(FakeImage(self.frame, w, h, raw.tobytes()))
         return self.frame
 

@@ -194,6 +194,42 @@ def test_load_step_close_with_a_fake_client(street: tuple[Scenario, str]) -> Non
     assert len(world.destroyed) == len(world.actors)
 
 
+def test_a_calibration_with_a_lens_gets_pinhole_sensors_and_remapped_images(
+    street: tuple[Scenario, str],
+) -> None:
+    pytest.importorskip("carla")
+    scenario, xodr = street
+    assert scenario.camera is not None
+    lens = scenario.camera.model_copy(update={"distortion": (-0.27, 0.035, 0.002, -0.001, 0.0)})
+    scenario = scenario.model_copy(update={"camera": lens})
+    client = FakeClient(available=(*AVAILABLE, "vehicle.nissan.patrol"))
+    opts = CarlaOptions.model_validate({"image_size": (64, 40)})
+    with CarlaSimulator(opts, xodr=xodr, client_factory=lambda *_: client) as sim:
+        sim.load(scenario, RoadMap.from_xodr(xodr))
+        world = client.world
+        assert world is not None
+        expected = lens.camera().scaled(64, 40).pinhole_remap(centred=True)
+        assert expected is not None
+        pinhole = expected[0]
+        for cam in (a for a in world.actors if a.type_id.startswith("sensor.camera")):
+            # The sensors are the lens's pinhole camera (larger: barrel distortion) ...
+            size = (int(cam.attributes["image_size_x"]), int(cam.attributes["image_size_y"]))
+            assert size == pinhole.size
+            assert size[0] > 64
+            assert float(cam.attributes["fov"]) == pytest.approx(
+                math.degrees(2 * math.atan(pinhole.width / (2 * pinhole.fx))), abs=1e-4
+            )
+        sim.reset()
+        sim.step(Control(steering=0.0))
+        frames = sim.camera_images()
+    # ... and the images come back in the lens's pixels.
+    assert frames.rgb.shape == (40, 64, 3)
+    assert frames.semantic.shape == (40, 64)
+    assert (frames.semantic == 7).all()
+    assert frames.rgb[37, 32, 1] == 200  # the lower half stays down
+    assert frames.rgb[2, 32, 1] == 0
+
+
 def test_collision_sensor_and_leaving_the_road_are_events(street: tuple[Scenario, str]) -> None:
     carla = pytest.importorskip("carla")
     scenario, xodr = street

@@ -191,7 +191,7 @@ class PinholeCamera:
         return PinholeCamera.from_K(K_new, self.width, self.height)
 
     def pinhole_remap(
-        self,
+        self, *, centred: bool = False
     ) -> tuple[PinholeCamera, npt.NDArray[np.float32], npt.NDArray[np.float32]] | None:
         """How to show this camera's view with a pinhole renderer: a camera and remap tables.
 
@@ -201,6 +201,10 @@ class PinholeCamera:
         lens distortion included. Entry ``(v, u)`` of the tables is where this camera's pixel
         ``(u, v)`` lies in the pinhole image (always inside it). None without distortion: render
         this camera itself.
+
+        ``centred``: a pinhole camera as CARLA's sensors are (one focal length, the larger of
+        ``fx`` and ``fy``; the principal point at ``(width / 2, height / 2)``), described
+        completely by its size and horizontal field of view.
         """
         dist = np.asarray(self.distortion, dtype=np.float64)
         if dist.size == 0 or not np.any(dist):
@@ -218,13 +222,19 @@ class PinholeCamera:
         else:
             rays = cv2.undistortPoints(pixels, self.K(), dist)
         xy = np.asarray(rays, dtype=np.float64).reshape(self.height, self.width, 2)
-        # Pixel coordinates at this camera's focal lengths, shifted so every ray lands inside.
-        px = xy[..., 0] * self.fx
-        py = xy[..., 1] * self.fy
-        cx, cy = 1.0 - float(px.min()), 1.0 - float(py.min())
-        width = math.ceil(float(px.max()) + cx) + 2
-        height = math.ceil(float(py.max()) + cy) + 2
-        pinhole = PinholeCamera(self.fx, self.fy, cx, cy, width, height)
+        # Pixel coordinates at the focal lengths, shifted so every ray lands inside.
+        fx, fy = (max(self.fx, self.fy),) * 2 if centred else (self.fx, self.fy)
+        px = xy[..., 0] * fx
+        py = xy[..., 1] * fy
+        if centred:
+            width = 2 * math.ceil(max(-float(px.min()), float(px.max())) + 2.0)
+            height = 2 * math.ceil(max(-float(py.min()), float(py.max())) + 2.0)
+            cx, cy = width / 2.0, height / 2.0
+        else:
+            cx, cy = 1.0 - float(px.min()), 1.0 - float(py.min())
+            width = math.ceil(float(px.max()) + cx) + 2
+            height = math.ceil(float(py.max()) + cy) + 2
+        pinhole = PinholeCamera(fx, fy, cx, cy, width, height)
         return (
             pinhole,
             np.ascontiguousarray(px + cx, dtype=np.float32),

@@ -5,8 +5,11 @@
 mode at ``dt``, spawns the parked vehicles frozen (physics off; blueprints chosen
 deterministically by size class, :func:`select_blueprint`), the hero at its start pose on the road
 surface, and an RGB and a semantic camera at the calibrated mount and field of view, plus
-collision and lane-invasion sensors. Every transform crosses the boundary through
-:mod:`cam2sim.core.frames.carla`.
+collision and lane-invasion sensors. A calibration with lens distortion gets the pinhole
+sensors of :meth:`~cam2sim.core.camera.PinholeCamera.pinhole_remap` (``centred``: CARLA's
+principal point is the image centre), and :meth:`CarlaSimulator.camera_images` remaps their
+images into the lens's pixels, as the other cameras of runs do. Every transform crosses the
+boundary through :mod:`cam2sim.core.frames.carla`.
 
 Steering goes through ``carla.VehicleAckermannControl``: the policy's command becomes a front
 wheel angle with the steering calibration (the builtin backend's angle and rate limits apply);
@@ -247,6 +250,7 @@ class CarlaSimulator:
         self._lock = threading.Lock()
         self._pending: list[tuple[EventKind, str]] = []
         self._images: dict[str, Any] = {}
+        self._lens: Any = None  # (map_x, map_y) into the lens's pixels; None: pinhole camera
         self._frame = -1
 
     # -- context ---------------------------------------------------------------------------
@@ -416,6 +420,12 @@ class CarlaSimulator:
         fov = horizontal_fov_deg(scenario)
         assert cam is not None
         w, h = o.image_size or (cam.width, cam.height)
+        lens = cam.camera().scaled(w, h).pinhole_remap(centred=True)
+        self._lens = None if lens is None else lens[1:]
+        if lens is not None:  # the sensors see the lens's pinhole camera; images are remapped
+            pinhole = lens[0]
+            w, h = pinhole.width, pinhole.height
+            fov = math.degrees(2.0 * math.atan(0.5 * w / pinhole.fx))
         mount = _to_carla_transform(carla, camera_link_pose(scenario))
         for kind, bp_name in (
             ("rgb", "sensor.camera.rgb"),
@@ -593,11 +603,14 @@ class CarlaSimulator:
                 )
                 raise StageError(msg)
             time.sleep(0.002)
-        return CameraFrames(
-            frame=int(rgb.frame),
-            rgb=_bgra(rgb)[..., 2::-1].copy(),
-            semantic=_bgra(sem)[..., 2].copy(),
-        )
+        colour, labels = _bgra(rgb)[..., 2::-1].copy(), _bgra(sem)[..., 2].copy()
+        if self._lens is not None:
+            import cv2  # noqa: PLC0415 -- lazy: imports cv2
+
+            map_x, map_y = self._lens
+            colour = np.asarray(cv2.remap(colour, map_x, map_y, cv2.INTER_LINEAR), np.uint8)
+            labels = np.asarray(cv2.remap(labels, map_x, map_y, cv2.INTER_NEAREST), np.uint8)
+        return CameraFrames(frame=int(rgb.frame), rgb=colour, semantic=labels)
 
     def close(self) -> None:
         """Destroy every spawned actor (sensors first) and restore the world's settings.
