@@ -5,6 +5,8 @@ wall time per phase, registered frames, mean reprojection error, points and the 
 each mapper asked for.
 
     python benchmarks/sfm.py [--mapper incremental global] [--frames 300] [--window 10]
+    python benchmarks/sfm.py --data ../shared/data/images/udacity-ch2-curves --mapper incremental \
+        --camera-model RADIAL
 """
 
 from __future__ import annotations
@@ -27,6 +29,9 @@ TARGET_S = 300.0
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--mapper", nargs="+", default=["incremental", "global"])
+    parser.add_argument("--data", type=Path, default=DATA, help="folder of JPEG frames")
+    parser.add_argument("--camera-model", default=None, help="COLMAP model (SIMPLE_RADIAL...)")
+    parser.add_argument("--refine-focal", action="store_true", help="refine the focal too")
     parser.add_argument("--frames", type=int, default=300)
     parser.add_argument("--window", type=int, default=None, help="sequential overlap")
     parser.add_argument("--max-image-size", type=int, default=None)
@@ -37,9 +42,9 @@ def main() -> None:
     parser.add_argument("-v", "--verbose", action="store_true")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING)
-    files = sorted(DATA.glob("*.jpg"))[: args.frames]
+    files = sorted(args.data.glob("*.jpg"))[: args.frames]
     if not files:
-        msg = f"no frames at {DATA}"
+        msg = f"no frames at {args.data}"
         raise SystemExit(msg)
     base = SfmOptions().features
     changes = {
@@ -53,22 +58,29 @@ def main() -> None:
     cpu = platform.processor() or platform.machine()
     load = os.getloadavg()[0]
     print(f"# {len(files)} frames, {os.cpu_count()} cores, {cpu}, load {load:.1f}; {features}")
+    extra: dict[str, object] = {"refine_focal": args.refine_focal}
+    if args.camera_model:
+        extra["camera_model"] = args.camera_model
     for mapper in args.mapper:
-        result = run(files, mapper, features)
+        result = run(files, mapper, features, extra)
         print(json.dumps(result))
         if args.json is not None:
             with args.json.open("a", encoding="utf-8") as handle:
                 handle.write(json.dumps(result) + "\n")
 
 
-def run(files: list[Path], mapper: str, features: FeatureOptions) -> dict[str, object]:
-    options = SfmOptions(mapper=mapper, features=features)  # type: ignore[arg-type]
+def run(
+    files: list[Path], mapper: str, features: FeatureOptions, extra: dict[str, object]
+) -> dict[str, object]:
+    options = SfmOptions(mapper=mapper, features=features, **extra)  # type: ignore[arg-type]
     load_before = os.getloadavg()[0]
     start = time.perf_counter()
     result = sfm_images_only(files, options=options)
     seconds = time.perf_counter() - start
     return {
         "mapper": mapper,
+        "data": files[0].parent.name,
+        "options": {k: str(v) for k, v in extra.items()},
         "frames": len(files),
         "seconds": round(seconds, 1),
         "phases_s": {k: round(v, 1) for k, v in result.seconds.items()},
