@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -26,12 +27,14 @@ from cam2sim.splat.evaluate import EvalOptions, SplatEval, evaluate_splat
 from cam2sim.splat.raster import RasterOutput
 from cam2sim.splat.scene import ChunkRecord, FrameRecord, SceneRecord, save_points
 from cam2sim.splat.train import (
+    MCMC_MIN_STEPS,
     STREET_SCALE_M,
     DensifyOptions,
     LearningRates,
     SceneTrainResult,
     TrainOptions,
     plateau_reached,
+    resolve_options,
     steps_that_fit,
     time_share,
     train_chunk,
@@ -515,6 +518,64 @@ def test_absgrad_needs_the_gsplat_rasterizer(tmp_path: Path) -> None:
     )
     with pytest.raises(StageError, match="absgrad needs the gsplat rasterizer"):
         train_chunk(scene, 0, prep, options, models_dir=tmp_path / "models")
+
+
+def test_auto_densification_is_mcmc_for_long_gsplat_runs_only() -> None:
+    long = TrainOptions(max_steps=30_000, min_steps=7_000)
+    mcmc = resolve_options(long, "gsplat")
+    assert mcmc.densify.strategy == "mcmc"
+    # MCMC's own start and no sky-share term; no plateau stop while it still grows.
+    assert (mcmc.init_opacity, mcmc.sky_weight) == (0.5, 0.0)
+    assert mcmc.min_steps == long.densify.refine_stop
+    short = resolve_options(TrainOptions(max_steps=MCMC_MIN_STEPS - 1), "gsplat")
+    budget = resolve_options(TrainOptions(time_budget_s=60.0), "gsplat")
+    cpu = resolve_options(long, "torch")
+    for options, strategy in ((short, "gsplat"), (budget, "gsplat"), (cpu, "simple")):
+        assert options.densify.strategy == strategy
+        assert (options.init_opacity, options.sky_weight) == (0.1, 0.05)
+    assert cpu.min_steps == 7_000
+    # What the caller set stays, with or without MCMC.
+    chosen = resolve_options(replace(long, init_opacity=0.2, sky_weight=0.1), "gsplat")
+    assert (chosen.densify.strategy, chosen.init_opacity, chosen.sky_weight) == ("mcmc", 0.2, 0.1)
+    fixed = resolve_options(replace(long, densify=DensifyOptions(strategy="gsplat")), "gsplat")
+    assert fixed.densify.strategy == "gsplat"
+    off = resolve_options(replace(long, densify=DensifyOptions(enabled=False)), "gsplat")
+    assert (off.init_opacity, off.sky_weight, off.min_steps) == (0.1, 0.05, 7_000)
+
+
+def test_mcmc_needs_the_gsplat_rasterizer(tmp_path: Path) -> None:
+    prep = make_prepared_scene(tmp_path, n_frames=4, chunks=((0, 4),), size=(32, 24))
+    scene = SceneRecord.load(prep / "scene.json")
+    options = fast_options(
+        max_steps=2, densify=DensifyOptions(strategy="mcmc"), backend="torch", device="cpu"
+    )
+    with pytest.raises(StageError, match="mcmc' needs the gsplat backend") as err:
+        train_chunk(scene, 0, prep, options, models_dir=tmp_path / "models")
+    assert "strategy='auto'" in str(err.value)  # the message names the fix
+
+
+@pytest.mark.requires_cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_mcmc_training_grows_to_its_cap_and_learns(tmp_path: Path) -> None:
+    from cam2sim.splat.raster import has_gsplat
+
+    if not has_gsplat():
+        pytest.skip("gsplat is not installed (pip install 'cam2sim[splat-cuda]')")
+    prep = make_prepared_scene(tmp_path, size=(320, 240), spacing=0.2)
+    options = fast_options(
+        max_steps=600,
+        min_steps=600,
+        val_every=100,
+        device="cuda",
+        backend="gsplat",
+        densify=DensifyOptions(
+            strategy="mcmc", refine_start=50, refine_every=50, refine_stop=450, mcmc_cap=20_000
+        ),
+    )
+    result = train_scene(prep, options=options)
+    for chunk in result.chunks:
+        assert chunk.val_history[-1][1] > 25.0, chunk.val_history
+        assert chunk.n_initial_gaussians < chunk.n_gaussians <= 20_000
 
 
 def test_coarse_to_fine_training_learns_and_validates_at_full_size(tmp_path: Path) -> None:

@@ -16,8 +16,10 @@ into ``means2d.absgrad`` (AbsGS), not the gradients' norm: textured surfaces who
 gradients cancel out still grow Gaussians. With ``pixel_weighted`` each view's gradient counts by
 the Gaussian's screen footprint in that view (Pixel-GS), optionally damped near the camera.
 
-Both reset opacities themselves (gsplat 1.5.3's strategy never does). torch is imported at module
-level: only the trainer imports this module, inside a function.
+Both reset opacities themselves (gsplat 1.5.3's strategy never does). A third, ``strategy="mcmc"``,
+is gsplat's ``MCMCStrategy`` as it is (relocate faded Gaussians, grow to a cap, position noise;
+no resets, no statistics). torch is imported at module level: only the trainer imports this
+module, inside a function.
 """
 
 from __future__ import annotations
@@ -57,7 +59,18 @@ class Densifier:
         self.strategy: Any = None  # Any: gsplat ships no type information
         self.state: dict[str, Any] = {"grad2d": None, "count": None}
         self._grad_scale: tuple[tuple[Any, ...], torch.Tensor] | None = None
-        if use_gsplat:
+        if options.strategy == "mcmc":
+            from gsplat.strategy import MCMCStrategy  # noqa: PLC0415
+
+            self.strategy = MCMCStrategy(
+                cap_max=options.mcmc_cap,
+                refine_start_iter=options.refine_start,
+                refine_stop_iter=options.refine_stop,
+                refine_every=options.refine_every,
+                min_opacity=options.prune_opacity,
+            )
+            self.state = self.strategy.initialize_state()
+        elif use_gsplat:
             from gsplat.strategy import DefaultStrategy  # noqa: PLC0415
 
             self.strategy = DefaultStrategy(
@@ -88,9 +101,20 @@ class Densifier:
         out: RasterOutput,
         n_street: int,
         generator: torch.Generator,
+        means_lr: float = 0.0,
     ) -> None:
-        """Update statistics after ``backward()`` and refine when the step is due."""
+        """Update statistics after ``backward()`` and refine when the step is due.
+
+        ``means_lr`` (the means' learning rate of this step) scales MCMC's position noise.
+        """
         opts = self.options
+        if opts.strategy == "mcmc":
+            # Relocation and growth when due, position noise on every step; model.params and
+            # the optimizers are the street model's alone (the sky never moves).
+            self.strategy.step_post_backward(
+                model.params, optimizers, self.state, step, out.info, lr=means_lr
+            )
+            return
         if step >= opts.refine_stop or out.means2d.grad is None:
             return
         if self.strategy is not None:

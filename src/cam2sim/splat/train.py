@@ -60,12 +60,14 @@ from cam2sim.splat.raster import build_gsplat, rasterize, resolve_backend, resol
 from cam2sim.splat.robust import robust_keep
 from cam2sim.splat.scene import ChunkRecord, SceneRecord, load_points
 from cam2sim.splat.train_options import (
+    MCMC_MIN_STEPS,
     DensifyOptions,
     LearningRates,
     SceneTrainResult,
     Stop,
     TrainOptions,
     TrainResult,
+    resolve_options,
 )
 from cam2sim.splat.views import downsample_views, load_views, loss_constants, sky_colour
 
@@ -76,6 +78,7 @@ if TYPE_CHECKING:
     from cam2sim.splat.raster import RasterOutput
 
 __all__ = [
+    "MCMC_MIN_STEPS",
     "STREET_SCALE_M",
     "DensifyOptions",
     "LearningRates",
@@ -83,6 +86,7 @@ __all__ = [
     "TrainOptions",
     "TrainResult",
     "plateau_reached",
+    "resolve_options",
     "steps_that_fit",
     "time_share",
     "train_chunk",
@@ -173,6 +177,23 @@ def steps_that_fit(step: int, seconds: float, share_s: float, mark: tuple[int, f
     return step + max(1, int((share_s - seconds) * steps / spent))
 
 
+def _check_backend(options: TrainOptions, backend: str) -> None:
+    """Refuse densification settings that need gsplat on another rasterizer."""
+    dens = options.densify
+    if dens.enabled and dens.absgrad and backend != "gsplat":
+        msg = (
+            "DensifyOptions.absgrad needs the gsplat rasterizer (CUDA); on this machine "
+            f"the {backend} rasterizer runs: turn absgrad off"
+        )
+        raise StageError(msg)
+    if dens.enabled and dens.strategy == "mcmc" and backend != "gsplat":
+        msg = (
+            f"densify.strategy='mcmc' needs the gsplat backend (CUDA), not {backend!r}; "
+            "train on a CUDA device or use densify.strategy='auto'"
+        )
+        raise StageError(msg)
+
+
 class _ChunkTrainer:
     """Training state of one chunk; :meth:`step` runs one optimisation step."""
 
@@ -189,16 +210,15 @@ class _ChunkTrainer:
     ) -> None:
         import torch  # noqa: PLC0415
 
+        options = resolve_options(options, backend)
+        # resolve_options decided both; kept as plain floats.
+        self.sky_weight = options.sky_weight or 0.0
+        self.init_opacity = options.init_opacity if options.init_opacity is not None else 0.1
         self.chunk = chunk
         self.options = options
         self.device = device
         self.backend = backend
-        if options.densify.enabled and options.densify.absgrad and backend != "gsplat":
-            msg = (
-                "DensifyOptions.absgrad needs the gsplat rasterizer (CUDA); on this machine "
-                f"the {backend} rasterizer runs: turn absgrad off"
-            )
-            raise StageError(msg)
+        _check_backend(options, backend)
         self.absgrad = options.densify.enabled and options.densify.absgrad
         by_index = {f.index: f for f in scene.frames}
         missing = [i for i in chunk.frames if i not in by_index]
@@ -235,8 +255,7 @@ class _ChunkTrainer:
             Densifier(
                 options.densify,
                 self.scene_scale,
-                use_gsplat=options.densify.strategy == "gsplat"
-                or (options.densify.strategy == "auto" and backend == "gsplat"),
+                use_gsplat=options.densify.strategy == "gsplat",
                 max_steps=options.max_steps,
             )
             if options.densify.enabled
@@ -269,7 +288,7 @@ class _ChunkTrainer:
             sky_rgb=sky_colour(self.views),
             options=SeedOptions(
                 sh_degree=opts.sh_degree,
-                opacity=opts.init_opacity,
+                opacity=self.init_opacity,
                 sky_points=opts.sky_points,
                 sky_radius_m=opts.sky_radius_m,
                 max_points=opts.max_init_points,
@@ -391,6 +410,8 @@ class _ChunkTrainer:
     def _loss(
         self, view: int, rgb: torch.Tensor, sky_share: torch.Tensor, level: int
     ) -> torch.Tensor:
+        import torch  # noqa: PLC0415
+
         (v, c), opts = self.levels[level], self.options
         sky = None
         if (
@@ -398,7 +419,7 @@ class _ChunkTrainer:
             and c.street_pixels is not None
             and c.sky_scale is not None
             and c.street_scale is not None
-            and opts.sky_weight > 0
+            and self.sky_weight > 0
             and opts.sky_points > 0
         ):
             sky = (
@@ -415,7 +436,13 @@ class _ChunkTrainer:
             l1_scale = 1.0 / (3.0 * kept.clamp(min=1))
             self.outlier_sum += 1.0 - kept / used.sum().clamp(min=1)
             self.outlier_steps += 1
-        return photometric_loss(rgb, target, mask, l1_scale, opts.ssim_weight, sky, opts.sky_weight)
+        loss = photometric_loss(rgb, target, mask, l1_scale, opts.ssim_weight, sky, self.sky_weight)
+        dens = opts.densify
+        if dens.enabled and dens.strategy == "mcmc":
+            params = self.street.params
+            loss = loss + dens.mcmc_opacity_reg * torch.sigmoid(params["opacities"]).mean()
+            loss = loss + dens.mcmc_scale_reg * torch.exp(params["scales"]).mean()
+        return loss
 
     def _next_view(self) -> int:
         import torch  # noqa: PLC0415
@@ -448,7 +475,13 @@ class _ChunkTrainer:
         timer.mark("optimizer")
         if self.densifier is not None:
             self.densifier.post_backward(
-                self.step_no, self.street, self.optimizers, out, len(self.street), self.generator
+                self.step_no,
+                self.street,
+                self.optimizers,
+                out,
+                len(self.street),
+                self.generator,
+                means_lr=self.means_lr,
             )
             timer.mark("densify")
         self.step_no += 1
@@ -575,6 +608,7 @@ class _ChunkTrainer:
             best_val_psnr_db=self.best,
             backend=self.backend,
             stopped=self.stopped,
+            notes=[self._densify_note()],
         )
         model = ChunkModel(
             header=header, gaussians=self.street, sky=self.sky, appearance=self.appearance.detach()
@@ -611,6 +645,19 @@ class _ChunkTrainer:
                 float(self.outlier_sum) / self.outlier_steps if self.outlier_steps else None
             ),
             pose_correction=correction,
+            densify_strategy=self.options.densify.strategy
+            if self.options.densify.enabled
+            else "off",
+        )
+
+    def _densify_note(self) -> str:
+        """How the model grew, for the header's notes."""
+        opts = self.options
+        if not opts.densify.enabled:
+            return "densification off"
+        return (
+            f"densification {opts.densify.strategy}, initial opacity {self.init_opacity:g}, "
+            f"sky-share weight {self.sky_weight:g}"
         )
 
 

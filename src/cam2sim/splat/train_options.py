@@ -6,7 +6,7 @@ page; :mod:`cam2sim.splat.train` re-exports every name.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path  # noqa: TC003 - a dataclass field's type
 from typing import TYPE_CHECKING, Literal
 
@@ -17,15 +17,20 @@ if TYPE_CHECKING:
     from cam2sim.splat.raster import RasterBackend
 
 __all__ = [
+    "MCMC_MIN_STEPS",
     "DensifyOptions",
     "LearningRates",
     "SceneTrainResult",
     "Stop",
     "TrainOptions",
     "TrainResult",
+    "resolve_options",
 ]
 
 Stop = Literal["plateau", "max_steps", "time"]
+
+MCMC_MIN_STEPS = 20_000
+"""Step caps from which ``DensifyOptions.strategy="auto"`` densifies by MCMC on gsplat."""
 """Why a chunk's training ended (``TrainResult.stopped``)."""
 
 
@@ -62,7 +67,16 @@ class DensifyOptions:
 
     Attributes:
         enabled: Densify at all.
-        strategy: ``"gsplat"`` (DefaultStrategy), ``"simple"`` (ours) or ``"auto"``.
+        strategy: ``"gsplat"`` (DefaultStrategy), ``"simple"`` (ours), ``"mcmc"`` (gsplat's
+            ``MCMCStrategy``, 3DGS as Markov chain Monte Carlo, Kheradmand et al. 2024:
+            Gaussians that fade are moved onto live ones, the model grows by 5 % every
+            ``refine_every`` steps to a fixed ``mcmc_cap``, positions get noise scaled by
+            transparency; no opacity resets, no gradient statistics; gsplat backend only) or
+            ``"auto"``: ``"mcmc"`` with gsplat for runs of at least :data:`MCMC_MIN_STEPS`
+            steps without a time budget, ``"gsplat"`` for shorter ones, ``"simple"`` on the
+            torch rasterizer (:func:`resolve_options`). MCMC needs its growth phase: on real
+            frames it lost 0.6-1.0 dB at 10,000 steps and won 0.2-0.9 dB at 30,000
+            (``docs/benchmarks.md``).
         refine_start: First step that clones/splits/prunes.
         refine_stop: No refinement from this step on.
         refine_every: Steps between refinements.
@@ -89,10 +103,15 @@ class DensifyOptions:
         prune_scale3d: Gaussians larger than this (times scene scale) are removed after the
             first reset.
         max_gaussians: No growth once the street model has this many Gaussians.
+        mcmc_cap: With ``strategy="mcmc"``: the number of street Gaussians the model grows to
+            (by 5 % every ``refine_every`` steps).
+        mcmc_opacity_reg: With ``strategy="mcmc"``: weight of the mean opacity in the loss
+            (Gaussians that are not needed fade, and are then moved where others are).
+        mcmc_scale_reg: With ``strategy="mcmc"``: weight of the mean scale (scene units).
     """
 
     enabled: bool = True
-    strategy: Literal["auto", "gsplat", "simple"] = "auto"
+    strategy: Literal["auto", "gsplat", "simple", "mcmc"] = "auto"
     refine_start: int = 500
     refine_stop: int = 15_000
     refine_every: int = 100
@@ -105,6 +124,9 @@ class DensifyOptions:
     prune_opacity: float = 0.005
     prune_scale3d: float = 0.1
     max_gaussians: int = 6_000_000
+    mcmc_cap: int = 1_000_000
+    mcmc_opacity_reg: float = 0.01
+    mcmc_scale_reg: float = 0.01
 
 
 @dataclass(frozen=True)
@@ -125,8 +147,11 @@ class TrainOptions:
         appearance: Learn per-view colour transforms.
         sky_points: Number of sky Gaussians (0 = none).
         sky_radius_m: Sky sphere radius; None = automatic.
-        sky_weight: Weight of the sky-share loss (used when ``sky/`` masks exist).
-        init_opacity: Opacity of new street Gaussians.
+        sky_weight: Weight of the sky-share loss (used when ``sky/`` masks exist); None =
+            0.05, or 0 with MCMC densification (measured as one recipe on real frames, where
+            the classical sky masks mark sunlit trunks and bright hillsides as sky).
+        init_opacity: Opacity of new street Gaussians; None = 0.1, or 0.5 with MCMC
+            densification (the MCMC paper's).
         max_init_points: About this many of the chunk's points to start from, thinned with the
             distance from the cameras (``splat.model.screen_density_keep``); None = all.
         background: RGB in ``[0, 1]`` behind everything.
@@ -183,8 +208,8 @@ class TrainOptions:
     appearance: bool = True
     sky_points: int = 10_000
     sky_radius_m: float | None = None
-    sky_weight: float = 0.05
-    init_opacity: float = 0.1
+    sky_weight: float | None = None
+    init_opacity: float | None = None
     max_init_points: int | None = None
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     scene_scale: float | None = None
@@ -234,6 +259,43 @@ class TrainOptions:
             raise ValueError(msg)
 
 
+def resolve_options(options: TrainOptions, backend: str) -> TrainOptions:
+    """``options`` with what ``"auto"`` and None leave open decided for the ``backend``.
+
+    ``densify.strategy="auto"`` becomes ``"mcmc"`` on gsplat for a run of at least
+    :data:`MCMC_MIN_STEPS` steps and no time budget (a budget may end it long before),
+    ``"gsplat"`` for a shorter gsplat run, ``"simple"`` on the torch rasterizer. With MCMC,
+    ``init_opacity`` and ``sky_weight`` default to 0.5 and 0 (else 0.1 and 0.05), and no plateau
+    stop comes before ``densify.refine_stop``: the model grows and moves its Gaussians until then,
+    and its held-in score rises late (below the default strategy's at 15,000 of 30,000 steps,
+    above it at the end).
+    """
+    dens = options.densify
+    strategy = dens.strategy
+    if strategy == "auto":
+        if backend != "gsplat":
+            strategy = "simple"
+        elif options.max_steps >= MCMC_MIN_STEPS and options.time_budget_s is None:
+            strategy = "mcmc"
+        else:
+            strategy = "gsplat"
+    mcmc = dens.enabled and strategy == "mcmc"
+    min_steps = options.min_steps
+    if mcmc:
+        min_steps = max(min_steps, min(dens.refine_stop, options.max_steps))
+    return replace(
+        options,
+        densify=replace(dens, strategy=strategy),
+        init_opacity=_or(options.init_opacity, 0.5 if mcmc else 0.1),
+        sky_weight=_or(options.sky_weight, 0.0 if mcmc else 0.05),
+        min_steps=min_steps,
+    )
+
+
+def _or(value: float | None, default: float) -> float:
+    return default if value is None else value
+
+
 @dataclass(frozen=True)
 class TrainResult:
     """Outcome of training one chunk.
@@ -258,6 +320,8 @@ class TrainResult:
             the steps it ran (None when it was off).
         pose_correction: The learned pose corrections' mean and largest translation (scene
             units) and rotation (degrees), when pose refinement was on (``lr.poses``).
+        densify_strategy: The densification that ran (``"mcmc"``, ``"gsplat"``, ``"simple"``;
+            ``"off"``), after :func:`resolve_options`.
     """
 
     chunk_id: int
@@ -276,6 +340,7 @@ class TrainResult:
     phase_ms: dict[str, float] = field(default_factory=dict)
     robust_outlier_share: float | None = None
     pose_correction: tuple[float, float, float, float] | None = None
+    densify_strategy: str = ""
 
 
 @dataclass(frozen=True)
