@@ -92,6 +92,12 @@ _FOOTWAY_OSM = (
 
 CASES = [
     Case(
+        "an unknown densification for the splat stage",
+        _nothing,
+        lambda root: ["splat", _ws(root), "--densify", "mcmcc"],
+        ("--densify 'mcmcc' is not one of", "auto, mcmc, gsplat, simple"),
+    ),
+    Case(
         "a demo route without an OSM file",
         _nothing,
         lambda root: ["demo", "-o", str(root / "d"), "--route", "48.1,11.5", "48.2,11.5"],

@@ -31,6 +31,13 @@ def splat(
         ),
     ] = None,
     device: Annotated[str, typer.Option(help="auto, cuda or cpu.")] = "auto",
+    densify: Annotated[
+        str,
+        typer.Option(
+            help="Densification: auto (MCMC for gsplat runs of 20,000+ steps without a time "
+            "budget, else gsplat's default strategy; ours on CPU), mcmc, gsplat or simple."
+        ),
+    ] = "auto",
     downscale: Annotated[int, typer.Option(help="Train on images downscaled by N.")] = 1,
     segformer: Annotated[
         str | None, typer.Option(help="SegFormer sky model: local path or hub id.")
@@ -54,9 +61,17 @@ def splat(
     """
     from cam2sim.splat.prepare import PrepareOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.splat.sfm import SfmOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
-    from cam2sim.splat.train import TrainOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.splat.train import DensifyOptions, TrainOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.stages.splat import SplatStageOptions, run_splat  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
+    strategies = ("auto", "mcmc", "gsplat", "simple")
+    if densify not in strategies:
+        error_console.print(
+            f"[bold red]error:[/] --densify {densify!r} is not one of {', '.join(strategies)}",
+            highlight=False,
+            soft_wrap=True,
+        )
+        raise typer.Exit(1)
     try:
         options = SplatStageOptions(
             prepare=PrepareOptions(
@@ -72,6 +87,7 @@ def splat(
                 device=device,
                 downscale=downscale,
                 time_budget_s=time_budget,
+                densify=DensifyOptions(strategy=densify),  # type: ignore[arg-type]
             ),
             evaluate=not no_eval,
             lpips_weights=lpips_weights,
@@ -91,7 +107,8 @@ def splat(
             psnr = chunk.val_history[-1][1] if chunk.val_history else None
             console.print(
                 f"chunk {chunk.chunk_id}: {chunk.steps:,} steps in {chunk.train_seconds:.0f} s "
-                f"(stopped: {chunk.stopped}), {chunk.n_gaussians:,} Gaussians"
+                f"(stopped: {chunk.stopped}), {chunk.n_gaussians:,} Gaussians "
+                f"(densification {chunk.densify_strategy or 'n/a'})"
                 + ("" if psnr is None else f", held-in PSNR {psnr:.2f} dB"),
                 highlight=False,
             )

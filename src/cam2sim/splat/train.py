@@ -12,9 +12,12 @@ Reads ``WS/splat/prep/`` (:mod:`cam2sim.splat.scene`), writes ``WS/splat/models/
   Gaussians cannot paint the street.
 - **Appearance**: a per-view affine colour transform (3x3 + bias, identity at first, own small
   learning rate) applied to the render before the loss.
-- **Densification** (:class:`cam2sim.splat.densify.Densifier`): gsplat's ``DefaultStrategy``
-  with the gsplat backend, a simple densifier of the same rules otherwise; opacities are reset
-  here every ``reset_every`` steps, as gsplat 1.5.3's strategy never does it.
+- **Densification** (:class:`cam2sim.splat.densify.Densifier`): gsplat's ``MCMCStrategy`` for
+  gsplat runs of at least ``MCMC_MIN_STEPS`` steps without a time budget (with opacity 0.5 at the
+  start, opacity and scale regularisers, no sky-share term; :func:`resolve_options`), else
+  gsplat's ``DefaultStrategy`` with the gsplat backend and a simple densifier of the same rules
+  on the torch one; opacities are reset here every ``reset_every`` steps (not with MCMC), as
+  gsplat 1.5.3's strategy never does it.
 - **Stopping**: every ``val_every`` steps the PSNR and SSIM of up to ``n_val_views`` training
   views spread along the chunk (held-in validation) are measured. After ``min_steps``, training
   stops on a plateau: when the least-squares trend of the last ``patience + 1`` validations
