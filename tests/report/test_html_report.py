@@ -247,6 +247,52 @@ def test_the_report_shows_the_splat_envelope_and_an_unfit_splat_plainly(tmp_path
     assert "Validity envelope, measured" not in splat
 
 
+def test_the_report_says_how_each_splat_chunk_was_trained(tmp_path: Path) -> None:
+    import cv2
+    import numpy as np
+
+    from cam2sim.splat.chunk_header import ChunkHeader, ViewRecord, outliers_path
+
+    ws = _workspace(tmp_path / "ws")
+    _splat_eval(27.0).save(ws.splat_dir / "eval.json")
+    models = ws.splat_dir / "models"
+    models.mkdir(parents=True)
+
+    def view(i: int, correction: list[float] | None) -> ViewRecord:
+        return ViewRecord(
+            index=i, progress_m=float(i), position=[0.0, float(i), 1.5], forward=[0, 1, 0],
+            correction=correction,
+        )  # fmt: skip
+
+    common = {
+        "start_m": 0.0, "end_m": 10.0, "sh_degree": 3, "n_sky": 100, "scene_scale": 10.0,
+        "sky_radius_m": 500.0, "background": [0.0, 0.0, 0.0], "backend": "gsplat",
+    }  # fmt: skip
+    ChunkHeader(
+        chunk_id=0, n_gaussians=1_000_000, steps=30_000, stopped="max_steps",
+        notes=["densification mcmc, initial opacity 0.5, sky-share weight 0"],
+        train_views=[view(0, None), view(1, None)], **common,
+    ).save(models / "chunk_00.json")  # fmt: skip
+    # Pose refinement: turns of 1 and 3 degrees, shifts of 0.1 and 0.3 units.
+    turn = np.radians([1.0, 3.0])
+    ChunkHeader(
+        chunk_id=1, n_gaussians=500_000, steps=12_000, stopped="plateau",
+        train_views=[view(0, [0, 0, turn[0], 0.1, 0, 0]), view(1, [0, 0, turn[1], 0, 0.3, 0])],
+        **common,
+    ).save(models / "chunk_01.json")  # fmt: skip
+    picture = np.zeros((24, 64, 3), np.uint8)
+    outliers_path(models / "chunk_01.pt").write_bytes(cv2.imencode(".jpg", picture)[1].tobytes())
+    html = write_report(ws).read_text(encoding="utf-8")
+    splat = dict(re.findall(r'<section id="(\w+)">(.*?)</section>', html, re.DOTALL))["splat"]
+    assert "Training, per chunk model" in splat
+    assert "<td>0</td><td>30,000</td><td>max_steps</td><td>1,000,000</td>" in splat
+    assert "densification mcmc, initial opacity 0.5" in splat
+    assert "<td>off</td>" in splat  # chunk 0: no pose refinement
+    assert "0.2 / 0.3 units, 2.00 / 3.00°" in splat
+    assert "chunk 1: pixels the robust weighting left out" in splat
+    assert splat.count('src="data:image/jpeg;base64,') == 1
+
+
 def test_the_report_reads_the_drive_metrics_and_says_which_command_writes_them(
     tmp_path: Path,
 ) -> None:

@@ -35,7 +35,8 @@ def test_rotations_match_scipy_and_translations_pass_through() -> None:
 def test_correction_sizes_in_scene_units_and_degrees() -> None:
     delta = torch.tensor([[0.0, 0.0, math.radians(2.0), 0.3, 0.4, 0.0], [0.0] * 6])
     mean_t, max_t, mean_r, max_r = correction_sizes(delta)
-    assert (mean_t, max_t) == (0.25, 0.5)
+    assert math.isclose(mean_t, 0.25, rel_tol=1e-6)
+    assert math.isclose(max_t, 0.5, rel_tol=1e-6)
     assert math.isclose(max_r, 2.0, rel_tol=1e-5)
     assert math.isclose(mean_r, 1.0, rel_tol=1e-5)
 

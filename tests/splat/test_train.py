@@ -627,6 +627,11 @@ def test_robust_weighting_trains_and_reports_what_it_left_out(tmp_path: Path) ->
     assert result.best_val_psnr_db is not None
     assert plain.best_val_psnr_db is not None
     assert result.best_val_psnr_db > plain.best_val_psnr_db - 1.0  # no worse on a static scene
+    # The views it left out most, kept as a picture beside the model (2 x 2 frames of 32 x 24).
+    picture = cv2.imread(str(tmp_path / "m" / "chunk_00_outliers.jpg"))
+    assert picture is not None
+    assert picture.shape == (48, 64, 3)
+    assert not (tmp_path / "p" / "chunk_00_outliers.jpg").exists()
 
 
 def test_pose_refinement_learns_small_corrections_and_writes_them_back(tmp_path: Path) -> None:

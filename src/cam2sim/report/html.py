@@ -11,7 +11,8 @@ Sections (stable ids): ``summary`` (inputs, stage timings, warnings), ``map`` (r
 every run's trajectory), ``behaviour`` (drive metrics per method, the paper's layout; a splat
 that fails the splat quality gate is labelled unfit, with the reason), ``runs`` (per-run table,
 lateral offset and steering plots), ``splat`` (held-out scores, the validity envelope measured
-against the ground truth with a plot, the gate's verdict), ``frames`` (side-by-side frames at
+against the ground truth with a plot, how each chunk model was trained with its pose
+corrections and the robust weighting's left-out pixels, the gate's verdict), ``frames`` (side-by-side frames at
 chosen points, a video strip), ``semantic`` (IoU tables) and ``images`` (PSNR, SSIM, LPIPS
 tables).
 """
@@ -44,6 +45,7 @@ from cam2sim.metrics.image_quality import PSNR_CAP_DB, ImageQualityResult
 from cam2sim.metrics.semantic import SemanticResult
 from cam2sim.report.splat_figures import envelope_figure
 from cam2sim.scenario.model import Scenario
+from cam2sim.splat.chunk_header import ChunkHeader, outliers_path, pose_correction_sizes
 from cam2sim.splat.evaluate import SplatEval
 
 if TYPE_CHECKING:
@@ -623,6 +625,7 @@ def _splat(ctx: _Context) -> str:
             "vertical (+ = left). Coverage: 0 on a training view, toward 1 far from all.</p>"
         )
     parts += [f'<p class="note">{_e(note)}</p>' for note in ev.notes]
+    parts.append(_splat_training(ctx))
     rule = (
         f"The splat quality gate: held-out PSNR &ge; {gate.HELD_OUT_MIN_PSNR_DB:g} dB and SSIM "
         f"&ge; {gate.HELD_OUT_MIN_SSIM:.2f}; against the ground truth on the path (when there is "
@@ -643,6 +646,48 @@ def _splat(ctx: _Context) -> str:
     if not verdicts:
         parts.append('<p class="note">No drive with the splat camera recorded its quality.</p>')
     return "".join(parts)
+
+
+def _splat_training(ctx: _Context) -> str:
+    """Per chunk model: how it was trained, its pose corrections, what the weighting left out.
+
+    Read from the headers (``chunk_XX.json``) and ``chunk_XX_outliers.jpg`` beside them.
+    """
+    models = ctx.ws.splat_dir / "models"
+    rows, pictures = [], []
+    for path in sorted(models.glob("chunk_*.json")):
+        try:
+            header = ChunkHeader.load(path)
+        except Cam2SimError as err:
+            ctx.warnings.append(f"{path}: {err}")
+            continue
+        sizes = pose_correction_sizes(header)
+        poses = (
+            "off"
+            if sizes is None
+            else f"{sizes[0]:.3g} / {sizes[1]:.3g} units, {sizes[2]:.2f} / {sizes[3]:.2f}°"
+        )
+        rows.append(
+            (
+                header.chunk_id, f"{header.steps:,}", header.stopped or "-",
+                f"{header.n_gaussians:,}", "; ".join(header.notes) or "-", poses,
+            )
+        )  # fmt: skip
+        picture = outliers_path(path.with_suffix(".pt"))
+        if picture.is_file():
+            alt = f"chunk {header.chunk_id}: pixels the robust weighting left out (red)"
+            pictures.append(
+                f"<p class='note'>{_e(alt)}</p>"
+                + _img(picture.read_bytes(), alt, mime="image/jpeg")
+            )
+    if not rows:
+        return ""
+    headers = ["chunk", "steps", "stopped", "Gaussians", "training", "pose corrections"]
+    caption = (
+        "Training, per chunk model (WS/splat/models/chunk_XX.json); pose corrections: mean / "
+        "largest shift and turn of the training views' learned corrections, when refined"
+    )
+    return _table(headers, [tuple(r) for r in rows], caption) + "".join(pictures)
 
 
 # -- the page -----------------------------------------------------------------------------------

@@ -29,12 +29,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Final, Literal
 
 import numpy as np
-import pydantic
 import torch
 
 from cam2sim.core.errors import WorkspaceError
 from cam2sim.core.files import write_bytes_atomic
-from cam2sim.core.schema import Artifact
+from cam2sim.splat.chunk_header import ChunkHeader, ViewRecord, outliers_path
 from cam2sim.splat.raster_torch import SH_C0, quats_to_rotmats, rgb_from_sh
 
 if TYPE_CHECKING:
@@ -61,6 +60,7 @@ __all__ = [
     "load_chunk_header",
     "load_chunk_model",
     "nearest_neighbour_distances",
+    "outliers_path",
     "remove",
     "reset_opacity",
     "save_chunk_model",
@@ -552,46 +552,6 @@ def seed_models(
 
 
 # --------------------------------------------------------------------------------- files
-
-
-class ViewRecord(pydantic.BaseModel):
-    """A training view of a chunk (for chunk choice, colour interpolation and coverage)."""
-
-    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
-
-    index: int = pydantic.Field(description="Frame index in the prepared scene")
-    progress_m: float
-    position: list[float] = pydantic.Field(description="Camera centre, world metres")
-    forward: list[float] = pydantic.Field(description="Optical axis (camera +z), world, unit")
-    correction: list[float] | None = pydantic.Field(
-        None,
-        description="Learned pose correction (omega, t) of this view, when pose refinement ran "
-        "(cam2sim.splat.pose_refine); position and forward are already corrected",
-    )
-
-
-class ChunkHeader(Artifact):
-    """``chunk_XX.json``: what a chunk model covers and how it was trained."""
-
-    chunk_id: int
-    start_m: float
-    end_m: float
-    sh_degree: int
-    n_gaussians: int
-    n_sky: int
-    scene_scale: float = pydantic.Field(
-        description="Scale of the learning rate and densification (TrainOptions.scene_scale)"
-    )
-    sky_radius_m: float
-    background: list[float] = pydantic.Field(description="RGB behind everything, [0, 1]")
-    train_views: list[ViewRecord] = pydantic.Field(
-        description="Training views, in the order of the appearance table"
-    )
-    steps: int = 0
-    best_val_psnr_db: float | None = None
-    backend: str = ""
-    stopped: str = ""
-    notes: list[str] = pydantic.Field(default_factory=list)
 
 
 @dataclass(frozen=True)

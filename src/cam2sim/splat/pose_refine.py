@@ -60,14 +60,18 @@ def se3_exp(delta: torch.Tensor) -> torch.Tensor:
     return out
 
 
-def correction_sizes(delta: torch.Tensor) -> tuple[float, float, float, float]:
-    """Mean and largest translation (scene units) and rotation (degrees) of the corrections."""
-    import math  # noqa: PLC0415
+def correction_sizes(delta: npt.ArrayLike) -> tuple[float, float, float, float]:
+    """Mean and largest translation (scene units) and rotation (degrees) of the corrections.
 
-    if len(delta) == 0:
+    ``delta``: ``[N, 6]`` corrections ``(omega, t)``, as an array or a CPU tensor.
+    """
+    import numpy as np  # noqa: PLC0415
+
+    rows = np.asarray(delta, dtype=np.float64).reshape(-1, 6)
+    if len(rows) == 0:
         return 0.0, 0.0, 0.0, 0.0
-    rot = delta.detach()[:, :3].norm(dim=1) * (180.0 / math.pi)
-    shift = delta.detach()[:, 3:].norm(dim=1)
+    rot = np.degrees(np.linalg.norm(rows[:, :3], axis=1))
+    shift = np.linalg.norm(rows[:, 3:], axis=1)
     return float(shift.mean()), float(shift.max()), float(rot.mean()), float(rot.max())
 
 

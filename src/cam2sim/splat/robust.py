@@ -23,9 +23,11 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
     import torch
 
-__all__ = ["RobustLoss", "robust_keep"]
+__all__ = ["RobustLoss", "outlier_montage", "robust_keep"]
 
 
 @dataclass(frozen=True)
@@ -89,3 +91,35 @@ def robust_keep(
     )
     keep: torch.Tensor = (near | block)[0, 0] & mask
     return keep
+
+
+def outlier_montage(
+    frames: list[npt.NDArray[np.uint8]],
+    left_out: list[npt.NDArray[np.bool_]],
+    labels: list[str],
+) -> npt.NDArray[np.uint8]:
+    """One RGB picture of recorded frames with the pixels the weighting left out tinted red.
+
+    Args:
+        frames: ``[H, W, 3]`` uint8 frames, all of one size.
+        left_out: ``[H, W]`` bool per frame: used pixels that the weighting dropped.
+        labels: A caption per frame (written on its top-left corner).
+
+    Returns:
+        The frames in rows of two (a black tile fills an odd last row).
+    """
+    import cv2  # noqa: PLC0415
+    import numpy as np  # noqa: PLC0415
+
+    tiles = []
+    red = np.array([255.0, 0.0, 0.0])
+    for frame, out, label in zip(frames, left_out, labels, strict=True):
+        tile = frame.astype(np.float64)
+        tile[out] = 0.45 * tile[out] + 0.55 * red
+        tile = np.ascontiguousarray(tile.astype(np.uint8))
+        cv2.putText(tile, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1)
+        tiles.append(tile)
+    if len(tiles) % 2:
+        tiles.append(np.zeros_like(tiles[0]))
+    rows = [np.concatenate(tiles[i : i + 2], axis=1) for i in range(0, len(tiles), 2)]
+    return np.concatenate(rows, axis=0)

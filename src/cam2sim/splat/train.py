@@ -575,6 +575,7 @@ class _ChunkTrainer:
             ViewRecord,
             chunk_model_path,
             export_ply,
+            outliers_path,
             save_chunk_model,
         )
 
@@ -584,7 +585,7 @@ class _ChunkTrainer:
         if self.pose_delta is not None:
             delta = self.pose_delta.detach().cpu().double().numpy()
             poses = corrected_pose(poses, delta)
-            correction = correction_sizes(self.pose_delta)
+            correction = correction_sizes(delta)
             deltas = delta.tolist()
         views = [
             ViewRecord(
@@ -620,6 +621,8 @@ class _ChunkTrainer:
         save_chunk_model(model, path)
         if self.options.write_ply:
             export_ply(self.street, path.with_suffix(".ply"), extra=self.sky)
+        if self.options.robust.quantile > 0:
+            self._write_outliers(outliers_path(path))
         _log.info(
             "chunk %d: %s after %d steps, best held-in PSNR %s, %d Gaussians -> %s",
             self.chunk.id,
@@ -652,6 +655,38 @@ class _ChunkTrainer:
             if self.options.densify.enabled
             else "off",
         )
+
+    def _write_outliers(self, path: Path, n_views: int = 4) -> None:
+        """Picture of the training views whose pixels the robust weighting leaves out most.
+
+        Each view is rendered once more with the final model and judged as in the last steps.
+        """
+        import cv2  # noqa: PLC0415
+        import torch  # noqa: PLC0415
+
+        from cam2sim.core.files import write_bytes_atomic  # noqa: PLC0415
+        from cam2sim.splat.robust import outlier_montage  # noqa: PLC0415
+
+        v, opts = self.views, self.options
+        shares, masks = [], []
+        degree = min(opts.sh_degree, self.step_no // opts.sh_degree_interval)
+        with torch.no_grad():
+            for view in range(len(v.frames)):
+                _, rgb, _ = self._render(view, degree)
+                target = v.images[view].float() / 255.0
+                used = v.masks[view]
+                out = used & ~robust_keep(rgb, target, used, opts.robust)
+                shares.append(float(out.sum()) / max(1, int(used.sum())))
+                masks.append(out.cpu().numpy())
+        order = sorted(range(len(shares)), key=lambda i: -shares[i])[:n_views]
+        picture = outlier_montage(
+            [v.images[i].cpu().numpy() for i in order],
+            [masks[i] for i in order],
+            [f"frame {v.frames[i].index}: {shares[i]:.0%} left out" for i in order],
+        )
+        ok, data = cv2.imencode(".jpg", picture[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 88])
+        if ok:
+            write_bytes_atomic(path, data.tobytes())
 
     def _densify_note(self) -> str:
         """How the model grew, for the header's notes."""
