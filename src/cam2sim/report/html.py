@@ -12,9 +12,9 @@ every run's trajectory), ``behaviour`` (drive metrics per method, the paper's la
 that fails the splat quality gate is labelled unfit, with the reason), ``runs`` (per-run table,
 lateral offset and steering plots), ``splat`` (held-out scores, the validity envelope measured
 against the ground truth with a plot, how each chunk model was trained with its pose
-corrections and the robust weighting's left-out pixels, the gate's verdict), ``frames`` (side-by-side frames at
-chosen points, a video strip), ``semantic`` (IoU tables) and ``images`` (PSNR, SSIM, LPIPS
-tables).
+corrections and the robust weighting's left-out pixels, the gate's verdict), ``frames``
+(side-by-side frames at chosen points, a video strip), ``semantic`` (IoU tables) and
+``images`` (PSNR, SSIM, LPIPS tables).
 """
 
 from __future__ import annotations
