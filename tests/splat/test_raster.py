@@ -186,6 +186,33 @@ def test_culled_gaussians_do_not_draw() -> None:
     torch.testing.assert_close(out.colors[0], _render(alone).colors[0])
 
 
+def test_antialiased_mode_scales_opacity_by_the_mip_filter_compensation() -> None:
+    scene = make_scene(n=2, seed=7)
+    # Camera 0 looks along +y from the origin at (0, 4, 0): a round Gaussian there projects to
+    # a round footprint of variance v = (f s / z)^2, and its compensation is v / (v + eps2d).
+    scene["means"] = np.array([[0.0, 4.0, 0.0], [0.0, 4.0, 0.0]])
+    scene["quats"] = np.array([[1.0, 0.0, 0.0, 0.0]] * 2)
+    scene["scales"] = np.array([[0.5, 0.5, 0.5], [0.001, 0.001, 0.001]])
+    t = _tensors(scene, torch.float64)
+    big = {k: (v[:1] if v.shape[0] == 2 and k not in {"viewmats", "Ks", "backgrounds"} else v)
+           for k, v in t.items()}  # fmt: skip
+    variance = (30.0 * 0.5 / 4.0) ** 2
+    scaled = dict(big, opacities=big["opacities"] * variance / (variance + 0.3))
+    torch.testing.assert_close(
+        _render(big, antialiased=True).colors[0], _render(scaled).colors[0], atol=1e-9, rtol=0
+    )
+    # A Gaussian far below a pixel fades instead of being dilated to one.
+    tiny = {k: (v[1:] if v.shape[0] == 2 and k not in {"viewmats", "Ks", "backgrounds"} else v)
+            for k, v in t.items()}  # fmt: skip
+    assert float(_render(tiny).alphas[0].max()) > 0.02
+    assert float(_render(tiny, antialiased=True).alphas[0].max()) < 1e-3
+    # Gradients reach the opacities through the compensation.
+    t["opacities"].requires_grad_()
+    _render(t, antialiased=True).colors.sum().backward()
+    assert t["opacities"].grad is not None
+    assert torch.isfinite(t["opacities"].grad).all()
+
+
 def test_spherical_harmonics_follow_the_3dgs_basis() -> None:
     rng = np.random.default_rng(6)
     dirs = rng.normal(size=(50, 3))

@@ -79,6 +79,8 @@ def write_chunk(
     extent: tuple[float, float],
     tint: tuple[float, float, float],
     gains: list[float] | None = None,
+    *,
+    antialiased: bool = False,
 ) -> None:
     """A chunk with training views every 0.5 m of its extent; ``gains`` scale their colours."""
     progress = np.arange(extent[0], extent[1] + 1e-9, 0.5)
@@ -104,6 +106,7 @@ def write_chunk(
         sky_radius_m=80.0,
         background=[0.0, 0.0, 0.0],
         train_views=views,
+        antialiased=antialiased,
     )
     chunk = gm.ChunkModel(header=header, gaussians=wall(tint), sky=sky(), appearance=appearance)
     gm.save_chunk_model(chunk, gm.chunk_model_path(models, chunk_id))
@@ -212,6 +215,29 @@ def test_render_matches_direct_rasterization(two_chunks: Path) -> None:
         fast = r.render(pose, CAMERA)
     assert fast.street_alpha is None
     assert np.abs(fast.rgb.astype(float) - result.rgb.astype(float)).max() <= 1.0
+
+
+def test_a_model_trained_antialiased_is_rendered_antialiased(tmp_path: Path) -> None:
+    pose = camera_pose(0.7)
+    images = []
+    for flag in (False, True):
+        models = tmp_path / f"aa_{flag}"
+        write_chunk(models, 0, (0.0, 2.0), (0.8, 0.3, 0.2), antialiased=flag)
+        with SplatRenderer(models, options=_cpu(appearance="none")) as renderer:
+            images.append(renderer.render(pose, CAMERA).rgb.astype(float))
+        chunk = gm.load_chunk_model(gm.chunk_model_path(models, 0))
+        assert chunk.header.antialiased is flag
+        campos = torch.tensor(pose[None, :3, 3], dtype=torch.float32)
+        inputs = gm.gather_splats(chunk.gaussians, chunk.sky, campos, 1)
+        out = rasterize(
+            inputs.means, inputs.quats, inputs.scales, inputs.opacities, inputs.colors,
+            torch.tensor(np.linalg.inv(pose)[None], dtype=torch.float32),
+            torch.tensor(K[None], dtype=torch.float32), W, H,
+            backgrounds=torch.zeros(1, 4), backend="torch", antialiased=flag,
+        )  # fmt: skip
+        expected = (out.colors[0, ..., :3].detach().clamp(0, 1) * 255).round().numpy()
+        assert np.abs(images[-1] - expected).max() <= 1.0
+    assert np.abs(images[0] - images[1]).max() > 2.0  # the filter changes what is drawn
 
 
 def test_appearance_is_interpolated_between_training_views(tmp_path: Path) -> None:

@@ -53,6 +53,13 @@ def splat(
             "1e-5 is gsplat's); the corrections are written into the chunk headers."
         ),
     ] = 0.0,
+    antialiased: Annotated[
+        bool,
+        typer.Option(
+            "--antialiased",
+            help="Train and render with Mip-Splatting's 2-D filter (gsplat's antialiased mode).",
+        ),
+    ] = False,
     downscale: Annotated[int, typer.Option(help="Train on images downscaled by N.")] = 1,
     segformer: Annotated[
         str | None, typer.Option(help="SegFormer sky model: local path or hub id.")
@@ -106,6 +113,7 @@ def splat(
                 densify=DensifyOptions(strategy=densify),  # type: ignore[arg-type]
                 robust=RobustLoss(quantile=robust_quantile),
                 lr=LearningRates(poses=pose_lr),
+                antialiased=antialiased,
             ),
             evaluate=not no_eval,
             lpips_weights=lpips_weights,

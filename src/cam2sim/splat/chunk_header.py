@@ -53,6 +53,11 @@ class ChunkHeader(Artifact):
     backend: str = ""
     stopped: str = ""
     notes: list[str] = pydantic.Field(default_factory=list)
+    antialiased: bool = pydantic.Field(
+        default=False,
+        description="Trained with Mip-Splatting's 2-D filter; render it with the same "
+        "(cam2sim.splat.raster.rasterize antialiased)",
+    )
 
 
 def outliers_path(model_path: Path) -> Path:

@@ -172,6 +172,7 @@ def rasterize(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's signa
     absgrad: bool = False,
     rows: tuple[int, int] | None = None,
     tile_size: int = GSPLAT_TILE,
+    antialiased: bool = False,
 ) -> RasterOutput:
     """Render Gaussians into ``C`` images with the chosen backend.
 
@@ -200,6 +201,10 @@ def rasterize(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's signa
             mostly compositing); gsplat renders the whole image and keeps them.
         tile_size: gsplat's square tile, pixels (one thread block each; the images are the
             same for every size, only the work differs); the torch backend ignores it.
+        antialiased: Mip-Splatting's 2-D filter (gsplat's ``rasterize_mode="antialiased"``):
+            each Gaussian's opacity in a view is scaled by ``sqrt(det(Sigma) / det(Sigma +
+            eps2d I))``, so Gaussians smaller than a pixel fade instead of being dilated to one.
+            A model trained with it must be rendered with it (``ChunkHeader.antialiased``).
 
     Returns:
         The images and per-Gaussian screen-space data.
@@ -223,13 +228,13 @@ def rasterize(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's signa
     if chosen == "torch":
         from cam2sim.splat import raster_torch  # noqa: PLC0415 -- lazy: imports torch
 
-        return raster_torch.rasterization(*args, **options, rows=rows)  # type: ignore[arg-type]
+        return raster_torch.rasterization(*args, **options, rows=rows, antialiased=antialiased)  # type: ignore[arg-type]
     gsplat = importlib.import_module("gsplat")
     render_colors, render_alphas, meta = gsplat.rasterization(
         *args,
         **options,
         packed=False,
-        rasterize_mode="classic",
+        rasterize_mode="antialiased" if antialiased else "classic",
         absgrad=absgrad,
         tile_size=tile_size,
     )

@@ -130,12 +130,15 @@ class Projection:
             c dy^2``.
         depths: ``[C, N]`` camera z, metres.
         radii: ``[C, N, 2]`` int32 box half-extents, pixels.
+        compensations: ``[C, N]`` Mip-Splatting's opacity factor ``sqrt(det(Sigma) /
+            det(Sigma + eps2d I))`` (gsplat's ``rasterize_mode="antialiased"``), or None.
     """
 
     means2d: torch.Tensor
     conics: torch.Tensor
     depths: torch.Tensor
     radii: torch.Tensor
+    compensations: torch.Tensor | None = None
 
 
 def project_gaussians(  # noqa: PLR0913 -- the projection needs every camera and Gaussian input
@@ -151,6 +154,7 @@ def project_gaussians(  # noqa: PLR0913 -- the projection needs every camera and
     eps2d: float = 0.3,
     near_plane: float = 0.01,
     far_plane: float = 1e10,
+    compensate: bool = False,
 ) -> Projection:
     """Project ``N`` Gaussians into ``C`` pinhole cameras (steps 1 to 3 of the module doc).
 
@@ -166,6 +170,7 @@ def project_gaussians(  # noqa: PLR0913 -- the projection needs every camera and
         eps2d: Dilation added to the 2-D covariance diagonal.
         near_plane: Minimum camera z.
         far_plane: Maximum camera z.
+        compensate: Also return Mip-Splatting's opacity compensation (antialiased mode).
 
     Returns:
         The screen-space Gaussians.
@@ -214,12 +219,20 @@ def project_gaussians(  # noqa: PLR0913 -- the projection needs every camera and
         valid = in_depth & ok_det & ok_opac & ((rx > 0) | (ry > 0)) & on_screen
         radii = torch.where(valid[..., None], torch.stack((rx, ry), dim=-1), 0.0).to(torch.int32)
 
+    compensations = None
+    if compensate:
+        # det(Sigma) / det(Sigma + eps2d I): the share of the footprint that is the Gaussian's
+        # own, not the dilation's (tiny, far Gaussians fade instead of bloating to a pixel).
+        det_raw = cov2d[..., 0, 0] * cov2d[..., 1, 1] - b * b
+        ratio = torch.clamp(det_raw / det_safe, min=0.0)
+        compensations = torch.where(valid, torch.sqrt(ratio + 1e-12), 0.0)
     keep = valid[..., None]
     return Projection(
         means2d=torch.where(keep, means2d, 0.0),
         conics=torch.where(keep, conics, 0.0),
         depths=torch.where(valid, z, 0.0),
         radii=radii,
+        compensations=compensations,
     )
 
 
@@ -491,6 +504,7 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
     max_elements: int = _MAX_ELEMENTS,
     compositing: Literal["auto", "compiled", "torch"] = "auto",
     rows: tuple[int, int] | None = None,
+    antialiased: bool = False,
 ) -> RasterOutput:
     """Render Gaussians into ``C`` images (see :func:`cam2sim.splat.raster.rasterize`).
 
@@ -518,6 +532,8 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
         rows: Composite only rows ``[first, stop)`` of the ``width`` x ``height`` image; the
             projection is the whole image's (the same covariances, the same pixels), only
             fewer pixels are composited. The images are ``stop - first`` rows high.
+        antialiased: Scale each Gaussian's opacity by its compensation in each view
+            (gsplat's ``rasterize_mode="antialiased"``, Mip-Splatting's 2-D filter).
 
     Returns:
         Images, alphas and screen-space data (``backend="torch"``).
@@ -536,6 +552,13 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
         eps2d=eps2d,
         near_plane=near_plane,
         far_plane=far_plane,
+        compensate=antialiased,
+    )
+    # [C, N] opacities as each view composites them (compensated in antialiased mode).
+    view_opacities = (
+        opacities[None] * proj.compensations
+        if proj.compensations is not None
+        else opacities[None].expand(n_cams, -1)
     )
     if sh_degree is not None:
         if colors.ndim != 3 or colors.shape[0] != n or colors.shape[2] != 3:
@@ -576,7 +599,7 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
         rgb, acc = (raster_cpu.composite if compiled else _composite)(
             means2d,
             proj.conics[cam],
-            opacities,
+            view_opacities[cam],
             per_cam[cam],
             tile_ids,
             gauss_ids,
@@ -592,7 +615,7 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
         "radii": proj.radii,
         "depths": proj.depths,
         "conics": proj.conics,
-        "opacities": opacities[None].expand(n_cams, -1),
+        "opacities": view_opacities,
         "width": width,
         "height": height,
         "n_cameras": n_cams,

@@ -162,6 +162,7 @@ class _Loaded:
     appearance: npt.NDArray[np.float64]  # [M, 12] affine colour transforms, row-major 3x4
     view_progress: npt.NDArray[np.float64]  # [M]
     background: torch.Tensor  # [1, 4]: RGB, sky share 0
+    antialiased: bool = False  # trained with Mip-Splatting's 2-D filter: rendered with it
 
 
 class SplatRenderer:
@@ -286,6 +287,7 @@ class SplatRenderer:
                 ),
                 appearance=model.appearance.reshape(-1, 12).cpu().double().numpy(),
                 view_progress=np.array([v.progress_m for v in model.header.train_views]),
+                antialiased=model.header.antialiased,
                 background=torch.tensor(
                     [[*model.header.background, 0.0]], dtype=torch.float32, device=self.device
                 ),
@@ -352,6 +354,7 @@ class SplatRenderer:
             backgrounds=background,
             backend=self.backend,
             rows=rows,
+            antialiased=chunk.antialiased,
         )
         image = out.colors[0]
         colour = image[..., :3]

@@ -403,6 +403,7 @@ class _ChunkTrainer:
             backend=self.backend,
             absgrad=absgrad,
             tile_size=self.options.tile_size,
+            antialiased=self.options.antialiased,
         )
         image = out.colors[0]
         rgb = image[..., :3]
@@ -613,6 +614,7 @@ class _ChunkTrainer:
             backend=self.backend,
             stopped=self.stopped,
             notes=[self._densify_note()],
+            antialiased=self.options.antialiased,
         )
         model = ChunkModel(
             header=header, gaussians=self.street, sky=self.sky, appearance=self.appearance.detach()

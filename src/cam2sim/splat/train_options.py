@@ -179,6 +179,8 @@ class TrainOptions:
         backend: Rasterizer, see :mod:`cam2sim.splat.raster`.
         tile_size: gsplat's tile side in pixels while training (the images do not depend on
             it, only the work; ``docs/benchmarks.md``).
+        antialiased: Train (and so render) with Mip-Splatting's 2-D filter
+            (:func:`cam2sim.splat.raster.rasterize`); the chunk header records it.
         write_ply: Also write ``chunk_XX.ply`` (3DGS layout) beside each model.
         seed: Seeds view order, subsets and splits.
         profile: Time each step's phases (host and CUDA-event device time) into
@@ -222,6 +224,7 @@ class TrainOptions:
     device: str = "auto"
     backend: RasterBackend = "auto"
     tile_size: int = GSPLAT_TILE
+    antialiased: bool = False
     write_ply: bool = False
     seed: int = 0
     profile: bool = False
