@@ -190,20 +190,25 @@ def test_coverage_grows_with_distance_from_training_views(two_chunks: Path) -> N
     assert turned[2].angle_deg == pytest.approx(30.0, abs=1e-6)
 
 
-def test_render_matches_direct_rasterization(two_chunks: Path) -> None:
-    pose = camera_pose(0.7)
-    with SplatRenderer(two_chunks, options=_cpu(appearance="none", street_alpha=True)) as r:
-        result = r.render(pose, CAMERA)
-    chunk = gm.load_chunk_model(gm.chunk_model_path(two_chunks, 0))
+def direct_render(models: Path, pose: np.ndarray, *, antialiased: bool = False) -> np.ndarray:
+    """Chunk 0 of ``models`` rasterized directly at ``pose``: float RGB in 0-255, rounded."""
+    chunk = gm.load_chunk_model(gm.chunk_model_path(models, 0))
     campos = torch.tensor(pose[None, :3, 3], dtype=torch.float32)
     inputs = gm.gather_splats(chunk.gaussians, chunk.sky, campos, 1)
     out = rasterize(
         inputs.means, inputs.quats, inputs.scales, inputs.opacities, inputs.colors,
         torch.tensor(np.linalg.inv(pose)[None], dtype=torch.float32),
         torch.tensor(K[None], dtype=torch.float32), W, H,
-        backgrounds=torch.zeros(1, 4), backend="torch",
+        backgrounds=torch.zeros(1, 4), backend="torch", antialiased=antialiased,
     )  # fmt: skip
-    expected = (out.colors[0, ..., :3].detach().clamp(0, 1) * 255).round().numpy()
+    return np.asarray((out.colors[0, ..., :3].detach().clamp(0, 1) * 255).round().numpy())
+
+
+def test_render_matches_direct_rasterization(two_chunks: Path) -> None:
+    pose = camera_pose(0.7)
+    with SplatRenderer(two_chunks, options=_cpu(appearance="none", street_alpha=True)) as r:
+        result = r.render(pose, CAMERA)
+    expected = direct_render(two_chunks, pose)
     assert np.abs(result.rgb.astype(float) - expected).max() <= 1.0
     assert result.rgb.dtype == np.uint8
     assert result.rgb.shape == (H, W, 3)
@@ -225,17 +230,8 @@ def test_a_model_trained_antialiased_is_rendered_antialiased(tmp_path: Path) -> 
         write_chunk(models, 0, (0.0, 2.0), (0.8, 0.3, 0.2), antialiased=flag)
         with SplatRenderer(models, options=_cpu(appearance="none")) as renderer:
             images.append(renderer.render(pose, CAMERA).rgb.astype(float))
-        chunk = gm.load_chunk_model(gm.chunk_model_path(models, 0))
-        assert chunk.header.antialiased is flag
-        campos = torch.tensor(pose[None, :3, 3], dtype=torch.float32)
-        inputs = gm.gather_splats(chunk.gaussians, chunk.sky, campos, 1)
-        out = rasterize(
-            inputs.means, inputs.quats, inputs.scales, inputs.opacities, inputs.colors,
-            torch.tensor(np.linalg.inv(pose)[None], dtype=torch.float32),
-            torch.tensor(K[None], dtype=torch.float32), W, H,
-            backgrounds=torch.zeros(1, 4), backend="torch", antialiased=flag,
-        )  # fmt: skip
-        expected = (out.colors[0, ..., :3].detach().clamp(0, 1) * 255).round().numpy()
+        assert gm.load_chunk_header(gm.chunk_model_path(models, 0)).antialiased is flag
+        expected = direct_render(models, pose, antialiased=flag)
         assert np.abs(images[-1] - expected).max() <= 1.0
     assert np.abs(images[0] - images[1]).max() > 2.0  # the filter changes what is drawn
 
