@@ -463,26 +463,30 @@ def test_nearest_neighbour_scales_match_brute_force() -> None:
     torch.testing.assert_close(gm.nearest_neighbour_distances(xyz), expected)
 
 
-@pytest.mark.requires_cuda
-@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
-def test_gsplat_training_densifies_and_resets(tmp_path: Path) -> None:
+def gsplat_training(tmp_path: Path, densify: DensifyOptions) -> SceneTrainResult:
+    """600 gsplat steps on a 320x240 synthetic street (skips without gsplat)."""
     from cam2sim.splat.raster import has_gsplat
 
     if not has_gsplat():
         pytest.skip("gsplat is not installed (pip install 'cam2sim[splat-cuda]')")
     prep = make_prepared_scene(tmp_path, size=(320, 240), spacing=0.2)
     options = fast_options(
-        max_steps=600,
-        min_steps=600,
-        val_every=100,
-        device="cuda",
-        backend="gsplat",
-        # The synthetic street is ~1 m of driving: scene scale ~1 m, so allow 1 m Gaussians.
-        densify=DensifyOptions(
+        max_steps=600, min_steps=600, val_every=100, device="cuda", backend="gsplat",
+        densify=densify,
+    )  # fmt: skip
+    return train_scene(prep, options=options)
+
+
+@pytest.mark.requires_cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_gsplat_training_densifies_and_resets(tmp_path: Path) -> None:
+    # The synthetic street is ~1 m of driving: scene scale ~1 m, so allow 1 m Gaussians.
+    result = gsplat_training(
+        tmp_path,
+        DensifyOptions(
             refine_start=50, refine_every=50, reset_every=300, refine_stop=450, prune_scale3d=1.0
         ),
     )
-    result = train_scene(prep, options=options)
     for chunk in result.chunks:
         assert chunk.backend == "gsplat"
         assert chunk.val_history[0][1] > 25.0, chunk.val_history
@@ -567,22 +571,12 @@ def test_mcmc_needs_the_gsplat_rasterizer(tmp_path: Path) -> None:
 @pytest.mark.requires_cuda
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 def test_mcmc_training_grows_to_its_cap_and_learns(tmp_path: Path) -> None:
-    from cam2sim.splat.raster import has_gsplat
-
-    if not has_gsplat():
-        pytest.skip("gsplat is not installed (pip install 'cam2sim[splat-cuda]')")
-    prep = make_prepared_scene(tmp_path, size=(320, 240), spacing=0.2)
-    options = fast_options(
-        max_steps=600,
-        min_steps=600,
-        val_every=100,
-        device="cuda",
-        backend="gsplat",
-        densify=DensifyOptions(
+    result = gsplat_training(
+        tmp_path,
+        DensifyOptions(
             strategy="mcmc", refine_start=50, refine_every=50, refine_stop=450, mcmc_cap=20_000
         ),
     )
-    result = train_scene(prep, options=options)
     for chunk in result.chunks:
         assert chunk.val_history[-1][1] > 25.0, chunk.val_history
         assert chunk.n_initial_gaussians < chunk.n_gaussians <= 20_000

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
-from typing import Annotated
+from typing import Annotated, get_args
 
 import typer
 
@@ -85,9 +85,10 @@ def splat(
     from cam2sim.splat.robust import RobustLoss  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.splat.sfm import SfmOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.splat.train import DensifyOptions, LearningRates, TrainOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.splat.train_options import DensifyStrategy  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.stages.splat import SplatStageOptions, run_splat  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
-    strategies = ("auto", "mcmc", "gsplat", "simple")
+    strategies = get_args(DensifyStrategy)
     if densify not in strategies:
         error_console.print(
             f"[bold red]error:[/] --densify {densify!r} is not one of {', '.join(strategies)}",

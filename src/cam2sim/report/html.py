@@ -687,7 +687,7 @@ def _splat_training(ctx: _Context) -> str:
         "Training, per chunk model (WS/splat/models/chunk_XX.json); pose corrections: mean / "
         "largest shift and turn of the training views' learned corrections, when refined"
     )
-    return _table(headers, [tuple(r) for r in rows], caption) + "".join(pictures)
+    return _table(headers, rows, caption) + "".join(pictures)
 
 
 # -- the page -----------------------------------------------------------------------------------

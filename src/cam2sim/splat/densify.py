@@ -59,15 +59,17 @@ class Densifier:
         self.strategy: Any = None  # Any: gsplat ships no type information
         self.state: dict[str, Any] = {"grad2d": None, "count": None}
         self._grad_scale: tuple[tuple[Any, ...], torch.Tensor] | None = None
+        # When the strategies refine: the same rhythm for both of gsplat's.
+        rhythm = {
+            "refine_start_iter": options.refine_start,
+            "refine_stop_iter": options.refine_stop,
+            "refine_every": options.refine_every,
+        }
         if options.strategy == "mcmc":
             from gsplat.strategy import MCMCStrategy  # noqa: PLC0415
 
             self.strategy = MCMCStrategy(
-                cap_max=options.mcmc_cap,
-                refine_start_iter=options.refine_start,
-                refine_stop_iter=options.refine_stop,
-                refine_every=options.refine_every,
-                min_opacity=options.prune_opacity,
+                cap_max=options.mcmc_cap, min_opacity=options.prune_opacity, **rhythm
             )
             self.state = self.strategy.initialize_state()
         elif use_gsplat:
@@ -78,11 +80,9 @@ class Densifier:
                 grow_grad2d=options.grow_grad2d,
                 grow_scale3d=options.grow_scale3d,
                 prune_scale3d=options.prune_scale3d,
-                refine_start_iter=options.refine_start,
-                refine_stop_iter=options.refine_stop,
                 reset_every=options.reset_every,
-                refine_every=options.refine_every,
                 absgrad=options.absgrad,
+                **rhythm,
             )
             self.state = self.strategy.initialize_state(scene_scale=scene_scale)
 

@@ -214,9 +214,10 @@ class _ChunkTrainer:
         import torch  # noqa: PLC0415
 
         options = resolve_options(options, backend)
-        # resolve_options decided both; kept as plain floats.
-        self.sky_weight = options.sky_weight or 0.0
-        self.init_opacity = options.init_opacity if options.init_opacity is not None else 0.1
+        assert options.sky_weight is not None  # resolve_options decides both
+        assert options.init_opacity is not None
+        self.sky_weight, self.init_opacity = options.sky_weight, options.init_opacity
+        self.mcmc = options.densify.enabled and options.densify.strategy == "mcmc"
         self.chunk = chunk
         self.options = options
         self.device = device
@@ -441,9 +442,8 @@ class _ChunkTrainer:
             self.outlier_sum += 1.0 - kept / used.sum().clamp(min=1)
             self.outlier_steps += 1
         loss = photometric_loss(rgb, target, mask, l1_scale, opts.ssim_weight, sky, self.sky_weight)
-        dens = opts.densify
-        if dens.enabled and dens.strategy == "mcmc":
-            params = self.street.params
+        if self.mcmc:
+            dens, params = opts.densify, self.street.params
             loss = loss + dens.mcmc_opacity_reg * torch.sigmoid(params["opacities"]).mean()
             loss = loss + dens.mcmc_scale_reg * torch.exp(params["scales"]).mean()
         return loss

@@ -19,6 +19,7 @@ if TYPE_CHECKING:
 __all__ = [
     "MCMC_MIN_STEPS",
     "DensifyOptions",
+    "DensifyStrategy",
     "LearningRates",
     "SceneTrainResult",
     "Stop",
@@ -28,6 +29,9 @@ __all__ = [
 ]
 
 Stop = Literal["plateau", "max_steps", "time"]
+
+DensifyStrategy = Literal["auto", "mcmc", "gsplat", "simple"]
+"""The densification rules (``DensifyOptions.strategy``)."""
 
 MCMC_MIN_STEPS = 20_000
 """Step caps from which ``DensifyOptions.strategy="auto"`` densifies by MCMC on gsplat."""
@@ -111,7 +115,7 @@ class DensifyOptions:
     """
 
     enabled: bool = True
-    strategy: Literal["auto", "gsplat", "simple", "mcmc"] = "auto"
+    strategy: DensifyStrategy = "auto"
     refine_start: int = 500
     refine_stop: int = 15_000
     refine_every: int = 100
