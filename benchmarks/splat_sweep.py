@@ -138,23 +138,31 @@ def run_setting(  # noqa: PLR0913, PLR0917 -- one process's whole job
     for target in sorted(eval_at):
         sync()
         t = time.perf_counter()
-        while trainer.step_no < target:
+        while trainer.step_no < target and not trainer.done:
             trainer.step()
         sync()
         train_s += time.perf_counter() - t
         trainer.save(models)
         scores = _evaluate(sub_dir, models, lpips_weights, device)
         record["evals"].append(
-            {"step": target, "train_s": train_s, "n_gaussians": len(trainer.street), **scores}
+            {
+                "step": trainer.step_no,
+                "stopped": trainer.stopped,
+                "train_s": train_s,
+                "n_gaussians": len(trainer.street),
+                **scores,
+            }
         )
         record["val_history"] = trainer.history
         write_text_atomic(out / f"{name}.json", json.dumps(record, indent=1))
         print(
-            f"[{name}] step {target}: {train_s:.0f} s, {len(trainer.street)} Gaussians, "
+            f"[{name}] step {trainer.step_no}: {train_s:.0f} s, {len(trainer.street)} Gaussians, "
             f"held-out {scores['psnr_db']:.2f} dB / SSIM {scores['ssim']:.3f} / "
             f"LPIPS {scores['lpips'] if scores['lpips'] is None else round(scores['lpips'], 3)}",
             flush=True,
         )
+        if trainer.done:  # a plateau (with min_steps below the steps) ended it early
+            break
     if montage_frame is not None:
         from cam2sim.splat.render import RenderOptions, SplatRenderer  # noqa: PLC0415
 

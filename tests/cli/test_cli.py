@@ -234,3 +234,23 @@ def test_importing_the_cli_loads_no_heavy_dependency() -> None:
     )
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == ""
+
+
+@pytest.mark.parametrize(("flags", "antialiased"), [([], True), (["--classic"], False)])
+def test_splat_trains_antialiased_unless_told_classic(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, flags: list[str], antialiased: bool
+) -> None:
+    from cam2sim.core.workspace import Workspace
+    from cam2sim.stages import splat as stage
+
+    monkeypatch.setattr(Workspace, "open", classmethod(lambda cls, root: root))
+    seen = []
+
+    def fake_run_splat(ws: object, *, options: stage.SplatStageOptions, **_: object) -> None:
+        seen.append(options.train.antialiased)
+        raise stage.StageError("stopped here")
+
+    monkeypatch.setattr(stage, "run_splat", fake_run_splat)
+    result = CliRunner().invoke(app, ["splat", str(tmp_path / "ws"), *flags])
+    assert seen == [antialiased], result.output
+    assert "stopped here" in result.output

@@ -56,10 +56,11 @@ def splat(
     antialiased: Annotated[
         bool,
         typer.Option(
-            "--antialiased",
-            help="Train and render with Mip-Splatting's 2-D filter (gsplat's antialiased mode).",
+            "--antialiased/--classic",
+            help="Train and render with Mip-Splatting's 2-D filter (gsplat's antialiased "
+            "mode; the default), or with the classic 3DGS rasterization.",
         ),
-    ] = False,
+    ] = True,
     downscale: Annotated[int, typer.Option(help="Train on images downscaled by N.")] = 1,
     segformer: Annotated[
         str | None, typer.Option(help="SegFormer sky model: local path or hub id.")

@@ -29,7 +29,14 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
-from cam2sim.splat.model import GaussianModel, duplicate, remove, reset_opacity, split
+from cam2sim.splat.model import (
+    GaussianModel,
+    duplicate,
+    quench_non_finite,
+    remove,
+    reset_opacity,
+    split,
+)
 
 if TYPE_CHECKING:
     from cam2sim.splat.raster import RasterOutput
@@ -52,6 +59,8 @@ class Densifier:
         max_steps: int | None = None,
     ) -> None:
         self.options = options
+        self.n_non_finite = 0
+        """Gaussians found with non-finite parameters and made transparent, in all."""
         self.last_reset: int | None = None
         if max_steps is not None:
             self.end_at(max_steps)
@@ -108,6 +117,8 @@ class Densifier:
         ``means_lr`` (the means' learning rate of this step) scales MCMC's position noise.
         """
         opts = self.options
+        if step > 0 and step % opts.refine_every == 0:
+            self._quench(step, model, optimizers)
         if opts.strategy == "mcmc":
             # Relocation and growth when due, position noise on every step; model.params and
             # the optimizers are the street model's alone (the sky never moves).
@@ -132,6 +143,20 @@ class Densifier:
         last = self.last_reset
         if step > 0 and step % opts.reset_every == 0 and (last is None or step <= last):
             reset_opacity(model, optimizers, 2.0 * opts.prune_opacity)
+
+    def _quench(
+        self, step: int, model: GaussianModel, optimizers: dict[str, torch.optim.Optimizer]
+    ) -> None:
+        """Make Gaussians with NaN or inf parameters transparent before they are refined."""
+        n_bad = quench_non_finite(model, optimizers)
+        if n_bad:
+            self.n_non_finite += n_bad
+            _log.warning(
+                "step %d: %d Gaussians had non-finite parameters (NaN or inf); made them "
+                "transparent, to be pruned or relocated",
+                step,
+                n_bad,
+            )
 
     def _accumulate(self, out: RasterOutput, n_street: int, n: int) -> None:
         """Add this step's normalised 2-D gradient norms and visibility counts (no sync)."""

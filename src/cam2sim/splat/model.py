@@ -61,6 +61,7 @@ __all__ = [
     "load_chunk_model",
     "nearest_neighbour_distances",
     "outliers_path",
+    "quench_non_finite",
     "remove",
     "reset_opacity",
     "save_chunk_model",
@@ -402,6 +403,38 @@ def reset_opacity(model: GaussianModel, optimizers: Optimizers, value: float) ->
         opt.param_groups[0]["params"] = [fresh]
         opt.state[fresh] = state
     model.params["opacities"] = fresh
+
+
+DEAD_OPACITY_LOGIT: Final = -30.0
+"""The opacity logit :func:`quench_non_finite` gives a broken Gaussian (opacity about 1e-13)."""
+
+
+def quench_non_finite(model: GaussianModel, optimizers: Optimizers) -> int:
+    """Make every Gaussian with a non-finite parameter (NaN or inf) transparent; return how many.
+
+    In place: such a Gaussian's non-finite values become 0, its opacity logit
+    :data:`DEAD_OPACITY_LOGIT`, and its Adam moments 0 in every optimizer, so the next
+    refinement prunes it (3DGS rules) or relocates it onto a live one (MCMC, whose draw over
+    the live opacities fails on a NaN), and until then it draws nothing.
+    """
+    params = model.params
+    bad = torch.zeros(len(model), dtype=torch.bool, device=params["means"].device)
+    for p in params.values():
+        bad |= ~torch.isfinite(p.detach()).reshape(len(p), -1).all(dim=1)
+    n_bad = int(bad.sum())  # one host sync per call: call it at refinement steps only
+    if n_bad == 0:
+        return 0
+    with torch.no_grad():
+        for name, p in params.items():
+            rows = p[bad]
+            p[bad] = torch.nan_to_num(rows, nan=0.0, posinf=0.0, neginf=0.0)
+            if name == "opacities":
+                p[bad] = DEAD_OPACITY_LOGIT
+            opt = optimizers.get(name)
+            for key, v in (opt.state.get(p, {}) if opt is not None else {}).items():
+                if key != "step" and isinstance(v, torch.Tensor) and v.shape == p.shape:
+                    v[bad] = 0.0
+    return n_bad
 
 
 # ---------------------------------------------------------------------------- initialisation

@@ -613,7 +613,7 @@ class _ChunkTrainer:
             best_val_psnr_db=self.best,
             backend=self.backend,
             stopped=self.stopped,
-            notes=[self._densify_note()],
+            notes=self._notes(),
             antialiased=self.options.antialiased,
         )
         model = ChunkModel(
@@ -689,6 +689,14 @@ class _ChunkTrainer:
         ok, data = cv2.imencode(".jpg", picture[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 88])
         if ok:
             write_bytes_atomic(path, data.tobytes())
+
+    def _notes(self) -> list[str]:
+        """The header's notes: how the model grew, and any Gaussians that broke on the way."""
+        notes = [self._densify_note()]
+        broken = self.densifier.n_non_finite if self.densifier is not None else 0
+        if broken:
+            notes.append(f"{broken} Gaussians with NaN or inf parameters made transparent")
+        return notes
 
     def _densify_note(self) -> str:
         """How the model grew, for the header's notes."""
