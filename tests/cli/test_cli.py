@@ -248,7 +248,8 @@ def test_splat_trains_antialiased_unless_told_classic(
 
     def fake_run_splat(ws: object, *, options: stage.SplatStageOptions, **_: object) -> None:
         seen.append(options.train.antialiased)
-        raise stage.StageError("stopped here")
+        msg = "stopped here"
+        raise stage.StageError(msg)
 
     monkeypatch.setattr(stage, "run_splat", fake_run_splat)
     result = CliRunner().invoke(app, ["splat", str(tmp_path / "ws"), *flags])
