@@ -705,3 +705,15 @@ def test_pose_refinement_learns_small_corrections_and_writes_them_back(tmp_path:
     assert 0.0 < max(shifts) <= max_t + 1e-6
     assert all(v.correction is not None and len(v.correction) == 6 for v in moved)
     assert all(v.correction is None for v in kept)
+
+
+def test_ground_seeds_join_the_starting_model(tmp_path: Path) -> None:
+    prep = make_prepared_scene(tmp_path)
+    scene = SceneRecord.load(prep / "scene.json")
+    plain = train_chunk(scene, 0, prep, fast_options(max_steps=2), models_dir=tmp_path / "a")
+    seeded = train_chunk(
+        scene, 0, prep, fast_options(max_steps=2, ground_points=3000), models_dir=tmp_path / "b"
+    )
+    added = seeded.n_initial_gaussians - plain.n_initial_gaussians
+    assert 2500 <= added <= 3000
+    assert f"{added} ground seeds" in gm.load_chunk_header(seeded.model_path).notes

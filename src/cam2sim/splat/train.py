@@ -286,6 +286,9 @@ class _ChunkTrainer:
         from cam2sim.splat.model import SeedOptions, seed_models  # noqa: PLC0415 -- lazy: torch
 
         opts = self.options
+        self.n_ground = 0
+        if opts.ground_points > 0:
+            points = self._with_ground(points)
         seeded = seed_models(
             *points,
             self.views.frames,
@@ -690,9 +693,31 @@ class _ChunkTrainer:
         if ok:
             write_bytes_atomic(path, data.tobytes())
 
+    def _with_ground(
+        self, points: tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]
+    ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
+        """``points`` and the ground seeds under the training views (:mod:`.ground`)."""
+        from cam2sim.splat.ground import ground_points  # noqa: PLC0415
+
+        v = self.views
+        usable = v.masks if v.sky is None else v.masks & ~v.sky
+        xyz, rgb = ground_points(
+            points[0],
+            np.stack([f.T() for f in v.frames]),
+            v.Ks.double().cpu().numpy(),
+            v.images.cpu().numpy(),
+            usable.cpu().numpy(),
+            count=self.options.ground_points,
+            seed=self.options.seed + self.chunk.id,
+        )
+        self.n_ground = len(xyz)
+        return np.concatenate([points[0], xyz]), np.concatenate([points[1], rgb])
+
     def _notes(self) -> list[str]:
         """The header's notes: how the model grew, and any Gaussians that broke on the way."""
         notes = [self._densify_note()]
+        if self.n_ground:
+            notes.append(f"{self.n_ground} ground seeds")
         broken = self.densifier.n_non_finite if self.densifier is not None else 0
         if broken:
             notes.append(f"{broken} Gaussians with NaN or inf parameters made transparent")

@@ -158,6 +158,10 @@ class TrainOptions:
             densification (the MCMC paper's).
         max_init_points: About this many of the chunk's points to start from, thinned with the
             distance from the cameras (``splat.model.screen_density_keep``); None = all.
+        ground_points: About this many extra starting Gaussians on the ground under the
+            cameras, where SfM leaves the near road and verges bare (:mod:`cam2sim.splat.ground`:
+            the plane at the cameras' height, from the points on the road ahead; the pixels'
+            colours); 0 = none. Off until measured on real frames on a GPU.
         background: RGB in ``[0, 1]`` behind everything.
         scene_scale: Scale (scene units) of the means' learning rate and of densification's
             size thresholds (``grow_scale3d``, ``prune_scale3d``). None = automatic:
@@ -220,6 +224,7 @@ class TrainOptions:
     sky_weight: float | None = None
     init_opacity: float | None = None
     max_init_points: int | None = None
+    ground_points: int = 0
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     scene_scale: float | None = None
     downscale: int = 1
