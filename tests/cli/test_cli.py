@@ -236,16 +236,9 @@ def test_importing_the_cli_loads_no_heavy_dependency() -> None:
     assert proc.stdout.strip() == ""
 
 
-@pytest.mark.parametrize(
-    ("flags", "antialiased", "ground"),
-    [([], True, 0), (["--classic", "--ground-points", "5000"], False, 5000)],
-)
-def test_splat_options_reach_the_trainer(
-    tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    flags: list[str],
-    antialiased: bool,
-    ground: int,
+@pytest.mark.parametrize(("flags", "antialiased"), [([], True), (["--classic"], False)])
+def test_splat_trains_antialiased_unless_told_classic(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, flags: list[str], antialiased: bool
 ) -> None:
     from cam2sim.core.workspace import Workspace
     from cam2sim.stages import splat as stage
@@ -254,11 +247,11 @@ def test_splat_options_reach_the_trainer(
     seen = []
 
     def fake_run_splat(ws: object, *, options: stage.SplatStageOptions, **_: object) -> None:
-        seen.append((options.train.antialiased, options.train.ground_points))
+        seen.append(options.train.antialiased)
         msg = "stopped here"
         raise stage.StageError(msg)
 
     monkeypatch.setattr(stage, "run_splat", fake_run_splat)
     result = CliRunner().invoke(app, ["splat", str(tmp_path / "ws"), *flags])
-    assert seen == [(antialiased, ground)], result.output
+    assert seen == [antialiased], result.output
     assert "stopped here" in result.output

@@ -53,14 +53,6 @@ def splat(
             "1e-5 is gsplat's); the corrections are written into the chunk headers."
         ),
     ] = 0.0,
-    ground_points: Annotated[
-        int,
-        typer.Option(
-            min=0,
-            help="Start each chunk with about this many extra Gaussians on the ground under "
-            "the cameras, where SfM leaves the near road bare (0 = off).",
-        ),
-    ] = 0,
     antialiased: Annotated[
         bool,
         typer.Option(
@@ -124,7 +116,6 @@ def splat(
                 robust=RobustLoss(quantile=robust_quantile),
                 lr=LearningRates(poses=pose_lr),
                 antialiased=antialiased,
-                ground_points=ground_points,
             ),
             evaluate=not no_eval,
             lpips_weights=lpips_weights,
