@@ -21,25 +21,19 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
+from cam2sim.core.camera import project_points
 from cam2sim.splat.ground import camera_height, ground_points
 from cam2sim.splat.scene import SceneRecord, load_points
 from cam2sim.splat.views import load_views
 
 
 def _project(
-    pts: np.ndarray,
-    pose: np.ndarray,
-    K: np.ndarray,
-    size: tuple[int, int],
+    pts: np.ndarray, pose: np.ndarray, K: np.ndarray, size: tuple[int, int]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pixel columns, rows and the mask of ``pts`` that fall inside the image."""
-    t = np.linalg.inv(pose)
-    pc = pts @ t[:3, :3].T + t[:3, 3]
-    z = np.where(pc[:, 2] > 1e-3, pc[:, 2], np.nan)
-    u = K[0, 0] * pc[:, 0] / z + K[0, 2]
-    v = K[1, 1] * pc[:, 1] / z + K[1, 2]
+    u, v, front = project_points(pts, pose, K, min_depth=1e-3)
     w, h = size
-    inside = np.isfinite(z) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
     return u[inside].astype(int), v[inside].astype(int), inside
 
 

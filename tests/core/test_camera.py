@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cam2sim.core.camera import PinholeCamera
+from cam2sim.core.camera import PinholeCamera, project_points
 from cam2sim.core.config import IntrinsicsConfig
 from cam2sim.core.dataset import CameraIntrinsics
 from cam2sim.core.errors import ConfigError
@@ -177,3 +177,14 @@ def test_config_and_dataset_records_adapt_onto_the_camera() -> None:
     record = CameraIntrinsics.from_camera(cam, "config")
     assert record.K == ((400.0, 0.0, 319.5), (0.0, 380.0, 239.5), (0.0, 0.0, 1.0))
     assert record.camera() == cam
+
+
+def test_project_points_matches_the_pinhole_model_and_flags_points_behind() -> None:
+    cam = PinholeCamera(100.0, 90.0, 32.0, 24.0, 64, 48)
+    pose = np.eye(4)
+    pose[:3, 3] = [1.0, 2.0, 3.0]  # camera at (1, 2, 3), axes as the world's
+    pts = np.array([[1.0, 2.0, 5.0], [2.0, 1.0, 7.0], [1.0, 2.0, 2.0]])
+    u, v, ahead = project_points(pts, pose, cam.K())
+    np.testing.assert_allclose(u[:2], [32.0, 32.0 + 100.0 * 1.0 / 4.0])
+    np.testing.assert_allclose(v[:2], [24.0, 24.0 - 90.0 * 1.0 / 4.0])
+    assert ahead.tolist() == [True, True, False]

@@ -26,7 +26,7 @@ from cam2sim.core.errors import ConfigError
 if TYPE_CHECKING:
     import numpy.typing as npt
 
-__all__ = ["DistortionModel", "PinholeCamera", "PixelConvention"]
+__all__ = ["DistortionModel", "PinholeCamera", "PixelConvention", "project_points"]
 
 DistortionModel = Literal["plumb_bob", "equidistant"]
 #: How a resize maps pixel coordinates: ``centres`` keeps pixel centres aligned (the image was
@@ -240,3 +240,24 @@ class PinholeCamera:
             np.ascontiguousarray(px + cx, dtype=np.float32),
             np.ascontiguousarray(py + cy, dtype=np.float32),
         )
+
+
+def project_points(
+    xyz: npt.ArrayLike,
+    T_world_cam: npt.ArrayLike,
+    K: npt.ArrayLike,
+    *,
+    min_depth: float = 1e-6,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
+    """Pixel coordinates ``u, v`` of ``(N, 3)`` world points in a pinhole view, and which are ahead.
+
+    A point is ahead when its camera depth is above ``min_depth``; ``u, v`` of the others are
+    meaningless. Optical camera axes, no distortion: the camera of an undistorted image.
+    """
+    pose = np.asarray(T_world_cam, dtype=np.float64)
+    k = np.asarray(K, dtype=np.float64)
+    pc = (np.asarray(xyz, dtype=np.float64) - pose[:3, 3]) @ pose[:3, :3]
+    z = pc[:, 2]
+    front = z > min_depth
+    zs = np.where(front, z, 1.0)
+    return k[0, 0] * pc[:, 0] / zs + k[0, 2], k[1, 1] * pc[:, 1] / zs + k[1, 2], front

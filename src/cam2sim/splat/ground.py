@@ -27,6 +27,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cam2sim.core.camera import project_points
+
 if TYPE_CHECKING:
     import numpy.typing as npt
 
@@ -62,18 +64,12 @@ def camera_height(
     _, h, w = usable.shape
     heights = []
     for pose, K, use in zip(poses, Ks, usable, strict=True):
-        rel = pts - pose[:3, 3]
-        pc = rel @ pose[:3, :3]  # camera coordinates
-        z = pc[:, 2]
-        front = z > 1e-6
-        zs = np.where(front, z, 1.0)
-        u = K[0, 0] * pc[:, 0] / zs + K[0, 2]
-        v = K[1, 1] * pc[:, 1] / zs + K[1, 2]
+        u, v, front = project_points(pts, pose, K)
         ahead = front & (v >= 0.75 * h) & (v < h) & (np.abs(u - 0.5 * w) < 0.25 * w)
         if not ahead.any():
             continue
         ui, vi = u[ahead].astype(np.int64), v[ahead].astype(np.int64)
-        below = rel[ahead][use[vi, ui]] @ down
+        below = (pts[ahead] - pose[:3, 3])[use[vi, ui]] @ down
         heights.append(below[below > 0])
     found = np.concatenate(heights) if heights else np.zeros(0)
     if len(found) < MIN_ROAD_POINTS:

@@ -26,11 +26,12 @@ import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Final, Literal
+from typing import TYPE_CHECKING, Any, Final, Literal
 
 import numpy as np
 import torch
 
+from cam2sim.core.camera import project_points
 from cam2sim.core.errors import WorkspaceError
 from cam2sim.core.files import write_bytes_atomic
 from cam2sim.splat.chunk_header import ChunkHeader, ViewRecord, outliers_path
@@ -397,9 +398,7 @@ def reset_opacity(model: GaussianModel, optimizers: Optimizers, value: float) ->
     opt = optimizers.get("opacities")
     if opt is not None:
         state = opt.state.pop(old, {})
-        for key, v in list(state.items()):
-            if key != "step" and isinstance(v, torch.Tensor) and v.shape == old.shape:
-                state[key] = torch.zeros_like(v)
+        _zero_moments(state, old)
         opt.param_groups[0]["params"] = [fresh]
         opt.state[fresh] = state
     model.params["opacities"] = fresh
@@ -431,10 +430,21 @@ def quench_non_finite(model: GaussianModel, optimizers: Optimizers) -> int:
             if name == "opacities":
                 p[bad] = DEAD_OPACITY_LOGIT
             opt = optimizers.get(name)
-            for key, v in (opt.state.get(p, {}) if opt is not None else {}).items():
-                if key != "step" and isinstance(v, torch.Tensor) and v.shape == p.shape:
-                    v[bad] = 0.0
+            if opt is not None:
+                _zero_moments(opt.state.get(p, {}), p, bad)
     return n_bad
+
+
+def _zero_moments(
+    state: dict[str, Any], param: torch.Tensor, rows: torch.Tensor | None = None
+) -> None:
+    """Zero the Adam moments in ``state`` of ``param`` (those of its shape), or their ``rows``."""
+    for key, v in state.items():
+        if key != "step" and isinstance(v, torch.Tensor) and v.shape == param.shape:
+            if rows is None:
+                v.zero_()
+            else:
+                v[rows] = 0.0
 
 
 # ---------------------------------------------------------------------------- initialisation
@@ -445,15 +455,8 @@ def visible_points(
 ) -> npt.NDArray[np.bool_]:
     """Return ``(N,)`` True where a point lies in front of and inside at least one view."""
     seen = np.zeros(len(xyz), dtype=bool)
-    pts = xyz.astype(np.float64)
     for f in frames:
-        t_cam_world = np.linalg.inv(f.T())
-        pc = pts @ t_cam_world[:3, :3].T + t_cam_world[:3, 3]
-        z = pc[:, 2]
-        front = z > 1e-3
-        zs = np.where(front, z, 1.0)
-        u = f.fx * pc[:, 0] / zs + f.cx
-        v = f.fy * pc[:, 1] / zs + f.cy
+        u, v, front = project_points(xyz, f.T(), f.K(), min_depth=1e-3)
         seen |= front & (u >= 0) & (u < f.width) & (v >= 0) & (v < f.height)
     return seen
 
