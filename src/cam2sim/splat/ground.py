@@ -114,7 +114,9 @@ def ground_points(
     rng = np.random.default_rng(seed)
     m, h, w = usable.shape
     per_view = int(np.ceil(count / m))
-    vv, uu = np.mgrid[0:h, 0:w]
+    vv, uu = np.mgrid[
+        0:h, 0:w
+    ]  # pixel (i, j) is drawn at (j + 0.5, i + 0.5), as the rasterizers do
     pix = np.stack([uu + 0.5, vv + 0.5, np.ones_like(uu)], axis=-1).reshape(-1, 3).astype(float)
     out_xyz, out_rgb = [], []
     for pose, K, image, use in zip(poses, Ks, images, usable, strict=True):
