@@ -271,7 +271,7 @@ def test_the_report_says_how_each_splat_chunk_was_trained(tmp_path: Path) -> Non
     ChunkHeader(
         chunk_id=0, n_gaussians=1_000_000, steps=30_000, stopped="max_steps",
         notes=["densification mcmc, initial opacity 0.5, sky-share weight 0"],
-        train_views=[view(0, None), view(1, None)], **common,
+        antialiased=True, train_views=[view(0, None), view(1, None)], **common,
     ).save(models / "chunk_00.json")  # fmt: skip
     # Pose refinement: turns of 1 and 3 degrees, shifts of 0.1 and 0.3 units.
     turn = np.radians([1.0, 3.0])
@@ -286,7 +286,8 @@ def test_the_report_says_how_each_splat_chunk_was_trained(tmp_path: Path) -> Non
     splat = dict(re.findall(r'<section id="(\w+)">(.*?)</section>', html, re.DOTALL))["splat"]
     assert "Training, per chunk model" in splat
     assert "<td>0</td><td>30,000</td><td>max_steps</td><td>1,000,000</td>" in splat
-    assert "densification mcmc, initial opacity 0.5" in splat
+    assert "densification mcmc, initial opacity 0.5, sky-share weight 0; antialiased" in splat
+    assert "<td>classic</td>" in splat  # chunk 1: no notes, the classic filter
     assert "<td>off</td>" in splat  # chunk 0: no pose refinement
     assert "0.2 / 0.3 units, 2.00 / 3.00°" in splat
     assert "chunk 1: pixels the robust weighting left out" in splat

@@ -670,7 +670,9 @@ def _splat_training(ctx: _Context) -> str:
         rows.append(
             (
                 header.chunk_id, f"{header.steps:,}", header.stopped or "-",
-                f"{header.n_gaussians:,}", "; ".join(header.notes) or "-", poses,
+                f"{header.n_gaussians:,}",
+                "; ".join([*header.notes, "antialiased" if header.antialiased else "classic"]),
+                poses,
             )
         )  # fmt: skip
         picture = outliers_path(path.with_suffix(".pt"))
