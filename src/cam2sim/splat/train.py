@@ -48,7 +48,7 @@ import logging
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -374,6 +374,17 @@ class _ChunkTrainer:
         self.means_gamma = 0.01 ** (1.0 / self.options.max_steps)
         self.means_lr = rates["means"]
         self.means_lr_end = 0.01 * rates["means"]
+        # The scene's other rates decay after densification (LearningRates.tail).
+        dens = self.options.densify
+        self.tail_start = dens.refine_stop if dens.enabled else 0
+        self.tail_groups: list[tuple[dict[str, Any], float]] = []
+        if lr.tail < 1.0:
+            scene_optimizers = [o for n, o in self.optimizers.items() if n != "means"]
+            if sky_groups:
+                scene_optimizers.append(self.extra_optimizers[0])
+            self.tail_groups = [
+                (group, float(group["lr"])) for o in scene_optimizers for group in o.param_groups
+            ]
 
     # -- steps -------------------------------------------------------------------------------
     def _level(self) -> int:
@@ -495,6 +506,11 @@ class _ChunkTrainer:
         self.means_lr *= self.means_gamma
         for group in self.optimizers["means"].param_groups:
             group["lr"] = self.means_lr
+        if self.tail_groups and self.step_no > self.tail_start and self.cap > self.tail_start:
+            done = min(1.0, (self.step_no - self.tail_start) / (self.cap - self.tail_start))
+            factor = opts.lr.tail**done
+            for group, base in self.tail_groups:
+                group["lr"] = base * factor
         spent = self.seconds + time.perf_counter() - start
         if self.step_no % opts.val_every == 0 or self.step_no >= self.cap or self._out_of(spent):
             val_start = time.perf_counter()

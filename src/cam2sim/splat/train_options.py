@@ -53,6 +53,11 @@ class LearningRates:
         appearance: The per-view affine colour transforms.
         poses: The per-view pose corrections (:mod:`cam2sim.splat.pose_refine`; scene units
             and radians); 0 = poses as recorded.
+        tail: Where densification ends before the step cap (``densify.refine_stop`` below
+            it), the scene's other rates (scales, quats, opacities, SH, the sky's) decay
+            exponentially from there to ``tail`` times their value at the cap (the means'
+            follow their own decay; the per-view colour transforms and pose corrections keep
+            theirs). 1 = constant, as gsplat's trainer has them.
     """
 
     means: float = 1.6e-4
@@ -63,6 +68,7 @@ class LearningRates:
     sh_rest: float = 2.5e-3 / 20
     appearance: float = 1e-3
     poses: float = 0.0
+    tail: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -112,6 +118,13 @@ class DensifyOptions:
         mcmc_opacity_reg: With ``strategy="mcmc"``: weight of the mean opacity in the loss
             (Gaussians that are not needed fade, and are then moved where others are).
         mcmc_scale_reg: With ``strategy="mcmc"``: weight of the mean scale (scene units).
+        mcmc_error_weight: With ``strategy="mcmc"``: how much the image error decides where
+            faded Gaussians are moved and new ones added. MCMC draws the Gaussians to copy by
+            their opacity alone, so growth follows what is already opaque, not what is still
+            wrong; with a weight ``e`` each live Gaussian is drawn with probability
+            proportional to ``opacity * (1 - e + e * g / mean(g))``, ``g`` its mean 2-D
+            gradient since the last refinement (the statistic the 3DGS rules grow by, with
+            ``pixel_weighted`` and ``near_damping`` as set). 0 = the paper's draw.
     """
 
     enabled: bool = True
@@ -131,6 +144,7 @@ class DensifyOptions:
     mcmc_cap: int = 1_000_000
     mcmc_opacity_reg: float = 0.01
     mcmc_scale_reg: float = 0.01
+    mcmc_error_weight: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -263,8 +277,16 @@ class TrainOptions:
                 f"coarse_levels={self.coarse_levels}, coarse_every={self.coarse_every} "
                 "(need >= 0 and >= 1)"
             )
-        if self.densify.near_damping < 0:
-            problems.append(f"densify.near_damping={self.densify.near_damping} (need >= 0)")
+        dens = self.densify
+        ranges = (
+            (dens.near_damping >= 0, f"densify.near_damping={dens.near_damping} (need >= 0)"),
+            (
+                0.0 <= dens.mcmc_error_weight <= 1.0,
+                f"densify.mcmc_error_weight={dens.mcmc_error_weight} (need 0-1)",
+            ),
+            (0.0 < self.lr.tail <= 1.0, f"lr.tail={self.lr.tail} (need 0 < tail <= 1)"),
+        )
+        problems += [message for ok, message in ranges if not ok]
         if self.concurrent_chunks is not None and self.concurrent_chunks < 1:
             problems.append(f"concurrent_chunks={self.concurrent_chunks} (need >= 1 or None)")
         if self.time_budget_s is not None and not self.time_budget_s > 0:

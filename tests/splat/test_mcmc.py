@@ -1,0 +1,248 @@
+"""MCMC densification's own operations: the error-weighted draw, relocation and growth."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+
+import torch
+
+from cam2sim.splat import model as gm
+from cam2sim.splat.densify import (
+    RELOCATION_MAX_COPIES,
+    Densifier,
+    _draw,
+    add_copies,
+    mcmc_weights,
+    relocate,
+    relocation_split,
+)
+from cam2sim.splat.raster import RasterOutput
+from cam2sim.splat.train import DensifyOptions, LearningRates, TrainOptions
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+def _model_and_adam(n: int) -> tuple[gm.GaussianModel, dict[str, torch.optim.Optimizer]]:
+    torch.manual_seed(0)
+    model = gm.GaussianModel.from_points(torch.rand(n, 3), torch.rand(n, 3), sh_degree=1)
+    opts: dict[str, torch.optim.Optimizer] = {
+        k: torch.optim.Adam([p], lr=0.01) for k, p in model.params.items()
+    }
+    torch.autograd.backward(torch.stack([p.sum() for p in model.params.values()]).sum())
+    for opt in opts.values():
+        opt.step()
+    return model, opts
+
+
+def _moments(opts: dict[str, torch.optim.Optimizer], model: gm.GaussianModel, name: str):
+    return opts[name].state[model.params[name]]["exp_avg"]
+
+
+@pytest.mark.parametrize("opacity", [0.05, 0.5, 0.95, 0.999])
+@pytest.mark.parametrize("copies", [1, 2, 3, 8, 20])
+def test_relocation_split_keeps_what_the_gaussian_draws(opacity: float, copies: int) -> None:
+    o = torch.tensor([opacity])
+    s = torch.tensor([[0.2, 0.5, 1.0]])
+    new_o, new_s = relocation_split(o, s, torch.tensor([copies]))
+    # N layers of the new opacity are as opaque as the old one.
+    assert 1.0 - (1.0 - float(new_o[0])) ** copies == pytest.approx(opacity, rel=1e-6)
+    # And the N layers' coverage, integrated along an axis, is the old one's:
+    # integral of 1 - (1 - o' g'(x))**N equals o * integral of g(x) (the paper's eq. 9).
+    x = np.linspace(-12.0, 12.0, 200_001)
+    ratio = float(new_s[0, 0] / s[0, 0])
+    assert torch.allclose(new_s / s, torch.full((1, 3), ratio))  # one factor for all axes
+    layered = 1.0 - (1.0 - float(new_o[0]) * np.exp(-(x**2) / (2 * ratio**2))) ** copies
+    integral = float(np.sum(layered) * (x[1] - x[0]))
+    assert integral == pytest.approx(opacity * math.sqrt(2 * math.pi), rel=1e-4)
+    if copies == 1:
+        assert float(new_o[0]) == pytest.approx(opacity)
+        assert ratio == pytest.approx(1.0)
+
+
+def test_relocation_split_caps_the_copies_it_counts() -> None:
+    o, s = torch.tensor([0.9, 0.9]), torch.ones(2, 3)
+    new_o, _ = relocation_split(o, s, torch.tensor([RELOCATION_MAX_COPIES, 500]))
+    assert float(new_o[0]) == pytest.approx(float(new_o[1]))
+    assert torch.isfinite(new_o).all()
+
+
+def test_the_draw_follows_the_weights() -> None:
+    torch.manual_seed(0)
+    weights = torch.tensor([0.0, 1.0, 3.0, float("nan"), 6.0])
+    idx = _draw(weights, 200_000)
+    share = torch.bincount(idx, minlength=5).double() / len(idx)
+    assert share[0] == 0
+    assert share[3] == 0
+    torch.testing.assert_close(
+        share[[1, 2, 4]], torch.tensor([0.1, 0.3, 0.6]).double(), atol=5e-3, rtol=0
+    )
+    uniform = torch.bincount(_draw(torch.zeros(4), 40_000), minlength=4).double() / 40_000
+    torch.testing.assert_close(uniform, torch.full((4,), 0.25).double(), atol=1e-2, rtol=0)
+
+
+def test_error_weights_mix_opacity_and_the_relative_gradient() -> None:
+    model, _ = _model_and_adam(4)
+    with torch.no_grad():
+        model.params["opacities"][:] = 0.0  # opacity 0.5 each
+    grad2d = torch.tensor([1.0, 3.0, 0.0, 8.0])
+    count = torch.tensor([1.0, 1.0, 0.0, 2.0])  # mean gradients 1, 3, (unseen), 4
+    torch.testing.assert_close(mcmc_weights(model, grad2d, count, 0.0), torch.full((4,), 0.5))
+    full = mcmc_weights(model, grad2d, count, 1.0)
+    torch.testing.assert_close(full, 0.5 * torch.tensor([1.0, 3.0, 0.0, 4.0]) / (8.0 / 3.0))
+    half = mcmc_weights(model, grad2d, count, 0.5)
+    torch.testing.assert_close(half, 0.5 * (0.5 + 0.5 * torch.tensor([1.0, 3.0, 0.0, 4.0]) * 3 / 8))
+
+
+def test_relocation_moves_the_faded_onto_drawn_live_gaussians() -> None:
+    model, opts = _model_and_adam(6)
+    with torch.no_grad():
+        model.params["opacities"][:] = torch.logit(torch.tensor([0.8, 0.001, 0.6, 0.002, 0.9, 0.7]))
+    dead = torch.sigmoid(model.params["opacities"].detach()) <= 0.005
+    weights = torch.tensor([0.0, 0.0, 0.0, 0.0, 1.0, 0.0])  # only Gaussian 4 can be drawn
+    means = model.params["means"].detach().clone()
+    assert relocate(model, opts, dead, weights, 0.005) == 2
+    torch.testing.assert_close(model.params["means"].detach()[[1, 3]], means[[4, 4]])
+    opacity = torch.sigmoid(model.params["opacities"].detach())
+    # Gaussian 4 and its two copies are together as opaque as it was.
+    assert 1.0 - float((1.0 - opacity[[1, 3, 4]]).prod()) == pytest.approx(0.9, rel=1e-5)
+    torch.testing.assert_close(opacity[[0, 2, 5]], torch.tensor([0.8, 0.6, 0.7]))
+    for name in ("means", "opacities", "sh0"):
+        moments = _moments(opts, model, name)
+        assert moments[[1, 3, 4]].abs().sum() == 0  # restarted
+        assert moments[[0, 2, 5]].abs().sum() > 0  # kept
+    assert len(model) == 6
+
+
+def test_growth_appends_copies_of_drawn_gaussians_with_aligned_state() -> None:
+    model, opts = _model_and_adam(5)
+    with torch.no_grad():
+        model.params["opacities"][:] = torch.logit(torch.tensor([0.5, 0.5, 0.9, 0.5, 0.5]))
+    add_copies(model, opts, 3, torch.tensor([0.0, 0.0, 1.0, 0.0, 0.0]), 0.005)
+    assert len(model) == 8
+    for name, p in model.params.items():
+        assert opts[name].param_groups[0]["params"][0] is p
+        assert opts[name].state[p]["exp_avg"].shape == p.shape
+    torch.testing.assert_close(
+        model.params["means"].detach()[5:], model.params["means"].detach()[[2, 2, 2]]
+    )
+    opacity = torch.sigmoid(model.params["opacities"].detach())
+    assert 1.0 - float((1.0 - opacity[[2, 5, 6, 7]]).prod()) == pytest.approx(0.9, rel=1e-5)
+
+
+def test_error_weights_follow_the_densifiers_gradient_statistics() -> None:
+    # The draw uses the statistics the 3DGS rules grow by (here unweighted by footprint):
+    # a Gaussian with twice the screen gradient is drawn twice as often, an unseen one never.
+    options = DensifyOptions(strategy="simple", pixel_weighted=False, near_damping=0.0)
+    densifier = Densifier(options, scene_scale=1.0, use_gsplat=False)
+    means2d = torch.zeros(1, 3, 2, requires_grad=True)
+    means2d.grad = torch.tensor([[[1.0, 0.0], [0.0, 2.0], [0.0, 0.0]]])
+    out = RasterOutput(
+        colors=torch.zeros(1, 2, 2, 3),
+        alphas=torch.zeros(1, 2, 2, 1),
+        means2d=means2d,
+        radii=torch.tensor([[[1, 1], [1, 1], [0, 0]]], dtype=torch.int32),
+        depths=torch.full((1, 3), 5.0),
+        info={"width": 2, "height": 2, "n_cameras": 1},
+        backend="torch",
+    )
+    densifier._accumulate(out, 3, 3)
+    model, _ = _model_and_adam(3)
+    with torch.no_grad():
+        model.params["opacities"][:] = 0.0
+    w = mcmc_weights(model, densifier.state["grad2d"], densifier.state["count"], 1.0)
+    assert float(w[2]) == 0.0
+    assert float(w[1]) == pytest.approx(2.0 * float(w[0]))
+
+
+def test_invalid_mcmc_and_tail_options_are_refused() -> None:
+    with pytest.raises(ValueError, match="mcmc_error_weight=1.5"):
+        TrainOptions(densify=DensifyOptions(mcmc_error_weight=1.5))
+    with pytest.raises(ValueError, match="lr.tail=0"):
+        TrainOptions(lr=LearningRates(tail=0.0))
+
+
+def test_error_weighted_refinement_relocates_and_grows_with_aligned_state(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The refinement step itself, on the CPU: gsplat (CUDA) gives MCMC its strategy record and
+    # position noise only, so stand-ins for those two let the bookkeeping run here.
+    import sys
+    import types
+    from dataclasses import dataclass
+
+    @dataclass
+    class StandIn:
+        cap_max: int
+        min_opacity: float
+        refine_start_iter: int
+        refine_stop_iter: int
+        refine_every: int
+        noise_lr: float = 5e5
+
+        def initialize_state(self) -> dict[str, object]:
+            return {"binoms": torch.zeros(1)}
+
+    noise_calls: list[float] = []
+    strategy = types.ModuleType("gsplat.strategy")
+    strategy.MCMCStrategy = StandIn  # type: ignore[attr-defined]
+    ops = types.ModuleType("gsplat.strategy.ops")
+    ops.inject_noise_to_position = lambda **kw: noise_calls.append(kw["scaler"])  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "gsplat", types.ModuleType("gsplat"))
+    monkeypatch.setitem(sys.modules, "gsplat.strategy", strategy)
+    monkeypatch.setitem(sys.modules, "gsplat.strategy.ops", ops)
+
+    options = DensifyOptions(
+        strategy="mcmc",
+        refine_start=0,
+        refine_every=10,
+        refine_stop=100,
+        mcmc_cap=25,
+        mcmc_error_weight=1.0,
+        pixel_weighted=False,
+        near_damping=0.0,
+    )
+    densifier = Densifier(options, scene_scale=1.0, use_gsplat=True)
+    model, opts = _model_and_adam(20)
+    with torch.no_grad():
+        model.params["opacities"][:] = 2.0
+        model.params["opacities"][:4] = -8.0  # four faded ones
+    means = model.params["means"].detach().clone()
+
+    def out(n: int) -> RasterOutput:
+        means2d = torch.zeros(1, n, 2, requires_grad=True)
+        grad = torch.zeros(1, n, 2)
+        grad[0, 10, 0] = 1.0  # only Gaussian 10 has an image error
+        means2d.grad = grad
+        return RasterOutput(
+            colors=torch.zeros(1, 2, 2, 3),
+            alphas=torch.zeros(1, 2, 2, 1),
+            means2d=means2d,
+            radii=torch.ones(1, n, 2, dtype=torch.int32),
+            depths=torch.full((1, n), 5.0),
+            info={"width": 2, "height": 2, "n_cameras": 1},
+            backend="gsplat",
+        )
+
+    for step in range(1, 11):
+        densifier.post_backward(
+            step, model, opts, out(len(model)), len(model), torch.Generator(), means_lr=1e-4
+        )
+    assert noise_calls == [pytest.approx(1e-4 * 5e5)] * 10  # noise on every step
+    assert len(model) == 21  # grown by 5 %, up to the cap
+    means_now = model.params["means"].detach()
+    # Every faded Gaussian and the new one are copies of the one with the error.
+    torch.testing.assert_close(means_now[[0, 1, 2, 3, 20]], means[[10] * 5])
+    torch.testing.assert_close(means_now[4:10], means[4:10])
+    opacity = torch.sigmoid(model.params["opacities"].detach())
+    assert 1.0 - float((1.0 - opacity[[0, 1, 2, 3, 10, 20]]).prod()) == pytest.approx(
+        float(torch.sigmoid(torch.tensor(2.0))), rel=1e-5
+    )
+    for name, p in model.params.items():
+        assert opts[name].param_groups[0]["params"][0] is p
+        assert opts[name].state[p]["exp_avg"].shape == p.shape
+    assert densifier.state["grad2d"] is None  # statistics restart after each refinement
