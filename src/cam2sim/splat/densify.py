@@ -84,7 +84,7 @@ class Densifier:
         # When the strategies refine: the same rhythm for both of gsplat's.
         rhythm = {
             "refine_start_iter": options.refine_start,
-            "refine_stop_iter": options.refine_stop,
+            "refine_stop_iter": options.refine_stop_at,
             "refine_every": options.refine_every,
         }
         if options.strategy == "mcmc":
@@ -142,7 +142,7 @@ class Densifier:
                     model.params, optimizers, self.state, step, out.info, lr=means_lr
                 )
             return
-        if step >= opts.refine_stop or out.means2d.grad is None:
+        if step >= opts.refine_stop_at or out.means2d.grad is None:
             return
         if self.strategy is not None:
             if len(model) < opts.max_gaussians:
@@ -173,9 +173,10 @@ class Densifier:
         from gsplat.strategy.ops import inject_noise_to_position  # noqa: PLC0415
 
         opts, strategy = self.options, self.strategy
-        if step < opts.refine_stop and out.means2d.grad is not None:
+        stop = opts.refine_stop_at
+        if step < stop and out.means2d.grad is not None:
             self._accumulate(out, n_street, len(model))
-        due = opts.refine_start < step < opts.refine_stop and step % opts.refine_every == 0
+        due = opts.refine_start < step < stop and step % opts.refine_every == 0
         if due and self.state.get("grad2d") is not None:
             weights = mcmc_weights(
                 model, self.state["grad2d"], self.state["count"], opts.mcmc_error_weight

@@ -287,7 +287,7 @@ class _ChunkTrainer:
 
         opts = self.options
         self.n_ground = 0
-        if opts.ground_points > 0:
+        if opts.ground_points:
             points = self._with_ground(points)
         seeded = seed_models(
             *points,
@@ -376,9 +376,9 @@ class _ChunkTrainer:
         self.means_lr_end = 0.01 * rates["means"]
         # The scene's other rates decay after densification (LearningRates.tail).
         dens = self.options.densify
-        self.tail_start = dens.refine_stop if dens.enabled else 0
+        self.tail_start = dens.refine_stop_at if dens.enabled else 0
         self.tail_groups: list[tuple[dict[str, Any], float]] = []
-        if lr.tail < 1.0:
+        if lr.tail is not None and lr.tail < 1.0:
             scene_optimizers = [o for n, o in self.optimizers.items() if n != "means"]
             if sky_groups:
                 scene_optimizers.append(self.extra_optimizers[0])
@@ -508,7 +508,7 @@ class _ChunkTrainer:
             group["lr"] = self.means_lr
         if self.tail_groups and self.step_no > self.tail_start and self.cap > self.tail_start:
             done = min(1.0, (self.step_no - self.tail_start) / (self.cap - self.tail_start))
-            factor = opts.lr.tail**done
+            factor = (opts.lr.tail or 1.0) ** done
             for group, base in self.tail_groups:
                 group["lr"] = base * factor
         spent = self.seconds + time.perf_counter() - start
@@ -723,7 +723,7 @@ class _ChunkTrainer:
             v.Ks.double().cpu().numpy(),
             v.images.cpu().numpy(),
             usable.cpu().numpy(),
-            count=self.options.ground_points,
+            count=self.options.ground_points or 0,
             seed=self.options.seed + self.chunk.id,
         )
         self.n_ground = len(xyz)
@@ -744,10 +744,15 @@ class _ChunkTrainer:
         opts = self.options
         if not opts.densify.enabled:
             return "densification off"
-        return (
-            f"densification {opts.densify.strategy}, initial opacity {self.init_opacity:g}, "
-            f"sky-share weight {self.sky_weight:g}"
+        note = (
+            f"densification {opts.densify.strategy} until step {opts.densify.refine_stop_at}, "
+            f"initial opacity {self.init_opacity:g}, sky-share weight {self.sky_weight:g}"
         )
+        if self.tail_groups:
+            note += f", learning rates to {opts.lr.tail:g}x after densification"
+        if opts.densify.strategy == "mcmc" and opts.densify.mcmc_error_weight > 0:
+            note += f", draw weighted by the image error ({opts.densify.mcmc_error_weight:g})"
+        return note
 
 
 # ---------------------------------------------------------------------------- entry points

@@ -17,7 +17,10 @@ if TYPE_CHECKING:
     from cam2sim.splat.raster import RasterBackend
 
 __all__ = [
+    "MCMC_GROUND_POINTS",
     "MCMC_MIN_STEPS",
+    "MCMC_REFINE_STOP",
+    "REFINE_STOP",
     "DensifyOptions",
     "DensifyStrategy",
     "LearningRates",
@@ -35,6 +38,15 @@ DensifyStrategy = Literal["auto", "mcmc", "gsplat", "simple"]
 
 MCMC_MIN_STEPS = 20_000
 """Step caps from which ``DensifyOptions.strategy="auto"`` densifies by MCMC on gsplat."""
+
+REFINE_STOP = 15_000
+"""The 3DGS rules' last refinement step (``DensifyOptions.refine_stop`` left None)."""
+
+MCMC_REFINE_STOP = 25_000
+"""MCMC's last relocation and growth step (``DensifyOptions.refine_stop`` left None)."""
+
+MCMC_GROUND_POINTS = 100_000
+"""Ground seeds an MCMC run starts with (``TrainOptions.ground_points`` left None)."""
 """Why a chunk's training ended (``TrainResult.stopped``)."""
 
 
@@ -57,7 +69,9 @@ class LearningRates:
             it), the scene's other rates (scales, quats, opacities, SH, the sky's) decay
             exponentially from there to ``tail`` times their value at the cap (the means'
             follow their own decay; the per-view colour transforms and pose corrections keep
-            theirs). 1 = constant, as gsplat's trainer has them.
+            theirs). 1 = constant, as gsplat's trainer has them. None = 0.1 with MCMC
+            densification, else 1 (:func:`resolve_options`; measured with MCMC only:
+            ``docs/benchmarks.md``).
     """
 
     means: float = 1.6e-4
@@ -68,7 +82,7 @@ class LearningRates:
     sh_rest: float = 2.5e-3 / 20
     appearance: float = 1e-3
     poses: float = 0.0
-    tail: float = 1.0
+    tail: float | None = None
 
 
 @dataclass(frozen=True)
@@ -88,7 +102,9 @@ class DensifyOptions:
             frames it lost 0.6-1.0 dB at 10,000 steps and won 0.2-0.9 dB at 30,000
             (``docs/benchmarks.md``).
         refine_start: First step that clones/splits/prunes.
-        refine_stop: No refinement from this step on.
+        refine_stop: No refinement from this step on; None = :data:`MCMC_REFINE_STOP` with
+            MCMC (the MCMC paper's 25,000 of 30,000), else :data:`REFINE_STOP`
+            (:attr:`refine_stop_at`).
         refine_every: Steps between refinements.
         reset_every: Steps between opacity resets (to twice ``prune_opacity``); none within
             ``reset_every`` steps of ``max_steps``, as the model needs about that long to
@@ -130,7 +146,7 @@ class DensifyOptions:
     enabled: bool = True
     strategy: DensifyStrategy = "auto"
     refine_start: int = 500
-    refine_stop: int = 15_000
+    refine_stop: int | None = None
     refine_every: int = 100
     reset_every: int = 3000
     grow_grad2d: float = 2e-4
@@ -145,6 +161,13 @@ class DensifyOptions:
     mcmc_opacity_reg: float = 0.01
     mcmc_scale_reg: float = 0.01
     mcmc_error_weight: float = 0.0
+
+    @property
+    def refine_stop_at(self) -> int:
+        """The step refinement stops at: ``refine_stop``, or its strategy's default."""
+        if self.refine_stop is not None:
+            return self.refine_stop
+        return MCMC_REFINE_STOP if self.strategy == "mcmc" else REFINE_STOP
 
 
 @dataclass(frozen=True)
@@ -175,9 +198,10 @@ class TrainOptions:
         ground_points: About this many extra starting Gaussians on the ground under the
             cameras, where SfM leaves the near road and verges bare (:mod:`cam2sim.splat.ground`:
             the plane at the cameras' height, from the points on the road ahead; the pixels'
-            colours); 0 = none. Experimental: on the CPU (2,000 steps at 160x120 on the
-            winding stretch) it lost 0.44 dB held-out and 1.8 dB on the bottom third
-            (``docs/benchmarks.md``); not yet measured on a GPU.
+            colours); 0 = none; None = :data:`MCMC_GROUND_POINTS` with MCMC densification,
+            else 0. With 30,000 MCMC steps they gained 0.14 dB held-out on the winding stretch
+            and 0.33 dB on the easy one; with 2,000 CPU steps of the 3DGS rules they lost
+            0.44 dB (``docs/benchmarks.md``).
         background: RGB in ``[0, 1]`` behind everything.
         scene_scale: Scale (scene units) of the means' learning rate and of densification's
             size thresholds (``grow_scale3d``, ``prune_scale3d``). None = automatic:
@@ -240,7 +264,7 @@ class TrainOptions:
     sky_weight: float | None = None
     init_opacity: float | None = None
     max_init_points: int | None = None
-    ground_points: int = 0
+    ground_points: int | None = None
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     scene_scale: float | None = None
     downscale: int = 1
@@ -284,7 +308,10 @@ class TrainOptions:
                 0.0 <= dens.mcmc_error_weight <= 1.0,
                 f"densify.mcmc_error_weight={dens.mcmc_error_weight} (need 0-1)",
             ),
-            (0.0 < self.lr.tail <= 1.0, f"lr.tail={self.lr.tail} (need 0 < tail <= 1)"),
+            (
+                self.lr.tail is None or 0.0 < self.lr.tail <= 1.0,
+                f"lr.tail={self.lr.tail} (need 0 < tail <= 1 or None)",
+            ),
         )
         problems += [message for ok, message in ranges if not ok]
         if self.concurrent_chunks is not None and self.concurrent_chunks < 1:
@@ -308,7 +335,10 @@ def resolve_options(options: TrainOptions, backend: str) -> TrainOptions:
     has no plateau stop (``min_steps`` becomes ``max_steps``): its held-in score rises late
     (below the default strategy's at 15,000 of 30,000 steps, above it at the end) and still
     rises in the last 2,000 steps, where the plateau rule, replayed on recorded runs, stopped
-    it at 22,000-23,000 steps, 0.5 dB held-in short of the full schedule.
+    it at 22,000-23,000 steps, 0.5 dB held-in short of the full schedule. MCMC also relocates
+    and grows until :data:`MCMC_REFINE_STOP`, then lets the scene's learning rates decay to a
+    tenth (``lr.tail``), and starts with :data:`MCMC_GROUND_POINTS` ground seeds: together
+    +0.6 dB held-out on the winding stretch at 30,000 steps (``docs/benchmarks.md``).
     """
     dens = options.densify
     strategy = dens.strategy
@@ -323,11 +353,16 @@ def resolve_options(options: TrainOptions, backend: str) -> TrainOptions:
     min_steps = options.min_steps
     if mcmc:
         min_steps = max(min_steps, options.max_steps)
+    dens = replace(dens, strategy=strategy)
+    tail = options.lr.tail if options.lr.tail is not None else (0.1 if mcmc else 1.0)
+    ground = options.ground_points
     return replace(
         options,
-        densify=replace(dens, strategy=strategy),
+        densify=replace(dens, refine_stop=dens.refine_stop_at),
+        lr=replace(options.lr, tail=tail),
         init_opacity=_or(options.init_opacity, 0.5 if mcmc else 0.1),
         sky_weight=_or(options.sky_weight, 0.0 if mcmc else 0.05),
+        ground_points=ground if ground is not None else (MCMC_GROUND_POINTS if mcmc else 0),
         min_steps=min_steps,
     )
 
