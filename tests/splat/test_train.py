@@ -225,6 +225,34 @@ def test_held_out_frames_reach_a_psnr_floor(trained: tuple[Path, SceneTrainResul
     assert SplatEval.load(prep.parent / "eval.json") == result
 
 
+def test_evaluation_writes_the_held_out_renders_it_scored(
+    trained: tuple[Path, SceneTrainResult], tmp_path: Path
+) -> None:
+    from cam2sim.core.images import read_rgb
+    from cam2sim.splat.evaluate import frame_exclusion
+    from cam2sim.splat.scores import score_pair
+
+    prep, _ = trained
+    renders = tmp_path / "renders"
+    result = evaluate_splat(
+        prep,
+        prep.parent / "models",
+        offsets=(),
+        options=EvalOptions(lpips=False, device="cpu", renders_dir=renders),
+        out_path=tmp_path / "eval.json",
+    )
+    scene = SceneRecord.load(prep / "scene.json")
+    held = {f.index: f for f in scene.frames if f.held_out}
+    assert sorted(p.name for p in renders.iterdir()) == [f"{i:06d}.webp" for i in sorted(held)]
+    for row in result.frames:  # lossless: the written render scores exactly as the evaluation
+        frame = held[row.index]
+        real = read_rgb(prep / "images" / f"{row.index:06d}.png")
+        render = read_rgb(renders / f"{row.index:06d}.webp")
+        assert render.shape == real.shape
+        again = score_pair(real, render, frame_exclusion(prep, frame), None)
+        assert again.psnr == pytest.approx(row.psnr_db, abs=1e-9)
+
+
 def test_chunk_model_roundtrips(trained: tuple[Path, SceneTrainResult], tmp_path: Path) -> None:
     _, result = trained
     loaded = gm.load_chunk_model(result.chunks[0].model_path)

@@ -47,7 +47,7 @@ import numpy as np
 import pydantic
 
 from cam2sim.core.errors import Cam2SimError, StageError
-from cam2sim.core.images import read_mask, read_rgb
+from cam2sim.core.images import read_mask, read_rgb, write_rgb
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.schema import Artifact
 from cam2sim.metrics.lpips import load_lpips
@@ -167,6 +167,9 @@ class EvalOptions:
         lower_fraction: Bottom share of the image compared at the offsets.
         device: torch device (``"auto"``: CUDA when available).
         backend: Rasterizer.
+        renders_dir: Also write each held-out frame's render there, as the frame's index in
+            lossless WebP (``000123.webp``): to look at, or to score elsewhere (LPIPS on
+            another machine, ``benchmarks/lpips_renders.py``). None = not written.
     """
 
     lpips: bool = True
@@ -177,6 +180,7 @@ class EvalOptions:
     lower_fraction: float = 0.5
     device: str = "auto"
     backend: RasterBackend = "auto"
+    renders_dir: Path | None = None
 
 
 def frame_exclusion(prep_dir: Path, frame: FrameRecord) -> npt.NDArray[np.bool_] | None:
@@ -330,6 +334,8 @@ def evaluate_splat(
             camera = frame.camera()
             r = renderer.render(frame.T(), camera)
             cache[frame.index, 0.0, 0.0] = (r.rgb, r.coverage)
+            if opts.renders_dir is not None:
+                write_rgb(Path(opts.renders_dir) / f"{frame.index:06d}.webp", r.rgb)
             s = score_pair(real, r.rgb, exclude, lpips)
             raw = PairScores(None, None, None)
             if opts.compare_appearance:
