@@ -1,0 +1,66 @@
+#!/usr/bin/env bash
+# One call on a GPU machine (docs/benchmarks.md, issues 19 and 22): install the carried wheels,
+# build gsplat, and train and score the 1,500-frame route (benchmarks/splat_route.py) with
+# today's defaults; with CLASSIC=1 and a second GPU, the same without the antialiasing filter
+# beside it (the same-call baseline); with TESTS=1 and a third GPU, the CUDA training tests too
+# (called directly: the tests' conftest needs packages the GPU image lacks).
+#
+#   WHEELS=.c19w ROUTE=.carry/route400tri CKPT=.c19/alexnet.ckpt CLASSIC=1 TESTS=1 \
+#       bash benchmarks/gpu_route.sh          # carry .c19w, .c19/alexnet.ckpt, .carry/route400tri
+#
+# Writes $OUT/route_default.json (and route_classic.json, tests.txt) and their logs. About
+# 285 s of training a run on an H100, plus the build (60-80 s) and the resize of 1,500 frames.
+set -o pipefail
+export PYTHONUNBUFFERED=1 MAX_JOBS=${MAX_JOBS:-16}
+: "${WHEELS:?set WHEELS to the folder of wheels}" "${ROUTE:?set ROUTE to the prepared route}"
+python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
+  --target /tmp/site "$WHEELS"/*.whl || exit 1
+export PYTHONPATH=/tmp/site:$PWD/src
+out=${OUT:-/tmp/out}
+mkdir -p "$out"
+python3 -c "from cam2sim.splat.raster import build_gsplat; build_gsplat()" || exit 1
+gpus=$(python3 -c "import torch; print(torch.cuda.device_count())")
+lpips=(--no-lpips)
+if [ -n "$CKPT" ]; then lpips=(--lpips-weights "$CKPT"); fi
+route() {  # NAME GPU [--set KEY=VALUE ...]
+  local name=$1 gpu=$2
+  shift 2
+  CUDA_VISIBLE_DEVICES=$gpu python3 benchmarks/splat_gpu.py --prep "$ROUTE" --resize 480x300 \
+    --resized-dir "/tmp/r400_$name" "${lpips[@]}" --fps-frames 0 --no-offsets \
+    --models "/tmp/models_$name" --max-steps 6500 --min-steps 6000 --set val_every=1000 \
+    --clock-every 1000 --out "$out/route_$name.json" "$@" > "$out/route_$name.log" 2>&1
+}
+route default 0 &
+if [ -n "$CLASSIC" ] && [ "$gpus" -ge 2 ]; then route classic 1 --set antialiased=false & fi
+if [ -n "$TESTS" ] && [ "$gpus" -ge 3 ]; then
+  CUDA_VISIBLE_DEVICES=2 python3 - > "$out/tests.txt" 2>&1 <<'PY' &
+import sys
+import tempfile
+import traceback
+from pathlib import Path
+
+sys.path.insert(0, "tests/splat")
+import test_train as t
+
+cases = [
+    ("gsplat densifies and resets", t.test_gsplat_training_densifies_and_resets, ()),
+    ("mcmc, opacity draw", t.test_mcmc_training_grows_to_its_cap_and_learns, (0.0,)),
+    ("mcmc, error-weighted draw", t.test_mcmc_training_grows_to_its_cap_and_learns, (1.0,)),
+]
+failed = 0
+for name, test, args in cases:
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            test(Path(tmp), *args)
+            print("PASSED", name, flush=True)
+        except Exception:  # noqa: BLE001 -- report every failure, run every case
+            failed += 1
+            print("FAILED", name, flush=True)
+            traceback.print_exc()
+sys.exit(1 if failed else 0)
+PY
+fi
+wait
+tail -n 3 "$out"/route_*.log
+[ -f "$out/tests.txt" ] && grep -E "PASSED|FAILED" "$out/tests.txt"
+exit 0
