@@ -801,3 +801,36 @@ def test_scene_rates_decay_to_the_tail_after_densification(tmp_path: Path) -> No
         assert end[name] == pytest.approx(0.1 * start[name]), name
     assert end["appearance"] == start["appearance"]  # the per-view transforms keep theirs
     assert end["means"] == pytest.approx(0.01 * start["means"], rel=1e-3)  # their own decay
+
+
+def test_training_clears_the_drives_path_of_gaussians(tmp_path: Path) -> None:
+    from cam2sim.splat.model import load_chunk_model
+    from cam2sim.splat.scene import load_points
+
+    prep = make_prepared_scene(tmp_path, n_frames=8, chunks=((0, 8),), size=(48, 36))
+    # Plant opaque points on the cameras' path (1.5 over the ground, x = 0, moving along y):
+    # nothing of a street is there, the car was.
+    xyz, rgb, labels = load_points(prep / "points.npz")
+    planted = np.stack([np.zeros(10), np.linspace(0.4, 1.6, 10), np.full(10, 1.5)], -1)
+    save_points(
+        prep / "points.npz",
+        np.concatenate([xyz, planted]).astype(np.float32),
+        np.concatenate([rgb, np.full((10, 3), 255, np.uint8)]),
+        np.concatenate([labels, np.zeros(10, np.uint8)]),
+    )
+    scene = SceneRecord.load(prep / "scene.json")
+    result = train_chunk(
+        scene, 0, prep, fast_options(clear_path=0.5), models_dir=tmp_path / "models"
+    )
+    chunk = load_chunk_model(result.model_path)
+    notes = " ".join(chunk.header.notes)
+    assert "cleared from the drive's path (radius 0.75 scene units)" in notes  # 0.5 x 1.5 m
+    cleared = int(notes.split(" Gaussians cleared")[0].split()[-1])
+    assert cleared >= 10
+    means = chunk.gaussians.params["means"].detach()
+    opacity = torch.sigmoid(chunk.gaussians.params["opacities"].detach())
+    on_path = (means[:, 0].abs() < 0.5) & ((means[:, 2] - 1.5).abs() < 0.5)
+    on_path &= (means[:, 1] > 0.0) & (means[:, 1] < 1.75)
+    assert float(torch.cat([opacity[on_path], torch.zeros(1)]).max()) < 0.01
+    plain = train_chunk(scene, 0, prep, fast_options(), models_dir=tmp_path / "plain")
+    assert "cleared" not in " ".join(load_chunk_model(plain.model_path).header.notes)

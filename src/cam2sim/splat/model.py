@@ -61,6 +61,7 @@ __all__ = [
     "gather_splats",
     "load_chunk_header",
     "load_chunk_model",
+    "make_transparent",
     "nearest_neighbour_distances",
     "outliers_path",
     "quench_non_finite",
@@ -430,19 +431,28 @@ def quench_non_finite(model: GaussianModel, optimizers: Optimizers) -> int:
     bad = torch.zeros(len(model), dtype=torch.bool, device=params["means"].device)
     for p in params.values():
         bad |= ~torch.isfinite(p.detach()).reshape(len(p), -1).all(dim=1)
-    n_bad = int(bad.sum())  # one host sync per call: call it at refinement steps only
-    if n_bad == 0:
+    return make_transparent(model, optimizers, bad)
+
+
+def make_transparent(model: GaussianModel, optimizers: Optimizers, rows: torch.Tensor) -> int:
+    """Make the Gaussians ``rows`` (``[N]`` bool) selects transparent; return how many.
+
+    In place: their opacity logit becomes :data:`DEAD_OPACITY_LOGIT`, non-finite values 0, and
+    their Adam moments 0 in every optimizer, so the next refinement prunes them (3DGS rules) or
+    relocates them onto live ones (MCMC), and until then they draw nothing.
+    """
+    n = int(rows.sum())  # one host sync per call: call it at refinement steps only
+    if n == 0:
         return 0
     with torch.no_grad():
-        for name, p in params.items():
-            rows = p[bad]
-            p[bad] = torch.nan_to_num(rows, nan=0.0, posinf=0.0, neginf=0.0)
+        for name, p in model.params.items():
+            p[rows] = torch.nan_to_num(p[rows], nan=0.0, posinf=0.0, neginf=0.0)
             if name == "opacities":
-                p[bad] = DEAD_OPACITY_LOGIT
+                p[rows] = DEAD_OPACITY_LOGIT
             opt = optimizers.get(name)
             if opt is not None:
-                zero_moments(opt.state.get(p, {}), p, bad)
-    return n_bad
+                zero_moments(opt.state.get(p, {}), p, rows)
+    return n
 
 
 def zero_moments(

@@ -286,7 +286,8 @@ class _ChunkTrainer:
         from cam2sim.splat.model import SeedOptions, seed_models  # noqa: PLC0415 -- lazy: torch
 
         opts = self.options
-        self.n_ground = 0
+        self.n_ground = self.n_cleared = 0
+        self.path, self.clear_radius = self._clearance(points[0])
         if opts.ground_points:
             points = self._with_ground(points)
         seeded = seed_models(
@@ -491,6 +492,10 @@ class _ChunkTrainer:
         timer.mark("backward")
         adam_step((*self.optimizers.values(), *self.extra_optimizers))
         timer.mark("optimizer")
+        if self.path is not None and self.step_no % opts.densify.refine_every == 0:
+            from cam2sim.splat.clearance import clear_path  # noqa: PLC0415
+
+            self.n_cleared += clear_path(self.street, self.optimizers, self.path, self.clear_radius)
         if self.densifier is not None:
             self.densifier.post_backward(
                 self.step_no,
@@ -709,6 +714,35 @@ class _ChunkTrainer:
         if ok:
             write_bytes_atomic(path, data.tobytes())
 
+    def _clearance(self, xyz: npt.NDArray[np.float32]) -> tuple[torch.Tensor | None, float]:
+        """The training cameras' path (in path order) and the radius cleared around it."""
+        import torch  # noqa: PLC0415
+
+        from cam2sim.splat.ground import camera_height  # noqa: PLC0415
+
+        if self.options.clear_path <= 0:
+            return None, 0.0
+        v = self.views
+        pick = np.unique(np.linspace(0, len(v.frames) - 1, min(24, len(v.frames))).round())
+        pick = pick.astype(np.int64)
+        usable = v.masks if v.sky is None else v.masks & ~v.sky
+        height = camera_height(
+            xyz,
+            np.stack([v.frames[i].T() for i in pick]),
+            v.Ks[pick].double().cpu().numpy(),
+            usable[pick].cpu().numpy(),
+        )
+        if height is None:
+            _log.warning(
+                "chunk %d: too few points on the road under the cameras to know their height; "
+                "the drive's path is not cleared",
+                self.chunk.id,
+            )
+            return None, 0.0
+        centres = np.stack([f.T()[:3, 3] for f in v.frames]).astype(np.float32)
+        path = torch.from_numpy(centres).to(self.device)
+        return path, self.options.clear_path * height
+
     def _with_ground(
         self, points: tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]
     ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
@@ -734,6 +768,11 @@ class _ChunkTrainer:
         notes = [self._densify_note()]
         if self.n_ground:
             notes.append(f"{self.n_ground} ground seeds")
+        if self.path is not None:
+            notes.append(
+                f"{self.n_cleared} Gaussians cleared from the drive's path "
+                f"(radius {self.clear_radius:.3g} scene units)"
+            )
         broken = self.densifier.n_non_finite if self.densifier is not None else 0
         if broken:
             notes.append(f"{broken} Gaussians with NaN or inf parameters made transparent")

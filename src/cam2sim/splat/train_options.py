@@ -202,6 +202,11 @@ class TrainOptions:
             else 0. With 30,000 MCMC steps they gained 0.14 dB held-out on the winding stretch
             and 0.33 dB on the easy one; with 2,000 CPU steps of the 3DGS rules they lost
             0.44 dB (``docs/benchmarks.md``).
+        clear_path: Radius, as a share of the cameras' height over the road, of the tube
+            around the training cameras' path inside which Gaussians are made transparent at
+            every refinement step (:mod:`cam2sim.splat.clearance`: the car drove through that
+            space, so nothing is there; a floater there blocks every pose near the path, which
+            is what a closed-loop drive renders). 0 = off.
         background: RGB in ``[0, 1]`` behind everything.
         scene_scale: Scale (scene units) of the means' learning rate and of densification's
             size thresholds (``grow_scale3d``, ``prune_scale3d``). None = automatic:
@@ -265,6 +270,7 @@ class TrainOptions:
     init_opacity: float | None = None
     max_init_points: int | None = None
     ground_points: int | None = None
+    clear_path: float = 0.0
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     scene_scale: float | None = None
     downscale: int = 1
@@ -304,6 +310,7 @@ class TrainOptions:
         dens = self.densify
         ranges = (
             (dens.near_damping >= 0, f"densify.near_damping={dens.near_damping} (need >= 0)"),
+            (self.clear_path >= 0, f"clear_path={self.clear_path} (need >= 0)"),
             (
                 0.0 <= dens.mcmc_error_weight <= 1.0,
                 f"densify.mcmc_error_weight={dens.mcmc_error_weight} (need 0-1)",
