@@ -10,14 +10,8 @@
 #
 # Writes $OUT/route_default.json (and route_classic.json, tests.txt) and their logs. About
 # 285 s of training a run on an H100, plus the build (60-80 s) and the resize of 1,500 frames.
-set -o pipefail
-export PYTHONUNBUFFERED=1 MAX_JOBS=${MAX_JOBS:-16}
-: "${WHEELS:?set WHEELS to the folder of wheels}" "${ROUTE:?set ROUTE to the prepared route}"
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
-  --target /tmp/site "$WHEELS"/*.whl || exit 1
-export PYTHONPATH=/tmp/site:$PWD/src
-out=${OUT:-/tmp/out}
-mkdir -p "$out"
+: "${ROUTE:?set ROUTE to the prepared route}"
+source "$(dirname "$0")/gpu_env.sh"
 python3 -c "from cam2sim.splat.raster import build_gsplat; build_gsplat()" || exit 1
 gpus=$(python3 -c "import torch; print(torch.cuda.device_count())")
 lpips=(--no-lpips)

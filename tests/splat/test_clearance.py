@@ -10,8 +10,8 @@ pytest.importorskip("torch")
 import itertools
 
 import torch
+from gaussian_fixtures import model_and_adam
 
-from cam2sim.splat import model as gm
 from cam2sim.splat.clearance import clear_path, path_distance
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -45,11 +45,7 @@ def test_gaussians_on_the_path_are_made_transparent_and_the_rest_kept() -> None:
             [0.0, -0.5, 1.5],  # 0.5 behind its start
         ]
     )
-    model = gm.GaussianModel.from_points(means, torch.rand(5, 3), sh_degree=1)
-    opts = {k: torch.optim.Adam([p], lr=0.01) for k, p in model.params.items()}
-    torch.autograd.backward(torch.stack([p.sum() for p in model.params.values()]).sum())
-    for opt in opts.values():
-        opt.step()
+    model, opts = model_and_adam(means=means)
     with torch.no_grad():
         model.params["opacities"][:] = 2.0
     path = torch.tensor([[0.0, 0.0, 1.5], [0.0, 5.0, 1.5]])

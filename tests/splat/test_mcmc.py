@@ -9,9 +9,11 @@ import pytest
 
 pytest.importorskip("torch")
 
-import torch
+from typing import TYPE_CHECKING
 
-from cam2sim.splat import model as gm
+import torch
+from gaussian_fixtures import model_and_adam
+
 from cam2sim.splat.densify import (
     RELOCATION_MAX_COPIES,
     Densifier,
@@ -24,19 +26,10 @@ from cam2sim.splat.densify import (
 from cam2sim.splat.raster import RasterOutput
 from cam2sim.splat.train import DensifyOptions, LearningRates, TrainOptions
 
+if TYPE_CHECKING:
+    from cam2sim.splat import model as gm
+
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
-
-
-def _model_and_adam(n: int) -> tuple[gm.GaussianModel, dict[str, torch.optim.Optimizer]]:
-    torch.manual_seed(0)
-    model = gm.GaussianModel.from_points(torch.rand(n, 3), torch.rand(n, 3), sh_degree=1)
-    opts: dict[str, torch.optim.Optimizer] = {
-        k: torch.optim.Adam([p], lr=0.01) for k, p in model.params.items()
-    }
-    torch.autograd.backward(torch.stack([p.sum() for p in model.params.values()]).sum())
-    for opt in opts.values():
-        opt.step()
-    return model, opts
 
 
 def _moments(opts: dict[str, torch.optim.Optimizer], model: gm.GaussianModel, name: str):
@@ -86,7 +79,7 @@ def test_the_draw_follows_the_weights() -> None:
 
 
 def test_error_weights_mix_opacity_and_the_relative_gradient() -> None:
-    model, _ = _model_and_adam(4)
+    model, _ = model_and_adam(4)
     with torch.no_grad():
         model.params["opacities"][:] = 0.0  # opacity 0.5 each
     grad2d = torch.tensor([1.0, 3.0, 0.0, 8.0])
@@ -99,7 +92,7 @@ def test_error_weights_mix_opacity_and_the_relative_gradient() -> None:
 
 
 def test_relocation_moves_the_faded_onto_drawn_live_gaussians() -> None:
-    model, opts = _model_and_adam(6)
+    model, opts = model_and_adam(6)
     with torch.no_grad():
         model.params["opacities"][:] = torch.logit(torch.tensor([0.8, 0.001, 0.6, 0.002, 0.9, 0.7]))
     dead = torch.sigmoid(model.params["opacities"].detach()) <= 0.005
@@ -119,7 +112,7 @@ def test_relocation_moves_the_faded_onto_drawn_live_gaussians() -> None:
 
 
 def test_growth_appends_copies_of_drawn_gaussians_with_aligned_state() -> None:
-    model, opts = _model_and_adam(5)
+    model, opts = model_and_adam(5)
     with torch.no_grad():
         model.params["opacities"][:] = torch.logit(torch.tensor([0.5, 0.5, 0.9, 0.5, 0.5]))
     add_copies(model, opts, 3, torch.tensor([0.0, 0.0, 1.0, 0.0, 0.0]), 0.005)
@@ -151,7 +144,7 @@ def test_error_weights_follow_the_densifiers_gradient_statistics() -> None:
         backend="torch",
     )
     densifier._accumulate(out, 3, 3)
-    model, _ = _model_and_adam(3)
+    model, _ = model_and_adam(3)
     with torch.no_grad():
         model.params["opacities"][:] = 0.0
     w = mcmc_weights(model, densifier.state["grad2d"], densifier.state["count"], 1.0)
@@ -207,7 +200,7 @@ def test_error_weighted_refinement_relocates_and_grows_with_aligned_state(
         near_damping=0.0,
     )
     densifier = Densifier(options, scene_scale=1.0, use_gsplat=True)
-    model, opts = _model_and_adam(20)
+    model, opts = model_and_adam(20)
     with torch.no_grad():
         model.params["opacities"][:] = 2.0
         model.params["opacities"][:4] = -8.0  # four faded ones

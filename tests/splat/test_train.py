@@ -19,6 +19,7 @@ import pytest
 pytest.importorskip("torch")
 
 import torch
+from gaussian_fixtures import check_aligned, model_and_adam
 
 from cam2sim.core.errors import StageError
 from cam2sim.splat import model as gm
@@ -361,45 +362,24 @@ def test_invalid_options_are_refused() -> None:
 # --------------------------------------------------------------------- densification surgery
 
 
-def _model_and_adam(n: int = 6) -> tuple[gm.GaussianModel, dict[str, torch.optim.Optimizer]]:
-    model = gm.GaussianModel.from_points(torch.rand(n, 3), torch.rand(n, 3), sh_degree=1)
-    opts: dict[str, torch.optim.Optimizer] = {
-        k: torch.optim.Adam([p], lr=0.01) for k, p in model.params.items()
-    }
-    torch.autograd.backward(torch.stack([p.sum() for p in model.params.values()]).sum())
-    for opt in opts.values():
-        opt.step()
-    return model, opts
-
-
-def _check_aligned(model: gm.GaussianModel, opts: dict[str, torch.optim.Optimizer]) -> None:
-    n = len(model)
-    for name, p in model.params.items():
-        assert p.shape[0] == n
-        assert opts[name].param_groups[0]["params"][0] is p
-        state = opts[name].state[p]
-        assert state["exp_avg"].shape == p.shape
-        assert state["exp_avg_sq"].shape == p.shape
-
-
 def test_duplicate_split_remove_keep_optimizer_state_aligned() -> None:
-    model, opts = _model_and_adam()
+    model, opts = model_and_adam()
     mask = torch.tensor([True, False, True, False, False, False])
     gm.duplicate(model, opts, mask)
     assert len(model) == 8
-    _check_aligned(model, opts)
+    check_aligned(model, opts)
     means_before = model.params["means"][1].clone()
     gm.split(model, opts, torch.tensor([False, True, False, False, False, False, False, True]))
     assert len(model) == 10
-    _check_aligned(model, opts)
+    check_aligned(model, opts)
     assert not torch.isclose(model.params["means"], means_before).all(dim=1).any()
     gm.remove(model, opts, torch.arange(10) < 3)
     assert len(model) == 7
-    _check_aligned(model, opts)
+    check_aligned(model, opts)
 
 
 def test_opacity_reset_clamps_and_clears_moments() -> None:
-    model, opts = _model_and_adam()
+    model, opts = model_and_adam()
     with torch.no_grad():
         model.params["opacities"][:3] = 5.0
     gm.reset_opacity(model, opts, 0.01)
@@ -456,20 +436,20 @@ def test_pixel_weighted_statistics_grow_gaussians_seen_large_in_few_views(
         near_damping=near_damping,
     )
     densifier = Densifier(options, scene_scale=10.0, use_gsplat=False)
-    model, opts = _model_and_adam(2)
+    model, opts = model_and_adam(2)
     for step, out in enumerate(_views_of_two_gaussians(grads, radii, depths), start=1):
         densifier.post_backward(step, model, opts, out, 2, torch.Generator())
     # plain mean of Gaussian 0: 1e-4 (not grown); weighted: 400e-3 / 409 (grown) unless the
     # view that saw it large is damped by (5 m / (2 x 10 m))^2
     assert len(model) == 2 + grown
-    _check_aligned(model, opts)
+    check_aligned(model, opts)
 
 
 @pytest.mark.parametrize(("max_steps", "reset"), [(None, True), (6000, True), (5999, False)])
 def test_no_opacity_reset_too_close_to_the_end(max_steps: int | None, reset: bool) -> None:
     options = DensifyOptions(strategy="simple", refine_start=10_000, reset_every=3000)
     densifier = Densifier(options, scene_scale=10.0, use_gsplat=False, max_steps=max_steps)
-    model, opts = _model_and_adam(2)
+    model, opts = model_and_adam(2)
     with torch.no_grad():
         model.params["opacities"][:] = 3.0
     out = _views_of_two_gaussians([(0.0, 0.0)], [(1, 1)], [(5.0, 5.0)])[0]
@@ -483,7 +463,7 @@ def test_broken_gaussians_are_made_transparent_and_then_pruned() -> None:
     # the refinement: MCMC's draw over the live opacities asserts on the GPU with a NaN in them.
     options = DensifyOptions(strategy="simple", refine_start=0, refine_every=10)
     densifier = Densifier(options, scene_scale=10.0, use_gsplat=False)
-    model, opts = _model_and_adam(6)
+    model, opts = model_and_adam(6)
     with torch.no_grad():
         model.params["opacities"][:] = 2.0
         model.params["means"][1, 0] = float("nan")
@@ -516,7 +496,7 @@ def test_broken_gaussians_are_made_transparent_and_then_pruned() -> None:
     assert densifier.n_non_finite == 1
     assert len(model) == 3  # the three transparent ones pruned
     torch.testing.assert_close(model.params["means"].detach(), good[[0, 1, 3]])
-    _check_aligned(model, opts)
+    check_aligned(model, opts)
 
 
 def test_sky_sphere_points_lie_on_the_sphere() -> None:
