@@ -27,6 +27,7 @@ torch is imported at module level: only the trainer imports this module, inside 
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from typing import TYPE_CHECKING, Any
@@ -327,6 +328,24 @@ RELOCATION_MAX_COPIES = 51
 """Copies of one Gaussian the relocation formula counts at most (gsplat's table size)."""
 
 
+@functools.lru_cache(maxsize=4)
+def _relocation_table(device: str) -> torch.Tensor:
+    """Row ``N-1``: ``C(i-1, k) (-1)**k / sqrt(k+1)`` summed over ``i = 1..N``, for each ``k``."""
+    n_max = RELOCATION_MAX_COPIES
+    coef = torch.tensor(
+        [
+            [
+                math.comb(i, k) * (-1.0) ** k / math.sqrt(k + 1) if k <= i else 0.0
+                for k in range(n_max)
+            ]
+            for i in range(n_max)
+        ],
+        dtype=torch.float64,
+        device=device,
+    )
+    return torch.cumsum(coef, dim=0)
+
+
 def relocation_split(
     opacity: torch.Tensor, scales: torch.Tensor, copies: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -341,19 +360,7 @@ def relocation_split(
     """
     n_max = RELOCATION_MAX_COPIES
     dev = opacity.device
-    # coef[i-1, k] = C(i-1, k) (-1)**k / sqrt(k+1); row N-1 of its cumulative sum sums i = 1..N.
-    coef = torch.tensor(
-        [
-            [
-                math.comb(i, k) * (-1.0) ** k / math.sqrt(k + 1) if k <= i else 0.0
-                for k in range(n_max)
-            ]
-            for i in range(n_max)
-        ],
-        dtype=torch.float64,
-        device=dev,
-    )
-    per_n = torch.cumsum(coef, dim=0)
+    per_n = _relocation_table(str(dev)).to(dev)
     ks = torch.arange(n_max, dtype=torch.float64, device=dev)[None, :]
     n = copies.clamp(1, n_max).long()
     o = opacity.double()

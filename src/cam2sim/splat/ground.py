@@ -77,7 +77,7 @@ def camera_height(
     return float(np.median(found))
 
 
-def ground_points(
+def ground_points(  # noqa: PLR0913 -- the views' arrays, then keywords
     xyz: npt.NDArray[np.floating],
     poses: npt.NDArray[np.float64],
     Ks: npt.NDArray[np.float64],
@@ -87,6 +87,7 @@ def ground_points(
     count: int,
     reach: float = 12.0,
     seed: int = 0,
+    height: float | None = None,
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
     """About ``count`` points on the ground under the cameras with their pixels' colours.
 
@@ -99,14 +100,17 @@ def ground_points(
         count: Points wanted, spread evenly over the views.
         reach: Farthest seed, in camera heights from the camera.
         seed: Seeds the choice of pixels.
+        height: The cameras' height when the caller has it (:func:`camera_height` of the same
+            points and views); None = found here.
 
     Returns:
         ``(K, 3)`` float32 points and ``(K, 3)`` uint8 colours; none when no camera height is
         found (fewer than :data:`MIN_ROAD_POINTS` points on the road ahead).
     """
     none = (np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8))
-    height = camera_height(xyz, poses, Ks, usable) if count > 0 else None
-    if height is None:
+    if count > 0 and height is None:
+        height = camera_height(xyz, poses, Ks, usable)
+    if count <= 0 or height is None:
         if count > 0:
             _log.info("no ground seeds: too few scene points on the road ahead of the cameras")
         return none

@@ -287,9 +287,12 @@ class _ChunkTrainer:
 
         opts = self.options
         self.n_ground = self.n_cleared = 0
-        self.path, self.clear_radius = self._clearance(points[0])
+        height = None
+        if opts.ground_points or opts.clear_path > 0:
+            height = self._camera_height(points[0])
+        self.path, self.clear_radius = self._clearance(height)
         if opts.ground_points:
-            points = self._with_ground(points)
+            points = self._with_ground(points, height)
         seeded = seed_models(
             *points,
             self.views.frames,
@@ -714,24 +717,27 @@ class _ChunkTrainer:
         if ok:
             write_bytes_atomic(path, data.tobytes())
 
-    def _clearance(self, xyz: npt.NDArray[np.float32]) -> tuple[torch.Tensor | None, float]:
+    def _usable(self) -> npt.NDArray[np.bool_]:
+        """``(M, H, W)`` pixels of the training views that show the street (not hood, not sky)."""
+        v = self.views
+        usable = v.masks if v.sky is None else v.masks & ~v.sky
+        return np.asarray(usable.cpu().numpy(), dtype=np.bool_)
+
+    def _camera_height(self, xyz: npt.NDArray[np.float32]) -> float | None:
+        """The cameras' height over the road ahead (:func:`cam2sim.splat.ground.camera_height`)."""
+        from cam2sim.splat.ground import camera_height  # noqa: PLC0415
+
+        v = self.views
+        return camera_height(
+            xyz, np.stack([f.T() for f in v.frames]), v.Ks.double().cpu().numpy(), self._usable()
+        )
+
+    def _clearance(self, height: float | None) -> tuple[torch.Tensor | None, float]:
         """The training cameras' path (in path order) and the radius cleared around it."""
         import torch  # noqa: PLC0415
 
-        from cam2sim.splat.ground import camera_height  # noqa: PLC0415
-
         if self.options.clear_path <= 0:
             return None, 0.0
-        v = self.views
-        pick = np.unique(np.linspace(0, len(v.frames) - 1, min(24, len(v.frames))).round())
-        pick = pick.astype(np.int64)
-        usable = v.masks if v.sky is None else v.masks & ~v.sky
-        height = camera_height(
-            xyz,
-            np.stack([v.frames[i].T() for i in pick]),
-            v.Ks[pick].double().cpu().numpy(),
-            usable[pick].cpu().numpy(),
-        )
         if height is None:
             _log.warning(
                 "chunk %d: too few points on the road under the cameras to know their height; "
@@ -739,26 +745,26 @@ class _ChunkTrainer:
                 self.chunk.id,
             )
             return None, 0.0
-        centres = np.stack([f.T()[:3, 3] for f in v.frames]).astype(np.float32)
+        centres = np.stack([f.T()[:3, 3] for f in self.views.frames]).astype(np.float32)
         path = torch.from_numpy(centres).to(self.device)
         return path, self.options.clear_path * height
 
     def _with_ground(
-        self, points: tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]
+        self, points: tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]], height: float | None
     ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
         """``points`` and the ground seeds under the training views (:mod:`.ground`)."""
         from cam2sim.splat.ground import ground_points  # noqa: PLC0415
 
         v = self.views
-        usable = v.masks if v.sky is None else v.masks & ~v.sky
         xyz, rgb = ground_points(
             points[0],
             np.stack([f.T() for f in v.frames]),
             v.Ks.double().cpu().numpy(),
             v.images.cpu().numpy(),
-            usable.cpu().numpy(),
+            self._usable(),
             count=self.options.ground_points or 0,
             seed=self.options.seed + self.chunk.id,
+            height=height,
         )
         self.n_ground = len(xyz)
         return np.concatenate([points[0], xyz]), np.concatenate([points[1], rgb])
