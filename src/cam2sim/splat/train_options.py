@@ -32,6 +32,7 @@ __all__ = [
 ]
 
 Stop = Literal["plateau", "max_steps", "time"]
+"""Why a chunk's training ended (``TrainResult.stopped``)."""
 
 DensifyStrategy = Literal["auto", "mcmc", "gsplat", "simple"]
 """The densification rules (``DensifyOptions.strategy``)."""
@@ -47,7 +48,6 @@ MCMC_REFINE_STOP = 25_000
 
 MCMC_GROUND_POINTS = 100_000
 """Ground seeds an MCMC run starts with (``TrainOptions.ground_points`` left None)."""
-"""Why a chunk's training ended (``TrainResult.stopped``)."""
 
 
 @dataclass(frozen=True)
