@@ -38,8 +38,9 @@ import test_train as t
 
 cases = [
     ("gsplat densifies and resets", t.test_gsplat_training_densifies_and_resets, ()),
-    ("mcmc, opacity draw", t.test_mcmc_training_grows_to_its_cap_and_learns, (0.0,)),
-    ("mcmc, error-weighted draw", t.test_mcmc_training_grows_to_its_cap_and_learns, (1.0,)),
+    ("mcmc, opacity draw", t.test_mcmc_training_grows_to_its_cap_and_learns, (0.0, False)),
+    ("mcmc, error-weighted draw", t.test_mcmc_training_grows_to_its_cap_and_learns, (1.0, False)),
+    ("mcmc, moments inherited", t.test_mcmc_training_grows_to_its_cap_and_learns, (0.0, True)),
 ]
 failed = 0
 for name, test, args in cases:

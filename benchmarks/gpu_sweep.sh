@@ -10,7 +10,7 @@
 # settings over them (two a GPU: eight settings of 30,000 steps in about 500 s on four H100s).
 # Every setting's record is also packed into $OUT/settings.tgz, so a sweep cut at LIMIT seconds
 # (set it 60-90 s under the call's limit) still returns the evaluations made. RENDERS=1 adds --renders and returns the held-out renders
-# as $OUT/renders.tar.* (15 MiB parts; `cat renders.tar.* | tar x` here), for LPIPS without
+# as $OUT/renders.tar.* (RENDERS=NAME,NAME: those settings' alone; 15 MiB parts; `cat renders.tar.* | tar x` here), for LPIPS without
 # carrying its checkpoint: benchmarks/lpips_renders.py.
 #
 # WHEELS: gsplat 1.5.3, pydantic, pydantic-core, annotated-types, typing-inspection and
@@ -40,7 +40,9 @@ timeout -k 10 "${LIMIT:-0}" python3 benchmarks/splat_sweep.py --prep "$prep" --c
 work=$(ls -d /tmp/splat_sweep_* | tail -1)
 tar czf "$out/settings.tgz" -C "$work" $(cd "$work" && ls *.json) 2>/dev/null
 if [ -n "$RENDERS" ] && [ -d "$work/renders" ]; then
-  tar cf - -C "$work" renders | split -b 15M - "$out/renders.tar."
+  keep=(renders)  # RENDERS=1: every setting's; RENDERS=NAME,NAME: those settings' alone
+  if [ "$RENDERS" != 1 ]; then IFS=, read -ra names <<< "$RENDERS"; keep=("${names[@]/#/renders/}"); fi
+  tar cf - -C "$work" "${keep[@]}" | split -b 15M - "$out/renders.tar."
 fi
 if [ -n "$ERRS" ]; then
   python3 benchmarks/splat_errors.py --prep "$work/chunk0" --models "$work/models_$ERRS" \

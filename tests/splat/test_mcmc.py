@@ -159,11 +159,12 @@ def test_invalid_mcmc_and_tail_options_are_refused() -> None:
         TrainOptions(lr=LearningRates(tail=0.0))
 
 
-def test_error_weighted_refinement_relocates_and_grows_with_aligned_state(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    # The refinement step itself, on the CPU: gsplat (CUDA) gives MCMC its strategy record and
-    # position noise only, so stand-ins for those two let the bookkeeping run here.
+@pytest.fixture
+def gsplat_stand_in(monkeypatch: pytest.MonkeyPatch) -> list[float]:
+    """Stand-ins for what gsplat (CUDA) gives MCMC: its strategy record and position noise.
+
+    Returns the list the noise calls' scalers are appended to.
+    """
     import sys
     import types
     from dataclasses import dataclass
@@ -188,7 +189,14 @@ def test_error_weighted_refinement_relocates_and_grows_with_aligned_state(
     monkeypatch.setitem(sys.modules, "gsplat", types.ModuleType("gsplat"))
     monkeypatch.setitem(sys.modules, "gsplat.strategy", strategy)
     monkeypatch.setitem(sys.modules, "gsplat.strategy.ops", ops)
+    return noise_calls
 
+
+def test_error_weighted_refinement_relocates_and_grows_with_aligned_state(
+    gsplat_stand_in: list[float],
+) -> None:
+    # The refinement step itself, on the CPU, with the stand-ins for gsplat.
+    noise_calls = gsplat_stand_in
     options = DensifyOptions(
         strategy="mcmc",
         refine_start=0,
@@ -239,3 +247,80 @@ def test_error_weighted_refinement_relocates_and_grows_with_aligned_state(
         assert opts[name].param_groups[0]["params"][0] is p
         assert opts[name].state[p]["exp_avg"].shape == p.shape
     assert densifier.state["grad2d"] is None  # statistics restart after each refinement
+
+
+def _state(opts: dict[str, torch.optim.Optimizer], model: gm.GaussianModel, name: str, key: str):
+    return opts[name].state[model.params[name]][key]
+
+
+def test_relocation_can_keep_the_drawn_gaussians_moments_and_hand_them_on() -> None:
+    model, opts = model_and_adam(6)
+    with torch.no_grad():
+        model.params["opacities"][:] = torch.logit(torch.tensor([0.8, 0.001, 0.6, 0.002, 0.9, 0.7]))
+    before = {
+        (name, key): _state(opts, model, name, key).clone()
+        for name in ("means", "opacities", "sh0")
+        for key in ("exp_avg", "exp_avg_sq")
+    }
+    dead = torch.sigmoid(model.params["opacities"].detach()) <= 0.005
+    weights = torch.tensor([0.0, 0.0, 0.0, 0.0, 1.0, 0.0])
+    assert relocate(model, opts, dead, weights, 0.005, inherit_moments=True) == 2
+    for (name, key), old in before.items():
+        now = _state(opts, model, name, key)
+        assert old[4].abs().sum() > 0
+        torch.testing.assert_close(now[[1, 3, 4]], old[[4, 4, 4]])  # kept, and handed on
+        torch.testing.assert_close(now[[0, 2, 5]], old[[0, 2, 5]])
+
+
+def test_growth_can_hand_the_drawn_gaussians_moments_to_their_copies() -> None:
+    model, opts = model_and_adam(5)
+    before = _state(opts, model, "means", "exp_avg_sq").clone()
+    add_copies(model, opts, 3, torch.tensor([0.0, 0.0, 1.0, 0.0, 0.0]), 0.005, inherit_moments=True)
+    now = _state(opts, model, "means", "exp_avg_sq")
+    assert now.shape == (8, 3)
+    torch.testing.assert_close(now[:5], before)
+    torch.testing.assert_close(now[5:], before[[2, 2, 2]])
+    add_copies(model, opts, 1, torch.tensor([0.0] * 7 + [1.0]), 0.005)  # gsplat's way: restart
+    now = _state(opts, model, "means", "exp_avg_sq")
+    assert now[[7, 8]].abs().sum() == 0
+
+
+def test_mcmc_refinement_with_inherited_moments_draws_by_opacity(
+    gsplat_stand_in: list[float],
+) -> None:
+    # Done here rather than by gsplat's strategy: no gradient statistics, the paper's draw by
+    # opacity, moments handed on, noise on every step.
+    options = DensifyOptions(
+        strategy="mcmc", refine_start=0, refine_every=10, refine_stop=100, mcmc_cap=25,
+        mcmc_inherit_moments=True,
+    )  # fmt: skip
+    densifier = Densifier(options, scene_scale=1.0, use_gsplat=True)
+    model, opts = model_and_adam(20)
+    with torch.no_grad():
+        model.params["opacities"][:] = -8.0  # all faded but Gaussian 7
+        model.params["opacities"][7] = 2.0
+    means = model.params["means"].detach().clone()
+    moments = _state(opts, model, "means", "exp_avg").clone()
+    no_grad = torch.zeros(1, 20, 2)  # no image error anywhere: the draw is by opacity alone
+    for step in range(1, 11):
+        n = len(model)
+        out = RasterOutput(
+            colors=torch.zeros(1, 2, 2, 3),
+            alphas=torch.zeros(1, 2, 2, 1),
+            means2d=torch.zeros(1, n, 2, requires_grad=True),
+            radii=torch.ones(1, n, 2, dtype=torch.int32),
+            depths=torch.full((1, n), 5.0),
+            info={"width": 2, "height": 2, "n_cameras": 1},
+            backend="gsplat",
+        )
+        out.means2d.grad = no_grad[:, :n]
+        densifier.post_backward(step, model, opts, out, n, torch.Generator(), means_lr=1e-4)
+    assert densifier.state["grad2d"] is None  # no statistics kept
+    assert len(gsplat_stand_in) == 10
+    assert len(model) == 21
+    torch.testing.assert_close(model.params["means"].detach(), means[[7] * 21])
+    torch.testing.assert_close(_state(opts, model, "means", "exp_avg"), moments[[7] * 21])
+    opacity = torch.sigmoid(model.params["opacities"].detach())
+    assert 1.0 - float((1.0 - opacity).prod()) == pytest.approx(
+        float(torch.sigmoid(torch.tensor(2.0))), rel=1e-4
+    )

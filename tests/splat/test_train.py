@@ -639,8 +639,10 @@ def test_mcmc_needs_the_gsplat_rasterizer(tmp_path: Path) -> None:
 
 @pytest.mark.requires_cuda
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
-@pytest.mark.parametrize("error_weight", [0.0, 1.0])
-def test_mcmc_training_grows_to_its_cap_and_learns(tmp_path: Path, error_weight: float) -> None:
+@pytest.mark.parametrize(("error_weight", "inherit"), [(0.0, False), (1.0, False), (0.0, True)])
+def test_mcmc_training_grows_to_its_cap_and_learns(
+    tmp_path: Path, error_weight: float, inherit: bool
+) -> None:
     result = gsplat_training(
         tmp_path,
         DensifyOptions(
@@ -650,6 +652,7 @@ def test_mcmc_training_grows_to_its_cap_and_learns(tmp_path: Path, error_weight:
             refine_stop=450,
             mcmc_cap=20_000,
             mcmc_error_weight=error_weight,
+            mcmc_inherit_moments=inherit,
         ),
     )
     for chunk in result.chunks:

@@ -37,6 +37,7 @@ import torch
 from cam2sim.splat.model import (
     GaussianModel,
     append_copies,
+    copy_moments,
     duplicate,
     quench_non_finite,
     remove,
@@ -136,7 +137,7 @@ class Densifier:
         if opts.strategy == "mcmc":
             # Relocation and growth when due, position noise on every step; model.params and
             # the optimizers are the street model's alone (the sky never moves).
-            if opts.mcmc_error_weight > 0:
+            if opts.mcmc_error_weight > 0 or opts.mcmc_inherit_moments:
                 self._mcmc_step(step, model, optimizers, out, n_street, means_lr)
             else:
                 self.strategy.step_post_backward(
@@ -170,24 +171,41 @@ class Densifier:
         n_street: int,
         means_lr: float,
     ) -> None:
-        """``MCMCStrategy.step_post_backward`` with the draw weighted by the image error."""
+        """``MCMCStrategy.step_post_backward``, done here.
+
+        The draw is weighted by the image error (``mcmc_error_weight``), and the copied
+        Gaussians keep their moments (``mcmc_inherit_moments``), as the options say.
+        """
         from gsplat.strategy.ops import inject_noise_to_position  # noqa: PLC0415
 
         opts, strategy = self.options, self.strategy
         stop = opts.refine_stop_at
-        if step < stop and out.means2d.grad is not None:
+        weighted = opts.mcmc_error_weight > 0
+        if weighted and step < stop and out.means2d.grad is not None:
             self._accumulate(out, n_street, len(model))
         due = opts.refine_start < step < stop and step % opts.refine_every == 0
-        if due and self.state.get("grad2d") is not None:
-            weights = mcmc_weights(
-                model, self.state["grad2d"], self.state["count"], opts.mcmc_error_weight
-            )
+        if due and (not weighted or self.state.get("grad2d") is not None):
             opacity = torch.sigmoid(model.params["opacities"].detach())
+            weights = (
+                mcmc_weights(
+                    model, self.state["grad2d"], self.state["count"], opts.mcmc_error_weight
+                )
+                if weighted
+                else opacity
+            )
             dead = opacity <= opts.prune_opacity
-            relocate(model, optimizers, dead, weights, opts.prune_opacity)
+            inherit = opts.mcmc_inherit_moments
+            relocate(model, optimizers, dead, weights, opts.prune_opacity, inherit_moments=inherit)
             n_new = max(0, min(opts.mcmc_cap, int(1.05 * len(model))) - len(model))
             if n_new:
-                add_copies(model, optimizers, n_new, weights, opts.prune_opacity)
+                add_copies(
+                    model,
+                    optimizers,
+                    n_new,
+                    weights if weighted else torch.sigmoid(model.params["opacities"].detach()),
+                    opts.prune_opacity,
+                    inherit_moments=inherit,
+                )
             self.state["grad2d"] = self.state["count"] = None
         inject_noise_to_position(
             params=model.params,
@@ -395,11 +413,14 @@ def relocate(
     dead: torch.Tensor,
     weights: torch.Tensor,
     min_opacity: float,
+    *,
+    inherit_moments: bool = False,
 ) -> int:
     """Move the ``dead`` Gaussians onto live ones drawn by ``weights``; return how many.
 
     Each drawn Gaussian and the dead ones moved onto it share its opacity and scale
-    (:func:`_split_among_copies`); their Adam moments restart at zero.
+    (:func:`_split_among_copies`); their Adam moments restart at zero, or with
+    ``inherit_moments`` the drawn ones keep theirs and the moved ones take them.
     """
     dead_rows = dead.nonzero(as_tuple=True)[0]
     alive_rows = (~dead).nonzero(as_tuple=True)[0]
@@ -412,8 +433,12 @@ def relocate(
         for name, p in model.params.items():
             p[dead_rows] = p[sampled]
             opt = optimizers.get(name)
-            if opt is not None:
-                state = opt.state.get(p, {})
+            if opt is None:
+                continue
+            state = opt.state.get(p, {})
+            if inherit_moments:
+                copy_moments(state, p, sampled, dead_rows)
+            else:
                 zero_moments(state, p, sampled)
                 zero_moments(state, p, dead_rows)
     return n
@@ -425,13 +450,20 @@ def add_copies(
     n: int,
     weights: torch.Tensor,
     min_opacity: float,
+    *,
+    inherit_moments: bool = False,
 ) -> None:
-    """Grow the model by ``n`` copies of Gaussians drawn by ``weights`` (MCMC's growth)."""
+    """Grow the model by ``n`` copies of Gaussians drawn by ``weights`` (MCMC's growth).
+
+    The drawn Gaussians and their copies restart their Adam moments at zero, or with
+    ``inherit_moments`` keep the drawn ones'.
+    """
     sampled = _draw(weights, n)
     _split_among_copies(model, sampled, min_opacity)
-    with torch.no_grad():
-        for name, p in model.params.items():
-            opt = optimizers.get(name)
-            if opt is not None:
-                zero_moments(opt.state.get(p, {}), p, sampled)
-    append_copies(model, optimizers, sampled)
+    if not inherit_moments:
+        with torch.no_grad():
+            for name, p in model.params.items():
+                opt = optimizers.get(name)
+                if opt is not None:
+                    zero_moments(opt.state.get(p, {}), p, sampled)
+    append_copies(model, optimizers, sampled, inherit_moments=inherit_moments)

@@ -56,6 +56,7 @@ __all__ = [
     "ViewRecord",
     "append_copies",
     "chunk_model_path",
+    "copy_moments",
     "duplicate",
     "export_ply",
     "gather_splats",
@@ -344,16 +345,27 @@ def duplicate(model: GaussianModel, optimizers: Optimizers, mask: torch.Tensor) 
     append_copies(model, optimizers, mask)
 
 
-def append_copies(model: GaussianModel, optimizers: Optimizers, rows: torch.Tensor) -> None:
+def append_copies(
+    model: GaussianModel,
+    optimizers: Optimizers,
+    rows: torch.Tensor,
+    *,
+    inherit_moments: bool = False,
+) -> None:
     """Append copies of the Gaussians ``rows`` selects, with zero Adam moments.
 
     ``rows`` is a ``[N]`` bool mask or indices (which may repeat: one copy per occurrence).
+    With ``inherit_moments`` each copy starts with its original's moments instead.
     """
     _rebuild(
         model,
         optimizers,
         lambda _, p: torch.cat((p, p[rows])),
-        lambda s: torch.cat((s, torch.zeros_like(s[rows]))),
+        (
+            (lambda s: torch.cat((s, s[rows])))
+            if inherit_moments
+            else (lambda s: torch.cat((s, torch.zeros_like(s[rows]))))
+        ),
     )
 
 
@@ -453,6 +465,18 @@ def make_transparent(model: GaussianModel, optimizers: Optimizers, rows: torch.T
             if opt is not None:
                 zero_moments(opt.state.get(p, {}), p, rows)
     return n
+
+
+def copy_moments(
+    state: dict[str, Any], param: torch.Tensor, source: torch.Tensor, target: torch.Tensor
+) -> None:
+    """Copy rows ``source`` of the Adam moments in ``state`` of ``param`` to rows ``target``.
+
+    Only the moments of ``param``'s shape are copied (not the step counter).
+    """
+    for key, v in state.items():
+        if key != "step" and isinstance(v, torch.Tensor) and v.shape == param.shape:
+            v[target] = v[source]
 
 
 def zero_moments(

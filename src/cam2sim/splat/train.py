@@ -797,6 +797,8 @@ class _ChunkTrainer:
             note += f", learning rates to {opts.lr.tail:g}x after densification"
         if opts.densify.strategy == "mcmc" and opts.densify.mcmc_error_weight > 0:
             note += f", draw weighted by the image error ({opts.densify.mcmc_error_weight:g})"
+        if opts.densify.strategy == "mcmc" and opts.densify.mcmc_inherit_moments:
+            note += ", copies keep their originals' Adam moments"
         return note
 
 

@@ -141,6 +141,12 @@ class DensifyOptions:
             proportional to ``opacity * (1 - e + e * g / mean(g))``, ``g`` its mean 2-D
             gradient since the last refinement (the statistic the 3DGS rules grow by, with
             ``pixel_weighted`` and ``near_damping`` as set). 0 = the paper's draw.
+        mcmc_inherit_moments: With ``strategy="mcmc"``: the Gaussians that relocation and
+            growth copy keep their Adam moments, and each copy starts with its original's.
+            gsplat zeroes the originals' moments, and a Gaussian whose moments restart at zero
+            takes steps several times its learning rate for hundreds of steps (Adam's
+            bias correction counts the optimizer's steps, not the Gaussian's), so every
+            refinement jolts the Gaussians it copies. False = gsplat's relocation.
     """
 
     enabled: bool = True
@@ -161,6 +167,7 @@ class DensifyOptions:
     mcmc_opacity_reg: float = 0.01
     mcmc_scale_reg: float = 0.01
     mcmc_error_weight: float = 0.0
+    mcmc_inherit_moments: bool = False
 
     @property
     def refine_stop_at(self) -> int:
