@@ -19,6 +19,8 @@
 # 480x360 scene (41-47 MiB) fit, the checkpoint (9.5 MB) beside them may not.
 : "${SCENE:?set SCENE to the packed scene}"
 source "$(dirname "$0")/gpu_env.sh"
+# gsplat's one-time build (60-80 s) before the sweep, so LIMIT counts the sweep alone.
+python3 -c "from cam2sim.splat.raster import build_gsplat; build_gsplat()" || exit 1
 prep=/tmp/r_$(basename "$SCENE")
 python3 - "$SCENE" "$prep" <<'PY' || exit 1
 import sys
