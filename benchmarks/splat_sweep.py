@@ -168,6 +168,8 @@ def run_setting(  # noqa: PLR0913, PLR0917 -- one process's whole job
                 "stopped": trainer.stopped,
                 "train_s": train_s,
                 "n_gaussians": len(trainer.street),
+                "non_finite_steps": int(trainer.non_finite_steps),
+                "quenched": trainer.densifier.n_non_finite if trainer.densifier else 0,
                 **scores,
             }
         )
@@ -176,6 +178,7 @@ def run_setting(  # noqa: PLR0913, PLR0917 -- one process's whole job
         print(
             f"[{name}] step {trainer.step_no}: {train_s:.0f} s, {len(trainer.street)} Gaussians, "
             f"held-out {scores['psnr_db']:.2f} dB / SSIM {scores['ssim']:.3f} / "
+            f"non-finite steps {int(trainer.non_finite_steps)} / "
             f"LPIPS {scores['lpips'] if scores['lpips'] is None else round(scores['lpips'], 3)}",
             flush=True,
         )

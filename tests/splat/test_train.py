@@ -817,3 +817,32 @@ def test_training_clears_the_drives_path_of_gaussians(tmp_path: Path) -> None:
     assert float(torch.cat([opacity[on_path], torch.zeros(1)]).max()) < 0.01
     plain = train_chunk(scene, 0, prep, fast_options(), models_dir=tmp_path / "plain")
     assert "cleared" not in " ".join(load_chunk_model(plain.model_path).header.notes)
+
+
+def test_a_nan_gradient_does_not_enter_the_model(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # One step whose loss (so every gradient) is NaN: the update treats it as zero gradient,
+    # the model and its colour transforms stay finite and go on learning, the step is counted.
+    import cam2sim.splat.train as train_module
+
+    real = train_module.photometric_loss
+    calls = {"n": 0}
+
+    def sometimes_nan(*args: object, **kwargs: object) -> torch.Tensor:
+        calls["n"] += 1
+        loss = real(*args, **kwargs)  # type: ignore[arg-type]
+        return loss * float("nan") if calls["n"] in (5, 6) else loss
+
+    monkeypatch.setattr(train_module, "photometric_loss", sometimes_nan)
+    prep = make_prepared_scene(tmp_path, n_frames=8, chunks=((0, 8),), size=(48, 32))
+    scene = SceneRecord.load(prep / "scene.json")
+    result = train_chunk(scene, 0, prep, fast_options(), models_dir=tmp_path / "models")
+    assert result.non_finite_steps == 2
+    model = gm.load_chunk_model(result.model_path)
+    for p in model.gaussians.params.values():
+        assert torch.isfinite(p).all()
+    assert torch.isfinite(model.appearance).all()
+    first, last = result.val_history[0][1], result.val_history[-1][1]
+    assert last > first + 2.0, result.val_history
+    assert any("NaN or inf gradient values on 2 steps" in n for n in model.header.notes)

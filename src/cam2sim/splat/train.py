@@ -377,6 +377,7 @@ class _ChunkTrainer:
             )
         self.means_gamma = 0.01 ** (1.0 / self.options.max_steps)
         self.means_lr = rates["means"]
+        self.non_finite_steps = torch.zeros((), dtype=torch.int64, device=self.device)
         self.means_lr_end = 0.01 * rates["means"]
         # The scene's other rates decay after densification (LearningRates.tail).
         dens = self.options.densify
@@ -493,7 +494,11 @@ class _ChunkTrainer:
         timer.mark("loss")
         torch.autograd.backward(loss)
         timer.mark("backward")
-        adam_step((*self.optimizers.values(), *self.extra_optimizers))
+        adam_step(
+            (*self.optimizers.values(), *self.extra_optimizers),
+            finite=True,
+            non_finite_steps=self.non_finite_steps,
+        )
         timer.mark("optimizer")
         if self.path is not None and self.step_no % opts.densify.refine_every == 0:
             from cam2sim.splat.clearance import clear_path  # noqa: PLC0415
@@ -683,6 +688,7 @@ class _ChunkTrainer:
             densify_strategy=self.options.densify.strategy
             if self.options.densify.enabled
             else "off",
+            non_finite_steps=int(self.non_finite_steps),
         )
 
     def _write_outliers(self, path: Path, n_views: int = 4) -> None:
@@ -782,6 +788,9 @@ class _ChunkTrainer:
         broken = self.densifier.n_non_finite if self.densifier is not None else 0
         if broken:
             notes.append(f"{broken} Gaussians with NaN or inf parameters made transparent")
+        skipped = int(self.non_finite_steps)
+        if skipped:
+            notes.append(f"NaN or inf gradient values on {skipped} steps, set to zero")
         return notes
 
     def _densify_note(self) -> str:

@@ -411,6 +411,8 @@ class TrainResult:
             units) and rotation (degrees), when pose refinement was on (``lr.poses``).
         densify_strategy: The densification that ran (``"mcmc"``, ``"gsplat"``, ``"simple"``;
             ``"off"``), after :func:`resolve_options`.
+        non_finite_steps: Steps on which a gradient had NaN or inf values (set to zero before
+            the update, :mod:`cam2sim.splat.optim`).
     """
 
     chunk_id: int
@@ -430,6 +432,7 @@ class TrainResult:
     robust_outlier_share: float | None = None
     pose_correction: tuple[float, float, float, float] | None = None
     densify_strategy: str = ""
+    non_finite_steps: int = 0
 
 
 @dataclass(frozen=True)
