@@ -484,8 +484,16 @@ def test_broken_gaussians_are_made_transparent_and_then_pruned() -> None:
     # Not a refinement step: nothing is looked at.
     densifier.post_backward(5, model, opts, out, 6, torch.Generator())
     assert densifier.n_non_finite == 0
+    with torch.no_grad():
+        model.params["quats"][1] = float("nan")  # all four: nan_to_num alone would give 0
     assert gm.quench_non_finite(model, opts) == 2
     assert all(bool(torch.isfinite(p).all()) for p in model.params.values())
+    # A unit quaternion (gsplat normalises by rsqrt of the norm: a zero one is NaN there),
+    # and a small finite scale where it was -inf.
+    quats = model.params["quats"].detach()
+    torch.testing.assert_close(quats[[1, 4]], torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2))
+    assert bool(torch.isfinite(quats * torch.rsqrt((quats**2).sum(dim=1, keepdim=True))).all())
+    assert float(model.params["scales"].detach()[4, 2]) == gm.DEAD_LOG_SCALE
     opacity = torch.sigmoid(model.params["opacities"].detach()).flatten()
     assert float(opacity[[1, 4]].max()) < 1e-12
     assert float(opacity[[0, 2, 3, 5]].min()) > 0.8

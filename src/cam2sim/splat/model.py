@@ -430,6 +430,9 @@ def reset_opacity(model: GaussianModel, optimizers: Optimizers, value: float) ->
 DEAD_OPACITY_LOGIT: Final = -30.0
 """The opacity logit :func:`quench_non_finite` gives a broken Gaussian (opacity about 1e-13)."""
 
+DEAD_LOG_SCALE: Final = -7.0
+"""The log-scale :func:`make_transparent` gives a non-finite scale (about 1e-3 scene units)."""
+
 
 def quench_non_finite(model: GaussianModel, optimizers: Optimizers) -> int:
     """Make every Gaussian with a non-finite parameter (NaN or inf) transparent; return how many.
@@ -449,18 +452,25 @@ def quench_non_finite(model: GaussianModel, optimizers: Optimizers) -> int:
 def make_transparent(model: GaussianModel, optimizers: Optimizers, rows: torch.Tensor) -> int:
     """Make the Gaussians ``rows`` (``[N]`` bool) selects transparent; return how many.
 
-    In place: their opacity logit becomes :data:`DEAD_OPACITY_LOGIT`, non-finite values 0, and
-    their Adam moments 0 in every optimizer, so the next refinement prunes them (3DGS rules) or
-    relocates them onto live ones (MCMC), and until then they draw nothing.
+    In place: their opacity logit becomes :data:`DEAD_OPACITY_LOGIT`, their rotation the
+    identity, non-finite scales :data:`DEAD_LOG_SCALE` and other non-finite values 0, and their
+    Adam moments 0 in every optimizer, so the next refinement prunes them (3DGS rules) or
+    relocates them onto live ones (MCMC), and until then they draw nothing and stay finite.
+    (A zero quaternion, what NaN ones became before, is NaN in gsplat's kernels, which
+    normalise by ``rsqrt`` of its norm, and in MCMC's position noise: each such Gaussian then
+    drew NaN into its pixels at every step, and after the last relocation for good.)
     """
     n = int(rows.sum())  # one host sync per call: call it at refinement steps only
     if n == 0:
         return 0
     with torch.no_grad():
         for name, p in model.params.items():
-            p[rows] = torch.nan_to_num(p[rows], nan=0.0, posinf=0.0, neginf=0.0)
+            fill = DEAD_LOG_SCALE if name == "scales" else 0.0
+            p[rows] = torch.nan_to_num(p[rows], nan=fill, posinf=fill, neginf=fill)
             if name == "opacities":
                 p[rows] = DEAD_OPACITY_LOGIT
+            elif name == "quats":
+                p[rows] = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=p.dtype, device=p.device)
             opt = optimizers.get(name)
             if opt is not None:
                 zero_moments(opt.state.get(p, {}), p, rows)

@@ -8,14 +8,17 @@ parameters and their optimizer state by name), about eight per chunk. Calling ea
 ``Adam(fused=True).step()``, with the optimizers' own state tensors (``step``, ``exp_avg``,
 ``exp_avg_sq``), so densification and checkpoints see the usual layout.
 
-Non-finite gradient values (NaN, inf) are set to zero before the update (``finite=True``, the
-trainer's setting). One such value, stepped into a Gaussian, makes it draw NaN into every pixel
-it covers, and the next backward pass makes NaN of every Gaussian in those pixels, of the
-per-view colour transforms and the sky: on 2026-11-27 four of about thirty 30,000-step MCMC
-runs on real frames (antialiased) lost their whole street model that way. gsplat's
-antialiasing term divides by its compensation plus 1e-6 in the backward pass, so a thin
-Gaussian's gradient is amplified about 500,000 times, the likely source. Zeroing costs one
-in-place pass over the gradients, and :func:`adam_step` counts the steps it happened on.
+With ``finite=True`` (the trainer's setting) a step whose gradients hold a NaN or inf value is
+skipped, as mixed-precision training skips one. One such value, stepped into a Gaussian, makes
+it draw NaN into every pixel it covers, and the next backward pass makes NaN of every Gaussian
+in those pixels: on 2026-11-27 three of about thirty 30,000-step MCMC runs on real frames
+(antialiased) lost most or all of their street model that way, even with the densifier making
+NaN Gaussians transparent at every refinement. gsplat's antialiasing term divides by its
+compensation plus 1e-6 in the backward pass, so a thin Gaussian's gradient is amplified about
+500,000 times, one candidate for the first NaN; the densifier's guard itself then turned each
+broken Gaussian into a zero quaternion, NaN in gsplat's kernels, so it went on drawing NaN
+(fixed in :func:`cam2sim.splat.model.make_transparent`). The check is one fused reduction a
+step, and :func:`adam_step` counts the steps it skipped.
 """
 
 from __future__ import annotations
@@ -27,31 +30,28 @@ if TYPE_CHECKING:
 
     import torch
 
+    # (params, grads, exp_avgs, exp_avg_sqs, step counters) of one fused Adam call
+    Bucket = tuple[
+        list[torch.Tensor],
+        list[torch.Tensor],
+        list[torch.Tensor],
+        list[torch.Tensor],
+        list[torch.Tensor],
+    ]
+    BucketKey = tuple[float, float, float, float, torch.device]  # lr, beta1, beta2, eps, device
+
 __all__ = ["adam_step"]
 
 
-def _zero_non_finite(
-    optimizers: Sequence[torch.optim.Optimizer], counter: torch.Tensor | None
-) -> None:
-    """Set the non-finite values of every gradient to zero; count the step in ``counter``."""
+def _non_finite(grads: list[torch.Tensor]) -> torch.Tensor:
+    """1.0 (float32, on the gradients' device) when a value of ``grads`` is NaN or inf, else 0.0.
+
+    One fused reduction (the largest magnitude of each gradient), no host synchronisation.
+    """
     import torch  # noqa: PLC0415
 
-    grads = [
-        p.grad
-        for opt in optimizers
-        for group in opt.param_groups
-        for p in group["params"]
-        if p.grad is not None and p.grad.numel()
-    ]
-    if not grads:
-        return
-    if counter is not None:
-        # The largest magnitude is finite unless a value is not: one fused reduction.
-        peaks = torch._foreach_norm(grads, ord=float("inf"))  # noqa: SLF001
-        bad = (~torch.isfinite(torch.stack([v.to(counter.device) for v in peaks]))).any()
-        counter += bad.to(counter.dtype)
-    for g in grads:
-        torch.nan_to_num_(g, nan=0.0, posinf=0.0, neginf=0.0)
+    peaks = torch._foreach_norm(grads, ord=float("inf"))  # noqa: SLF001
+    return (~torch.isfinite(torch.stack(list(peaks)))).any().to(torch.float32)
 
 
 def _fast(opt: torch.optim.Optimizer) -> bool:
@@ -72,6 +72,68 @@ def _fast(opt: torch.optim.Optimizer) -> bool:
     )
 
 
+def _step_alone(opt: torch.optim.Optimizer, finite: bool) -> None:
+    """Step an optimizer :func:`adam_step` cannot fuse; with ``finite``, NaN and inf as 0."""
+    import torch  # noqa: PLC0415
+
+    if finite:
+        for group in opt.param_groups:
+            for p in group["params"]:
+                if p.grad is not None:
+                    torch.nan_to_num_(p.grad, nan=0.0, posinf=0.0, neginf=0.0)
+    opt.step()
+    opt.zero_grad(set_to_none=True)
+
+
+def _add_to_buckets(
+    opt: torch.optim.Optimizer, buckets: dict[BucketKey, Bucket], stepped: list[torch.Tensor]
+) -> None:
+    """File each parameter of ``opt`` that has a gradient under its fused call's key."""
+    import torch  # noqa: PLC0415
+
+    for group in opt.param_groups:
+        beta1, beta2 = group["betas"]
+        for p in group["params"]:
+            if p.grad is None:
+                continue
+            state = opt.state[p]
+            if not state:  # as Adam._init_group does for fused Adam
+                state["step"] = torch.zeros((), dtype=torch.float32, device=p.device)
+                state["exp_avg"] = torch.zeros_like(p, memory_format=torch.preserve_format)
+                state["exp_avg_sq"] = torch.zeros_like(p, memory_format=torch.preserve_format)
+            key = (float(group["lr"]), float(beta1), float(beta2), float(group["eps"]), p.device)
+            bucket = buckets.setdefault(key, ([], [], [], [], []))
+            bucket[0].append(p)
+            bucket[1].append(p.grad)
+            bucket[2].append(state["exp_avg"])
+            bucket[3].append(state["exp_avg_sq"])
+            bucket[4].append(state["step"])
+            stepped.append(p)
+
+
+def _found_inf(
+    buckets: dict[BucketKey, Bucket],
+    alone: list[torch.optim.Optimizer],
+    counter: torch.Tensor | None,
+) -> dict[torch.device, torch.Tensor]:
+    """Per device, 1.0 when a gradient holds NaN or inf; count such a step in ``counter``."""
+    import torch  # noqa: PLC0415
+
+    by_device: dict[torch.device, list[torch.Tensor]] = {}
+    for key, bucket in buckets.items():
+        by_device.setdefault(key[4], []).extend(g for g in bucket[1] if g.numel())
+    for opt in alone:
+        for group in opt.param_groups:
+            for p in group["params"]:
+                if p.grad is not None and p.grad.numel():
+                    by_device.setdefault(p.grad.device, []).append(p.grad)
+    found = {dev: _non_finite(grads) for dev, grads in by_device.items() if grads}
+    if counter is not None and found:
+        bad = torch.stack([f.to(counter.device) for f in found.values()]).amax()
+        counter += bad.to(counter.dtype)
+    return found
+
+
 def adam_step(
     optimizers: Sequence[torch.optim.Optimizer],
     *,
@@ -83,59 +145,35 @@ def adam_step(
     Fused, plain Adam optimizers (``Adam(..., fused=True)`` without amsgrad, weight decay,
     maximize, capturable or tensor learning rates) are stepped together as described in the
     module doc; any other optimizer runs its own ``step()``. Parameters without a gradient are
-    skipped, as ``Adam.step`` does. With ``finite`` every non-finite gradient value is set to
-    zero first, and ``non_finite_steps`` (a scalar tensor on the gradients' device, if given)
-    is incremented when there was one, without a host synchronisation.
+    skipped, as ``Adam.step`` does.
+
+    With ``finite`` a step whose gradients hold a NaN or inf value leaves the fused optimizers'
+    parameters and moments as they were (their ``found_inf``, as mixed-precision training
+    skips a step), the other optimizers (the CPU's, unfused) get those values as zero, and
+    ``non_finite_steps`` (a scalar tensor, if given) counts the step; all without a host
+    synchronisation.
     """
     import torch  # noqa: PLC0415
 
-    if finite:
-        _zero_non_finite(optimizers, non_finite_steps)
-
-    Bucket = tuple[
-        list[torch.Tensor],
-        list[torch.Tensor],
-        list[torch.Tensor],
-        list[torch.Tensor],
-        list[torch.Tensor],
-    ]
-    buckets: dict[tuple[float, float, float, float, torch.device], Bucket] = {}
-    steps: dict[torch.device, list[torch.Tensor]] = {}
+    buckets: dict[BucketKey, Bucket] = {}
     stepped: list[torch.Tensor] = []
+    alone: list[torch.optim.Optimizer] = []
     for opt in optimizers:
-        if not _fast(opt):
-            opt.step()
-            opt.zero_grad(set_to_none=True)
-            continue
-        for group in opt.param_groups:
-            beta1, beta2 = group["betas"]
-            for p in group["params"]:
-                if p.grad is None:
-                    continue
-                state = opt.state[p]
-                if not state:  # as Adam._init_group does for fused Adam
-                    state["step"] = torch.zeros((), dtype=torch.float32, device=p.device)
-                    state["exp_avg"] = torch.zeros_like(p, memory_format=torch.preserve_format)
-                    state["exp_avg_sq"] = torch.zeros_like(p, memory_format=torch.preserve_format)
-                key = (
-                    float(group["lr"]),
-                    float(beta1),
-                    float(beta2),
-                    float(group["eps"]),
-                    p.device,
-                )
-                bucket = buckets.setdefault(key, ([], [], [], [], []))
-                bucket[0].append(p)
-                bucket[1].append(p.grad)
-                bucket[2].append(state["exp_avg"])
-                bucket[3].append(state["exp_avg_sq"])
-                bucket[4].append(state["step"])
-                steps.setdefault(p.device, []).append(state["step"])
-                stepped.append(p)
+        if _fast(opt):
+            _add_to_buckets(opt, buckets, stepped)
+        else:
+            alone.append(opt)
+    found = _found_inf(buckets, alone, non_finite_steps) if finite else {}
+    for opt in alone:
+        _step_alone(opt, finite)
+    steps: dict[torch.device, list[torch.Tensor]] = {}
+    for key, bucket in buckets.items():
+        steps.setdefault(key[4], []).extend(bucket[4])
     with torch.no_grad():
         for counters in steps.values():
             torch._foreach_add_(counters, 1)
-        for (lr, beta1, beta2, eps, _), (params, grads, avgs, avg_sqs, counts) in buckets.items():
+        for (lr, beta1, beta2, eps, device), bucket in buckets.items():
+            params, grads, avgs, avg_sqs, counts = bucket
             torch._fused_adam_(
                 params,
                 grads,
@@ -151,7 +189,10 @@ def adam_step(
                 eps=eps,
                 maximize=False,
                 grad_scale=None,
-                found_inf=None,
+                found_inf=found.get(device),
             )
+        for device, counters in steps.items():
+            if device in found:  # a skipped step does not count, as in torch's own Adam
+                torch._foreach_sub_(counters, [found[device]] * len(counters))
     for p in stepped:
         p.grad = None
