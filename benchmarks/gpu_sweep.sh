@@ -7,7 +7,9 @@
 #   [ERRS=NAME] bash benchmarks/gpu_sweep.sh --config base: --config aa:antialiased=false
 #
 # Further arguments go to splat_sweep.py: on a machine of several GPUs, --gpus N spreads the
-# settings over them (two a GPU: eight settings of 30,000 steps in about 500 s on four H100s).
+# settings over them: four settings of 30,000 steps, one a GPU, take a call of about 350 s on
+# four H100s; eight (two a GPU) do not fit a 600 s call at 30,000 steps (loading 74 s, training
+# 405 s, two evaluations, the build), so give eight at most 25,000 steps.
 # Every setting's record is also packed into $OUT/settings.tgz, so a sweep cut at LIMIT seconds
 # (set it 60-90 s under the call's limit) still returns the evaluations made. RENDERS=1 adds --renders and returns the held-out renders
 # as $OUT/renders.tar.* (RENDERS=NAME,NAME: those settings' alone; 15 MiB parts; `cat renders.tar.* | tar x` here), for LPIPS without
