@@ -129,7 +129,8 @@ def _found_inf(
                     by_device.setdefault(p.grad.device, []).append(p.grad)
     found = {dev: _non_finite(grads) for dev, grads in by_device.items() if grads}
     if counter is not None and found:
-        bad = torch.stack([f.to(counter.device) for f in found.values()]).amax()
+        flags = [f.to(counter.device) for f in found.values()]
+        bad = flags[0] if len(flags) == 1 else torch.stack(flags).amax()
         counter += bad.to(counter.dtype)
     return found
 
