@@ -37,10 +37,14 @@ lpips=()
 if [ -n "$CKPT" ]; then lpips=(--lpips-weights "$CKPT"); fi
 renders=()
 if [ -n "$RENDERS" ]; then renders=(--renders); fi
-# LIMIT (seconds, 0 = none) ends the sweep in time for the packing below within a call's limit.
+# LIMIT (seconds, 0 = none) ends the sweep in time for the packing below within a call's limit:
+# each setting stops training 30 s before it for a last evaluation (--deadline), and whatever
+# still runs at LIMIT is killed.
+deadline=()
+if [ "${LIMIT:-0}" -gt 60 ]; then deadline=(--deadline $((LIMIT - 30))); fi
 timeout -k 10 "${LIMIT:-0}" python3 benchmarks/splat_sweep.py --prep "$prep" --chunk 0 \
   --steps "${STEPS:-30000}" --eval-at "${EVALS:-30000}" "${lpips[@]}" "${renders[@]}" \
-  --out "$out/sweep.json" "$@" 2>&1 | grep -v Warning
+  "${deadline[@]}" --out "$out/sweep.json" "$@" 2>&1 | grep -v "Warning\|had non-finite"
 work=$(ls -d /tmp/splat_sweep_* | tail -1)
 tar czf "$out/settings.tgz" -C "$work" $(cd "$work" && ls *.json) 2>/dev/null
 if [ -n "$RENDERS" ] && [ -d "$work/renders" ]; then

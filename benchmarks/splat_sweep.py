@@ -16,8 +16,11 @@ come from its model alone.
 
 A setting is ``NAME:KEY=VALUE,KEY=VALUE`` over :class:`cam2sim.splat.train.TrainOptions`
 (``densify.`` and ``lr.`` reach the nested options). Each setting's record is rewritten after
-every evaluation, so a run cut short still leaves its curves. ``--montage`` writes one held-out
-frame per setting next to the real one (real | each setting's render) at the last evaluation.
+every evaluation, so a run cut short still leaves its curves; with ``--deadline S`` each setting
+ends its training in time for a last evaluation within S seconds of the start (marked
+``cut_at_deadline``), so a call's time limit cannot take the end of a run. ``--montage`` writes
+one held-out frame per setting next to the real one (real | each setting's render) at the last
+evaluation.
 """
 
 from __future__ import annotations
@@ -115,10 +118,14 @@ def run_setting(  # noqa: PLR0913, PLR0917 -- one process's whole job
     montage_frame: int | None,
     device: str,
     renders: bool = False,
+    deadline: float | None = None,
 ) -> None:
     """Train the chunk with ``settings``, evaluating at ``eval_at``; write ``NAME.json``.
 
     With ``renders`` the last evaluation's held-out renders go to ``OUT_DIR/renders/NAME``.
+    ``deadline`` (``time.time()`` seconds): training ends early, for a last evaluation that
+    finishes in time, when the clock is within an evaluation's time of it (the last one's,
+    doubled; 60 s before the first).
     """
     import torch  # noqa: PLC0415
 
@@ -150,21 +157,27 @@ def run_setting(  # noqa: PLR0913, PLR0917 -- one process's whole job
         "evals": [],
     }
     models = out / f"models_{name}"
-    train_s = 0.0
+    train_s, eval_s, cut = 0.0, 60.0, False
     for target in sorted(eval_at):
         sync()
         t = time.perf_counter()
         while trainer.step_no < target and not trainer.done:
             trainer.step()
+            if deadline is not None and time.time() > deadline - eval_s:
+                cut = True
+                break
         sync()
         train_s += time.perf_counter() - t
         trainer.save(models)
-        last = target == max(eval_at) or trainer.done
+        last = target == max(eval_at) or trainer.done or cut
         renders_dir = out / "renders" / name if renders and last else None
+        t = time.perf_counter()
         scores = _evaluate(sub_dir, models, lpips_weights, device, renders_dir)
+        eval_s = 2.0 * (time.perf_counter() - t)
         record["evals"].append(
             {
                 "step": trainer.step_no,
+                "cut_at_deadline": cut,
                 "stopped": trainer.stopped,
                 "train_s": train_s,
                 "n_gaussians": len(trainer.street),
@@ -182,7 +195,7 @@ def run_setting(  # noqa: PLR0913, PLR0917 -- one process's whole job
             f"LPIPS {scores['lpips'] if scores['lpips'] is None else round(scores['lpips'], 3)}",
             flush=True,
         )
-        if trainer.done:  # a plateau (with min_steps below the steps) ended it early
+        if trainer.done or cut:  # a plateau (min_steps below the steps) or the deadline
             break
     if montage_frame is not None:
         from cam2sim.splat.render import RenderOptions, SplatRenderer  # noqa: PLC0415
@@ -231,8 +244,15 @@ def main() -> int:
         help="write the last evaluation's held-out renders (lossless WebP) to WORK/renders/NAME, "
         "to score LPIPS elsewhere (benchmarks/lpips_renders.py)",
     )
+    parser.add_argument(
+        "--deadline",
+        type=float,
+        help="seconds from the start: each setting stops training in time to make its last "
+        "evaluation (and renders) before then, at whatever step it reached",
+    )
     parser.add_argument("--out", default="sweep.json")
     args = parser.parse_args()
+    deadline = time.time() + args.deadline if args.deadline else None
     work = Path(tempfile.mkdtemp(prefix="splat_sweep_"))
     prep = Path(args.prep)
     if args.resize:
@@ -267,6 +287,7 @@ def main() -> int:
                 montage_frame,
                 f"cuda:{i % args.gpus}" if args.gpus > 1 else args.device,
                 args.renders,
+                deadline,
             ),
         )
         for i, (name, settings) in enumerate(configs)
