@@ -324,3 +324,89 @@ def test_mcmc_refinement_with_inherited_moments_draws_by_opacity(
     assert 1.0 - float((1.0 - opacity).prod()) == pytest.approx(
         float(torch.sigmoid(torch.tensor(2.0))), rel=1e-4
     )
+
+
+def test_a_gaussian_the_relocation_breaks_is_made_transparent_at_once(
+    gsplat_stand_in: list[float],
+) -> None:
+    # gsplat's relocation may leave a NaN scale (its float32 split of an opacity of 1 among
+    # many copies): the refinement step quenches it before the next step renders it.
+    options = DensifyOptions(strategy="mcmc", refine_start=0, refine_every=10, refine_stop=100)
+    densifier = Densifier(options, scene_scale=1.0, use_gsplat=True)
+    model, opts = model_and_adam(8)
+
+    def relocation(params: dict[str, torch.Tensor], *args: object, **kwargs: object) -> None:
+        with torch.no_grad():
+            params["scales"][3, 1] = float("nan")
+
+    densifier.strategy.step_post_backward = relocation  # type: ignore[attr-defined]
+    out = RasterOutput(
+        colors=torch.zeros(1, 2, 2, 3),
+        alphas=torch.zeros(1, 2, 2, 1),
+        means2d=torch.zeros(1, 8, 2),
+        radii=torch.ones(1, 8, 2, dtype=torch.int32),
+        depths=torch.full((1, 8), 5.0),
+        info={"width": 2, "height": 2, "n_cameras": 1},
+        backend="gsplat",
+    )
+    densifier.post_backward(9, model, opts, out, 8, torch.Generator())  # not a refinement step
+    assert densifier.n_non_finite == 0
+    assert not torch.isfinite(model.params["scales"]).all()
+    densifier.post_backward(10, model, opts, out, 8, torch.Generator())
+    assert densifier.n_non_finite == 2  # the one from step 9 before, the new one after
+    for p in model.params.values():
+        assert torch.isfinite(p).all()
+    assert float(torch.sigmoid(model.params["opacities"].detach()).flatten()[3]) < 1e-12
+
+
+def _gsplat_split_factor_float32(opacity: float, copies: int) -> float:
+    """The scale factor gsplat 1.5.3's relocation kernel computes, with its float32 order."""
+    f32 = np.float32
+    o = f32(opacity)
+    new_o = f32(1.0) - np.power(f32(1.0) - o, f32(1.0) / f32(copies))
+    denom = f32(0.0)
+    for i in range(1, copies + 1):
+        for k in range(i):
+            term = (f32((-1) ** k) / np.sqrt(f32(k + 1))) * np.power(new_o, f32(k + 1))
+            denom = f32(denom + f32(math.comb(i - 1, k)) * term)
+    return float(o / denom)
+
+
+def test_mcmc_keeps_opacities_off_1_where_gsplats_relocation_breaks(
+    gsplat_stand_in: list[float],
+) -> None:
+    from cam2sim.splat.densify import MAX_OPACITY_LOGIT
+
+    # Why: at an opacity of exactly 1 (float32), 40 copies give a negative scale factor...
+    assert _gsplat_split_factor_float32(1.0, 40) < 0.0
+    # ...while at the clamp's opacity every number of copies gives the float64 value.
+    edge = float(torch.sigmoid(torch.tensor(MAX_OPACITY_LOGIT)))
+    assert edge < 1.0
+    for copies in (2, 10, 30, 40, 51):
+        exact = relocation_split(
+            torch.tensor([edge], dtype=torch.float64),
+            torch.ones(1, 3, dtype=torch.float64),
+            torch.tensor([copies]),
+        )[1][0, 0]
+        assert _gsplat_split_factor_float32(edge, copies) == pytest.approx(float(exact), rel=1e-3)
+    # So the densifier clamps the logits before every relocation.
+    options = DensifyOptions(strategy="mcmc", refine_start=0, refine_every=10, refine_stop=100)
+    densifier = Densifier(options, scene_scale=1.0, use_gsplat=True)
+    model, opts = model_and_adam(4)
+    with torch.no_grad():
+        model.params["opacities"][:] = torch.tensor([30.0, 16.0, 2.0, -3.0])
+    seen: list[torch.Tensor] = []
+    densifier.strategy.step_post_backward = (  # type: ignore[attr-defined]
+        lambda params, *a, **k: seen.append(params["opacities"].detach().clone())
+    )
+    out = RasterOutput(
+        colors=torch.zeros(1, 2, 2, 3),
+        alphas=torch.zeros(1, 2, 2, 1),
+        means2d=torch.zeros(1, 4, 2),
+        radii=torch.ones(1, 4, 2, dtype=torch.int32),
+        depths=torch.full((1, 4), 5.0),
+        info={"width": 2, "height": 2, "n_cameras": 1},
+        backend="gsplat",
+    )
+    densifier.post_backward(10, model, opts, out, 4, torch.Generator())
+    torch.testing.assert_close(seen[0].flatten(), torch.tensor([15.0, 15.0, 2.0, -3.0]))

@@ -51,6 +51,7 @@ if TYPE_CHECKING:
     from cam2sim.splat.train_options import DensifyOptions
 
 __all__ = [
+    "MAX_OPACITY_LOGIT",
     "RELOCATION_MAX_COPIES",
     "Densifier",
     "add_copies",
@@ -135,14 +136,7 @@ class Densifier:
         if step > 0 and step % opts.refine_every == 0:
             self._quench(step, model, optimizers)
         if opts.strategy == "mcmc":
-            # Relocation and growth when due, position noise on every step; model.params and
-            # the optimizers are the street model's alone (the sky never moves).
-            if opts.mcmc_error_weight > 0 or opts.mcmc_inherit_moments:
-                self._mcmc_step(step, model, optimizers, out, n_street, means_lr)
-            else:
-                self.strategy.step_post_backward(
-                    model.params, optimizers, self.state, step, out.info, lr=means_lr
-                )
+            self._mcmc_post_backward(step, model, optimizers, out, n_street, means_lr)
             return
         if step >= opts.refine_stop_at or out.means2d.grad is None:
             return
@@ -161,6 +155,37 @@ class Densifier:
         last = self.last_reset
         if step > 0 and step % opts.reset_every == 0 and (last is None or step <= last):
             reset_opacity(model, optimizers, 2.0 * opts.prune_opacity)
+
+    def _mcmc_post_backward(
+        self,
+        step: int,
+        model: GaussianModel,
+        optimizers: dict[str, torch.optim.Optimizer],
+        out: RasterOutput,
+        n_street: int,
+        means_lr: float,
+    ) -> None:
+        """MCMC: relocation and growth when due, position noise on every step.
+
+        ``model.params`` and the optimizers are the street model's alone (the sky never
+        moves). At refinement steps the opacity logits are clamped first
+        (:data:`MAX_OPACITY_LOGIT`) and broken Gaussians quenched again after.
+        """
+        opts = self.options
+        refining = step > 0 and step % opts.refine_every == 0
+        if refining:
+            with torch.no_grad():
+                model.params["opacities"].clamp_(max=MAX_OPACITY_LOGIT)
+        if opts.mcmc_error_weight > 0 or opts.mcmc_inherit_moments:
+            self._mcmc_step(step, model, optimizers, out, n_street, means_lr)
+        else:
+            self.strategy.step_post_backward(
+                model.params, optimizers, self.state, step, out.info, lr=means_lr
+            )
+        if refining:
+            # Once more after the relocation: a NaN it made, left until the next refinement,
+            # would spoil every step that sees it.
+            self._quench(step, model, optimizers)
 
     def _mcmc_step(
         self,
@@ -341,6 +366,16 @@ def _draw(weights: torch.Tensor, n: int) -> torch.Tensor:
     u = torch.rand(n, device=w.device, dtype=w.dtype) * cdf[-1]
     return torch.searchsorted(cdf, u, right=True).clamp_max(len(w) - 1)
 
+
+MAX_OPACITY_LOGIT = 15.0
+"""MCMC clamps opacity logits to this before relocating (opacity 1 - 3e-7, not 1).
+
+gsplat's relocation splits an opacity among N copies in float32 with an alternating sum of
+binomial coefficients (up to 1e14). For an opacity that rounds to exactly 1 (logit above
+about 16.6) nothing damps the terms, and from about 35 copies the sum cancels to nothing or
+below: the copies' scales come out negative, their logarithm NaN. Just below 1 the sum is
+exact to float32 for any number of copies (docs/benchmarks.md, 2026-11-27).
+"""
 
 RELOCATION_MAX_COPIES = 51
 """Copies of one Gaussian the relocation formula counts at most (gsplat's table size)."""

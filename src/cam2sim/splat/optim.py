@@ -13,12 +13,11 @@ skipped, as mixed-precision training skips one. One such value, stepped into a G
 it draw NaN into every pixel it covers, and the next backward pass makes NaN of every Gaussian
 in those pixels: on 2026-11-27 three of about thirty 30,000-step MCMC runs on real frames
 (antialiased) lost most or all of their street model that way, even with the densifier making
-NaN Gaussians transparent at every refinement. gsplat's antialiasing term divides by its
-compensation plus 1e-6 in the backward pass, so a thin Gaussian's gradient is amplified about
-500,000 times, one candidate for the first NaN; the densifier's guard itself then turned each
-broken Gaussian into a zero quaternion, NaN in gsplat's kernels, so it went on drawing NaN
-(fixed in :func:`cam2sim.splat.model.make_transparent`). The check is one fused reduction a
-step, and :func:`adam_step` counts the steps it skipped.
+NaN Gaussians transparent at every refinement: that guard turned each broken Gaussian into a
+zero quaternion, NaN in gsplat's kernels, so it went on drawing NaN (fixed in
+:func:`cam2sim.splat.model.make_transparent`; one source of the first NaN, gsplat's relocation
+at an opacity of 1, is closed in :mod:`cam2sim.splat.densify`). The check is one fused
+reduction a step, and :func:`adam_step` counts the steps it skipped.
 """
 
 from __future__ import annotations
