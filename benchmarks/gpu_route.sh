@@ -3,7 +3,8 @@
 # build gsplat, and train and score the 1,500-frame route (benchmarks/splat_route.py) with
 # today's defaults; with CLASSIC=1 and a second GPU, the same without the antialiasing filter
 # beside it (the same-call baseline); with TESTS=1 and a third GPU, the CUDA training tests too
-# (called directly: the tests' conftest needs packages the GPU image lacks).
+# (called directly: the tests' conftest needs packages the GPU image lacks); with a fourth GPU,
+# benchmarks/adam_guard.py (what the NaN guard costs an optimizer step on a million Gaussians).
 #
 #   WHEELS=.c19w ROUTE=.carry/route400tri CKPT=.c19/alexnet.ckpt CLASSIC=1 TESTS=1 \
 #       bash benchmarks/gpu_route.sh          # carry .c19w, .c19/alexnet.ckpt, .carry/route400tri
@@ -55,7 +56,12 @@ for name, test, args in cases:
 sys.exit(1 if failed else 0)
 PY
 fi
+if [ "$gpus" -ge 4 ]; then  # what the trainer's NaN guard costs a step, on the fourth GPU
+  CUDA_VISIBLE_DEVICES=3 python3 benchmarks/adam_guard.py --gaussians 1000000 --device cuda \
+    --out "$out/adam_guard.json" > "$out/adam_guard.log" 2>&1 &
+fi
 wait
 tail -n 3 "$out"/route_*.log
+[ -f "$out/adam_guard.json" ] && cat "$out/adam_guard.json"
 [ -f "$out/tests.txt" ] && grep -E "PASSED|FAILED" "$out/tests.txt"
 exit 0

@@ -45,12 +45,17 @@ __all__ = ["adam_step"]
 def _non_finite(grads: list[torch.Tensor]) -> torch.Tensor:
     """1.0 (float32, on the gradients' device) when a value of ``grads`` is NaN or inf, else 0.0.
 
-    One fused reduction (the largest magnitude of each gradient), no host synchronisation.
+    No host synchronisation. On CUDA one fused reduction (each gradient's largest magnitude);
+    on the CPU, where that reduction is slow (9 ms for 100,000 Gaussians on 2 cores), each
+    gradient's smallest and largest value (0.8 ms; both are NaN where a value is).
     """
     import torch  # noqa: PLC0415
 
-    peaks = torch._foreach_norm(grads, ord=float("inf"))  # noqa: SLF001
-    return (~torch.isfinite(torch.stack(list(peaks)))).any().to(torch.float32)
+    if grads[0].device.type == "cuda":
+        peaks = list(torch._foreach_norm(grads, ord=float("inf")))  # noqa: SLF001
+    else:
+        peaks = [v for g in grads for v in torch.aminmax(g)]
+    return (~torch.isfinite(torch.stack(peaks))).any().to(torch.float32)
 
 
 def _fast(opt: torch.optim.Optimizer) -> bool:
@@ -71,15 +76,25 @@ def _fast(opt: torch.optim.Optimizer) -> bool:
     )
 
 
-def _step_alone(opt: torch.optim.Optimizer, finite: bool) -> None:
-    """Step an optimizer :func:`adam_step` cannot fuse; with ``finite``, NaN and inf as 0."""
+def _step_alone(opt: torch.optim.Optimizer, found: dict[torch.device, torch.Tensor] | None) -> None:
+    """Step an optimizer :func:`adam_step` cannot fuse; with ``found``, NaN and inf as 0.
+
+    ``found`` is :func:`_found_inf`'s flags. On the CPU the flag is read and the gradients
+    are rewritten only when it is set (reading costs nothing there); elsewhere they are
+    rewritten every time, to keep the step free of host synchronisations.
+    """
     import torch  # noqa: PLC0415
 
-    if finite:
+    if found is not None:
         for group in opt.param_groups:
             for p in group["params"]:
-                if p.grad is not None:
-                    torch.nan_to_num_(p.grad, nan=0.0, posinf=0.0, neginf=0.0)
+                g = p.grad
+                if g is None:
+                    continue
+                flag = found.get(g.device)
+                if g.device.type == "cpu" and (flag is None or not bool(flag)):
+                    continue
+                torch.nan_to_num_(g, nan=0.0, posinf=0.0, neginf=0.0)
     opt.step()
     opt.zero_grad(set_to_none=True)
 
@@ -165,7 +180,7 @@ def adam_step(
             alone.append(opt)
     found = _found_inf(buckets, alone, non_finite_steps) if finite else {}
     for opt in alone:
-        _step_alone(opt, finite)
+        _step_alone(opt, found if finite else None)
     steps: dict[torch.device, list[torch.Tensor]] = {}
     for key, bucket in buckets.items():
         steps.setdefault(key[4], []).extend(bucket[4])
