@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 
 from cam2sim.splat import model as gm
+from cam2sim.splat.raster import RasterOutput
 
 
 def model_and_adam(
@@ -31,3 +32,21 @@ def check_aligned(model: gm.GaussianModel, opts: dict[str, torch.optim.Optimizer
         state = opts[name].state[p]
         assert state["exp_avg"].shape == p.shape
         assert state["exp_avg_sq"].shape == p.shape
+
+
+def one_view_output(n: int, grad: torch.Tensor | None = None) -> RasterOutput:
+    """A gsplat-like raster output of one 2x2 view that sees all ``n`` Gaussians.
+
+    ``grad`` (``[1, n, 2]``) becomes the screen positions' gradient (zero if not given).
+    """
+    means2d = torch.zeros(1, n, 2, requires_grad=True)
+    means2d.grad = torch.zeros(1, n, 2) if grad is None else grad
+    return RasterOutput(
+        colors=torch.zeros(1, 2, 2, 3),
+        alphas=torch.zeros(1, 2, 2, 1),
+        means2d=means2d,
+        radii=torch.ones(1, n, 2, dtype=torch.int32),
+        depths=torch.full((1, n), 5.0),
+        info={"width": 2, "height": 2, "n_cameras": 1},
+        backend="gsplat",
+    )

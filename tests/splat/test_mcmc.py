@@ -12,7 +12,7 @@ pytest.importorskip("torch")
 from typing import TYPE_CHECKING
 
 import torch
-from gaussian_fixtures import model_and_adam
+from gaussian_fixtures import model_and_adam, one_view_output
 
 from cam2sim.splat.densify import (
     RELOCATION_MAX_COPIES,
@@ -215,19 +215,9 @@ def test_error_weighted_refinement_relocates_and_grows_with_aligned_state(
     means = model.params["means"].detach().clone()
 
     def out(n: int) -> RasterOutput:
-        means2d = torch.zeros(1, n, 2, requires_grad=True)
         grad = torch.zeros(1, n, 2)
         grad[0, 10, 0] = 1.0  # only Gaussian 10 has an image error
-        means2d.grad = grad
-        return RasterOutput(
-            colors=torch.zeros(1, 2, 2, 3),
-            alphas=torch.zeros(1, 2, 2, 1),
-            means2d=means2d,
-            radii=torch.ones(1, n, 2, dtype=torch.int32),
-            depths=torch.full((1, n), 5.0),
-            info={"width": 2, "height": 2, "n_cameras": 1},
-            backend="gsplat",
-        )
+        return one_view_output(n, grad)
 
     for step in range(1, 11):
         densifier.post_backward(
@@ -301,19 +291,9 @@ def test_mcmc_refinement_with_inherited_moments_draws_by_opacity(
         model.params["opacities"][7] = 2.0
     means = model.params["means"].detach().clone()
     moments = _state(opts, model, "means", "exp_avg").clone()
-    no_grad = torch.zeros(1, 20, 2)  # no image error anywhere: the draw is by opacity alone
     for step in range(1, 11):
         n = len(model)
-        out = RasterOutput(
-            colors=torch.zeros(1, 2, 2, 3),
-            alphas=torch.zeros(1, 2, 2, 1),
-            means2d=torch.zeros(1, n, 2, requires_grad=True),
-            radii=torch.ones(1, n, 2, dtype=torch.int32),
-            depths=torch.full((1, n), 5.0),
-            info={"width": 2, "height": 2, "n_cameras": 1},
-            backend="gsplat",
-        )
-        out.means2d.grad = no_grad[:, :n]
+        out = one_view_output(n)  # no image error anywhere: the draw is by opacity alone
         densifier.post_backward(step, model, opts, out, n, torch.Generator(), means_lr=1e-4)
     assert densifier.state["grad2d"] is None  # no statistics kept
     assert len(gsplat_stand_in) == 10
@@ -340,15 +320,7 @@ def test_a_gaussian_the_relocation_breaks_is_made_transparent_at_once(
             params["scales"][3, 1] = float("nan")
 
     densifier.strategy.step_post_backward = relocation  # type: ignore[attr-defined]
-    out = RasterOutput(
-        colors=torch.zeros(1, 2, 2, 3),
-        alphas=torch.zeros(1, 2, 2, 1),
-        means2d=torch.zeros(1, 8, 2),
-        radii=torch.ones(1, 8, 2, dtype=torch.int32),
-        depths=torch.full((1, 8), 5.0),
-        info={"width": 2, "height": 2, "n_cameras": 1},
-        backend="gsplat",
-    )
+    out = one_view_output(8)
     densifier.post_backward(9, model, opts, out, 8, torch.Generator())  # not a refinement step
     assert densifier.n_non_finite == 0
     assert not torch.isfinite(model.params["scales"]).all()
@@ -399,14 +371,6 @@ def test_mcmc_keeps_opacities_off_1_where_gsplats_relocation_breaks(
     densifier.strategy.step_post_backward = (  # type: ignore[attr-defined]
         lambda params, *a, **k: seen.append(params["opacities"].detach().clone())
     )
-    out = RasterOutput(
-        colors=torch.zeros(1, 2, 2, 3),
-        alphas=torch.zeros(1, 2, 2, 1),
-        means2d=torch.zeros(1, 4, 2),
-        radii=torch.ones(1, 4, 2, dtype=torch.int32),
-        depths=torch.full((1, 4), 5.0),
-        info={"width": 2, "height": 2, "n_cameras": 1},
-        backend="gsplat",
-    )
+    out = one_view_output(4)
     densifier.post_backward(10, model, opts, out, 4, torch.Generator())
     torch.testing.assert_close(seen[0].flatten(), torch.tensor([15.0, 15.0, 2.0, -3.0]))
