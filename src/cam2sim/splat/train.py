@@ -790,7 +790,7 @@ class _ChunkTrainer:
             notes.append(f"{broken} Gaussians with NaN or inf parameters made transparent")
         skipped = int(self.non_finite_steps)
         if skipped:
-            notes.append(f"NaN or inf gradient values on {skipped} steps, which were skipped")
+            notes.append(f"NaN or inf gradient values on {skipped} steps, kept out of the model")
         return notes
 
     def _densify_note(self) -> str:
