@@ -39,9 +39,13 @@ renders=()
 if [ -n "$RENDERS" ]; then renders=(--renders); fi
 # LIMIT (seconds, 0 = none) ends the sweep in time for the packing below within a call's limit:
 # each setting stops training 30 s before it for a last evaluation (--deadline), and whatever
-# still runs at LIMIT is killed.
+# still runs at LIMIT is killed. EVAL_RESERVE (default 60 s) is the time a setting keeps for
+# its first evaluation: with EVALS=30000 alone, 25 s lets two settings a GPU (405 s of training)
+# reach 30,000 steps in a sweep of LIMIT=515 on two H100s.
 deadline=()
-if [ "${LIMIT:-0}" -gt 60 ]; then deadline=(--deadline $((LIMIT - 30))); fi
+if [ "${LIMIT:-0}" -gt 60 ]; then
+  deadline=(--deadline $((LIMIT - 30)) --eval-reserve "${EVAL_RESERVE:-60}")
+fi
 timeout -k 10 "${LIMIT:-0}" python3 benchmarks/splat_sweep.py --prep "$prep" --chunk 0 \
   --steps "${STEPS:-30000}" --eval-at "${EVALS:-30000}" "${lpips[@]}" "${renders[@]}" \
   "${deadline[@]}" --out "$out/sweep.json" "$@" 2>&1 | grep -v "Warning\|had non-finite"
