@@ -788,10 +788,27 @@ def test_scene_rates_decay_to_the_tail_after_densification(tmp_path: Path) -> No
     while not trainer.done:
         trainer.step()
     end = rates()
-    for name in ("scales", "quats", "opacities", "sh0", "shN", "sky"):
+    for name in ("scales", "quats", "opacities", "sh0", "shN", "sky", "appearance"):
         assert end[name] == pytest.approx(0.1 * start[name]), name
-    assert end["appearance"] == start["appearance"]  # the per-view transforms keep theirs
     assert end["means"] == pytest.approx(0.01 * start["means"], rel=1e-3)  # their own decay
+
+
+def test_the_per_view_transforms_keep_their_rate_without_tail_views(tmp_path: Path) -> None:
+    from cam2sim.splat.scene import load_points
+    from cam2sim.splat.train import _ChunkTrainer
+
+    prep = make_prepared_scene(tmp_path, n_frames=4, chunks=((0, 4),), size=(32, 24))
+    scene = SceneRecord.load(prep / "scene.json")
+    lr = LearningRates(sh0=2e-2, tail=0.1, tail_views=False, poses=1e-4)
+    options = fast_options(lr=lr, sky_points=20)
+    xyz, rgb, _ = load_points(prep / "points.npz")
+    trainer = _ChunkTrainer(scene.chunks[0], scene, prep, (xyz, rgb), options, "cpu", "torch")
+    start = [o.param_groups[0]["lr"] for o in trainer.extra_optimizers]
+    while not trainer.done:
+        trainer.step()
+    sky, appearance, poses = (o.param_groups[0]["lr"] for o in trainer.extra_optimizers)
+    assert sky == pytest.approx(0.1 * start[0])  # the sky is part of the scene
+    assert (appearance, poses) == (start[1], start[2])
 
 
 def test_training_clears_the_drives_path_of_gaussians(tmp_path: Path) -> None:

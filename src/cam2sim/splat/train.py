@@ -385,7 +385,9 @@ class _ChunkTrainer:
         self.tail_groups: list[tuple[dict[str, Any], float]] = []
         if lr.tail is not None and lr.tail < 1.0:
             scene_optimizers = [o for n, o in self.optimizers.items() if n != "means"]
-            if sky_groups:
+            if lr.tail_views:  # the sky's, the per-view transforms' and pose corrections'
+                scene_optimizers += self.extra_optimizers
+            elif sky_groups:
                 scene_optimizers.append(self.extra_optimizers[0])
             self.tail_groups = [
                 (group, float(group["lr"])) for o in scene_optimizers for group in o.param_groups

@@ -68,10 +68,16 @@ class LearningRates:
         tail: Where densification ends before the step cap (``densify.refine_stop`` below
             it), the scene's other rates (scales, quats, opacities, SH, the sky's) decay
             exponentially from there to ``tail`` times their value at the cap (the means'
-            follow their own decay; the per-view colour transforms and pose corrections keep
-            theirs). 1 = constant, as gsplat's trainer has them. None = 0.1 with MCMC
-            densification, else 1 (:func:`resolve_options`; measured with MCMC only:
+            follow their own decay). 1 = constant, as gsplat's trainer has them. None = 0.1
+            with MCMC densification, else 1 (:func:`resolve_options`; measured with MCMC only:
             ``docs/benchmarks.md``).
+        tail_views: The per-view colour transforms and pose corrections decay with the tail
+            too. Each view's transform gets a gradient only on the steps that draw its view
+            (one in a few hundred), and Adam moves it by about its learning rate times ten
+            after each of them whatever the gradient's size, so at a constant rate the
+            transforms keep wandering about their fit (about 0.007 an entry at 1e-3); the
+            held-in score wanders with them (0.3-0.5 dB from one validation to the next
+            after densification).
     """
 
     means: float = 1.6e-4
@@ -83,6 +89,7 @@ class LearningRates:
     appearance: float = 1e-3
     poses: float = 0.0
     tail: float | None = None
+    tail_views: bool = True
 
 
 @dataclass(frozen=True)
