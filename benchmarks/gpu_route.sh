@@ -2,9 +2,11 @@
 # One call on a GPU machine (docs/benchmarks.md, issues 19 and 22): install the carried wheels,
 # build gsplat, and train and score the 1,500-frame route (benchmarks/splat_route.py) with
 # today's defaults; with CLASSIC=1 and a second GPU, the same without the antialiasing filter
-# beside it (the same-call baseline); with TESTS=1 and a third GPU, the CUDA training tests too
-# (called directly: the tests' conftest needs packages the GPU image lacks); with a fourth GPU,
-# benchmarks/adam_guard.py (what the NaN guard costs an optimizer step on a million Gaussians).
+# beside it (the same-call baseline); with TESTS=1 the CUDA training tests too (called directly:
+# the tests' conftest needs packages the GPU image lacks), and benchmarks/adam_guard.py (what
+# the NaN guard costs an optimizer step on a million Gaussians): on a third and a fourth GPU
+# beside the routes, or on GPU 0 after them where the machine has fewer (so they do not share
+# a GPU with a route and change its timing).
 #
 #   WHEELS=.c19w ROUTE=.carry/route400tri CKPT=.c19/alexnet.ckpt CLASSIC=1 TESTS=1 \
 #       bash benchmarks/gpu_route.sh          # carry .c19w, .c19/alexnet.ckpt, .carry/route400tri
@@ -27,8 +29,8 @@ route() {  # NAME GPU [--set KEY=VALUE ...]
 }
 route default 0 &
 if [ -n "$CLASSIC" ] && [ "$gpus" -ge 2 ]; then route classic 1 --set antialiased=false & fi
-if [ -n "$TESTS" ] && [ "$gpus" -ge 3 ]; then
-  CUDA_VISIBLE_DEVICES=2 python3 - > "$out/tests.txt" 2>&1 <<'PY' &
+cuda_tests() {  # GPU: the CUDA training tests
+  CUDA_VISIBLE_DEVICES=$1 python3 - > "$out/tests.txt" 2>&1 <<'PY'
 import sys
 import tempfile
 import traceback
@@ -55,12 +57,16 @@ for name, test, args in cases:
             traceback.print_exc()
 sys.exit(1 if failed else 0)
 PY
-fi
-if [ "$gpus" -ge 4 ]; then  # what the trainer's NaN guard costs a step, on the fourth GPU
-  CUDA_VISIBLE_DEVICES=3 python3 benchmarks/adam_guard.py --gaussians 1000000 --device cuda \
-    --out "$out/adam_guard.json" > "$out/adam_guard.log" 2>&1 &
-fi
+}
+guard() {  # GPU: what the trainer's NaN guard costs a step
+  CUDA_VISIBLE_DEVICES=$1 python3 benchmarks/adam_guard.py --gaussians 1000000 --device cuda \
+    --out "$out/adam_guard.json" > "$out/adam_guard.log" 2>&1
+}
+if [ -n "$TESTS" ] && [ "$gpus" -ge 3 ]; then cuda_tests 2 & fi
+if [ -n "$TESTS" ] && [ "$gpus" -ge 4 ]; then guard 3 & fi
 wait
+if [ -n "$TESTS" ] && [ "$gpus" -lt 3 ]; then cuda_tests 0; fi
+if [ -n "$TESTS" ] && [ "$gpus" -lt 4 ]; then guard 0; fi
 tail -n 3 "$out"/route_*.log
 [ -f "$out/adam_guard.json" ] && cat "$out/adam_guard.json"
 [ -f "$out/tests.txt" ] && grep -E "PASSED|FAILED" "$out/tests.txt"

@@ -358,8 +358,10 @@ def resolve_options(options: TrainOptions, backend: str) -> TrainOptions:
     rises in the last 2,000 steps, where the plateau rule, replayed on recorded runs, stopped
     it at 22,000-23,000 steps, 0.5 dB held-in short of the full schedule. MCMC also relocates
     and grows until :data:`MCMC_REFINE_STOP`, then lets the scene's learning rates decay to a
-    tenth (``lr.tail``), and starts with :data:`MCMC_GROUND_POINTS` ground seeds: together
-    +0.6 dB held-out on the winding stretch at 30,000 steps (``docs/benchmarks.md``).
+    tenth (``lr.tail``, the per-view colour transforms with them: ``lr.tail_views``), and
+    starts with :data:`MCMC_GROUND_POINTS` ground seeds: together +0.6 dB held-out on the
+    winding stretch at 30,000 steps, and the transforms' decay another +0.3 (held-in +0.8;
+    ``docs/benchmarks.md``).
     """
     dens = options.densify
     strategy = dens.strategy
@@ -418,8 +420,8 @@ class TrainResult:
             units) and rotation (degrees), when pose refinement was on (``lr.poses``).
         densify_strategy: The densification that ran (``"mcmc"``, ``"gsplat"``, ``"simple"``;
             ``"off"``), after :func:`resolve_options`.
-        non_finite_steps: Steps on which a gradient had NaN or inf values (set to zero before
-            the update, :mod:`cam2sim.splat.optim`).
+        non_finite_steps: Steps on which a gradient had NaN or inf values (skipped on CUDA;
+            those values zeroed before the update on the CPU, :mod:`cam2sim.splat.optim`).
     """
 
     chunk_id: int
