@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Build here what the one-call GPU scripts carry (docs/benchmarks.md, issue 22), into folders
-# that .git/info/exclude must ignore (/.c19/ /.c19w/ /.u22/ /.carry/):
+# that .git/info/exclude must ignore (/.c19/ /.c19w/ /.u22/ /.carry/ /.c21/ /.gl/):
 #
 #   .c19w/                 gsplat 1.5.3, pydantic 2.14.4 and its four dependencies (cp312 wheels,
 #                          9.4 MB): what the GPU image lacks for training and evaluation
@@ -8,16 +8,19 @@
 #   .u22/curves, .u22/easy the two real stretches prepared (images-only SfM) and packed at
 #                          480x360 as lossless WebP (44-47 MiB each; about 210 s each on 2 cores)
 #   .carry/route400tri     the 1,500-frame synthetic route (35 MiB; about 240 s on 2 cores)
+#   .c21/a, .c21/b, .gl    the demo's wheels for benchmarks/gpu_demo.sh's two calls (carla
+#                          0.9.16, pyproj, gsplat: 51 MB; the other 17 packages the GPU image
+#                          lacks: 21 MB) and the EGL loader debs (0.4 MB; needs apt-get)
 #
-#   bash benchmarks/carry_kit.sh [wheels] [lpips] [curves] [easy] [route]   # default: all
+#   bash benchmarks/carry_kit.sh [wheels] [lpips] [curves] [easy] [route] [demo]  # default: all
 #
 # Needs the package installed (python3 quickstart.py test, or pip install -e ".[splat,...]")
 # and ../shared/data/images for the stretches.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 parts=("$@")
-[ ${#parts[@]} -eq 0 ] && parts=(wheels lpips curves easy route)
-for ignored in .c19 .c19w .u22 .carry; do
+[ ${#parts[@]} -eq 0 ] && parts=(wheels lpips curves easy route demo)
+for ignored in .c19 .c19w .u22 .carry .c21 .gl; do
   git check-ignore -q "$ignored/x" || { echo "add /$ignored/ to .git/info/exclude first" >&2; exit 2; }
 done
 for part in "${parts[@]}"; do
@@ -48,12 +51,35 @@ from cam2sim.splat.prepare import prepare_scene; prepare_scene(Workspace.open('$
     python3 benchmarks/pack_scene.py "$ws/splat/prep" ".u22/$part"
     rm -rf "$(dirname "$ws")"
     ;;
+  demo)
+    rm -rf .c21 .gl
+    mkdir -p .c21/a .c21/b .gl
+    manylinux=()
+    for tag in manylinux2014 manylinux_2_17 manylinux_2_27 manylinux_2_28 manylinux_2_31; do
+      manylinux+=(--platform "${tag}_x86_64")
+    done
+    dl() {  # FOLDER PACKAGE...: cp312 wheels for the GPU image
+      local dest=$1
+      shift
+      python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 \
+        --implementation cp "${manylinux[@]}" -d "$dest" "$@"
+    }
+    dl .c21/a carla==0.9.16 pyproj gsplat==1.5.3
+    dl .c21/b pydantic==2.14.4 pydantic_core==2.50.5 annotated_types typing_inspection \
+      typing_extensions==4.16.0 shapely rosbags backports.zstd apsw lz4 zstandard ruamel.yaml \
+      moderngl glcontext scenariogeneration pyclothoids xmlschema elementpath
+    apt=(-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 -oDir::State::Lists=/tmp/amd64)
+    mkdir -p /tmp/amd64/partial
+    apt-get "${apt[@]}" update > /dev/null
+    (cd .gl && apt-get "${apt[@]}" download libvulkan1 libegl1 libglvnd0 libopengl0 libgl1 \
+      libglx0 libgles2)
+    ;;
   route)
     rm -rf .carry/route400tri
     PYTHONPATH=src python3 benchmarks/splat_route.py --out .carry/route400tri
     ;;
   *)
-    echo "unknown part $part (wheels, lpips, curves, easy, route)" >&2
+    echo "unknown part $part (wheels, lpips, curves, easy, route, demo)" >&2
     exit 2
     ;;
   esac
@@ -62,5 +88,6 @@ from cam2sim.splat.prepare import prepare_scene; prepare_scene(Workspace.open('$
   lpips) du -sh .c19/alexnet.ckpt ;;
   curves | easy) du -sh ".u22/$part" ;;
   route) du -sh .carry/route400tri ;;
+  demo) du -sh .c21/a .c21/b .gl ;;
   esac
 done
