@@ -13,41 +13,35 @@
 # and builds gsplat (60-80 s); run installs the others, puts the LPIPS weights in the cache,
 # runs benchmarks/demo.py (its arguments after the script's), and writes $OUT/demo_gpu.json,
 # $OUT/demo.log and the demo's HTML report ($OUT/report.tgz).
-set -o pipefail
-export PYTHONUNBUFFERED=1 MAX_JOBS=${MAX_JOBS:-16}
-for deb in .gl/*.deb; do dpkg -x "$deb" /; done  # the EGL loader (device README)
-ldconfig
-export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
-export PYTHONPATH=/tmp/site:$PWD/src CAM2SIM_CACHE=/tmp/cam2sim_cache
-out=${OUT:-/tmp/out}
-mkdir -p "$out"
-install() {  # FOLDER: its wheels into /tmp/site
-  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
-    --target /tmp/site "$1"/*.whl
-}
 case ${PHASE:?set PHASE to setup or run} in
-setup)
-  install .c21/a || exit 1
-  python3 -c "from cam2sim.splat.raster import build_gsplat; build_gsplat()" || exit 1
-  touch /tmp/site/.gpu_demo_setup
-  ;;
+setup) WHEELS=.c21/a ;;
 run)
   if [ ! -f /tmp/site/.gpu_demo_setup ]; then
     echo "this machine is fresh (the one set up went back): run PHASE=setup again first" >&2
     exit 3
   fi
-  install .c21/b || exit 1
-  mkdir -p "$CAM2SIM_CACHE/lpips"
-  cp .c19/alexnet.ckpt "$CAM2SIM_CACHE/lpips/"
-  rm -rf /tmp/gdemo
-  python3 benchmarks/demo.py /tmp/gdemo --json "$out/demo_gpu.json" "$@" > "$out/demo.log" 2>&1
-  rc=$?
-  tar czf "$out/report.tgz" -C /tmp/gdemo/ws report 2>/dev/null
-  tail -n 40 "$out/demo.log"
-  exit $rc
+  WHEELS=.c21/b
   ;;
 *)
   echo "PHASE=$PHASE: use setup or run" >&2
   exit 2
   ;;
 esac
+source "$(dirname "$0")/gpu_env.sh"  # installs $WHEELS into /tmp/site, sets PYTHONPATH and $out
+for deb in .gl/*.deb; do dpkg -x "$deb" /; done  # the EGL loader (device README)
+ldconfig
+export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
+export CAM2SIM_CACHE=/tmp/cam2sim_cache
+if [ "$PHASE" = setup ]; then
+  python3 -c "from cam2sim.splat.raster import build_gsplat; build_gsplat()" || exit 1
+  touch /tmp/site/.gpu_demo_setup
+  exit 0
+fi
+mkdir -p "$CAM2SIM_CACHE/lpips"
+cp .c19/alexnet.ckpt "$CAM2SIM_CACHE/lpips/"
+rm -rf /tmp/gdemo
+python3 benchmarks/demo.py /tmp/gdemo --json "$out/demo_gpu.json" "$@" > "$out/demo.log" 2>&1
+rc=$?
+tar czf "$out/report.tgz" -C /tmp/gdemo/ws report 2>/dev/null
+tail -n 40 "$out/demo.log"
+exit $rc

@@ -1,4 +1,4 @@
-# Sourced by the one-call GPU scripts (gpu_sweep.sh, gpu_route.sh): install the carried wheels
+# Sourced by the GPU scripts (gpu_sweep.sh, gpu_route.sh, gpu_demo.sh): install the carried wheels
 # ($WHEELS) into /tmp/site, put them and src/ on PYTHONPATH, and make $out (the call's $OUT).
 set -o pipefail
 export PYTHONUNBUFFERED=1 MAX_JOBS=${MAX_JOBS:-16}
