@@ -791,6 +791,8 @@ def test_scene_rates_decay_to_the_tail_after_densification(tmp_path: Path) -> No
     for name in ("scales", "quats", "opacities", "sh0", "shN", "sky", "appearance"):
         assert end[name] == pytest.approx(0.1 * start[name]), name
     assert end["means"] == pytest.approx(0.01 * start["means"], rel=1e-3)  # their own decay
+    notes = " ".join(gm.load_chunk_header(trainer.save(tmp_path / "models").model_path).notes)
+    assert "learning rates to 0.1x after densification (the per-view colour" in notes
 
 
 def test_the_per_view_transforms_keep_their_rate_without_tail_views(tmp_path: Path) -> None:
@@ -809,6 +811,9 @@ def test_the_per_view_transforms_keep_their_rate_without_tail_views(tmp_path: Pa
     sky, appearance, poses = (o.param_groups[0]["lr"] for o in trainer.extra_optimizers)
     assert sky == pytest.approx(0.1 * start[0])  # the sky is part of the scene
     assert (appearance, poses) == (start[1], start[2])
+    notes = " ".join(gm.load_chunk_header(trainer.save(tmp_path / "models").model_path).notes)
+    assert "after densification" in notes
+    assert "per-view colour" not in notes
 
 
 def test_training_clears_the_drives_path_of_gaussians(tmp_path: Path) -> None:

@@ -806,6 +806,8 @@ class _ChunkTrainer:
         )
         if self.tail_groups:
             note += f", learning rates to {opts.lr.tail:g}x after densification"
+            if opts.lr.tail_views and opts.appearance:
+                note += " (the per-view colour transforms' too)"
         if opts.densify.strategy == "mcmc" and opts.densify.mcmc_error_weight > 0:
             note += f", draw weighted by the image error ({opts.densify.mcmc_error_weight:g})"
         if opts.densify.strategy == "mcmc" and opts.densify.mcmc_inherit_moments:
