@@ -271,7 +271,8 @@ def test_the_report_says_how_each_splat_chunk_was_trained(tmp_path: Path) -> Non
     ChunkHeader(
         chunk_id=0, n_gaussians=1_000_000, steps=30_000, stopped="max_steps",
         notes=["densification mcmc, initial opacity 0.5, sky-share weight 0"],
-        antialiased=True, train_views=[view(0, None), view(1, None)], **common,
+        antialiased=True, train_views=[view(0, None), view(1, None)],
+        val_history=[(1000, 20.0, 0.70), (2000, 24.0, 0.80), (3000, 25.0, 0.85)], **common,
     ).save(models / "chunk_00.json")  # fmt: skip
     # Pose refinement: turns of 1 and 3 degrees, shifts of 0.1 and 0.3 units.
     turn = np.radians([1.0, 3.0])
@@ -292,6 +293,31 @@ def test_the_report_says_how_each_splat_chunk_was_trained(tmp_path: Path) -> Non
     assert "0.2 / 0.3 units, 2.00 / 3.00°" in splat
     assert "chunk 1: pixels the robust weighting left out" in splat
     assert splat.count('src="data:image/jpeg;base64,') == 1
+    # Chunk 0's validations make a training curve; chunk 1 (no history) is left out of it.
+    assert 'alt="held-in PSNR and SSIM over the training steps, per chunk model"' in splat
+    loaded = ChunkHeader.load(models / "chunk_00.json")
+    assert loaded.val_history == [(1000, 20.0, 0.70), (2000, 24.0, 0.80), (3000, 25.0, 0.85)]
+
+
+def test_the_training_figure_draws_each_chunk_with_a_history() -> None:
+    from cam2sim.report.splat_figures import training_figure
+    from cam2sim.splat.chunk_header import ChunkHeader
+
+    common = {
+        "start_m": 0.0, "end_m": 10.0, "sh_degree": 3, "n_sky": 0, "n_gaussians": 10,
+        "scene_scale": 1.0, "sky_radius_m": 50.0, "background": [0.0, 0.0, 0.0],
+        "train_views": [],
+    }  # fmt: skip
+    headers = [
+        ChunkHeader(chunk_id=0, val_history=[(100, 18.0, 0.6), (200, 21.5, 0.7)], **common),
+        ChunkHeader(chunk_id=1, **common),  # trained before histories were kept
+        ChunkHeader(chunk_id=2, val_history=[(100, 19.0, 0.65)], **common),
+    ]
+    fig = training_figure(headers)
+    psnr_ax, ssim_ax = fig.axes
+    assert [line.get_label() for line in psnr_ax.lines] == ["chunk 0", "chunk 2"]
+    assert list(psnr_ax.lines[0].get_ydata()) == [18.0, 21.5]
+    assert list(ssim_ax.lines[1].get_xdata()) == [100]
 
 
 def test_the_report_reads_the_drive_metrics_and_says_which_command_writes_them(

@@ -791,8 +791,13 @@ def test_scene_rates_decay_to_the_tail_after_densification(tmp_path: Path) -> No
     for name in ("scales", "quats", "opacities", "sh0", "shN", "sky", "appearance"):
         assert end[name] == pytest.approx(0.1 * start[name]), name
     assert end["means"] == pytest.approx(0.01 * start["means"], rel=1e-3)  # their own decay
-    notes = " ".join(gm.load_chunk_header(trainer.save(tmp_path / "models").model_path).notes)
-    assert "learning rates to 0.1x after densification (the per-view colour" in notes
+    header = gm.load_chunk_header(trainer.save(tmp_path / "models").model_path)
+    assert "learning rates to 0.1x after densification (the per-view colour" in " ".join(
+        header.notes
+    )
+    # Every validation is in the header, for the report's training curve.
+    assert header.val_history == [tuple(v) for v in trainer.history]
+    assert [step for step, _, _ in header.val_history][-1] == trainer.step_no
 
 
 def test_the_per_view_transforms_keep_their_rate_without_tail_views(tmp_path: Path) -> None:

@@ -43,7 +43,7 @@ from cam2sim.metrics.drive_io import load_run_dir
 from cam2sim.metrics.drive_quality import DriveMetrics
 from cam2sim.metrics.image_quality import PSNR_CAP_DB, ImageQualityResult
 from cam2sim.metrics.semantic import SemanticResult
-from cam2sim.report.splat_figures import envelope_figure
+from cam2sim.report.splat_figures import envelope_figure, training_figure
 from cam2sim.scenario.model import Scenario
 from cam2sim.splat.chunk_header import ChunkHeader, outliers_path, pose_correction_sizes
 from cam2sim.splat.evaluate import SplatEval
@@ -649,18 +649,19 @@ def _splat(ctx: _Context) -> str:
 
 
 def _splat_training(ctx: _Context) -> str:
-    """Per chunk model: how it was trained, its pose corrections, what the weighting left out.
+    """Per chunk model: its training, training curve, pose corrections and left-out pixels.
 
     Read from the headers (``chunk_XX.json``) and ``chunk_XX_outliers.jpg`` beside them.
     """
     models = ctx.ws.splat_dir / "models"
-    rows, pictures = [], []
+    rows, pictures, headers = [], [], []
     for path in sorted(models.glob("chunk_*.json")):
         try:
             header = ChunkHeader.load(path)
         except Cam2SimError as err:
             ctx.warnings.append(f"{path}: {err}")
             continue
+        headers.append(header)
         sizes = pose_correction_sizes(header)
         poses = (
             "off"
@@ -684,12 +685,16 @@ def _splat_training(ctx: _Context) -> str:
             )
     if not rows:
         return ""
-    headers = ["chunk", "steps", "stopped", "Gaussians", "training", "pose corrections"]
+    columns = ["chunk", "steps", "stopped", "Gaussians", "training", "pose corrections"]
     caption = (
         "Training, per chunk model (WS/splat/models/chunk_XX.json); pose corrections: mean / "
         "largest shift and turn of the training views' learned corrections, when refined"
     )
-    return _table(headers, rows, caption) + "".join(pictures)
+    table = _table(columns, rows, caption)
+    if any(h.val_history for h in headers):
+        alt = "held-in PSNR and SSIM over the training steps, per chunk model"
+        table += _img(_figure_bytes(training_figure(headers)), alt)
+    return table + "".join(pictures)
 
 
 # -- the page -----------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""The splat's validity envelope, measured: PSNR, SSIM and LPIPS against the truth vs offset."""
+"""The splat's figures: the validity envelope against the truth, the chunks' training curves."""
 
 from __future__ import annotations
 
@@ -7,9 +7,12 @@ from typing import TYPE_CHECKING, Any
 from cam2sim.core.plots import pyplot
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from cam2sim.splat.chunk_header import ChunkHeader
     from cam2sim.splat.evaluate import MetricSummary, TruthEnvelope
 
-__all__ = ["envelope_figure"]
+__all__ = ["envelope_figure", "training_figure"]
 
 
 def envelope_figure(
@@ -62,5 +65,30 @@ def envelope_figure(
         f"Splat vs ground truth (no sensor noise), {len(envelope.frames)} held-out frames",
         fontsize=10,
     )
+    fig.tight_layout()
+    return fig
+
+
+def training_figure(headers: Sequence[ChunkHeader]) -> Any:  # a matplotlib Figure
+    """Held-in PSNR and SSIM over the training steps, a line per chunk model.
+
+    From each header's ``val_history`` (the validations on training views); chunks without one
+    (models trained before it was recorded) are left out. A curve still rising at its end
+    wants more steps; one that jumps about late in the run, lower learning rates there.
+    """
+    fig, axes = pyplot().subplots(1, 2, figsize=(8.0, 3.2))
+    for header in headers:
+        if not header.val_history:
+            continue
+        steps, psnr, ssim = zip(*header.val_history, strict=True)
+        label = f"chunk {header.chunk_id}"
+        axes[0].plot(steps, psnr, ".-", lw=1, ms=3, label=label)
+        axes[1].plot(steps, ssim, ".-", lw=1, ms=3, label=label)
+    for ax, title in zip(axes, ("held-in PSNR (dB)", "held-in SSIM"), strict=True):
+        ax.set_title(title, fontsize=10)
+        ax.set_xlabel("training step")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7, loc="lower right")
+    fig.suptitle("Training: validation on training views, per chunk model", fontsize=10)
     fig.tight_layout()
     return fig

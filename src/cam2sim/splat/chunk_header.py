@@ -50,6 +50,10 @@ class ChunkHeader(Artifact):
     )
     steps: int = 0
     best_val_psnr_db: float | None = None
+    val_history: list[tuple[int, float, float]] = pydantic.Field(
+        default_factory=list,
+        description="(step, held-in PSNR dB, SSIM) of every validation on training views",
+    )
     backend: str = ""
     stopped: str = ""
     notes: list[str] = pydantic.Field(default_factory=list)

@@ -645,6 +645,7 @@ class _ChunkTrainer:
             train_views=views,
             steps=self.step_no,
             best_val_psnr_db=self.best,
+            val_history=list(self.history),
             backend=self.backend,
             stopped=self.stopped,
             notes=self._notes(),
