@@ -46,10 +46,10 @@ deadline=()
 if [ "${LIMIT:-0}" -gt 60 ]; then
   deadline=(--deadline $((LIMIT - 30)) --eval-reserve "${EVAL_RESERVE:-60}")
 fi
-timeout -k 10 "${LIMIT:-0}" python3 benchmarks/splat_sweep.py --prep "$prep" --chunk 0 \
+work=$(mktemp -d /tmp/splat_sweep_XXXXXX)  # this call's own (a warm machine keeps the last's)
+timeout -k 10 "${LIMIT:-0}" python3 benchmarks/splat_sweep.py --prep "$prep" --chunk 0 --work "$work" \
   --steps "${STEPS:-30000}" --eval-at "${EVALS:-30000}" "${lpips[@]}" "${renders[@]}" \
   "${deadline[@]}" --out "$out/sweep.json" "$@" 2>&1 | grep -v "Warning\|had non-finite"
-work=$(ls -td /tmp/splat_sweep_* | head -1)  # the newest: a warm machine keeps the last call's
 tar czf "$out/settings.tgz" -C "$work" $(cd "$work" && ls *.json) 2>/dev/null
 if [ -n "$RENDERS" ] && [ -d "$work/renders" ]; then
   keep=(renders)  # RENDERS=1: every setting's; RENDERS=NAME,NAME: those settings' alone

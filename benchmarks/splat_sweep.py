@@ -232,6 +232,15 @@ def montage(sub: Path, out: Path, names: list[str], frame: int, path: Path) -> N
     cv2.imwrite(str(path), np.concatenate(row, axis=1))
 
 
+def work_dir(path: str | None) -> Path:
+    """The sweep's folder: ``path`` (made if absent), else a new temporary one."""
+    if path is None:
+        return Path(tempfile.mkdtemp(prefix="splat_sweep_"))
+    work = Path(path)
+    work.mkdir(parents=True, exist_ok=True)
+    return work
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--prep", required=True, help="prepared scene folder")
@@ -265,10 +274,15 @@ def main() -> int:
         help="with --deadline: seconds kept for a setting's first evaluation (later ones "
         "keep twice the last one's time); 20-30 s for 38 frames at 480x360 on an H100",
     )
+    parser.add_argument(
+        "--work",
+        help="folder for the chunk, the models, the records and the renders (made if absent; "
+        "default: a new temporary folder)",
+    )
     parser.add_argument("--out", default="sweep.json")
     args = parser.parse_args()
     deadline = time.time() + args.deadline if args.deadline else None
-    work = Path(tempfile.mkdtemp(prefix="splat_sweep_"))
+    work = work_dir(args.work)
     prep = Path(args.prep)
     if args.resize:
         w, h = (int(v) for v in args.resize.lower().split("x"))
