@@ -16,7 +16,7 @@
 case ${PHASE:?set PHASE to setup or run} in
 setup) WHEELS=.c21/a ;;
 run)
-  if [ ! -f /tmp/site/.gpu_demo_setup ]; then
+  if [ ! -f /tmp/.gpu_demo_setup ]; then
     echo "this machine is fresh (the one set up went back): run PHASE=setup again first" >&2
     exit 3
   fi
@@ -34,7 +34,7 @@ export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d
 export CAM2SIM_CACHE=/tmp/cam2sim_cache
 if [ "$PHASE" = setup ]; then
   python3 -c "from cam2sim.splat.raster import build_gsplat; build_gsplat()" || exit 1
-  touch /tmp/site/.gpu_demo_setup
+  touch /tmp/.gpu_demo_setup || exit 1
   exit 0
 fi
 mkdir -p "$CAM2SIM_CACHE/lpips"
