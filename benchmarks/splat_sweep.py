@@ -182,6 +182,7 @@ def run_setting(  # noqa: PLR0913, PLR0915, PLR0917 -- one process's whole job
         t = time.perf_counter()
         scores = _evaluate(sub_dir, models, lpips_weights, device, renders_dir)
         eval_s = 2.0 * (time.perf_counter() - t)
+        skipped = int(trainer.non_finite_steps)
         record["evals"].append(
             {
                 "step": trainer.step_no,
@@ -189,7 +190,7 @@ def run_setting(  # noqa: PLR0913, PLR0915, PLR0917 -- one process's whole job
                 "stopped": trainer.stopped,
                 "train_s": train_s,
                 "n_gaussians": len(trainer.street),
-                "non_finite_steps": int(trainer.non_finite_steps),
+                "non_finite_steps": skipped,
                 "quenched": trainer.densifier.n_non_finite if trainer.densifier else 0,
                 **scores,
             }
@@ -199,7 +200,7 @@ def run_setting(  # noqa: PLR0913, PLR0915, PLR0917 -- one process's whole job
         print(
             f"[{name}] step {trainer.step_no}: {train_s:.0f} s, {len(trainer.street)} Gaussians, "
             f"held-out {scores['psnr_db']:.2f} dB / SSIM {scores['ssim']:.3f} / "
-            f"non-finite steps {int(trainer.non_finite_steps)} / "
+            f"non-finite steps {skipped} / "
             f"LPIPS {scores['lpips'] if scores['lpips'] is None else round(scores['lpips'], 3)}",
             flush=True,
         )
