@@ -5,14 +5,15 @@
 # `bash benchmarks/carry_kit.sh demo lpips`.
 #
 #   PHASE=setup bash benchmarks/gpu_demo.sh                 # carry .c21/a and .gl
-#   PHASE=run bash benchmarks/gpu_demo.sh [--runs 3] [--world paper] ...
+#   [TESTS=1] PHASE=run bash benchmarks/gpu_demo.sh [--runs 3] [--world paper] ...
 #                                                           # carry .c21/b, .gl and .c19
 #
 # The second call must reach the machine within its idle window (30 s) after the first, or it
 # finds a fresh machine and says so (exit 3). setup installs the first wheels into /tmp/site
 # and builds gsplat (60-80 s); run installs the others, puts the LPIPS weights in the cache,
 # runs benchmarks/demo.py (its arguments after the script's), and writes $OUT/demo_gpu.json,
-# $OUT/demo.log and the demo's HTML report ($OUT/report.tgz).
+# $OUT/demo.log and the demo's HTML report ($OUT/report.tgz); with TESTS=1, after the demo (so
+# they do not change its timing), the CUDA training tests too ($OUT/tests.txt).
 case ${PHASE:?set PHASE to setup or run} in
 setup) WHEELS=.c21/a ;;
 run)
@@ -44,4 +45,8 @@ python3 benchmarks/demo.py /tmp/gdemo --json "$out/demo_gpu.json" "$@" > "$out/d
 rc=$?
 tar czf "$out/report.tgz" -C /tmp/gdemo/ws report 2>/dev/null
 tail -n 40 "$out/demo.log"
+if [ -n "$TESTS" ]; then
+  python3 benchmarks/cuda_tests.py > "$out/tests.txt" 2>&1 || rc=1
+  grep -E "PASSED|FAILED" "$out/tests.txt"
+fi
 exit $rc

@@ -30,33 +30,7 @@ route() {  # NAME GPU [--set KEY=VALUE ...]
 route default 0 &
 if [ -n "$CLASSIC" ] && [ "$gpus" -ge 2 ]; then route classic 1 --set antialiased=false & fi
 cuda_tests() {  # GPU: the CUDA training tests
-  CUDA_VISIBLE_DEVICES=$1 python3 - > "$out/tests.txt" 2>&1 <<'PY'
-import sys
-import tempfile
-import traceback
-from pathlib import Path
-
-sys.path.insert(0, "tests/splat")
-import test_train as t
-
-cases = [
-    ("gsplat densifies and resets", t.test_gsplat_training_densifies_and_resets, ()),
-    ("mcmc, opacity draw", t.test_mcmc_training_grows_to_its_cap_and_learns, (0.0, False)),
-    ("mcmc, error-weighted draw", t.test_mcmc_training_grows_to_its_cap_and_learns, (1.0, False)),
-    ("mcmc, moments inherited", t.test_mcmc_training_grows_to_its_cap_and_learns, (0.0, True)),
-]
-failed = 0
-for name, test, args in cases:
-    with tempfile.TemporaryDirectory() as tmp:
-        try:
-            test(Path(tmp), *args)
-            print("PASSED", name, flush=True)
-        except Exception:  # noqa: BLE001 -- report every failure, run every case
-            failed += 1
-            print("FAILED", name, flush=True)
-            traceback.print_exc()
-sys.exit(1 if failed else 0)
-PY
+  CUDA_VISIBLE_DEVICES=$1 python3 benchmarks/cuda_tests.py > "$out/tests.txt" 2>&1
 }
 guard() {  # GPU: what the trainer's NaN guard costs a step
   CUDA_VISIBLE_DEVICES=$1 python3 benchmarks/adam_guard.py --gaussians 1000000 --device cuda \
