@@ -334,6 +334,18 @@ class _ChunkTrainer:
             self.sky_radius,
             self.scene_scale,
         )
+        cap = opts.densify.mcmc_cap
+        if self.mcmc and len(self.street) >= cap:
+            _log.warning(
+                "chunk %d: MCMC starts with %d street Gaussians, at or above its cap "
+                "densify.mcmc_cap=%d, so it relocates faded ones but never grows; raise "
+                "mcmc_cap, or start from fewer with ground_points or max_init_points (%d of "
+                "them are ground seeds)",
+                self.chunk.id,
+                len(self.street),
+                cap,
+                self.n_ground,
+            )
 
     def _build_optimizers(self) -> None:
         import torch  # noqa: PLC0415
