@@ -671,6 +671,40 @@ def test_mcmc_training_grows_to_its_cap_and_learns(
         assert chunk.n_initial_gaussians < chunk.n_gaussians <= 20_000
 
 
+def test_mcmc_warns_when_a_chunk_starts_at_its_cap(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # MCMC needs gsplat; on CPU the trainer is stopped at its densifier, after the seeding.
+    import cam2sim.splat.densify as densify_module
+    import cam2sim.splat.train as train_module
+
+    class StopAtDensifierError(Exception):
+        pass
+
+    def stop(*_args: object, **_kwargs: object) -> None:
+        raise StopAtDensifierError
+
+    monkeypatch.setattr(train_module, "_check_backend", lambda *_: None)
+    monkeypatch.setattr(densify_module, "Densifier", stop)
+    prep = make_prepared_scene(tmp_path, n_frames=8, chunks=((0, 8),), size=(48, 32))
+    scene = SceneRecord.load(prep / "scene.json")
+    for ground, warned in ((2_000, True), (0, False)):
+        caplog.clear()
+        options = fast_options(
+            ground_points=ground, densify=DensifyOptions(strategy="mcmc", mcmc_cap=3_000)
+        )
+        with (
+            caplog.at_level("WARNING", logger="cam2sim.splat.train"),
+            pytest.raises(StopAtDensifierError),
+        ):
+            train_chunk(scene, 0, prep, options, models_dir=tmp_path / "models")
+        messages = [r.getMessage() for r in caplog.records if "mcmc_cap=3000" in r.getMessage()]
+        assert bool(messages) == warned, caplog.text
+        if warned:  # it says why and what to change
+            assert "never grows" in messages[0]
+            assert "ground_points" in messages[0]
+
+
 def test_coarse_to_fine_training_learns_and_validates_at_full_size(tmp_path: Path) -> None:
     prep = make_prepared_scene(tmp_path, n_frames=8, chunks=((0, 8),), size=(48, 32))
     scene = SceneRecord.load(prep / "scene.json")
