@@ -112,3 +112,40 @@ def test_os_errors_name_the_file_and_the_fix(
     assert result.exit_code == 1
     assert "permission denied" in result.output
     assert "dataset" in result.output
+
+
+CHILD = """
+import os, sys
+if {reader_gone}:
+    r, w = os.pipe(); os.close(r); os.dup2(w, 1); os.close(w)
+    sys.stdout = open(1, "w", buffering=1, closefd=False)
+import typer
+from cam2sim.cli import main as m
+
+@m.app.command("shout")
+def shout() -> None:
+    typer.echo("x")
+    raise BrokenPipeError(32, "Broken pipe")  # reached only while stdout still has a reader
+
+sys.argv = ["cam2sim", "shout"]
+m.main()
+"""
+
+
+@pytest.mark.parametrize("reader_gone", [True, False])
+def test_a_reader_that_leaves_early_ends_the_command_quietly(reader_gone: bool) -> None:
+    # `cam2sim ... | head`: head has left when the command prints, and it ends without the
+    # "cam2sim bug" line. A broken pipe that is not stdout's (a socket) is still reported.
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-c", CHILD.format(reader_gone=reader_gone)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 1, done.stderr
+    assert "Traceback" not in done.stderr, done.stderr
+    assert ("cam2sim bug" in done.stderr) is not reader_gone, done.stderr

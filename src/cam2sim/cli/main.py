@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import errno
+import select
 import sys
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
 from typing import Annotated, Any
@@ -65,12 +66,27 @@ class _Guarded(typer.core.TyperGroup):
                 raise
             raise _fail(err) from None
         except Exception as err:
+            if isinstance(err, BrokenPipeError) and _stdout_reader_gone():
+                raise  # `cam2sim ... | head`: click's main ends quietly, as shell tools do
             if _state["debug"]:
                 raise
             error_console.print(
                 f"[bold red]error:[/] {unexpected_error(err)}", highlight=False, soft_wrap=True
             )
             raise typer.Exit(code=1) from None
+
+
+def _stdout_reader_gone() -> bool:
+    """Whether standard output is a pipe whose reader has gone (``cam2sim ... | head``)."""
+    poll = getattr(select, "poll", None)
+    if poll is None:  # no poll() (Windows): a broken pipe there is most likely stdout's
+        return True
+    try:
+        poller = poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(ev & (select.POLLERR | select.POLLHUP) for _, ev in poller.poll(0))
+    except (OSError, ValueError, AttributeError):  # no real stdout (captured, closed)
+        return False
 
 
 def unexpected_error(err: BaseException) -> str:
