@@ -47,6 +47,6 @@ tar czf "$out/report.tgz" -C /tmp/gdemo/ws report 2>/dev/null
 tail -n 40 "$out/demo.log"
 if [ -n "$TESTS" ]; then
   python3 benchmarks/cuda_tests.py > "$out/tests.txt" 2>&1 || rc=1
-  grep -E "PASSED|FAILED" "$out/tests.txt"
+  grep -E "PASSED|FAILED|SKIPPED" "$out/tests.txt"
 fi
 exit $rc

@@ -43,5 +43,5 @@ if [ -n "$TESTS" ] && [ "$gpus" -lt 3 ]; then cuda_tests 0; fi
 if [ -n "$TESTS" ] && [ "$gpus" -lt 4 ]; then guard 0; fi
 tail -n 3 "$out"/route_*.log
 [ -f "$out/adam_guard.json" ] && cat "$out/adam_guard.json"
-[ -f "$out/tests.txt" ] && grep -E "PASSED|FAILED" "$out/tests.txt"
+[ -f "$out/tests.txt" ] && grep -E "PASSED|FAILED|SKIPPED" "$out/tests.txt"
 exit 0
