@@ -27,7 +27,7 @@ from typing import Any
 
 from cam2sim.ads.export import export_onnx
 from cam2sim.ads.train import TrainOptions
-from cam2sim.cli.demo_cmd import DEMO_STEERING_NOISE
+from cam2sim.stages.experiment import DEMO_STEERING_NOISE
 from cam2sim.core.workspace import Workspace
 from cam2sim.scenario.model import Scenario
 from cam2sim.sim.builtin import BuiltinOptions

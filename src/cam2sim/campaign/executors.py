@@ -29,18 +29,28 @@ from cam2sim.core.cluster import ray_session
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
 
-    from cam2sim.campaign.plan import RunSpec
-
-__all__ = ["Executor", "Job", "LocalPool", "RayCluster"]
+__all__ = ["Executor", "Job", "LocalPool", "RayCluster", "Spec"]
 
 logger = logging.getLogger(__name__)
+
+
+class Spec(Protocol):
+    """What an executor needs of a job's spec (a drive's :class:`RunSpec`, a benchmark world)."""
+
+    @property
+    def spec_id(self) -> str:
+        """The spec's id (the campaign state's key)."""
+
+    @property
+    def needs_gpu(self) -> bool:
+        """Whether the job wants a GPU (on a cluster that has some)."""
 
 
 @dataclass(frozen=True)
 class Job:
     """One run to execute: the spec, its log file and its time limit."""
 
-    spec: RunSpec
+    spec: Spec
     log: str
     timeout_s: float | None
 
@@ -126,25 +136,46 @@ class RayCluster:
     instance is used and left running; otherwise one is connected to (or started) and shut down
     at the end. Workers need cam2sim installed and the workspaces at the same paths (a shared
     file system).
+
+    ``task`` runs a job (default: a campaign drive); ``cpus_per_job`` CPUs are reserved for
+    each (Ray also sets the task's thread count to it: a benchmark world trains DAVE-2 with
+    torch and wants several). A job that needs a GPU gets one when the cluster has GPUs; on a
+    cluster without any it runs on CPUs (asking for one there would wait forever).
     """
 
     name = "ray"
 
-    def __init__(self, address: str = "local", *, num_cpus: int | None = None) -> None:
+    def __init__(
+        self,
+        address: str = "local",
+        *,
+        num_cpus: int | None = None,
+        task: Callable[..., RunOutcome] = execute,
+        cpus_per_job: float = 1.0,
+    ) -> None:
         self.address = address
         self.num_cpus = num_cpus
+        self.task = task
+        self.cpus_per_job = cpus_per_job
 
     def run(self, jobs: Sequence[Job], report: Callable[[RunOutcome], None]) -> None:
         """Submit every job as a task, then report outcomes as tasks finish."""
         with ray_session(self.address, num_cpus=self.num_cpus) as ray:
             self._run(ray, jobs, report)
 
-    @staticmethod
-    def _run(ray: Any, jobs: Sequence[Job], report: Callable[[RunOutcome], None]) -> None:
-        task = ray.remote(execute)
+    def _run(self, ray: Any, jobs: Sequence[Job], report: Callable[[RunOutcome], None]) -> None:
+        task = ray.remote(self.task)
+        gpus = float(ray.cluster_resources().get("GPU", 0.0))
+        if gpus == 0 and any(job.spec.needs_gpu for job in jobs):
+            logger.warning("the Ray cluster has no GPU: jobs that want one run on CPUs")
+        cpus = min(self.cpus_per_job, float(ray.cluster_resources().get("CPU", 1.0)))
         pending: dict[Any, Job] = {}
         for job in jobs:
-            needs = {"num_cpus": 1, "num_gpus": 1 if job.spec.needs_gpu else 0, "max_retries": 0}
+            needs = {
+                "num_cpus": cpus,
+                "num_gpus": 1 if job.spec.needs_gpu and gpus > 0 else 0,
+                "max_retries": 0,
+            }
             pending[task.options(**needs).remote(job.spec, job.log, job.timeout_s)] = job
         while pending:
             refs = list(pending)

@@ -29,12 +29,12 @@ from cam2sim.sim.builtin import BuiltinOptions
 from cam2sim.stages.runs import DriveOptions, drive
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator
+    from collections.abc import Callable, Iterator
     from typing import TextIO
 
     from cam2sim.campaign.plan import RunSpec
 
-__all__ = ["RunTimeoutError", "execute"]
+__all__ = ["RunTimeoutError", "execute", "run_logged"]
 
 
 class RunTimeoutError(BaseException):
@@ -148,18 +148,33 @@ def _drive(spec: RunSpec) -> str:
 
 def execute(spec: RunSpec, log_path: str, timeout_s: float | None) -> RunOutcome:
     """Run one spec; record its output in ``log_path``; never raise for a failed run."""
+    return run_logged(spec.spec_id, str(spec), lambda: _drive(spec), log_path, timeout_s)
+
+
+def run_logged(
+    spec_id: str,
+    what: str,
+    body: Callable[[], str],
+    log_path: str,
+    timeout_s: float | None,
+) -> RunOutcome:
+    """Run ``body`` (it returns the run id) with its output in ``log_path`` and a time limit.
+
+    The same harness for every kind of campaign job (a drive, a benchmark world): never raises
+    for a failed job; the outcome says ``done``, ``failed`` or ``timeout``.
+    """
     started = time.perf_counter()
     path = Path(log_path)
     path.parent.mkdir(parents=True, exist_ok=True)
     run_id = error = None
     status: RunStatus = "crashed"
     with path.open("w", encoding="utf-8") as log:
-        log.write(f"spec {spec.spec_id}: {spec}\npid {os.getpid()}\n")
+        log.write(f"spec {spec_id}: {what}\npid {os.getpid()}\n")
         log.flush()
         with _captured(log):
             try:
                 with _deadline(timeout_s):
-                    run_id = _drive(spec)
+                    run_id = body()
                 status = "done"
             except RunTimeoutError as err:
                 status, error = "timeout", str(err)
@@ -169,7 +184,7 @@ def execute(spec: RunSpec, log_path: str, timeout_s: float | None) -> RunOutcome
                 traceback.print_exc(file=log)
         log.write(f"{status} after {time.perf_counter() - started:.2f} s\n")
     return RunOutcome(
-        spec_id=spec.spec_id,
+        spec_id=spec_id,
         status=status,
         run_id=run_id,
         seconds=time.perf_counter() - started,

@@ -12,14 +12,10 @@ from rich.markup import escape
 
 from cam2sim.cli.display import console, error_console, progress_bars
 from cam2sim.cli.options import SkipOption, StepsOption, comma_list
-from cam2sim.cli.run_pipeline_cmd import _finish, _workspace
-from cam2sim.core.errors import Cam2SimError, ConfigError
-from cam2sim.core.files import write_bytes_atomic
+from cam2sim.cli.run_pipeline_cmd import _finish
+from cam2sim.core.errors import Cam2SimError
 
-__all__ = ["DEMO_STEERING_NOISE", "demo"]
-
-DEMO_STEERING_NOISE = 0.05
-"""Steering noise of the demo's drives (steering units, each simulator step, seeded per run)."""
+__all__ = ["demo"]
 
 
 def demo(
@@ -73,101 +69,31 @@ def demo(
     Example: cam2sim demo -o /tmp/demo   (or: cam2sim demo -o /tmp/paper --world paper, or
     cam2sim demo -o /tmp/munich --osm munich.osm)
     """
-    from cam2sim.ads.train import TrainOptions  # noqa: PLC0415 -- lazy: imports torch, cv2
-    from cam2sim.demo.recording import (  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
-        build_demo_recording,
-        load_demo_recording,
-        recorded_street,
+    from cam2sim.stages.experiment import (  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+        ExperimentOptions,
+        WorldSource,
+        run_experiment,
     )
-    from cam2sim.demo.world import demo_street  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
-    from cam2sim.render.truth import truth_world_path  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
-    from cam2sim.stages.pipeline import (  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
-        STEPS,
-        PipelineOptions,
-        demo_splat_options,
-        run_pipeline,
-    )
-    from cam2sim.stages.variation import DEMO_RUN_VARIATION  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.stages.pipeline import STEPS  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     started = time.perf_counter()
     try:
-        plan = None
-        if osm is not None:
-            if world is not None:
-                msg = "give --world or --osm, not both"
-                raise ConfigError(msg)
-            from cam2sim.demo.osm_world import osm_demo_world  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
-
-            plan = osm_demo_world(osm, route=route, seed=seed)
-            street = plan.world.street
-            console.print(f"demo world: {street.title}", highlight=False)
-            for note in plan.notes:
-                console.print(f"  {note}", highlight=False)
-        elif route is not None:
-            msg = "--route needs --osm (the OSM file the route runs on)"
-            raise ConfigError(msg)
-        else:
-            street = demo_street(world or "l-street")
-        there = recorded_street(out)
-        if there is not None and there != street.name:
-            msg = (
-                f"{out} holds the demo of world '{there}'; give another --out for "
-                f"'{street.name}' (or the same --world/--osm as before to resume it)"
-            )
-            raise ConfigError(msg)
-        options = PipelineOptions(
-            steps=comma_list(steps) or STEPS, skip=comma_list(skip), runs=runs
+        source = WorldSource(
+            builtin=world, osm=osm, route=route if route is None else (route[0], route[1])
+        )
+        options = ExperimentOptions(
+            runs=runs, seed=seed, steps=comma_list(steps) or STEPS, skip=comma_list(skip)
         )
         with progress_bars(enabled=sys.stderr.isatty()) as sink:
-            recording = load_demo_recording(out, street)
-            if recording is None:
-                recording = build_demo_recording(
-                    out,
-                    seed=seed,
-                    street=street,
-                    world=plan.world if plan is not None else None,
-                    progress=sink,
-                )
-                built = time.perf_counter() - started
-                console.print(
-                    f"demo recording: {recording.bag} ({recording.camera_frames} frames, "
-                    f"{recording.duration_s:.0f} s) in {built:.0f} s",
-                    highlight=False,
-                )
-            else:
-                console.print(f"demo recording: {recording.bag} (already built)", highlight=False)
-            options = PipelineOptions(
-                osm=recording.osm,
-                steps=options.steps,
-                skip=options.skip,
-                runs=runs,
-                replay_every=6,  # 20 Hz camera: 76 replayed frames
-                steering_noise_std=DEMO_STEERING_NOISE,
-                # Runs differ as a driver's repeated drives do: start pose and speed.
-                run_variation=DEMO_RUN_VARIATION,
-                splat=demo_splat_options(cuda=_cuda()),
-                splat_on_cpu=True,
-                # 23 s of driving (81 s on the paper's street): the held-out tail (the last
-                # straight) cannot choose the
-                # epoch, so all 30 are trained and the last is kept (docs/benchmarks.md).
-                # On the CPU everywhere: the same seeded model on a laptop and a GPU machine (a
-                # CUDA-trained one left the road in the ground-truth world; docs/benchmarks.md).
-                ads=TrainOptions(epochs=30, batch_size=32, keep="last", device="cpu"),
+            done = run_experiment(
+                out,
+                source,
+                options,
+                progress=sink,
+                say=lambda line: console.print(line, highlight=False),
             )
-            ws = _workspace(out / "ws", [], recording.config)
-            truth = recording.truth_world.read_bytes()
-            target = truth_world_path(ws.root)
-            if not target.is_file() or target.read_bytes() != truth:
-                write_bytes_atomic(target, truth)
-            result = run_pipeline(ws, options=options, progress=sink)
     except Cam2SimError as err:
         error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
         raise typer.Exit(1) from None
+    ws, result = done.ws, done.result
     _finish(ws, result, time.perf_counter() - started)
-
-
-def _cuda() -> bool:
-    """Whether a CUDA GPU is there for the splat (torch is imported by the pipeline anyway)."""
-    import torch  # noqa: PLC0415
-
-    return bool(torch.cuda.is_available())

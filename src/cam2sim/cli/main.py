@@ -13,6 +13,7 @@ import typer.core
 
 from cam2sim import __version__
 from cam2sim.cli.ads_cmd import ads_app
+from cam2sim.cli.bench_cmd import bench
 from cam2sim.cli.campaign_cmd import campaign
 from cam2sim.cli.demo_cmd import demo
 from cam2sim.cli.detect_cmd import detect, refine
@@ -131,6 +132,7 @@ def _register_subcommands() -> None:
     app.command("demo")(demo)
     app.command("splat")(splat)
     app.command("campaign")(campaign)
+    app.command("bench")(bench)
     app.add_typer(evaluate_app, name="evaluate")
     app.add_typer(ads_app, name="ads")
 

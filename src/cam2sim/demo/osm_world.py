@@ -62,8 +62,10 @@ __all__ = [
     "DRIVABLE",
     "OsmRoute",
     "OsmWorldPlan",
+    "count_routes",
     "osm_demo_world",
     "pick_route",
+    "pick_routes",
     "route_between",
 ]
 
@@ -95,6 +97,9 @@ _BUILDING_REACH_M: Final = 60.0
 _FACADE_GAP_M: Final = 25.0
 _JUNCTION_CLEAR_M: Final = 10.0
 _CROP_MARGIN_M: Final = 150.0
+_DISTINCT_M: Final = 25.0
+_MAX_OVERLAP: Final = 0.3
+"""Routes of one extract share at most this much of their length (within 25 m)."""
 _SELF_CLEAR_M: Final = 60.0
 """How close the route may come to itself further along (no loops around a small block)."""
 _NO_PARKING: Final = frozenset(
@@ -258,15 +263,17 @@ def _loops_back(route: PiecewiseRoute) -> bool:
     return bool(np.any(near & apart))
 
 
-def _paths(graph: _Graph) -> Iterator[tuple[list[int], list[int], list[bool]]]:
+def _paths(
+    graph: _Graph, anchor: npt.NDArray[np.float64] | None = None, budget: int = _SEARCH_BUDGET
+) -> Iterator[tuple[list[int], list[int], list[bool]]]:
     """Simple paths of 100-400 m ending at junctions or dead ends, or cut at 400 m.
 
-    They start from the junctions and dead ends nearest the extract's middle.
+    They start from the junctions and dead ends nearest ``anchor`` (default: the extract's
+    middle); the search extends at most ``budget`` paths.
     """
-    centre = graph.xy.mean(axis=0)
+    centre = graph.xy.mean(axis=0) if anchor is None else anchor
     ends = np.flatnonzero(graph.links != 2) if np.any(graph.links != 2) else np.arange(1)
     starts = ends[np.argsort(np.hypot(*(graph.xy[ends] - centre).T), kind="stable")]
-    budget = _SEARCH_BUDGET
     for start in starts.tolist():
         stack: list[tuple[list[int], list[int], list[bool], float]] = [([start], [], [], 0.0)]
         while stack and budget > 0:
@@ -292,19 +299,23 @@ def _paths(graph: _Graph) -> Iterator[tuple[list[int], list[int], list[bool]]]:
             return
 
 
-def pick_route(graph: _Graph) -> tuple[OsmRoute, list[str]]:
-    """The best demo route of the extract (see the module's description) and notes on it.
+def _best_route(
+    graph: _Graph,
+    anchor: npt.NDArray[np.float64],
+    budget: int,
+    avoid: Sequence[OsmRoute] = (),
+) -> tuple[OsmRoute | None, int]:
+    """The best path near ``anchor`` (see the module's description) and how many were tried.
 
-    Raises:
-        StageError: No drivable path of 300 m or more.
+    Paths that share more than :data:`_MAX_OVERLAP` of their length with a route of ``avoid``
+    are passed over.
     """
-    centre = graph.xy.mean(axis=0)
     best: tuple[tuple[float, ...], OsmRoute] | None = None
     seen = 0
-    for nodes, ways, fwd in _paths(graph):
+    for nodes, ways, fwd in _paths(graph, anchor, budget):
         seen += 1
         cand = _route_of(graph, nodes, ways, fwd, PICK_CUT_M)
-        if cand is None:
+        if cand is None or any(_overlap(cand, other) > _MAX_OVERLAP for other in avoid):
             continue
         length = cand.route.length_m
         mid, _ = cand.route.points([length / 2.0])
@@ -314,31 +325,113 @@ def pick_route(graph: _Graph) -> tuple[OsmRoute, list[str]]:
             float(min(cand.bends, 2)) if full else 0.0,
             -round(abs(length - ROUTE_TARGET_M) / 25.0) if full else length,
             float(min(cand.bends, 3)),
-            -float(np.hypot(*(mid[0] - centre))),
+            -float(np.hypot(*(mid[0] - anchor))),
         )
         if best is None or key > best[0]:
             best = (key, cand)
-    if best is None:
-        msg = (
-            f"{graph.osm.source} has no drivable path of {ROUTE_SHORTEST_M:.0f} m or more on "
-            f"{'/'.join(DRIVABLE)} roads with corners of {MIN_RADIUS_M:.0f} m radius or more "
-            f"({seen} paths tried); give --route LAT,LON LAT,LON or a larger extract"
-        )
-        raise StageError(msg)
-    route = best[1]
+    return (None if best is None else best[1]), seen
+
+
+def _route_notes(route: OsmRoute) -> list[str]:
     length = route.route.length_m
-    notes = [f"route picked among {seen} drivable paths"]
+    span = f"{ROUTE_MIN_M:.0f}-{ROUTE_MAX_M:.0f} m"
     if length < ROUTE_MIN_M - 5.0:
-        notes.append(
-            f"no drivable path of {ROUTE_MIN_M:.0f}-{ROUTE_MAX_M:.0f} m here: took the longest, "
-            f"{length:.0f} m with {route.bends} bends"
+        note = f"no drivable path of {span} here: took the longest, "
+        return [note + f"{length:.0f} m with {route.bends} bends"]
+    if route.bends < 2:
+        return [f"no drivable path of {span} here has two bends; this one has {route.bends}"]
+    return []
+
+
+def _no_route(graph: _Graph, seen: int) -> StageError:
+    msg = (
+        f"{graph.osm.source} has no drivable path of {ROUTE_SHORTEST_M:.0f} m or more on "
+        f"{'/'.join(DRIVABLE)} roads with corners of {MIN_RADIUS_M:.0f} m radius or more "
+        f"({seen} paths tried); give --route LAT,LON LAT,LON or a larger extract"
+    )
+    return StageError(msg)
+
+
+def pick_route(graph: _Graph) -> tuple[OsmRoute, list[str]]:
+    """The best demo route of the extract (see the module's description) and notes on it.
+
+    Raises:
+        StageError: No drivable path of 100 m or more.
+    """
+    route, seen = _best_route(graph, graph.xy.mean(axis=0), _SEARCH_BUDGET)
+    if route is None:
+        raise _no_route(graph, seen)
+    return route, [f"route picked among {seen} drivable paths", *_route_notes(route)]
+
+
+def _overlap(a: OsmRoute, b: OsmRoute) -> float:
+    """The share of ``a``'s length within :data:`_DISTINCT_M` of ``b``."""
+    pa, _ = a.route.points(np.arange(0.0, a.route.length_m, 5.0))
+    pb, _ = b.route.points(np.arange(0.0, b.route.length_m, 5.0))
+    near = np.hypot(*(pa[:, None, :] - pb[None, :, :]).transpose(2, 0, 1)).min(axis=1)
+    return float(np.mean(near < _DISTINCT_M))
+
+
+def _anchors(graph: _Graph, n: int) -> npt.NDArray[np.float64]:
+    """``n`` points spread over the drivable roads: the middle first, then farthest-point."""
+    centre = graph.xy.mean(axis=0)
+    chosen = [int(np.argmin(np.hypot(*(graph.xy - centre).T)))]
+    far = np.hypot(*(graph.xy - graph.xy[chosen[0]]).T)
+    for _ in range(n - 1):
+        chosen.append(int(np.argmax(far)))
+        far = np.minimum(far, np.hypot(*(graph.xy - graph.xy[chosen[-1]]).T))
+    return graph.xy[chosen]
+
+
+def pick_routes(graph: _Graph, count: int) -> list[tuple[OsmRoute, list[str]]]:
+    """Up to ``count`` demo routes from different parts of the extract, the best first.
+
+    The first is :func:`pick_route`'s. The others are the best paths near points spread over
+    the drivable roads (farthest-point sampling from the middle, three points a route) among
+    those with at most :data:`_MAX_OVERLAP` of their length within :data:`_DISTINCT_M` of a
+    route already taken (different streets, not one street twice), and at least 150 m long.
+
+    Raises:
+        StageError: Not even one drivable path of 100 m or more.
+    """
+    first, notes = pick_route(graph)
+    picked: list[tuple[OsmRoute, list[str]]] = [(first, notes)]
+    if count <= 1:
+        return picked
+    budget = max(_SEARCH_BUDGET // 4, 2_000)
+    for anchor in _anchors(graph, 3 * count)[1:]:
+        if len(picked) >= count:
+            break
+        route, seen = _best_route(graph, anchor, budget, [r for r, _ in picked])
+        if route is None or route.route.length_m < ROUTE_MIN_M / 2.0:
+            continue
+        where = graph.frame.to_wgs84(route.xy[:1])
+        note = (
+            f"route {len(picked) + 1} picked among {seen} drivable paths near "
+            f"{float(where.lat_deg[0]):.5f},{float(where.lon_deg[0]):.5f}"
         )
-    elif route.bends < 2:
-        notes.append(
-            f"no drivable path of {ROUTE_MIN_M:.0f}-{ROUTE_MAX_M:.0f} m here has two bends; "
-            f"this one has {route.bends}"
+        picked.append((route, [note, *_route_notes(route)]))
+    return picked
+
+
+def count_routes(path: Path, wanted: int) -> list[str]:
+    """The distinct demo routes of the OSM file ``path``, up to ``wanted``: one line each.
+
+    Their indices are ``osm_demo_world``'s ``pick``.
+
+    Raises:
+        StageError: The file cannot be read or holds no drivable path.
+    """
+    graph = _graph(read_osm(Path(path)))
+    lines = []
+    for route, _ in pick_routes(graph, wanted):
+        ll = graph.frame.to_wgs84(route.xy[[0, -1]])
+        lines.append(
+            f"{route.route.length_m:.0f} m, {route.bends} bends, from "
+            f"{float(ll.lat_deg[0]):.5f},{float(ll.lon_deg[0]):.5f} to "
+            f"{float(ll.lat_deg[1]):.5f},{float(ll.lon_deg[1]):.5f}"
         )
-    return route, notes
+    return lines
 
 
 def _parse_point(text: str) -> tuple[float, float]:
@@ -570,23 +663,27 @@ def _buildings(
     return out, len(kept), dropped
 
 
-def _world_name(path: Path, route: Sequence[str] | None) -> str:
+def _world_name(path: Path, route: Sequence[str] | None, pick: int = 0) -> str:
     digest = hashlib.sha256(path.read_bytes())
     digest.update(repr(tuple(route or ())).encode())
+    if pick:  # the first picked route keeps the name it had before routes were numbered
+        digest.update(f"pick {pick}".encode())
     stem = path.name.split(".")[0]
     return f"osm-{stem}-{digest.hexdigest()[:8]}"
 
 
 def osm_demo_world(
-    path: Path, *, route: Sequence[str] | None = None, seed: int = 0
+    path: Path, *, route: Sequence[str] | None = None, seed: int = 0, pick: int = 0
 ) -> OsmWorldPlan:
     """The demo world of the real OSM file ``path`` (see the module's description).
 
-    ``route``: two ``"LAT,LON"`` points; None picks a route. ``seed`` places the parked cars
-    and the plain facades.
+    ``route``: two ``"LAT,LON"`` points; None picks a route: the ``pick``-th (from 0) of
+    :func:`pick_routes`, routes from different parts of the extract. ``seed`` places the
+    parked cars and the plain facades.
 
     Raises:
-        StageError: The file cannot be read, holds no drivable road or no drivable path.
+        StageError: The file cannot be read, holds no drivable road or no drivable path (or
+            fewer than ``pick + 1`` distinct ones).
         ConfigError: ``route`` is malformed, off the roads or not drivable.
     """
     path = Path(path)
@@ -595,7 +692,19 @@ def osm_demo_world(
         raise ConfigError(msg)
     osm = read_osm(path)
     graph = _graph(osm)
-    picked, notes = route_between(graph, *route) if route else pick_route(graph)
+    if route:
+        picked, notes = route_between(graph, *route)
+    elif pick:
+        routes = pick_routes(graph, pick + 1)
+        if len(routes) <= pick:
+            msg = (
+                f"{path} has {len(routes)} distinct drivable route(s) for the demo, not "
+                f"{pick + 1}; ask for fewer routes of it (routes: {len(routes)})"
+            )
+            raise StageError(msg)
+        picked, notes = routes[pick]
+    else:
+        picked, notes = pick_route(graph)
     # The local frame: the UTM grid with its origin at the route's start.
     shift = np.round(picked.xy[0])
     frame = replace(
@@ -605,7 +714,7 @@ def osm_demo_world(
     moved = _route_of(graph, list(picked.nodes), list(picked.ways), list(picked.forward))
     assert moved is not None  # the same path, moved
     picked = moved
-    street, street_notes = _street(graph, picked, _world_name(path, route), path.name)
+    street, street_notes = _street(graph, picked, _world_name(path, route, pick), path.name)
     rng = np.random.default_rng(seed)
     cars = parked_cars(street, rng)
     buildings, real, dropped = _buildings(graph, street, rng)

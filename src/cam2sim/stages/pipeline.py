@@ -123,6 +123,8 @@ class PipelineOptions:
         judge: Where the drives' leaving the road and collisions are judged (see
             :class:`~cam2sim.stages.runs.DriveOptions`); None: in the ground-truth world when
             the workspace has one (every camera's runs alike), else on the map.
+        save_frames: Keep the camera frames of every closed-loop run (``cam2sim bench`` shows
+            the frames at a failure).
     """
 
     osm: Path | None = None
@@ -141,6 +143,7 @@ class PipelineOptions:
     continue_on_error: bool = False
     ads: Any = None
     judge: Literal["map", "truth"] | None = None
+    save_frames: bool = False
 
     def __post_init__(self) -> None:
         unknown = sorted((set(self.steps) | set(self.skip)) - set(STEPS))
@@ -505,6 +508,7 @@ class _Pipeline:
                 sim=sim,
                 variation=self.options.run_variation,
                 judge=self._judge(),
+                save_frames=self.options.save_frames,
             )
             for cam in self._drive_cameras()
         ]

@@ -1,0 +1,377 @@
+"""``cam2sim bench``: the paper's experiment on every world of a suite, and the figures across.
+
+Each world of the suite (:mod:`cam2sim.campaign.suite`) is one campaign job: the whole
+experiment of ``cam2sim demo`` (recording, map, detect, scenario, splat, DAVE-2, replay, the
+Real / splat / Sim drives, evaluation) in ``BENCH/worlds/<label>/``, then its figures in
+``result.json`` (:class:`~cam2sim.metrics.benchmark.WorldResult`): the behaviour per method,
+the splat's quality, the splat against the truth every 10 m along the route (on the path and
+1 m to each side) and, for every failed run, the views of the splat, the truth and the
+simulator camera at the pose just before the failure.
+
+Jobs run through the campaign's executors: a local process pool (one world at a time by
+default: a world already uses every core) or Ray with one GPU per world (its splat) on a cluster
+with GPUs. ``BENCH/state.json`` records every world's outcome, so a second ``cam2sim bench`` on
+the same folder runs only the worlds without a result (and those that failed); a world
+interrupted half way resumes inside its own pipeline (its stages skip when up to date). At the
+end :func:`write_bench_report` writes the report (``report.html``, ``summary.md``,
+``tables/*.csv``, ``aggregate.json``) from every world that has a result.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from cam2sim.campaign.executors import Job, LocalPool
+from cam2sim.campaign.runner import campaign_lock
+from cam2sim.campaign.state import CampaignState, RunOutcome
+from cam2sim.campaign.suite import expand_suite, load_suite
+from cam2sim.campaign.worker import run_logged
+from cam2sim.core.errors import StageError
+from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.metrics.benchmark import FailureRow, MethodRow, WorldResult, aggregate
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from cam2sim.campaign.executors import Executor
+    from cam2sim.campaign.suite import WorldSpec
+    from cam2sim.core.workspace import RunPaths, Workspace
+    from cam2sim.metrics.benchmark import Aggregate
+    from cam2sim.metrics.drive_quality import DriveMetrics, RunMetrics
+    from cam2sim.stages.experiment import Experiment
+
+__all__ = ["BenchResult", "bench_folder", "execute_world", "run_bench", "world_result"]
+
+logger = logging.getLogger(__name__)
+TASK = "benchmark worlds"
+RESULT = "result.json"
+FAILURE_CAMERAS = ("splat", "truth", "raster")
+"""The views drawn at a failure: the splat, the ground truth (what Real saw) and Sim's."""
+_BEFORE_FAILURE_S = 0.5
+"""The failure views show the pose this long before the failure (the policy's last look)."""
+
+
+@dataclass(frozen=True)
+class BenchResult:
+    """What a ``cam2sim bench`` invocation did.
+
+    Attributes:
+        folder: The benchmark folder.
+        worlds: Worlds in the suite.
+        ran: Worlds attempted now.
+        failed: Worlds of this invocation that failed, timed out or crashed.
+        seconds: Wall time of the worlds run now.
+        results: Every world with a result (done now or before).
+        aggregate: The figures across them.
+        report: The HTML report.
+    """
+
+    folder: Path
+    worlds: int
+    ran: int
+    failed: int
+    seconds: float
+    results: list[WorldResult]
+    aggregate: Aggregate
+    report: Path
+
+
+def bench_folder(suite_path: Path, output: Path | None = None) -> Path:
+    """The benchmark folder: ``output``, or ``SUITE_STEM-bench/`` beside the suite."""
+    if output is not None:
+        return Path(output).resolve()
+    path = Path(suite_path).resolve()
+    return path.parent / f"{path.stem}-bench"
+
+
+def _world_dir(folder: Path, spec: WorldSpec) -> Path:
+    return folder / "worlds" / spec.label
+
+
+# -- one world --------------------------------------------------------------------------------
+
+
+def _method_rows(ws: Workspace) -> tuple[list[MethodRow], DriveMetrics]:
+    from cam2sim.metrics.behaviour import METHOD_LABELS  # noqa: PLC0415 -- lazy: numpy
+    from cam2sim.metrics.drive_quality import DriveMetrics  # noqa: PLC0415 -- lazy: numpy
+
+    path = ws.drive_eval_dir / "metrics.json"
+    if not path.is_file():
+        msg = f"{ws.root} has no drive evaluation ({path}); its evaluate step did not run"
+        raise StageError(msg)
+    metrics = DriveMetrics.load(path)
+    rows = [
+        MethodRow(
+            method=METHOD_LABELS.get(m.method, m.method),
+            runs=m.runs,
+            failures=m.runs - m.successes,
+            completion_mean=m.completion_mean,
+            min_frechet_m=m.avg_min_frechet_m,
+            corridor_violation_pct=m.avg_corridor_violation_pct,
+            jitter=m.avg_jitter,
+            failure_types=dict(m.failure_types),
+        )
+        for m in metrics.methods
+    ]
+    return rows, metrics
+
+
+def _cause(files: RunPaths, run: RunMetrics) -> str:
+    """What the run's events and metrics say about its failure, in one line."""
+    from cam2sim.core.run_record import RunEvents  # noqa: PLC0415
+
+    parts = []
+    if files.events_json.is_file():
+        ends = [e for e in RunEvents.load(files.events_json).events if e.kind != "route_completed"]
+        parts += [f"{e.kind} at t={e.t:.1f} s: {e.reason}" if e.reason else e.kind for e in ends]
+    if run.steering_error is not None:
+        parts.append(f"steering: {run.steering_error}")
+    if run.left_corridor_at_m is not None:
+        parts.append(f"left the Real corridor at {run.left_corridor_at_m:.0f} m")
+    parts += list(run.notes)
+    return "; ".join(parts)
+
+
+def _failures(ws: Workspace, metrics: DriveMetrics, labels: Mapping[str, str]) -> list[FailureRow]:
+    """Every failed run with its cause and the views at its pose just before the failure."""
+    import numpy as np  # noqa: PLC0415
+
+    from cam2sim.core.workspace import run_paths  # noqa: PLC0415
+    from cam2sim.stages.cameras import write_png  # noqa: PLC0415 -- lazy: cv2
+    from cam2sim.stages.route_profile import failure_views  # noqa: PLC0415 -- lazy: torch
+
+    rows: list[FailureRow] = []
+    length = float(metrics.segment.reference_length_m)
+    for run in metrics.runs:
+        if run.success:
+            continue
+        run_id = run.name.split("/", 1)[-1]
+        files = run_paths(ws.runs_dir / run_id)
+        row = FailureRow(
+            method=labels.get(run.method, run.method),
+            run=run_id,
+            kind=run.failure or "incomplete",
+            reason=_cause(files, run),
+        )
+        if not files.trajectory_csv.is_file():
+            rows.append(row)
+            continue
+        table = np.genfromtxt(files.trajectory_csv, delimiter=",", names=True)
+        t = np.atleast_1d(table["t"])
+        k = int(np.searchsorted(t, t[-1] - _BEFORE_FAILURE_S))
+        xy = (float(np.atleast_1d(table["x"])[k]), float(np.atleast_1d(table["y"])[k]))
+        heading = float(np.atleast_1d(table["heading"])[k])
+        try:
+            views = failure_views(ws, xy, heading, cameras=FAILURE_CAMERAS)
+        except StageError as err:
+            rows.append(row.model_copy(update={"reason": f"{row.reason}; no views: {err}"}))
+            continue
+        image = Path("failures") / f"{run_id}.png"
+        write_png(ws.root.parent / image, views.image)
+        rows.append(
+            row.model_copy(
+                update={
+                    "s_m": round(views.s_m, 1),
+                    "route_share": round(views.s_m / length, 3) if length else None,
+                    "image": str(image),
+                    "views": list(views.labels),
+                    "views_psnr_db": [None if v is None else round(v, 2) for v in views.psnr_db],
+                    "splat_psnr_on_path_db": views.psnr_db[0],
+                }
+            )
+        )
+    return rows
+
+
+def _splat_facts(ws: Workspace) -> dict[str, object]:
+    from cam2sim.splat.chunk_header import ChunkHeader  # noqa: PLC0415
+    from cam2sim.splat.evaluate import SplatEval  # noqa: PLC0415
+
+    facts: dict[str, object] = {}
+    headers = sorted((ws.splat_dir / "models").glob("chunk_*.json"))
+    chunks = [ChunkHeader.load(h) for h in headers]
+    facts["splat_steps"] = [c.steps for c in chunks]
+    facts["splat_stopped"] = [str(c.stopped) for c in chunks]
+    facts["splat_device"] = chunks[0].backend if chunks else None
+    path = ws.splat_dir / "eval.json"
+    if path.is_file():
+        ev = SplatEval.load(path)
+        facts["splat_held_out_psnr_db"] = ev.psnr_db.mean
+        facts["splat_held_out_ssim"] = ev.ssim.mean
+        if ev.truth is not None:
+            facts["splat_truth_psnr_db"] = {s.label(): s.psnr_db.mean for s in ev.truth.scores}
+    return facts
+
+
+def world_result(
+    spec: WorldSpec, done: Experiment, seconds: float, *, profile: bool = True
+) -> WorldResult:
+    """The figures of one finished world (see the module's description).
+
+    Raises:
+        StageError: The world's evaluation is missing (a step failed).
+    """
+    from cam2sim.metrics.behaviour import METHOD_LABELS  # noqa: PLC0415 -- lazy: numpy
+    from cam2sim.stages.route_profile import route_profile  # noqa: PLC0415 -- lazy: torch
+
+    ws = done.ws
+    methods, metrics = _method_rows(ws)
+    failures = _failures(ws, metrics, METHOD_LABELS)
+    prof = route_profile(ws).to_json() if profile else None
+    steps = {o.name: round(o.seconds, 1) for o in done.result.outcomes if o.seconds}
+    if done.built_s is not None:
+        steps = {"recording": round(done.built_s, 1), **steps}
+    if spec.builtin is not None:
+        source = f"built-in street {spec.builtin}"
+    elif spec.route is None:
+        source = f"{spec.osm}, picked route {spec.pick}"
+    else:
+        source = f"{spec.osm}, route {spec.route[0]} to {spec.route[1]}"
+    return WorldResult(
+        label=spec.label,
+        title=done.title,
+        tuned=spec.tuned,
+        source=source,
+        notes=list(done.notes),
+        route_m=float(metrics.segment.reference_length_m),
+        seconds=round(seconds, 1),
+        step_seconds=steps,
+        methods=methods,
+        failures=failures,
+        profile=prof,
+        **_splat_facts(ws),
+    )
+
+
+def _run_world(spec: WorldSpec, out: Path) -> str:
+    from cam2sim.stages.experiment import (  # noqa: PLC0415 -- lazy: numpy
+        ExperimentOptions,
+        WorldSource,
+        run_experiment,
+    )
+    from cam2sim.stages.pipeline import demo_splat_options  # noqa: PLC0415
+
+    started = time.perf_counter()
+    source = WorldSource(
+        builtin=spec.builtin,
+        osm=None if spec.osm_path is None else Path(spec.osm_path),
+        route=spec.route,
+        pick=spec.pick,
+    )
+    settings = spec.settings
+    splat = None
+    if settings.splat_steps is not None:  # a fixed step count instead of the preset's
+        import torch  # noqa: PLC0415
+
+        splat = demo_splat_options(cuda=bool(torch.cuda.is_available()))
+        steps = settings.splat_steps
+        assert splat.train is not None  # the preset sets it
+        train = dataclasses.replace(
+            splat.train, max_steps=steps, min_steps=steps, val_every=max(1, steps // 2),
+            time_budget_s=None,
+        )  # fmt: skip
+        splat = dataclasses.replace(splat, train=train)
+    options = ExperimentOptions(
+        runs=spec.seeds, splat=splat, ads_epochs=settings.ads_epochs,
+        save_frames=settings.save_frames,
+    )  # fmt: skip
+    done = run_experiment(out, source, options)
+    if done.result.failed:
+        failed = [f"{o.name}: {o.message}" for o in done.result.outcomes if o.state == "failed"]
+        raise StageError("a pipeline step failed: " + "; ".join(failed))
+    result = world_result(spec, done, time.perf_counter() - started)
+    result.save(out / RESULT)
+    return spec.label
+
+
+def execute_world(spec: WorldSpec, log_path: str, timeout_s: float | None) -> RunOutcome:
+    """Run one world of a suite (in a worker process; never raises for a failed world)."""
+    out = Path(log_path).parent.parent / "worlds" / spec.label
+    what = f"world {spec.label} ({spec.builtin or spec.osm})"
+    return run_logged(spec.spec_id, what, lambda: _run_world(spec, out), log_path, timeout_s)
+
+
+# -- the suite --------------------------------------------------------------------------------
+
+
+def run_bench(
+    suite_path: Path,
+    *,
+    output: Path | None = None,
+    executor: Executor | None = None,
+    retry_failed: bool = True,
+    progress: ProgressCallback | None = None,
+) -> BenchResult:
+    """Run the suite's worlds that have no result yet, then write the report over all of them.
+
+    Raises:
+        ConfigError: The suite is invalid (the message names the key and the fix).
+        WorkspaceError: Another ``cam2sim bench`` runs in the same folder.
+    """
+    suite_path = Path(suite_path)
+    suite = load_suite(suite_path)
+    specs = expand_suite(suite, suite_path.resolve().parent)
+    folder = bench_folder(suite_path, output)
+    folder.mkdir(parents=True, exist_ok=True)
+    report = progress or no_progress
+    with campaign_lock(folder):
+        state_path = folder / "state.json"
+        state = CampaignState.load_or_new(state_path, suite.name or suite_path.stem)
+        todo = [
+            s
+            for s in specs
+            if not (_world_dir(folder, s) / RESULT).is_file()
+            and (retry_failed or s.spec_id not in state.runs)
+        ]
+        by_id = {s.spec_id: s for s in todo}
+        jobs = [Job(s, str(folder / "logs" / f"{s.label}.log"), suite.timeout_s) for s in todo]
+        runner = executor or LocalPool(1, task=execute_world)
+        logger.info("bench %s: %d of %d worlds to run on the %s", state.name, len(jobs),
+                    len(specs), runner.name)  # fmt: skip
+        finished: list[RunOutcome] = []
+
+        def record(outcome: RunOutcome) -> None:
+            nonlocal state
+            state = state.with_outcome(outcome, by_id[outcome.spec_id].label)
+            state.save(state_path)
+            finished.append(outcome)
+            if outcome.status != "done":
+                logger.warning("world %s %s: %s (log: %s)", by_id[outcome.spec_id].label,
+                               outcome.status, outcome.error, outcome.log)  # fmt: skip
+            report(TASK, len(finished), len(jobs))
+
+        started = time.perf_counter()
+        report(TASK, 0, len(jobs))
+        try:
+            if jobs:
+                runner.run(jobs, record)
+        finally:
+            state.save(state_path)
+        seconds = time.perf_counter() - started
+        results = [
+            WorldResult.load(p) for s in specs if (p := _world_dir(folder, s) / RESULT).is_file()
+        ]
+        from cam2sim.report.bench import write_bench_report  # noqa: PLC0415 -- lazy: matplotlib
+
+        agg = aggregate(results)
+        missing = {
+            s.label: (state.runs[s.spec_id].error or state.runs[s.spec_id].status)
+            for s in specs
+            if s.spec_id in state.runs and not (_world_dir(folder, s) / RESULT).is_file()
+        }
+        path = write_bench_report(folder, results, agg, missing=missing, name=state.name)
+    return BenchResult(
+        folder=folder,
+        worlds=len(specs),
+        ran=len(finished),
+        failed=sum(o.status != "done" for o in finished),
+        seconds=seconds,
+        results=results,
+        aggregate=agg,
+        report=path,
+    )

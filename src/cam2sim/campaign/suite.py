@@ -1,0 +1,227 @@
+"""The benchmark suite (``SUITE.yaml``): the worlds ``cam2sim bench`` runs the experiment on.
+
+A suite lists worlds: the built-in streets (``builtin: l-street`` or ``paper``), streets of real
+OpenStreetMap extracts (``osm: FILE`` with ``routes: N`` distinct routes picked automatically
+from different parts of the extract, or one ``route: [LAT,LON, LAT,LON]``), each run with
+``seeds`` closed-loop runs per method. ``tuned: true`` marks the worlds that were looked at while
+the tool was tuned: the report gives the figures with and without them. Example::
+
+    name: streets
+    seeds: 3
+    worlds:
+      - builtin: l-street
+        tuned: true
+      - osm: maps/munich.osm
+        routes: 3
+      - osm: maps/oakland.osm.bz2
+        route: ["37.80771,-122.30214", "37.80881,-122.3014"]
+    settings:            # optional: smaller settings for a quick look
+      ads_epochs: 30
+
+Each world expands to one :class:`WorldSpec` (an OSM entry with ``routes: 3`` to three), whose
+id is a readable name plus a hash of what it runs, so the same suite always expands to the same
+ids and a re-run resumes.
+"""
+
+from __future__ import annotations
+
+import difflib
+import hashlib
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import pydantic
+
+from cam2sim.core.config import read_yaml
+from cam2sim.core.errors import ConfigError
+
+__all__ = ["Suite", "SuiteSettings", "SuiteWorld", "WorldSpec", "expand_suite", "load_suite"]
+
+
+class _Model(pydantic.BaseModel):
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+
+class SuiteWorld(_Model):
+    """One entry of ``worlds:``: a built-in street or streets of an OSM extract."""
+
+    builtin: Literal["l-street", "paper"] | None = pydantic.Field(
+        None, description="a built-in street"
+    )
+    osm: str | None = pydantic.Field(
+        None, description="an OSM extract (.osm, .osm.bz2, .osm.pbf), relative to the suite"
+    )
+    routes: int = pydantic.Field(
+        1, ge=1, le=20, description="with osm: this many distinct routes, picked automatically"
+    )
+    route: tuple[str, str] | None = pydantic.Field(
+        None, description='with osm: one route between two points, ["LAT,LON", "LAT,LON"]'
+    )
+    tuned: bool = pydantic.Field(default=False, description="looked at while tuning the tool")
+
+    @pydantic.model_validator(mode="after")
+    def _one_source(self) -> SuiteWorld:
+        if (self.builtin is None) == (self.osm is None):
+            msg = "give exactly one of `builtin:` (l-street, paper) or `osm:` (a file)"
+            raise ValueError(msg)
+        if self.osm is None and (self.route is not None or self.routes != 1):
+            msg = "`route:` and `routes:` go with `osm:`"
+            raise ValueError(msg)
+        if self.route is not None and self.routes != 1:
+            msg = "give `route:` (one route) or `routes: N` (picked), not both"
+            raise ValueError(msg)
+        return self
+
+
+class SuiteSettings(_Model):
+    """What every world of the suite shares; the defaults are the demo's."""
+
+    ads_epochs: int = pydantic.Field(30, ge=1, description="DAVE-2 training epochs")
+    splat_steps: int | None = pydantic.Field(
+        None, ge=1, description="splat training steps a chunk (null: the demo's preset)"
+    )
+    save_frames: bool = pydantic.Field(
+        default=True, description="keep the closed-loop runs' frames (the failure pictures)"
+    )
+
+
+class Suite(_Model):
+    """A benchmark suite: worlds, seeds, settings, time limit."""
+
+    name: str | None = pydantic.Field(None, description="label; default: the suite file's stem")
+    seeds: int = pydantic.Field(3, ge=1, le=50, description="closed-loop runs per method")
+    worlds: tuple[SuiteWorld, ...] = pydantic.Field(min_length=1)
+    settings: SuiteSettings = SuiteSettings()
+    timeout_s: float | None = pydantic.Field(
+        7200.0, gt=0, description="a world still running after this long fails as timed out"
+    )
+
+
+@dataclass(frozen=True)
+class WorldSpec:
+    """One world of a suite: the experiment ``cam2sim demo`` runs, with the suite's settings.
+
+    Attributes:
+        label: Readable name (``l-street``, ``munich-r2``).
+        builtin: The built-in street, or None.
+        osm: The OSM file as the suite writes it, or None.
+        osm_path: That file resolved against the suite's folder.
+        route: Two ``"LAT,LON"`` points, or None.
+        pick: Which picked route of the extract (0 = the best).
+        tuned: Looked at while tuning.
+        seeds: Closed-loop runs per method.
+        settings: The suite's shared settings.
+    """
+
+    label: str
+    builtin: str | None
+    osm: str | None
+    osm_path: str | None
+    route: tuple[str, str] | None
+    pick: int
+    tuned: bool
+    seeds: int
+    settings: SuiteSettings
+
+    @property
+    def spec_id(self) -> str:
+        """The readable label and 10 hex digits of what the world runs."""
+        content: dict[str, Any] = asdict(self)
+        content.pop("osm_path")  # as the suite writes it: stable when the suite moves
+        content["settings"] = self.settings.model_dump(mode="json")
+        digest = hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()[:10]
+        return f"{self.label}-{digest}"
+
+    @property
+    def needs_gpu(self) -> bool:
+        """Every world trains a splat: one GPU a world on a cluster that has GPUs."""
+        return True
+
+
+def _message(err: pydantic.ValidationError, source: Path) -> str:
+    parts = []
+    for item in err.errors():
+        loc = ".".join(str(p) for p in item["loc"]) or "<root>"
+        if item["type"] == "extra_forbidden":
+            last = str(item["loc"][-1])
+            known = [*Suite.model_fields, *SuiteWorld.model_fields, *SuiteSettings.model_fields]
+            close = difflib.get_close_matches(last, known, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            parts.append(f"{loc}: unknown key{hint}; remove it or fix its spelling")
+        elif item["type"] == "missing":
+            parts.append(f"{loc}: missing; add it (see docs/bench.md)")
+        else:
+            parts.append(f"{loc}: {item['msg']} (found {item.get('input')!r})")
+    return f"{source}: invalid benchmark suite: " + "; ".join(parts)
+
+
+def load_suite(path: Path) -> Suite:
+    """Read and validate a suite file.
+
+    Raises:
+        ConfigError: The file is missing, not YAML, or a key is invalid (the message names the
+            file, the key and the fix).
+    """
+    path = Path(path)
+    raw = read_yaml(path, missing="write a benchmark suite (see docs/bench.md)")
+    if not isinstance(raw, dict):
+        msg = f"{path}: expected a mapping with at least `worlds:`, found {type(raw).__name__}"
+        raise ConfigError(msg)
+    try:
+        return Suite.model_validate(raw)
+    except pydantic.ValidationError as err:
+        raise ConfigError(_message(err, path)) from None
+
+
+def _label(world: SuiteWorld, pick: int, used: set[str]) -> str:
+    base: str
+    if world.builtin is not None:
+        base = world.builtin
+    else:
+        base = Path(world.osm or "osm").name.split(".")[0].lower()
+        base = f"{base}-r{pick}" if world.route is None else f"{base}-route"
+    label, n = base, 2
+    while label in used:
+        label, n = f"{base}-{n}", n + 1
+    used.add(label)
+    return label
+
+
+def expand_suite(suite: Suite, base: Path) -> list[WorldSpec]:
+    """Every world of ``suite`` in order; OSM files resolve against ``base``.
+
+    Raises:
+        ConfigError: An OSM file does not exist, or one world is listed twice.
+    """
+    specs: list[WorldSpec] = []
+    used: set[str] = set()
+    for world in suite.worlds:
+        osm_path = None
+        if world.osm is not None:
+            p = Path(world.osm).expanduser()
+            resolved = p if p.is_absolute() else (base / p).resolve()
+            if not resolved.is_file():
+                msg = f"suite world osm: {world.osm}: no such file ({resolved}); fix the path"
+                raise ConfigError(msg)
+            osm_path = str(resolved)
+        specs.extend(
+            WorldSpec(
+                label=_label(world, pick, used),
+                builtin=world.builtin,
+                osm=world.osm,
+                osm_path=osm_path,
+                route=world.route,
+                pick=pick,
+                tuned=world.tuned,
+                seeds=suite.seeds,
+                settings=suite.settings,
+            )
+            for pick in range(world.routes)
+        )
+    ids = [s.spec_id.rsplit("-", 1)[1] for s in specs]
+    if len(set(ids)) != len(ids):
+        msg = "the suite lists the same world more than once; remove the repeated entry"
+        raise ConfigError(msg)
+    return specs

@@ -1,0 +1,245 @@
+"""The benchmark's figures across streets: failure rates with intervals, paired differences.
+
+Each world of a suite (``cam2sim bench``) ends in a :class:`WorldResult`: its behaviour per
+method (Real, splat, Sim; the drive metrics' method summaries), its splat's quality and its
+failures. :func:`aggregate` puts them together:
+
+- **failure rate per method** over every run of every world, with a 95 % Wilson score interval
+  (:func:`wilson_interval`). Runs of one street share the street, so the interval is narrower
+  than one over streets would be; the per-street figures below carry the spread between
+  streets;
+- **per street, splat against Real** (paired: same street, same seeds): the difference of the
+  failure rates and the ratio of the mean Min-Fréchet distances;
+- **the verdict**: splat is *indistinguishable from Real* on a street when it fails no more
+  often than Real there and its Min-Fréchet distance is at most :data:`FRECHET_RATIO_MAX` times
+  Real's; *Sim fails* on a street when one of its runs fails. Where Sim does not fail, its
+  corridor violations and Min-Fréchet ratio are what separate it from Real.
+
+The Real group is what the behaviour table's is (``docs/metrics.md``): the recorded drive plus
+the closed-loop runs in the ground-truth world, so it has one run more than the others.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Final
+
+import pydantic
+
+from cam2sim.core.schema import Artifact
+
+__all__ = [
+    "FRECHET_RATIO_MAX",
+    "Aggregate",
+    "FailureRow",
+    "MethodRate",
+    "MethodRow",
+    "StreetPair",
+    "WorldResult",
+    "aggregate",
+    "wilson_interval",
+]
+
+FRECHET_RATIO_MAX: Final = 1.5
+"""Splat's Min-Fréchet may be this many times Real's on a street it matches Real on."""
+METHODS: Final = ("Real", "splat", "Sim")
+
+
+class _Model(pydantic.BaseModel):
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+
+class MethodRow(_Model):
+    """One method's behaviour on one street (a column of its behaviour table)."""
+
+    method: str
+    runs: int
+    failures: int
+    completion_mean: float
+    min_frechet_m: float | None
+    corridor_violation_pct: float | None
+    jitter: float | None
+    failure_types: dict[str, int] = pydantic.Field(default_factory=dict)
+
+
+class FailureRow(_Model):
+    """One failed run: what happened, where, and what the cameras saw there."""
+
+    method: str
+    run: str
+    kind: str
+    reason: str = ""
+    s_m: float | None = None
+    route_share: float | None = None
+    image: str | None = pydantic.Field(None, description="the views at the failure (PNG)")
+    views: list[str] = pydantic.Field(default_factory=list)
+    views_psnr_db: list[float | None] = pydantic.Field(default_factory=list)
+    splat_psnr_on_path_db: float | None = None
+
+
+class WorldResult(Artifact):
+    """``BENCH/worlds/<label>/result.json``: one street of the suite, all its figures."""
+
+    label: str
+    title: str
+    tuned: bool
+    source: str
+    notes: list[str] = pydantic.Field(default_factory=list)
+    route_m: float | None = None
+    seconds: float
+    step_seconds: dict[str, float] = pydantic.Field(default_factory=dict)
+    splat_device: str | None = None
+    splat_steps: list[int] = pydantic.Field(default_factory=list)
+    splat_stopped: list[str] = pydantic.Field(default_factory=list)
+    splat_held_out_psnr_db: float | None = None
+    splat_held_out_ssim: float | None = None
+    splat_truth_psnr_db: dict[str, float | None] = pydantic.Field(default_factory=dict)
+    methods: list[MethodRow]
+    failures: list[FailureRow] = pydantic.Field(default_factory=list)
+    profile: dict[str, object] | None = None
+
+    def method(self, name: str) -> MethodRow | None:
+        """The row of method ``name`` (Real, splat, Sim), or None."""
+        return next((m for m in self.methods if m.method == name), None)
+
+
+class MethodRate(_Model):
+    """A method's failure rate over all streets, with its 95 % Wilson interval."""
+
+    method: str
+    streets: int
+    runs: int
+    failures: int
+    rate: float
+    low: float
+    high: float
+    streets_failing: int
+    min_frechet_m: float | None
+    corridor_violation_pct: float | None
+
+
+class StreetPair(_Model):
+    """Splat against Real (and Sim) on one street."""
+
+    label: str
+    tuned: bool
+    real_failures: str
+    splat_failures: str
+    sim_failures: str
+    failure_rate_diff: float | None
+    frechet_ratio: float | None
+    splat_matches_real: bool | None
+    sim_fails: bool | None
+    sim_corridor_excess_pct: float | None
+
+
+class Aggregate(_Model):
+    """Every figure across the streets of a suite."""
+
+    streets: int
+    rates: list[MethodRate]
+    pairs: list[StreetPair]
+    verdict: str
+    matched: int
+    compared: int
+    sim_failing: int
+    frechet_within: int
+
+
+def wilson_interval(failures: int, runs: int, z: float = 1.959964) -> tuple[float, float]:
+    """The Wilson score interval of a rate ``failures / runs`` (95 % by default).
+
+    Unlike the normal approximation it stays within [0, 1] and is not empty at 0 or ``runs``
+    failures (0 of 30 runs still allows up to 11.4 %).
+    """
+    if runs <= 0:
+        return (0.0, 1.0)
+    p = failures / runs
+    z2 = z * z
+    centre = (p + z2 / (2 * runs)) / (1 + z2 / runs)
+    half = z * math.sqrt(p * (1 - p) / runs + z2 / (4 * runs * runs)) / (1 + z2 / runs)
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def _mean(values: list[float]) -> float | None:
+    return sum(values) / len(values) if values else None
+
+
+def _rate(method: str, worlds: list[WorldResult]) -> MethodRate:
+    rows = [r for w in worlds if (r := w.method(method)) is not None]
+    runs = sum(r.runs for r in rows)
+    failures = sum(r.failures for r in rows)
+    low, high = wilson_interval(failures, runs)
+    return MethodRate(
+        method=method,
+        streets=len(rows),
+        runs=runs,
+        failures=failures,
+        rate=failures / runs if runs else 0.0,
+        low=low,
+        high=high,
+        streets_failing=sum(r.failures > 0 for r in rows),
+        min_frechet_m=_mean([r.min_frechet_m for r in rows if r.min_frechet_m is not None]),
+        corridor_violation_pct=_mean(
+            [r.corridor_violation_pct for r in rows if r.corridor_violation_pct is not None]
+        ),
+    )
+
+
+def _count(row: MethodRow | None) -> str:
+    return "-" if row is None else f"{row.failures}/{row.runs}"
+
+
+def _pair(world: WorldResult) -> StreetPair:
+    real, splat, sim = (world.method(m) for m in METHODS)
+    diff = ratio = excess = None
+    matches = sim_fails = None
+    if real is not None and splat is not None and real.runs and splat.runs:
+        diff = splat.failures / splat.runs - real.failures / real.runs
+        if splat.min_frechet_m is not None and real.min_frechet_m:
+            ratio = splat.min_frechet_m / real.min_frechet_m
+        close = ratio is None or ratio <= FRECHET_RATIO_MAX
+        matches = diff <= 0.0 and close and splat.min_frechet_m is not None
+    if sim is not None and sim.runs:
+        sim_fails = sim.failures > 0
+        if real is not None and sim.corridor_violation_pct is not None:
+            excess = sim.corridor_violation_pct - (real.corridor_violation_pct or 0.0)
+    return StreetPair(
+        label=world.label,
+        tuned=world.tuned,
+        real_failures=_count(real),
+        splat_failures=_count(splat),
+        sim_failures=_count(sim),
+        failure_rate_diff=diff,
+        frechet_ratio=ratio,
+        splat_matches_real=matches,
+        sim_fails=sim_fails,
+        sim_corridor_excess_pct=excess,
+    )
+
+
+def aggregate(worlds: list[WorldResult]) -> Aggregate:
+    """The suite's figures over ``worlds`` (see the module's description)."""
+    pairs = [_pair(w) for w in worlds]
+    compared = [p for p in pairs if p.splat_matches_real is not None]
+    matched = sum(bool(p.splat_matches_real) for p in compared)
+    sim_failing = sum(bool(p.sim_fails) for p in pairs)
+    within = sum(
+        p.frechet_ratio is not None and p.frechet_ratio <= FRECHET_RATIO_MAX for p in pairs
+    )
+    with_sim = sum(p.sim_fails is not None for p in pairs)
+    verdict = (
+        f"splat indistinguishable from Real on {matched} of {len(compared)} streets "
+        f"(fails no more often, Min-Fréchet within {FRECHET_RATIO_MAX:g}x); "
+        f"Sim fails on {sim_failing} of {with_sim}"
+    )
+    return Aggregate(
+        streets=len(worlds),
+        rates=[_rate(m, worlds) for m in METHODS],
+        pairs=pairs,
+        verdict=verdict,
+        matched=matched,
+        compared=len(compared),
+        sim_failing=sim_failing,
+        frechet_within=within,
+    )

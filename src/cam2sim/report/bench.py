@@ -1,0 +1,325 @@
+"""The benchmark report: the suite's figures as one self-contained HTML page and tables.
+
+:func:`write_bench_report` writes into the benchmark folder:
+
+- ``report.html``: the verdict; the failure rate of each method with its 95 % Wilson interval
+  (a plot and a table); the paired per-street table (splat against Real, Sim beside them), with
+  and without the streets looked at while tuning; per street the behaviour table, the splat's
+  quality and its PSNR against the truth along the route (a plot, failures marked); every
+  failure with its cause and the splat / truth / Sim views at the pose before it;
+- ``summary.md``: the same tables in Markdown;
+- ``tables/rates.csv``, ``tables/streets.csv``, ``tables/methods.csv``, ``tables/failures.csv``;
+- ``aggregate.json``: :class:`~cam2sim.metrics.benchmark.Aggregate`.
+
+It only reads the worlds' ``result.json``; worlds without one are listed with why.
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import datetime as dt
+import io
+from html import escape
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from cam2sim import __version__
+from cam2sim.core.files import write_text_atomic
+from cam2sim.core.plots import pyplot
+from cam2sim.metrics.benchmark import aggregate
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable, Mapping, Sequence
+
+    from cam2sim.metrics.benchmark import Aggregate, WorldResult
+
+__all__ = ["bench_tables", "write_bench_report"]
+
+COLOURS = {"Real": "#1b7837", "splat": "#2166ac", "Sim": "#b2182b"}
+"""One colour per method, in every plot."""
+_GLOSSARY = (
+    "Real: the recorded drive plus DAVE-2's closed-loop runs in the ground-truth world (the "
+    "truth camera); splat: DAVE-2 driving on the splat's images; Sim: on the simulator's raster "
+    "images. Runs of each method differ by seed (start pose, speed, steering noise)."
+)
+_CSS = """
+body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1100px;color:#222}
+table{border-collapse:collapse;margin:.6em 0}td,th{border:1px solid #ccc;padding:3px 8px;
+text-align:right}th{background:#f2f2f2}td:first-child,th:first-child{text-align:left}
+caption{text-align:left;font-weight:600;padding:.3em 0}.verdict{font-size:1.2em;
+font-weight:600;background:#f6f6e8;padding:.6em;border-left:4px solid #996}
+img{max-width:100%}.note{color:#555;font-size:.9em}h3{margin-top:1.6em}
+"""
+
+
+def _e(value: object) -> str:
+    return escape(str(value), quote=True)
+
+
+def _f(value: float | None, spec: str = ".2f") -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def _table(headers: Sequence[str], rows: Iterable[Sequence[object]], caption: str = "") -> str:
+    head = "".join(f"<th>{_e(h)}</th>" for h in headers)
+    body = "".join("<tr>" + "".join(f"<td>{_e(c)}</td>" for c in r) + "</tr>" for r in rows)
+    cap = f"<caption>{_e(caption)}</caption>" if caption else ""
+    return f"<table>{cap}<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _markdown(headers: Sequence[str], rows: Iterable[Sequence[object]]) -> str:
+    lines = ["| " + " | ".join(headers) + " |", "|" + " --- |" * len(headers)]
+    lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def _png(fig: Any) -> str:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
+    pyplot().close(fig)
+    data = base64.b64encode(buffer.getvalue()).decode("ascii")
+    return f'<img alt="plot" src="data:image/png;base64,{data}">'
+
+
+def _file_img(path: Path, alt: str) -> str:
+    if not path.is_file():
+        return f'<p class="note">({_e(alt)}: image missing)</p>'
+    data = base64.b64encode(path.read_bytes()).decode("ascii")
+    return f'<img alt="{_e(alt)}" src="data:image/png;base64,{data}">'
+
+
+# -- the tables (shared by HTML, Markdown and CSV) --------------------------------------------
+
+
+def bench_tables(
+    results: Sequence[WorldResult], agg: Aggregate
+) -> dict[str, tuple[list[str], list[list[object]]]]:
+    """The report's tables as ``name -> (headers, rows)``; the CSV files hold the same."""
+    rates: tuple[list[str], list[list[object]]] = (
+        ["method", "streets", "runs", "failures", "failure rate", "95% low", "95% high",
+         "streets failing", "Min-Fréchet m", "corridor viol. %"],
+        [
+            [r.method, r.streets, r.runs, r.failures, _f(r.rate, ".3f"), _f(r.low, ".3f"),
+             _f(r.high, ".3f"), r.streets_failing, _f(r.min_frechet_m),
+             _f(r.corridor_violation_pct, ".1f")]
+            for r in agg.rates
+        ],
+    )  # fmt: skip
+    streets: tuple[list[str], list[list[object]]] = (
+        ["street", "tuned", "Real fail", "splat fail", "Sim fail", "splat-Real rate",
+         "Fréchet splat/Real", "splat ~ Real", "Sim corridor excess %"],
+        [
+            [p.label, "yes" if p.tuned else "no", p.real_failures, p.splat_failures,
+             p.sim_failures, _f(p.failure_rate_diff, "+.2f"), _f(p.frechet_ratio),
+             {True: "yes", False: "NO", None: "-"}[p.splat_matches_real],
+             _f(p.sim_corridor_excess_pct, "+.1f")]
+            for p in agg.pairs
+        ],
+    )  # fmt: skip
+    methods: tuple[list[str], list[list[object]]] = (
+        ["street", "method", "runs", "failures", "completion", "Min-Fréchet m",
+         "corridor viol. %", "jitter", "failure types"],
+        [
+            [w.label, m.method, m.runs, m.failures, _f(m.completion_mean, ".3f"),
+             _f(m.min_frechet_m), _f(m.corridor_violation_pct, ".1f"), _f(m.jitter, ".3f"),
+             ", ".join(f"{k} {v}" for k, v in sorted(m.failure_types.items())) or "-"]
+            for w in results
+            for m in w.methods
+        ],
+    )  # fmt: skip
+    failures: tuple[list[str], list[list[object]]] = (
+        ["street", "method", "run", "failure", "at m", "route share", "splat PSNR dB there",
+         "reason"],
+        [
+            [w.label, f.method, f.run, f.kind, _f(f.s_m, ".0f"), _f(f.route_share, ".2f"),
+             _f(f.splat_psnr_on_path_db, ".1f"), f.reason or "-"]
+            for w in results
+            for f in w.failures
+        ],
+    )  # fmt: skip
+    splat: tuple[list[str], list[list[object]]] = (
+        ["street", "route m", "device", "steps a chunk", "stopped", "held-out PSNR",
+         "held-out SSIM", "truth on path", "truth 1 m right", "truth 1 m left",
+         "profile min PSNR", "world s"],
+        [
+            [w.label, _f(w.route_m, ".0f"), w.splat_device or "-",
+             "/".join(str(s) for s in w.splat_steps) or "-",
+             "/".join(sorted(set(w.splat_stopped))) or "-",
+             _f(w.splat_held_out_psnr_db, ".1f"), _f(w.splat_held_out_ssim, ".3f"),
+             _f(w.splat_truth_psnr_db.get("on path"), ".1f"),
+             _f(_truth_at(w, "+1"), ".1f"), _f(_truth_at(w, "-1"), ".1f"),
+             _f(_profile_min(w), ".1f"), _f(w.seconds, ".0f")]
+            for w in results
+        ],
+    )  # fmt: skip
+    return {
+        "rates": rates,
+        "streets": streets,
+        "methods": methods,
+        "splat": splat,
+        "failures": failures,
+    }
+
+
+def _truth_at(world: WorldResult, offset: str) -> float | None:
+    """The truth envelope's mean PSNR at a lateral offset (its labels: ``+1 m``, ``-0.5 m``)."""
+    return world.splat_truth_psnr_db.get(f"{offset} m")
+
+
+def _profile_min(world: WorldResult) -> float | None:
+    if not world.profile:
+        return None
+    offsets = list(world.profile.get("offsets_m", []))  # type: ignore[call-overload]
+    rows = world.profile.get("psnr_db", [])
+    if 0.0 not in offsets:
+        return None
+    values = [v for v in rows[offsets.index(0.0)] if v is not None]  # type: ignore[index]
+    return min(values) if values else None
+
+
+# -- plots ----------------------------------------------------------------------------------
+
+
+def _rates_plot(agg: Aggregate) -> str:
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(5.5, 3.0))
+    for i, r in enumerate(agg.rates):
+        colour = COLOURS.get(r.method, "#555")
+        ax.bar(i, r.rate * 100, color=colour, alpha=0.8, label=r.method)
+        ax.errorbar(i, r.rate * 100, yerr=[[(r.rate - r.low) * 100], [(r.high - r.rate) * 100]],
+                    color="k", capsize=6)  # fmt: skip
+        ax.text(i, r.high * 100 + 2, f"{r.failures}/{r.runs}", ha="center", fontsize=9)
+    ax.set_xticks(range(len(agg.rates)), [r.method for r in agg.rates])
+    ax.set_ylabel("failure rate, % (95 % Wilson interval)")
+    ax.set_ylim(0, 110)
+    ax.set_title("Failures over all streets")
+    return _png(fig)
+
+
+def _profile_plot(world: WorldResult) -> str:
+    if not world.profile:
+        return '<p class="note">no along-route profile</p>'
+    plt = pyplot()
+    s = world.profile["s_m"]
+    fig, ax = plt.subplots(figsize=(8.0, 2.6))
+    styles = {-1.0: ":", 0.0: "-", 1.0: "--"}
+    for off, row in zip(world.profile["offsets_m"], world.profile["psnr_db"], strict=True):  # type: ignore[call-overload]
+        ys = [float("nan") if v is None else v for v in row]
+        label = "on path" if off == 0 else f"{off:+g} m (+ = right)"
+        ax.plot(s, ys, styles.get(off, "-"), color="#2166ac", label=label)
+    for f in world.failures:
+        if f.s_m is not None:
+            ax.axvline(f.s_m, color=COLOURS.get(f.method, "#555"), alpha=0.7)
+            ax.text(f.s_m, ax.get_ylim()[1], f"{f.method} {f.kind}", rotation=90, va="top",
+                    fontsize=7, color=COLOURS.get(f.method, "#555"))  # fmt: skip
+    ax.set_xlabel("station along the recorded path, m")
+    ax.set_ylabel("splat vs truth PSNR, dB")
+    ax.legend(fontsize=7, loc="lower left")
+    ax.set_title(f"{world.label}: splat against the ground truth along the route")
+    return _png(fig)
+
+
+# -- the page -------------------------------------------------------------------------------
+
+
+def _world_section(folder: Path, world: WorldResult, tables: Mapping[str, Any]) -> str:
+    methods = [r[1:] for r in tables["methods"][1] if r[0] == world.label]
+    tuned = "looked at while tuning" if world.tuned else "not used while tuning"
+    steps = ", ".join(f"{k} {v:.0f} s" for k, v in world.step_seconds.items())
+    parts = [
+        f'<h3 id="w-{_e(world.label)}">{_e(world.label)}: {_e(world.title)}</h3>',
+        f'<p class="note">{_e(world.source)}; {tuned}; {world.seconds:.0f} s ({_e(steps)})</p>',
+        _table(tables["methods"][0][1:], methods),
+        _profile_plot(world),
+    ]
+    for f in world.failures:
+        psnr = ", ".join(
+            f"{name} {_f(v, '.1f')} dB" for name, v in zip(f.views, f.views_psnr_db, strict=False)
+            if v is not None
+        )  # fmt: skip
+        where = (
+            f"at {f.s_m:.0f} m ({f.route_share:.0%} of the route)"
+            if f.s_m is not None and f.route_share is not None
+            else ""
+        )
+        views = " | ".join(f.views)
+        parts.append(
+            f"<p><b>{_e(f.method)} {_e(f.run)}</b>: {_e(f.kind)} {_e(where)}. {_e(f.reason)}"
+            f"<br>views 0.5 s before ({_e(views)}; PSNR against the truth: {_e(psnr or '-')})</p>"
+        )
+        if f.image:
+            parts.append(_file_img(folder / "worlds" / world.label / f.image, f.run))
+    return "".join(parts)
+
+
+def write_bench_report(
+    folder: Path,
+    results: Sequence[WorldResult],
+    agg: Aggregate | None = None,
+    *,
+    missing: Mapping[str, str] | None = None,
+    name: str = "benchmark",
+) -> Path:
+    """Write ``report.html``, ``summary.md``, ``tables/*.csv`` and ``aggregate.json``.
+
+    Returns:
+        The HTML report's path.
+    """
+    folder = Path(folder)
+    agg = agg or aggregate(list(results))
+    tables = bench_tables(results, agg)
+    untuned = [w for w in results if not w.tuned]
+    agg_untuned = aggregate(untuned)
+    for key, (headers, rows) in tables.items():
+        buffer = io.StringIO()
+        writer = csv.writer(buffer, lineterminator="\n")
+        writer.writerow(headers)
+        writer.writerows(rows)
+        write_text_atomic(folder / "tables" / f"{key}.csv", buffer.getvalue())
+    write_text_atomic(folder / "aggregate.json", agg.model_dump_json(indent=2) + "\n")
+    untuned_rates = bench_tables(untuned, agg_untuned)["rates"]
+    titles = {
+        "rates": "Failure rate per method, all streets (Real includes the recorded drive)",
+        "streets": "Per street: splat against Real (paired), Sim beside them",
+        "splat": "The splat per street",
+        "failures": "Every failure",
+    }
+    md = [f"# Benchmark {name}\n", f"**{agg.verdict}**\n",
+          f"Streets not used while tuning ({len(untuned)}): {agg_untuned.verdict}\n"]  # fmt: skip
+    for key, title in titles.items():
+        md += [f"\n## {title}\n\n", _markdown(*tables[key])]
+    md += ["\n## Failure rate per method, streets not used while tuning\n\n",
+           _markdown(*untuned_rates)]  # fmt: skip
+    if missing:
+        md += ["\n## Worlds without a result\n\n"] + [f"- {k}: {v}\n" for k, v in missing.items()]
+    write_text_atomic(folder / "summary.md", "".join(md))
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    made = f"{len(results)} streets; generated {stamp} by cam2sim {_e(__version__)}"
+    body = [
+        f"<h1>cam2sim benchmark: {_e(name)}</h1>",
+        f'<p class="note">{made}. {_GLOSSARY}</p>',
+        f'<p class="verdict">{_e(agg.verdict)}</p>',
+        f"<p>Streets not used while tuning ({len(untuned)}): {_e(agg_untuned.verdict)}</p>",
+        _rates_plot(agg),
+        _table(*tables["rates"], caption=titles["rates"]),
+        _table(*untuned_rates, caption="The same, streets not used while tuning"),
+        _table(*tables["streets"], caption=titles["streets"]),
+        _table(*tables["splat"], caption=titles["splat"]),
+        _table(*tables["failures"], caption=titles["failures"]),
+        "<h2>Streets</h2>",
+        *(_world_section(folder, w, tables) for w in results),
+    ]  # fmt: skip
+    if missing:
+        body.append("<h2>Worlds without a result</h2><ul>")
+        body += [f"<li>{_e(k)}: {_e(v)} (see logs/{_e(k)}.log)</li>" for k, v in missing.items()]
+        body.append("</ul>")
+    page = (
+        '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
+        f"<title>cam2sim benchmark: {_e(name)}</title><style>{_CSS}</style></head><body>"
+        + "".join(body)
+        + "</body></html>\n"
+    )
+    path = folder / "report.html"
+    write_text_atomic(path, page)
+    return path
