@@ -11,16 +11,22 @@
 #   .c21/a, .c21/b, .gl    the demo's wheels for benchmarks/gpu_demo.sh's two calls (carla
 #                          0.9.16, pyproj, gsplat: 51 MB; the other 17 packages the GPU image
 #                          lacks: 21 MB) and the EGL loader debs (0.4 MB; needs apt-get)
+#   .ray/                  Ray for benchmarks/gpu_bench.sh: the cp312 wheel of the version
+#                          installed here without what cam2sim never imports (Java jars, RLlib,
+#                          Tune, Train, Serve, Data, LLM, the dashboard's web client) as one
+#                          tar.xz (28 MB of the wheel's 79 MB), and jsonschema's wheels
+#   .osm/                  copies of ../shared/data/osm/ (2.4 MB): the GPU suite's extracts
 #
-#   bash benchmarks/carry_kit.sh [wheels] [lpips] [curves] [easy] [route] [demo]  # default: all
+#   bash benchmarks/carry_kit.sh [wheels] [lpips] [curves] [easy] [route] [demo] [ray] [osm]
+#                                                      # default: all
 #
 # Needs the package installed (python3 quickstart.py test, or pip install -e ".[splat,...]")
 # and ../shared/data/images for the stretches.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 parts=("$@")
-[ ${#parts[@]} -eq 0 ] && parts=(wheels lpips curves easy route demo)
-for ignored in .c19 .c19w .u22 .carry .c21 .gl; do
+[ ${#parts[@]} -eq 0 ] && parts=(wheels lpips curves easy route demo ray osm)
+for ignored in .c19 .c19w .u22 .carry .c21 .gl .ray .osm; do
   git check-ignore -q "$ignored/x" || { echo "add /$ignored/ to .git/info/exclude first" >&2; exit 2; }
 done
 for part in "${parts[@]}"; do
@@ -74,12 +80,33 @@ from cam2sim.splat.prepare import prepare_scene; prepare_scene(Workspace.open('$
     (cd .gl && apt-get "${apt[@]}" download libvulkan1 libegl1 libglvnd0 libopengl0 libgl1 \
       libglx0 libgles2)
     ;;
+  ray)
+    rm -rf .ray
+    mkdir -p .ray
+    version=$(python3 -c "import ray; print(ray.__version__)")
+    tmp=$(mktemp -d)
+    python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 \
+      --implementation cp --platform manylinux2014_x86_64 --platform manylinux_2_17_x86_64 \
+      -d "$tmp" "ray==$version"
+    python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 \
+      --implementation cp --platform manylinux2014_x86_64 --platform manylinux_2_17_x86_64 \
+      -d .ray jsonschema referencing rpds-py jsonschema-specifications
+    (cd "$tmp" && unzip -q ray-*.whl && rm -rf ray/jars ray/rllib ray/tune ray/train ray/serve \
+      ray/data ray/llm ray/dashboard/client/build && tar cJf ray-slim.tar.xz ray ray-*.dist-info)
+    mv "$tmp/ray-slim.tar.xz" .ray/
+    rm -rf "$tmp"
+    ;;
+  osm)
+    rm -rf .osm
+    mkdir -p .osm
+    cp ../shared/data/osm/* .osm/
+    ;;
   route)
     rm -rf .carry/route400tri
     PYTHONPATH=src python3 benchmarks/splat_route.py --out .carry/route400tri
     ;;
   *)
-    echo "unknown part $part (wheels, lpips, curves, easy, route, demo)" >&2
+    echo "unknown part $part (wheels, lpips, curves, easy, route, demo, ray, osm)" >&2
     exit 2
     ;;
   esac
@@ -89,5 +116,7 @@ from cam2sim.splat.prepare import prepare_scene; prepare_scene(Workspace.open('$
   curves | easy) du -sh ".u22/$part" ;;
   route) du -sh .carry/route400tri ;;
   demo) du -sh .c21/a .c21/b .gl ;;
+  ray) du -sh .ray ;;
+  osm) du -sh .osm ;;
   esac
 done

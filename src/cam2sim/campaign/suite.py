@@ -3,8 +3,9 @@
 A suite lists worlds: the built-in streets (``builtin: l-street`` or ``paper``), streets of real
 OpenStreetMap extracts (``osm: FILE`` with ``routes: N`` distinct routes picked automatically
 from different parts of the extract, or one ``route: [LAT,LON, LAT,LON]``), each run with
-``seeds`` closed-loop runs per method. ``tuned: true`` marks the worlds that were looked at while
-the tool was tuned: the report gives the figures with and without them. Example::
+``seeds`` closed-loop runs per method. ``tuned: true`` (for picked routes also their indices,
+``tuned: [0]``) marks the worlds that were looked at while the tool was tuned: the report gives
+the figures with and without them. Example::
 
     name: streets
     seeds: 3
@@ -59,7 +60,10 @@ class SuiteWorld(_Model):
     route: tuple[str, str] | None = pydantic.Field(
         None, description='with osm: one route between two points, ["LAT,LON", "LAT,LON"]'
     )
-    tuned: bool = pydantic.Field(default=False, description="looked at while tuning the tool")
+    tuned: bool | tuple[int, ...] = pydantic.Field(
+        default=False,
+        description="looked at while tuning the tool: true, or the indices of picked routes",
+    )
 
     @pydantic.model_validator(mode="after")
     def _one_source(self) -> SuiteWorld:
@@ -129,7 +133,9 @@ class WorldSpec:
     def spec_id(self) -> str:
         """The readable label and 10 hex digits of what the world runs."""
         content: dict[str, Any] = asdict(self)
-        content.pop("osm_path")  # as the suite writes it: stable when the suite moves
+        content.pop("osm_path")
+        if self.osm is not None:  # the file's name: stable when the suite or the file moves
+            content["osm"] = Path(self.osm).name
         content["settings"] = self.settings.model_dump(mode="json")
         digest = hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()[:10]
         return f"{self.label}-{digest}"
@@ -214,7 +220,7 @@ def expand_suite(suite: Suite, base: Path) -> list[WorldSpec]:
                 osm_path=osm_path,
                 route=world.route,
                 pick=pick,
-                tuned=world.tuned,
+                tuned=world.tuned if isinstance(world.tuned, bool) else pick in world.tuned,
                 seeds=suite.seeds,
                 settings=suite.settings,
             )

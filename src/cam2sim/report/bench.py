@@ -83,10 +83,19 @@ def _png(fig: Any) -> str:
 
 
 def _file_img(path: Path, alt: str) -> str:
-    if not path.is_file():
+    """The image at ``path`` embedded as JPEG (failure views: a tenth of their PNG's size)."""
+    import cv2  # noqa: PLC0415
+
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR) if path.is_file() else None
+    ok, buf = (
+        (False, None)
+        if image is None
+        else cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 85])
+    )
+    if not ok or buf is None:
         return f'<p class="note">({_e(alt)}: image missing)</p>'
-    data = base64.b64encode(path.read_bytes()).decode("ascii")
-    return f'<img alt="{_e(alt)}" src="data:image/png;base64,{data}">'
+    data = base64.b64encode(buf.tobytes()).decode("ascii")
+    return f'<img alt="{_e(alt)}" src="data:image/jpeg;base64,{data}">'
 
 
 # -- the tables (shared by HTML, Markdown and CSV) --------------------------------------------

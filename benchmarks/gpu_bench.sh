@@ -1,0 +1,96 @@
+#!/usr/bin/env bash
+# `cam2sim bench` on a GPU machine through a local Ray instance, one GPU a world (issue 37;
+# docs/benchmarks.md, "The street benchmark"). The wheels do not fit one call's 64 MiB, and the
+# suite outlasts one call's 10 minutes, so it runs in several calls on one warm machine (each
+# must reach it within its 30 s idle window):
+#
+#   PHASE=setup bash benchmarks/gpu_bench.sh        # carry .c21/a .gl .osm: wheels, gsplat build
+#   PHASE=start bash benchmarks/gpu_bench.sh        # carry .c21/b .ray .c19: the rest, then the
+#                                                   # suite starts in the background and is watched
+#   PHASE=wait bash benchmarks/gpu_bench.sh         # carry nothing: watch it (repeat as needed)
+#   PHASE=collect bash benchmarks/gpu_bench.sh      # pack what is there into $OUT (also when
+#                                                   # unfinished: the report covers the worlds done)
+#
+# Build the carried folders here first: `bash benchmarks/carry_kit.sh demo lpips ray osm`.
+# SUITE (default benchmarks/suites/streets-gpu.yaml) names the suite; its OSM files are looked for
+# in .osm/ by name. WATCH_S (default 560) is how long start and wait watch before returning.
+case ${PHASE:?set PHASE to setup, start, wait or collect} in
+setup) WHEELS=.c21/a ;;
+start) WHEELS=.c21/b ;;
+wait | collect) WHEELS= ;;
+*)
+  echo "PHASE=$PHASE: use setup, start, wait or collect" >&2
+  exit 2
+  ;;
+esac
+if [ "$PHASE" != setup ] && [ ! -f /tmp/.gpu_bench_setup ]; then
+  echo "this machine is fresh (the one set up went back): run PHASE=setup again first" >&2
+  exit 3
+fi
+export PYTHONUNBUFFERED=1 MAX_JOBS=${MAX_JOBS:-16}
+if [ -n "$WHEELS" ]; then
+  source "$(dirname "$0")/gpu_env.sh" # installs $WHEELS into /tmp/site, sets PYTHONPATH and $out
+else
+  export PYTHONPATH=/tmp/site:$PWD/src
+  out=${OUT:-/tmp/out}
+  mkdir -p "$out"
+fi
+for deb in .gl/*.deb; do [ -f "$deb" ] && dpkg -x "$deb" /; done # the EGL loader (device README)
+ldconfig
+export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
+export CAM2SIM_CACHE=/tmp/cam2sim_cache RAY_AUTH_MODE=disabled
+bench=/tmp/bench
+watch() { # until the bench process ends or WATCH_S passes: one line a minute
+  local until=$((SECONDS + ${WATCH_S:-560}))
+  while [ $SECONDS -lt $until ]; do
+    done_n=$(ls $bench/worlds/*/result.json 2>/dev/null | wc -l)
+    echo "$(date +%H:%M:%S) worlds with a result: $done_n; $(nvidia-smi --query-gpu=utilization.gpu --format=csv,noheader | tr '\n' ' ')"
+    if ! pgrep -f "cam2sim bench" > /dev/null; then
+      echo "the bench process has ended"
+      tail -n 30 /tmp/bench.log
+      return 0
+    fi
+    sleep 60
+  done
+}
+case $PHASE in
+setup)
+  python3 -c "from cam2sim.splat.raster import build_gsplat; build_gsplat()" || exit 1
+  touch /tmp/.gpu_bench_setup || exit 1
+  ;;
+start)
+  tar xJf .ray/ray-slim.tar.xz -C /tmp/site || exit 1
+  python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site .ray/*.whl || exit 1
+  mkdir -p "$CAM2SIM_CACHE/lpips"
+  cp .c19/alexnet.ckpt "$CAM2SIM_CACHE/lpips/"
+  suite=${SUITE:-benchmarks/suites/streets-gpu.yaml}
+  sed -E 's#osm: .*/([^/]+)$#osm: '"$PWD"'/.osm/\1#' "$suite" > /tmp/suite.yaml
+  grep -n "osm:" /tmp/suite.yaml
+  setsid nohup python3 -m cam2sim bench /tmp/suite.yaml -o $bench --ray local \
+    > /tmp/bench.log 2>&1 < /dev/null &
+  sleep 5
+  watch
+  ;;
+wait) watch ;;
+collect)
+  tail -n 40 /tmp/bench.log
+  if ! pgrep -f "cam2sim bench" > /dev/null && [ ! -f $bench/report.html ]; then
+    echo "no report yet" >&2
+  fi
+  if pgrep -f "cam2sim bench" > /dev/null; then # unfinished: a report over the worlds done
+    python3 - << 'EOF'
+from pathlib import Path
+from cam2sim.metrics.benchmark import WorldResult, aggregate
+from cam2sim.report.bench import write_bench_report
+folder = Path("/tmp/bench")
+results = [WorldResult.load(p) for p in sorted(folder.glob("worlds/*/result.json"))]
+write_bench_report(folder, results, aggregate(results), name="streets-gpu (unfinished)")
+EOF
+  fi
+  cp /tmp/bench.log "$out/bench.log"
+  cp $bench/report.html "$out/report.html" 2>/dev/null
+  tar czf "$out/bench.tgz" -C $bench summary.md aggregate.json state.json tables \
+    $(cd $bench && ls worlds/*/result.json logs/*.log 2>/dev/null)
+  ls -la "$out"
+  ;;
+esac
