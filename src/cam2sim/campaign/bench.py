@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -105,11 +106,13 @@ def _method_rows(ws: Workspace) -> tuple[list[MethodRow], DriveMetrics]:
         msg = f"{ws.root} has no drive evaluation ({path}); its evaluate step did not run"
         raise StageError(msg)
     metrics = DriveMetrics.load(path)
+    recorded = Counter(r.method for r in metrics.runs if r.name.endswith("/recorded"))
     rows = [
         MethodRow(
             method=METHOD_LABELS.get(m.method, m.method),
             runs=m.runs,
             failures=m.runs - m.successes,
+            recorded=recorded.get(m.method, 0),
             completion_mean=m.completion_mean,
             min_frechet_m=m.avg_min_frechet_m,
             corridor_violation_pct=m.avg_corridor_violation_pct,

@@ -4,19 +4,23 @@ Each world of a suite (``cam2sim bench``) ends in a :class:`WorldResult`: its be
 method (Real, splat, Sim; the drive metrics' method summaries), its splat's quality and its
 failures. :func:`aggregate` puts them together:
 
-- **failure rate per method** over every run of every world, with a 95 % Wilson score interval
+- **failure rate per method** over every closed-loop run of every world (Real's recorded drive
+  left out), with a 95 % Wilson score interval
   (:func:`wilson_interval`). Runs of one street share the street, so the interval is narrower
   than one over streets would be; the per-street figures below carry the spread between
   streets;
 - **per street, splat against Real** (paired: same street, same seeds): the difference of the
-  failure rates and the ratio of the mean Min-Fréchet distances;
+  closed-loop failure rates (Real's recorded drive left out: it completes by construction) and
+  the ratio of the mean Min-Fréchet distances;
 - **the verdict**: splat is *indistinguishable from Real* on a street when it fails no more
-  often than Real there and its Min-Fréchet distance is at most :data:`FRECHET_RATIO_MAX` times
-  Real's; *Sim fails* on a street when one of its runs fails. Where Sim does not fail, its
+  often than Real's closed-loop runs there and its Min-Fréchet distance is at most
+  :data:`FRECHET_RATIO_MAX` times Real's (or every run of both fails, so neither has one);
+  *Sim fails* on a street when one of its runs fails. Where Sim does not fail, its
   corridor violations and Min-Fréchet ratio are what separate it from Real.
 
 The Real group is what the behaviour table's is (``docs/metrics.md``): the recorded drive plus
-the closed-loop runs in the ground-truth world, so it has one run more than the others.
+the closed-loop runs in the ground-truth world. Rates count the closed-loop runs alone, so each
+method has the same number per street; Min-Fréchet and the corridor keep the group's averages.
 """
 
 from __future__ import annotations
@@ -50,16 +54,33 @@ class _Model(pydantic.BaseModel):
 
 
 class MethodRow(_Model):
-    """One method's behaviour on one street (a column of its behaviour table)."""
+    """One method's behaviour on one street (a column of its behaviour table).
+
+    ``runs`` and ``failures`` count the whole group, the recorded drives included (Real's
+    first run; it completes by construction); ``recorded`` says how many there are, so
+    ``closed_loop_runs`` compares like with like.
+    """
 
     method: str
     runs: int
     failures: int
+    recorded: int = 0
     completion_mean: float
     min_frechet_m: float | None
     corridor_violation_pct: float | None
     jitter: float | None
     failure_types: dict[str, int] = pydantic.Field(default_factory=dict)
+
+    @property
+    def closed_loop_runs(self) -> int:
+        """Closed-loop runs of the method (the recorded drives left out)."""
+        return self.runs - self.recorded
+
+    @property
+    def closed_loop_rate(self) -> float | None:
+        """Failures per closed-loop run (a recorded drive never fails), or None without runs."""
+        n = self.closed_loop_runs
+        return self.failures / n if n > 0 else None
 
 
 class FailureRow(_Model):
@@ -123,7 +144,7 @@ class StreetPair(_Model):
 
     label: str
     tuned: bool
-    real_failures: str
+    real_failures: str = pydantic.Field(description="closed-loop failures / runs")
     splat_failures: str
     sim_failures: str
     failure_rate_diff: float | None
@@ -167,7 +188,7 @@ def _mean(values: list[float]) -> float | None:
 
 def _rate(method: str, worlds: list[WorldResult]) -> MethodRate:
     rows = [r for w in worlds if (r := w.method(method)) is not None]
-    runs = sum(r.runs for r in rows)
+    runs = sum(r.closed_loop_runs for r in rows)
     failures = sum(r.failures for r in rows)
     low, high = wilson_interval(failures, runs)
     return MethodRate(
@@ -187,19 +208,23 @@ def _rate(method: str, worlds: list[WorldResult]) -> MethodRate:
 
 
 def _count(row: MethodRow | None) -> str:
-    return "-" if row is None else f"{row.failures}/{row.runs}"
+    """Closed-loop failures / closed-loop runs."""
+    return "-" if row is None else f"{row.failures}/{row.closed_loop_runs}"
 
 
 def _pair(world: WorldResult) -> StreetPair:
     real, splat, sim = (world.method(m) for m in METHODS)
     diff = ratio = excess = None
     matches = sim_fails = None
-    if real is not None and splat is not None and real.runs and splat.runs:
-        diff = splat.failures / splat.runs - real.failures / real.runs
+    real_rate = None if real is None else real.closed_loop_rate
+    splat_rate = None if splat is None else splat.closed_loop_rate
+    if real is not None and splat is not None and real_rate is not None and splat_rate is not None:
+        diff = splat_rate - real_rate
         if splat.min_frechet_m is not None and real.min_frechet_m:
             ratio = splat.min_frechet_m / real.min_frechet_m
-        close = ratio is None or ratio <= FRECHET_RATIO_MAX
-        matches = diff <= 0.0 and close and splat.min_frechet_m is not None
+        all_fail = splat.min_frechet_m is None and splat_rate == 1.0 and real_rate == 1.0
+        close = ratio is not None and ratio <= FRECHET_RATIO_MAX
+        matches = diff <= 0.0 and (close or all_fail)
     if sim is not None and sim.runs:
         sim_fails = sim.failures > 0
         if real is not None and sim.corridor_violation_pct is not None:

@@ -289,7 +289,7 @@ def write_bench_report(
     write_text_atomic(folder / "aggregate.json", agg.model_dump_json(indent=2) + "\n")
     untuned_rates = bench_tables(untuned, agg_untuned)["rates"]
     titles = {
-        "rates": "Failure rate per method, all streets (Real includes the recorded drive)",
+        "rates": "Failure rate per method over the closed-loop runs of all streets",
         "streets": "Per street: splat against Real (paired), Sim beside them",
         "splat": "The splat per street",
         "failures": "Every failure",
