@@ -9,8 +9,9 @@
 #                          480x360 as lossless WebP (44-47 MiB each; about 210 s each on 2 cores)
 #   .carry/route400tri     the 1,500-frame synthetic route (35 MiB; about 240 s on 2 cores)
 #   .c21/a, .c21/b, .gl    the demo's wheels for benchmarks/gpu_demo.sh's two calls (carla
-#                          0.9.16, pyproj, gsplat: 51 MB; the other 17 packages the GPU image
-#                          lacks: 21 MB) and the EGL loader debs (0.4 MB; needs apt-get)
+#                          0.9.16, pyproj, gsplat: 51 MB; the other 18 packages the GPU image
+#                          lacks, osmium for .osm.pbf extracts among them: 23 MB) and the EGL
+#                          loader debs (0.4 MB; needs apt-get)
 #   .ray/                  Ray for benchmarks/gpu_bench.sh: the cp312 wheel of the version
 #                          installed here without what cam2sim never imports (Java jars, RLlib,
 #                          Tune, Train, Serve, Data, LLM, the dashboard's web client) as one
@@ -73,7 +74,7 @@ from cam2sim.splat.prepare import prepare_scene; prepare_scene(Workspace.open('$
     dl .c21/a carla==0.9.16 pyproj gsplat==1.5.3
     dl .c21/b pydantic==2.14.4 pydantic_core==2.50.5 annotated_types typing_inspection \
       typing_extensions==4.16.0 shapely rosbags backports.zstd apsw lz4 zstandard ruamel.yaml \
-      moderngl glcontext scenariogeneration pyclothoids xmlschema elementpath
+      moderngl glcontext scenariogeneration pyclothoids xmlschema elementpath osmium
     apt=(-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 -oDir::State::Lists=/tmp/amd64)
     mkdir -p /tmp/amd64/partial
     apt-get "${apt[@]}" update > /dev/null

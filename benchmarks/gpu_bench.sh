@@ -4,16 +4,21 @@
 # suite outlasts one call's 10 minutes, so it runs in several calls on one warm machine (each
 # must reach it within its 30 s idle window):
 #
-#   PHASE=setup bash benchmarks/gpu_bench.sh        # carry .c21/a .gl .osm: wheels, gsplat build
-#   PHASE=start bash benchmarks/gpu_bench.sh        # carry .c21/b .ray .c19: the rest, then the
-#                                                   # suite starts in the background and is watched
-#   PHASE=wait bash benchmarks/gpu_bench.sh         # carry nothing: watch it (repeat as needed)
+#   PHASE=setup bash benchmarks/gpu_bench.sh        # carry .c21/a .gl .osm: wheels, gsplat build,
+#                                                   # the extracts copied to /tmp/osm
+#   PHASE=start bash benchmarks/gpu_bench.sh        # carry .c21/b .ray: the rest, then the suite
+#                                                   # starts in the background and is watched
+#   PHASE=wait bash benchmarks/gpu_bench.sh         # carry .gl: watch it (repeat as needed)
 #   PHASE=collect bash benchmarks/gpu_bench.sh      # pack what is there into $OUT (also when
 #                                                   # unfinished: the report covers the worlds done)
 #
-# Build the carried folders here first: `bash benchmarks/carry_kit.sh demo lpips ray osm`.
+# Build the carried folders here first: `bash benchmarks/carry_kit.sh demo ray osm`.
 # SUITE (default benchmarks/suites/streets-gpu.yaml) names the suite; its OSM files are looked for
-# in .osm/ by name. WATCH_S (default 560) is how long start and wait watch before returning.
+# in /tmp/osm by name. WATCH_S (default 560) is how long start and wait watch before returning.
+# Everything the suite reads lives in /tmp on the device: a carried folder that a later call does
+# not carry again is removed there, so .osm/ vanished under the first GPU suite's running worlds.
+# The LPIPS weights do not fit the start call (the splats' LPIPS is then not computed; the
+# bench reads PSNR and SSIM only).
 case ${PHASE:?set PHASE to setup, start, wait or collect} in
 setup) WHEELS=.c21/a ;;
 start) WHEELS=.c21/b ;;
@@ -56,15 +61,14 @@ watch() { # until the bench process ends or WATCH_S passes: one line a minute
 case $PHASE in
 setup)
   python3 -c "from cam2sim.splat.raster import build_gsplat; build_gsplat()" || exit 1
+  mkdir -p /tmp/osm && cp .osm/* /tmp/osm/ || exit 1
   touch /tmp/.gpu_bench_setup || exit 1
   ;;
 start)
   tar xJf .ray/ray-slim.tar.xz -C /tmp/site || exit 1
   python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site .ray/*.whl || exit 1
-  mkdir -p "$CAM2SIM_CACHE/lpips"
-  cp .c19/alexnet.ckpt "$CAM2SIM_CACHE/lpips/"
   suite=${SUITE:-benchmarks/suites/streets-gpu.yaml}
-  sed -E 's#osm: .*/([^/]+)$#osm: '"$PWD"'/.osm/\1#' "$suite" > /tmp/suite.yaml
+  sed -E 's#osm: .*/([^/]+)$#osm: /tmp/osm/\1#' "$suite" > /tmp/suite.yaml
   grep -n "osm:" /tmp/suite.yaml
   setsid nohup python3 -m cam2sim bench /tmp/suite.yaml -o $bench --ray local \
     > /tmp/bench.log 2>&1 < /dev/null &

@@ -178,3 +178,34 @@ def test_an_extract_of_only_deletes_is_refused(tmp_path: Path) -> None:
     body = "<node id='1' lat='48.0' lon='11.0' action='delete' version='1'/>"
     with pytest.raises(StageError):
         osm_demo_world(_osm(tmp_path, body))
+
+
+# -- several routes of one extract (cam2sim bench) ------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["munich.osm", "West-Oakland.osm.bz2"])
+def test_an_extract_gives_several_distinct_routes(name: str) -> None:
+    from cam2sim.demo.osm_world import _graph, _shared, pick_route, pick_routes
+    from cam2sim.map.osm import read_osm
+
+    graph = _graph(read_osm(_real(name)))
+    routes = [r for r, _ in pick_routes(graph, 4)]
+    assert len(routes) == 4
+    assert routes[0].nodes == pick_route(graph)[0].nodes  # the first is the demo's own
+    for i, a in enumerate(routes):
+        assert a.route.length_m >= 150.0
+        for b in routes[i + 1 :]:
+            assert _shared(a, b) <= 0.3  # different streets, not one street twice
+    mids = np.array([r.route.points([r.route.length_m / 2])[0][0] for r in routes])
+    spread = np.hypot(*(mids[:, None] - mids[None]).transpose(2, 0, 1))
+    assert spread[np.triu_indices(4, 1)].min() > 50.0
+
+
+def test_a_picked_route_builds_its_own_world_and_too_many_are_refused() -> None:
+    path = _real("tram_crossing.osm")
+    first = osm_demo_world(path)
+    second = osm_demo_world(path, pick=1)
+    assert first.world.street.name != second.world.street.name
+    assert first.route.nodes != second.route.nodes
+    with pytest.raises(StageError, match=r"distinct drivable route\(s\).*ask for fewer"):
+        osm_demo_world(path, pick=5)

@@ -307,15 +307,15 @@ def _best_route(
 ) -> tuple[OsmRoute | None, int]:
     """The best path near ``anchor`` (see the module's description) and how many were tried.
 
-    Paths that share more than :data:`_MAX_OVERLAP` of their length with a route of ``avoid``
-    are passed over.
+    Paths that share more than :data:`_MAX_OVERLAP` of their length with a route of ``avoid``,
+    or of whose length that much runs along the path, are passed over.
     """
     best: tuple[tuple[float, ...], OsmRoute] | None = None
     seen = 0
     for nodes, ways, fwd in _paths(graph, anchor, budget):
         seen += 1
         cand = _route_of(graph, nodes, ways, fwd, PICK_CUT_M)
-        if cand is None or any(_overlap(cand, other) > _MAX_OVERLAP for other in avoid):
+        if cand is None or any(_shared(cand, other) > _MAX_OVERLAP for other in avoid):
             continue
         length = cand.route.length_m
         mid, _ = cand.route.points([length / 2.0])
@@ -370,6 +370,11 @@ def _overlap(a: OsmRoute, b: OsmRoute) -> float:
     pb, _ = b.route.points(np.arange(0.0, b.route.length_m, 5.0))
     near = np.hypot(*(pa[:, None, :] - pb[None, :, :]).transpose(2, 0, 1)).min(axis=1)
     return float(np.mean(near < _DISTINCT_M))
+
+
+def _shared(a: OsmRoute, b: OsmRoute) -> float:
+    """The larger share of either route's length that runs along the other."""
+    return max(_overlap(a, b), _overlap(b, a))
 
 
 def _anchors(graph: _Graph, n: int) -> npt.NDArray[np.float64]:

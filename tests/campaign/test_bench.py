@@ -1,0 +1,154 @@
+"""``cam2sim bench`` end to end on a two-street CPU suite with tiny settings.
+
+A built-in street and a street picked from an OSM file the test writes (the demo world's own
+extract), one seed, a 10-step splat and a one-epoch DAVE-2: what matters here is the plumbing
+(the worlds run through the campaign pool, their figures, the aggregate table with its
+intervals, the report, the resume, a world that fails), not the driving.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from typing import TYPE_CHECKING
+
+import pytest
+
+from cam2sim.map.convert import has_carla
+from conftest import has_egl
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+pytestmark = pytest.mark.skipif(
+    not (has_carla() and has_egl()), reason="the bench needs carla (map) and headless OpenGL"
+)
+
+SUITE = """
+name: tiny
+seeds: 1
+worlds:
+  - builtin: l-street
+    tuned: true
+  - osm: maps/street.osm
+  - osm: maps/fields.osm
+settings:
+  ads_epochs: 1
+  splat_steps: 10
+timeout_s: 900
+"""
+
+FIELDS = """<?xml version="1.0" encoding="UTF-8"?>
+<osm version="0.6">
+  <node id="1" lat="48.1" lon="11.5"/><node id="2" lat="48.101" lon="11.5"/>
+  <way id="10"><nd ref="1"/><nd ref="2"/><tag k="highway" v="footway"/></way>
+</osm>
+"""
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
+    from cam2sim.campaign.bench import execute_world, run_bench
+    from cam2sim.campaign.executors import LocalPool
+    from cam2sim.demo.world import demo_street, demo_world
+
+    root = tmp_path_factory.mktemp("bench")
+    (root / "maps").mkdir()
+    xml = demo_world(0, demo_street("l-street")).osm_xml()
+    (root / "maps" / "street.osm").write_text(xml, encoding="utf-8")
+    (root / "maps" / "fields.osm").write_text(FIELDS, encoding="utf-8")
+    (root / "suite.yaml").write_text(SUITE, encoding="utf-8")
+    seen: list[tuple[str, int, int | None]] = []
+    result = run_bench(
+        root / "suite.yaml",
+        output=root / "out",
+        executor=LocalPool(1, task=execute_world),
+        progress=lambda *a: seen.append(a),
+    )
+    assert seen[0] == ("benchmark worlds", 0, 3)
+    assert seen[-1] == ("benchmark worlds", 3, 3)
+    return root, result
+
+
+def test_every_world_runs_the_whole_experiment(bench: tuple[Path, object]) -> None:
+    from cam2sim.metrics.benchmark import WorldResult
+
+    root, result = bench
+    assert (result.worlds, result.ran, result.failed) == (3, 3, 1)  # type: ignore[attr-defined]
+    labels = [w.label for w in result.results]  # type: ignore[attr-defined]
+    assert labels == ["l-street", "street-r0"]
+    for label in labels:
+        world = WorldResult.load(root / "out" / "worlds" / label / "result.json")
+        assert {m.method for m in world.methods} == {"Real", "splat", "Sim"}
+        real = world.method("Real")
+        assert real is not None
+        assert (real.recorded, real.closed_loop_runs) == (1, 1)
+        assert world.splat_steps
+        assert set(world.splat_stopped) == {"max_steps"}
+        assert world.splat_held_out_psnr_db is not None
+        # The splat against the truth every 10 m, on the path and 1 m to each side.
+        assert world.profile is not None
+        assert world.profile["offsets_m"] == [-1.0, 0.0, 1.0]
+        assert len(world.profile["s_m"]) >= 15  # type: ignore[arg-type]
+        for failure in world.failures:
+            assert failure.kind
+            assert failure.reason  # the events say what happened
+            assert failure.image is not None
+            assert (root / "out" / "worlds" / label / failure.image).is_file()
+            assert failure.views == ["splat", "truth", "raster"]
+        assert world.tuned == (label == "l-street")
+        assert "recording" in world.step_seconds
+
+
+def test_the_aggregate_table_holds_counts_and_wilson_intervals(
+    bench: tuple[Path, object],
+) -> None:
+    from cam2sim.metrics.benchmark import wilson_interval
+
+    root, result = bench
+    agg = result.aggregate  # type: ignore[attr-defined]
+    assert agg.streets == 2
+    for rate in agg.rates:
+        assert rate.runs == 2  # one closed-loop run a street: the recorded drive is not counted
+        assert (rate.low, rate.high) == pytest.approx(wilson_interval(rate.failures, rate.runs))
+    with (root / "out" / "tables" / "rates.csv").open(encoding="utf-8") as f:
+        rows = {r["method"]: r for r in csv.DictReader(f)}
+    assert set(rows) == {"Real", "splat", "Sim"}
+    for rate in agg.rates:
+        assert int(rows[rate.method]["failures"]) == rate.failures
+        assert float(rows[rate.method]["95% high"]) == pytest.approx(rate.high, abs=5e-4)
+    saved = json.loads((root / "out" / "aggregate.json").read_text(encoding="utf-8"))
+    assert saved["verdict"] == agg.verdict
+    assert agg.verdict.startswith("splat indistinguishable from Real on ")
+    assert [p.label for p in agg.pairs] == ["l-street", "street-r0"]
+
+
+def test_the_report_shows_the_verdict_the_streets_and_the_world_that_failed(
+    bench: tuple[Path, object],
+) -> None:
+    root, result = bench
+    page = (root / "out" / "report.html").read_text(encoding="utf-8")
+    assert result.aggregate.verdict in page  # type: ignore[attr-defined]
+    for label in ("l-street", "street-r0"):
+        assert f'id="w-{label}"' in page
+    assert "fields-r0" in page  # the world without a result, with why
+    assert "no drivable road" in page
+    assert page.count("data:image/png;base64") >= 3  # the rates and two route profiles
+    summary = (root / "out" / "summary.md").read_text(encoding="utf-8")
+    assert "## Worlds without a result" in summary
+    assert "Streets not used while tuning (1)" in summary
+
+
+def test_a_second_run_redoes_only_the_world_without_a_result(bench: tuple[Path, object]) -> None:
+    from cam2sim.campaign.bench import execute_world, run_bench
+    from cam2sim.campaign.executors import LocalPool
+
+    root, first = bench
+    again = run_bench(
+        root / "suite.yaml", output=root / "out", executor=LocalPool(1, task=execute_world)
+    )
+    assert (again.ran, again.failed) == (1, 1)  # only the failed world is tried again
+    assert again.aggregate == first.aggregate  # type: ignore[attr-defined]
+    state = json.loads((root / "out" / "state.json").read_text(encoding="utf-8"))
+    attempts = {r["workspace"]: r["attempts"] for r in state["runs"].values()}
+    assert attempts == {"l-street": 1, "street-r0": 1, "fields-r0": 2}

@@ -1,0 +1,86 @@
+"""The benchmark suite file: validation, expansion into worlds, stable ids."""
+
+from __future__ import annotations
+
+import shutil
+from typing import TYPE_CHECKING
+
+import pytest
+
+from cam2sim.campaign.suite import expand_suite, load_suite
+from cam2sim.core.errors import ConfigError
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+SUITE = """
+name: s
+seeds: 2
+worlds:
+  - builtin: l-street
+    tuned: true
+  - osm: maps/a.osm
+    routes: 3
+    tuned: [0]
+  - osm: maps/a.osm
+    route: ["48.1,11.5", "48.2,11.6"]
+"""
+
+
+def _suite(root: Path, text: str = SUITE) -> Path:
+    (root / "maps").mkdir(parents=True, exist_ok=True)
+    (root / "maps" / "a.osm").write_text("<osm/>", encoding="utf-8")
+    path = root / "suite.yaml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def test_a_suite_expands_to_one_world_a_route(tmp_path: Path) -> None:
+    path = _suite(tmp_path)
+    specs = expand_suite(load_suite(path), tmp_path)
+    assert [s.label for s in specs] == ["l-street", "a-r0", "a-r1", "a-r2", "a-route"]
+    assert [s.tuned for s in specs] == [True, True, False, False, False]
+    assert [s.pick for s in specs] == [0, 0, 1, 2, 0]
+    assert specs[1].osm_path == str((tmp_path / "maps" / "a.osm").resolve())
+    assert all(s.seeds == 2 and s.needs_gpu for s in specs)
+    assert len({s.spec_id for s in specs}) == len(specs)
+
+
+def test_ids_stay_when_the_suite_and_its_maps_move(tmp_path: Path) -> None:
+    first = expand_suite(load_suite(_suite(tmp_path / "a")), tmp_path / "a")
+    shutil.copytree(tmp_path / "a", tmp_path / "b")
+    second = expand_suite(load_suite(tmp_path / "b" / "suite.yaml"), tmp_path / "b")
+    assert [s.spec_id for s in first] == [s.spec_id for s in second]
+    changed = SUITE.replace("seeds: 2", "seeds: 3")
+    third = expand_suite(load_suite(_suite(tmp_path / "c", changed)), tmp_path / "c")
+    assert not {s.spec_id for s in first} & {s.spec_id for s in third}
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        ("worlds:\n  - builtin: l-street\n    tunde: true\n", "did you mean 'tuned'"),
+        ("worlds:\n  - builtin: l-street\n    osm: maps/a.osm\n", "exactly one of `builtin:`"),
+        ("worlds:\n  - builtin: moon\n", "worlds.0.builtin"),
+        ("worlds:\n  - osm: maps/a.osm\n    routes: 2\n    route: [a, b]\n", "not both"),
+        ("worlds: []\n", "worlds"),
+        ("seeds: 0\nworlds:\n  - builtin: paper\n", "seeds"),
+    ],
+)
+def test_a_bad_suite_says_which_key_and_what_to_do(tmp_path: Path, text: str, needle: str) -> None:
+    path = _suite(tmp_path, text)
+    with pytest.raises(ConfigError, match="invalid benchmark suite") as err:
+        load_suite(path)
+    assert str(path) in str(err.value)
+    assert needle in str(err.value)
+
+
+def test_a_missing_map_is_named_with_its_resolved_path(tmp_path: Path) -> None:
+    path = _suite(tmp_path, "worlds:\n  - osm: maps/b.osm\n")
+    with pytest.raises(ConfigError, match=r"maps/b\.osm: no such file"):
+        expand_suite(load_suite(path), tmp_path)
+
+
+def test_a_missing_suite_file_says_what_to_write(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="benchmark suite"):
+        load_suite(tmp_path / "none.yaml")
