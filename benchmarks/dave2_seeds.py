@@ -27,11 +27,11 @@ from typing import Any
 
 from cam2sim.ads.export import export_onnx
 from cam2sim.ads.train import TrainOptions
-from cam2sim.stages.experiment import DEMO_STEERING_NOISE
 from cam2sim.core.workspace import Workspace
 from cam2sim.scenario.model import Scenario
 from cam2sim.sim.builtin import BuiltinOptions
 from cam2sim.stages.ads import train_model
+from cam2sim.stages.experiment import DEMO_STEERING_NOISE
 from cam2sim.stages.pipeline import evaluate_workspace_drives
 from cam2sim.stages.runs import DriveOptions, drive
 from cam2sim.stages.variation import DEMO_RUN_VARIATION
