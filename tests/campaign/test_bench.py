@@ -35,6 +35,7 @@ worlds:
 settings:
   ads_epochs: 1
   splat_steps: 10
+  profile_every_m: 40
 timeout_s: 900
 """
 
@@ -89,7 +90,7 @@ def test_every_world_runs_the_whole_experiment(bench: tuple[Path, object]) -> No
         # The splat against the truth every 10 m, on the path and 1 m to each side.
         assert world.profile is not None
         assert world.profile["offsets_m"] == [-1.0, 0.0, 1.0]
-        assert len(world.profile["s_m"]) >= 15  # type: ignore[arg-type]
+        assert len(world.profile["s_m"]) >= 5  # type: ignore[arg-type]
         for failure in world.failures:
             assert failure.kind
             assert failure.reason  # the events say what happened
@@ -98,6 +99,7 @@ def test_every_world_runs_the_whole_experiment(bench: tuple[Path, object]) -> No
             assert failure.views == ["splat", "truth", "raster"]
         assert world.tuned == (label == "l-street")
         assert "recording" in world.step_seconds
+        assert "report" not in world.step_seconds  # the world's own report is left out
 
 
 def test_the_aggregate_table_holds_counts_and_wilson_intervals(

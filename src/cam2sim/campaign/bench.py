@@ -211,9 +211,7 @@ def _splat_facts(ws: Workspace) -> dict[str, object]:
     return facts
 
 
-def world_result(
-    spec: WorldSpec, done: Experiment, seconds: float, *, profile: bool = True
-) -> WorldResult:
+def world_result(spec: WorldSpec, done: Experiment, seconds: float) -> WorldResult:
     """The figures of one finished world (see the module's description).
 
     Raises:
@@ -225,7 +223,7 @@ def world_result(
     ws = done.ws
     methods, metrics = _method_rows(ws)
     failures = _failures(ws, metrics, METHOD_LABELS)
-    prof = route_profile(ws).to_json() if profile else None
+    prof = route_profile(ws, every_m=spec.settings.profile_every_m).to_json()
     steps = {o.name: round(o.seconds, 1) for o in done.result.outcomes if o.seconds}
     if done.built_s is not None:
         steps = {"recording": round(done.built_s, 1), **steps}

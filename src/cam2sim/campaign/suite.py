@@ -89,6 +89,9 @@ class SuiteSettings(_Model):
     save_frames: bool = pydantic.Field(
         default=True, description="keep the closed-loop runs' frames (the failure pictures)"
     )
+    profile_every_m: float = pydantic.Field(
+        10.0, gt=0, description="the splat against the truth every this many metres of route"
+    )
 
 
 class Suite(_Model):
