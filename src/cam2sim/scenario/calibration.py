@@ -7,6 +7,8 @@ metres) is regressed on the recorded steering signal at the same times; the slop
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import numpy.typing as npt
 
@@ -14,7 +16,122 @@ from cam2sim.core.errors import ConfigError
 from cam2sim.core.polyline import arc_length
 from cam2sim.core.vehicle import SteeringCalibration
 
-__all__ = ["fit_steering_calibration"]
+__all__ = ["PathCurvature", "fit_steering_calibration", "path_curvature", "steering_from_poses"]
+
+
+@dataclass(frozen=True)
+class PathCurvature:
+    """A driven path's curvature, sampled every ``spacing_m`` metres of arc length.
+
+    Attributes:
+        s: ``(K,)`` arc length of each sample, metres.
+        t: ``(K,)`` when the vehicle reached it, seconds.
+        kappa: ``(K,)`` curvature (1/m, positive turning left): the heading's change over a
+            centred window of ``2 * half`` samples.
+        speed: ``(K,)`` the slowest speed within that window, m/s.
+        full: ``(K,)`` whether the window lies whole within the path (not cut at an end).
+        half: Samples on each side of the window.
+        length_m: The whole path's length.
+    """
+
+    s: npt.NDArray[np.float64]
+    t: npt.NDArray[np.float64]
+    kappa: npt.NDArray[np.float64]
+    speed: npt.NDArray[np.float64]
+    full: npt.NDArray[np.bool_]
+    half: int
+    length_m: float
+
+    def valid_at(self, min_speed: float) -> npt.NDArray[np.bool_]:
+        """Samples with a whole window, driven at ``min_speed`` or faster."""
+        ok: npt.NDArray[np.bool_] = self.full & (self.speed >= min_speed)
+        return ok
+
+
+def path_curvature(
+    t_pose: npt.ArrayLike,
+    xy: npt.ArrayLike,
+    heading: npt.ArrayLike,
+    speed: npt.ArrayLike,
+    *,
+    spacing_m: float = 0.5,
+    window_m: float = 3.0,
+) -> PathCurvature:
+    """The curvature of a driven path (see :func:`fit_steering_calibration`).
+
+    The path is resampled by arc length, so bursty pose timestamps and standing still do not
+    matter; the heading is unwrapped first.
+    """
+    tp = np.asarray(t_pose, dtype=np.float64).reshape(-1)
+    p = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    hd = np.asarray(heading, dtype=np.float64).reshape(-1)
+    sp = np.asarray(speed, dtype=np.float64).reshape(-1)
+    order = np.argsort(tp, kind="stable")
+    tp, p, hd, sp = tp[order], p[order], np.unwrap(hd[order]), sp[order]
+    s = arc_length(p)
+    grid = np.arange(0.0, s[-1], spacing_m) if s[-1] > spacing_m else np.zeros(0)
+    # Arc length only grows while moving; take the first pose reaching each grid station.
+    keep = np.concatenate([[True], np.diff(s) > 0])
+    s_k, t_k, h_k, v_k = s[keep], tp[keep], hd[keep], sp[keep]
+    half = max(1, round(window_m / spacing_m))
+    t_g = np.interp(grid, s_k, t_k)
+    h_g = np.interp(grid, s_k, h_k)
+    v_g = np.interp(grid, s_k, v_k)
+    idx = np.arange(grid.shape[0])
+    lo = np.clip(idx - half, 0, max(grid.shape[0] - 1, 0))
+    hi = np.clip(idx + half, 0, max(grid.shape[0] - 1, 0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        kappa = (h_g[hi] - h_g[lo]) / (grid[hi] - grid[lo])
+    return PathCurvature(
+        s=grid,
+        t=t_g,
+        kappa=np.nan_to_num(kappa),
+        speed=np.minimum(np.minimum(v_g[lo], v_g[hi]), v_g) if grid.size else v_g,
+        full=(hi - lo) == 2 * half,
+        half=half,
+        length_m=float(s[-1]) if s.size else 0.0,
+    )
+
+
+def steering_from_poses(
+    t_pose: npt.ArrayLike,
+    xy: npt.ArrayLike,
+    heading: npt.ArrayLike,
+    speed: npt.ArrayLike,
+    calibration: SteeringCalibration,
+    *,
+    min_speed: float = 2.0,
+    spacing_m: float = 0.5,
+    window_m: float = 3.0,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """A steering signal for a recording that has none: the path's curvature in steering units.
+
+    The kinematic bicycle model turns a wheel angle ``delta`` into the path curvature
+    ``tan(delta) / wheelbase``; :class:`~cam2sim.core.vehicle.SteeringCalibration` maps a
+    steering command to that curvature (``kappa = k * command``). So the command that drives the
+    recorded path is ``kappa / k`` with ``kappa`` from :func:`path_curvature`. Samples slower
+    than ``min_speed`` (and the first and last window) hold the nearest valid value: standing
+    still, position jitter has no meaningful curvature.
+
+    Returns:
+        ``(t, steering)``: the times the path's arc-length samples were reached, seconds, and
+        the steering command there.
+
+    Raises:
+        ConfigError: The path has no stretch driven at ``min_speed`` long enough for a window.
+    """
+    curve = path_curvature(t_pose, xy, heading, speed, spacing_m=spacing_m, window_m=window_m)
+    ok = curve.valid_at(min_speed)
+    if not np.any(ok):
+        msg = (
+            f"the poses drive {curve.length_m:.1f} m with no stretch of {2 * window_m:.0f} m at "
+            f"{min_speed} m/s or faster: steering cannot be derived from them"
+        )
+        raise ConfigError(msg)
+    idx = np.arange(curve.s.shape[0])
+    nearest = np.interp(idx, idx[ok], idx[ok]).round().astype(np.int64)
+    steering = curve.kappa[nearest] / calibration.curvature_per_unit
+    return curve.t, steering
 
 
 def _window_mean(values: npt.NDArray[np.float64], half: int) -> npt.NDArray[np.float64]:
@@ -79,34 +196,19 @@ def fit_steering_calibration(  # noqa: PLR0913
             f"{sp.shape[0]} speeds; pass matching arrays"
         )
         raise ConfigError(msg)
-    order = np.argsort(tp, kind="stable")
-    tp, p, hd, sp = tp[order], p[order], np.unwrap(hd[order]), sp[order]
     so = np.argsort(ts, kind="stable")
     ts, st = ts[so], st[so]
-
-    s = arc_length(p)
-    grid = np.arange(0.0, s[-1], spacing_m) if s[-1] > spacing_m else np.zeros(0)
-    # Arc length only grows while moving; take the first pose reaching each grid station.
-    keep = np.concatenate([[True], np.diff(s) > 0])
-    s_k, t_k, h_k, v_k = s[keep], tp[keep], hd[keep], sp[keep]
-    half = max(1, round(window_m / spacing_m))
-    if grid.shape[0] < 2 * half + 3:
+    curve = path_curvature(tp, p, hd, sp, spacing_m=spacing_m, window_m=window_m)
+    half = curve.half
+    if curve.s.shape[0] < 2 * half + 3:
         msg = (
-            f"the recording drives {s[-1]:.1f} m; fitting the steering calibration needs at "
-            f"least {(2 * half + 3) * spacing_m:.0f} m of driving (or give curvature_per_unit)"
+            f"the recording drives {curve.length_m:.1f} m; fitting the steering calibration needs "
+            f"at least {(2 * half + 3) * spacing_m:.0f} m of driving (or give curvature_per_unit)"
         )
         raise ConfigError(msg)
-    t_g = np.interp(grid, s_k, t_k)
-    h_g = np.interp(grid, s_k, h_k)
-    v_g = np.interp(grid, s_k, v_k)
-    idx = np.arange(grid.shape[0])
-    lo = np.clip(idx - half, 0, grid.shape[0] - 1)
-    hi = np.clip(idx + half, 0, grid.shape[0] - 1)
-    kappa = (h_g[hi] - h_g[lo]) / (grid[hi] - grid[lo])
+    t_g, kappa = curve.t, curve.kappa
     steer_g = _window_mean(np.interp(t_g, ts, st), half)
-    v_min = np.minimum(np.minimum(v_g[lo], v_g[hi]), v_g)
-    ok = (hi - lo == 2 * half) & (v_min >= min_speed)
-    ok &= (t_g >= ts[0]) & (t_g <= ts[-1])
+    ok = curve.valid_at(min_speed) & (t_g >= ts[0]) & (t_g <= ts[-1])
     x, y = steer_g[ok], kappa[ok]
     if x.shape[0] < 10 or np.ptp(x) <= 0:
         msg = (
