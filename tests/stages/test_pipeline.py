@@ -295,3 +295,26 @@ def test_runs_with_splat_or_truth_cameras_depend_on_their_models(
     first = pipeline._camera_inputs(("truth",))
     world.write_text('{"changed": 1}', encoding="utf-8")
     assert pipeline._camera_inputs(("truth",)) != first
+
+
+def test_a_recording_without_steering_gets_it_from_its_poses(
+    tmp_path: Path, recording: tuple[Path, Path]
+) -> None:
+    from cam2sim.core.table import read_table
+    from cam2sim.stages.ads import DERIVED_STEERING, derive_steering
+
+    bag, osm = recording
+    config = _config(bag)
+    config = config.model_copy(update={"topics": config.topics.model_copy(update={"signals": {}})})
+    ws = Workspace.create(tmp_path / "ws", config)
+    run_pipeline(ws, options=_fast(osm, steps=("extract",)))
+    assert not any(ws.dataset_dir.joinpath("signals").glob("*.csv"))
+    assert derive_steering(ws) == DERIVED_STEERING
+    table = read_table(ws.dataset_dir / "signals" / f"{DERIVED_STEERING}.csv")
+    trajectory = read_table(ws.dataset_dir / "trajectory.csv")
+    stamps = table["stamp_ns"].astype(np.int64)
+    assert np.all(np.diff(stamps) > 0)
+    assert stamps[0] >= trajectory["stamp_ns"][0]
+    assert stamps[-1] <= trajectory["stamp_ns"][-1]
+    assert stamps.size > 0.8 * SPEED * DURATION_S / 0.5  # a sample every 0.5 m driven
+    np.testing.assert_allclose(table["value"], 0.0, atol=1e-6)  # the street is straight

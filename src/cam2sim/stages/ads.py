@@ -33,8 +33,10 @@ if TYPE_CHECKING:
     from cam2sim.ads.train import TrainedModel, TrainOptions, TrainReport
 
 __all__ = [
+    "DERIVED_STEERING",
     "ExportAdsResult",
     "TrainAdsResult",
+    "derive_steering",
     "export_ads",
     "recovery_geometry",
     "train_ads",
@@ -47,6 +49,59 @@ EXPORT_STAGE: Final = "ads_export"
 ONNX_FILE: Final = "dave2.onnx"
 EXPORT_REPORT: Final = "export.json"
 _PARITY_FRAMES: Final = 8
+DERIVED_STEERING: Final = "steering_from_poses"
+"""The signal :func:`derive_steering` writes for a recording without a steering signal."""
+
+
+def derive_steering(ws: Workspace) -> str:
+    """Write a steering signal derived from the recording's path; return its name.
+
+    For recordings without a steering signal (a camera drive with GPS/IMU or SLAM poses): the
+    path's curvature in steering units (:func:`cam2sim.scenario.calibration.steering_from_poses`,
+    with the workspace's steering calibration: the default without a steering signal to fit it
+    on) at the times the path's 0.5 m samples were reached, as
+    ``WS/dataset/signals/steering_from_poses.csv``. On the reference drives it correlates 0.98
+    with the measured steering (``docs/benchmarks.md``).
+
+    Raises:
+        StageError: No dataset or no trajectory, or the vehicle never drives.
+    """
+    import numpy as np  # noqa: PLC0415
+
+    from cam2sim.core.errors import ConfigError  # noqa: PLC0415
+    from cam2sim.core.table import read_table, write_table  # noqa: PLC0415
+    from cam2sim.scenario.calibration import steering_from_poses  # noqa: PLC0415
+
+    _dataset(ws)
+    paths = dataset_paths(ws.dataset_dir)
+    if not paths.trajectory_csv.is_file():
+        msg = (
+            f"{ws.root} has no steering signal and no trajectory ({paths.trajectory_csv}) to "
+            "derive one from; map a steering topic in config.yaml or import poses"
+        )
+        raise StageError(msg)
+    tr = read_table(paths.trajectory_csv)
+    stamp = tr["stamp_ns"].astype(np.int64)
+    try:
+        t, value = steering_from_poses(
+            (stamp - stamp[0]) / 1e9,
+            np.stack([tr["x"], tr["y"]], 1).astype(np.float64),
+            tr["heading"].astype(np.float64),
+            tr["speed"].astype(np.float64),
+            steering_calibration(ws),
+        )
+    except ConfigError as err:
+        msg = f"{ws.root}: {err}"
+        raise StageError(msg) from None
+    stamps = stamp[0] + np.round(t * 1e9).astype(np.int64)
+    keep = np.concatenate([[True], np.diff(stamps) > 0])  # standing still: one sample a stamp
+    write_table(
+        paths.signal_file(DERIVED_STEERING),
+        {"stamp_ns": stamps[keep], "t": stamps[keep] / 1e9, "value": value[keep]},
+        precision={"value": 9},
+    )
+    logger.info("steering derived from the poses: %d samples", int(keep.sum()))
+    return DERIVED_STEERING
 
 
 @dataclass(frozen=True)

@@ -33,7 +33,7 @@ from cam2sim.scenario.model import Scenario
 from cam2sim.sim.builtin import BuiltinOptions
 from cam2sim.splat.prepare import PrepareOptions
 from cam2sim.splat.train import DensifyOptions, TrainOptions
-from cam2sim.stages.ads import TRAIN_STAGE, export_ads, train_ads
+from cam2sim.stages.ads import TRAIN_STAGE, derive_steering, export_ads, train_ads
 from cam2sim.stages.detect import DetectOptions, run_detect
 from cam2sim.stages.evaluate import (
     EVALUATE_STAGE,
@@ -445,9 +445,16 @@ class _Pipeline:
             raise _NotApplicableError(msg)
         self._require_motion("DAVE-2 learns steering from a drive")
         signal = self._steering_signal()
+        derived = ""
         if signal is None:
-            msg = "the recording has no steering signal (name a signal 'steering' in config.yaml)"
-            raise _NotApplicableError(msg)
+            if not dataset_paths(self.ws.dataset_dir).trajectory_csv.is_file():
+                msg = (
+                    "the recording has no steering signal and no poses to derive one from (name "
+                    "a signal 'steering' in config.yaml)"
+                )
+                raise _NotApplicableError(msg)
+            signal = derive_steering(self.ws)
+            derived = " (steering derived from the poses: the recording has none)"
         opts = (
             TrainOptions(signal=signal)
             if self.options.ads is None
@@ -458,9 +465,10 @@ class _Pipeline:
         )
         onnx = self.ws.ads_dir / "dave2.onnx"
         if step.up_to_date and onnx.is_file():
+            step.message = derived.strip(" ()")
             return
         step.up_to_date = False
-        step.message = f"wrote {export_ads(self.ws, progress=self.progress).path}"
+        step.message = f"wrote {export_ads(self.ws, progress=self.progress).path}{derived}"
 
     def _policy(self) -> str:
         if self.options.policy is not None:
