@@ -104,6 +104,11 @@ def test_import_converts_reference_poses_to_the_world_frame(tmp_path: Path) -> N
     assert np.degrees(np.abs(frames.angle_difference(heading_utm, want_heading))).max() < 0.1
     # The world frame starts at the first pose.
     assert np.abs(wf.from_crs(UTM32N, [[E0, N0, 0.0]])).max() < 1e-3
+    # The trajectory the map, scenario and derived steering read: the images' poses in order.
+    trajectory = read_table(DatasetPaths(tmp_path / "ws" / "dataset").trajectory_csv)
+    np.testing.assert_array_equal(trajectory["stamp_ns"], table["stamp_ns"])
+    for column in ("x", "y", "z", "qx", "qy", "qz", "qw", "heading", "speed"):
+        np.testing.assert_array_equal(trajectory[column], table[column])
 
 
 def test_import_drops_and_counts_images_outside_the_pose_span(tmp_path: Path) -> None:
@@ -164,6 +169,7 @@ def test_import_without_poses_writes_a_pose_less_dataset(tmp_path: Path) -> None
     assert not info.world.georeferenced
     paths = DatasetPaths(tmp_path / "ws" / "dataset")
     assert not paths.poses_csv.exists()
+    assert not paths.trajectory_csv.exists()
     table = read_table(paths.frames_csv)
     np.testing.assert_array_equal(table["frame"], np.arange(4))
     np.testing.assert_array_equal(table["stamp_ns"], stamps)
@@ -278,3 +284,72 @@ def test_import_udacity_frames_as_a_pose_less_dataset(tmp_path: Path, shared_dat
     assert info.start_ns == int(stamps[0])
     assert info.end_ns == int(stamps[-1])
     assert (folder / f"{names[0]}.jpg").read_bytes() == paths.frame_file(0, "jpeg").read_bytes()
+
+
+# -- KITTI's poses.txt and K.txt -------------------------------------------------------------
+
+_B = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # vehicle axes, optical
+
+
+def _kitti_lines(xy: np.ndarray, heading: np.ndarray, z: float) -> list[str]:
+    """KITTI camera-to-world lines of vehicle poses (the first camera's frame is the world)."""
+    lines = []
+    for (x, y), h in zip(xy, heading, strict=True):
+        c, s = math.cos(h), math.sin(h)
+        r_wv = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        m = np.hstack([_B @ r_wv @ _B.T, (_B @ np.array([x, y, z]))[:, None]])
+        lines.append(" ".join(f"{v:.9e}" for v in m.ravel()))
+    return lines
+
+
+def test_import_reads_kitti_poses_and_a_bare_K(tmp_path: Path) -> None:
+    n = 12
+    s = np.arange(n) * 1.0
+    heading = np.where(s > 5, (s - 5) * 0.05, 0.0)  # straight, then turning left
+    xy = np.cumsum(np.stack([np.cos(heading), np.sin(heading)], -1), axis=0) - [1.0, 0.0]
+    poses = tmp_path / "poses.txt"
+    poses.write_text("\n".join(_kitti_lines(xy, heading, 0.0)) + "\n", encoding="utf-8")
+    (tmp_path / "K.txt").write_text("20 0 8\n0 20 6\n0 0 1\n", encoding="utf-8")
+    _write_images(tmp_path / "images", [f"{k:06d}.png" for k in range(n + 2)])  # 2 unposed
+    opts = ImportOptions(poses=poses, calibration=tmp_path / "K.txt", fps=10.0)
+    info = import_images(tmp_path / "ws", tmp_path / "images", options=opts).info
+    assert info.counts.frames == n
+    assert not info.world.georeferenced
+    paths = DatasetPaths(tmp_path / "ws" / "dataset")
+    table = read_table(paths.poses_csv)
+    np.testing.assert_allclose(table["x"], xy[:, 0], atol=1e-6)
+    np.testing.assert_allclose(table["y"], xy[:, 1], atol=1e-6)
+    np.testing.assert_allclose(table["z"], 0.0, atol=1e-6)
+    np.testing.assert_allclose(table["heading"], heading, atol=1e-6)
+    np.testing.assert_array_equal(table["stamp_ns"], np.arange(n) * 100_000_000)  # 10 fps
+    assert paths.trajectory_csv.is_file()
+    camera = Calibration.load(paths.calibration_json).camera
+    assert camera is not None
+    assert (camera.width, camera.height) == (16, 12)  # from the images
+    assert camera.K[0][0] == 20.0
+    assert "size from the images" in camera.source
+
+
+def test_a_calibration_that_is_neither_json_nor_K_says_what_is_accepted(tmp_path: Path) -> None:
+    _write_images(tmp_path / "images", ["000000.png", "000001.png"])
+    (tmp_path / "K.txt").write_text("20 0 8\n0 20 6\n0 0\n", encoding="utf-8")
+    with pytest.raises(RecordingError, match=r"neither JSON .* nor a plain 3x3 K matrix"):
+        import_images(
+            tmp_path / "ws",
+            tmp_path / "images",
+            options=ImportOptions(calibration=tmp_path / "K.txt"),
+        )
+
+
+def test_import_kitti_03_as_published(tmp_path: Path, shared_data: Path) -> None:
+    kitti = shared_data / "posed" / "kitti-odometry-03"
+    opts = ImportOptions(poses=kitti / "poses.txt", calibration=kitti / "K.txt", fps=10.0)
+    info = import_images(tmp_path / "ws", kitti / "images", options=opts).info
+    assert info.counts.frames == 40
+    table = read_table(DatasetPaths(tmp_path / "ws" / "dataset").poses_csv)
+    # KITTI 03 starts driving straight ahead at about 35 km/h, on a level road.
+    assert table["x"][-1] > 30.0
+    assert abs(table["y"][-1]) < 2.0
+    assert np.abs(table["z"]).max() < 1.0
+    assert 8.0 < float(np.median(table["speed"])) < 11.0
+    assert np.abs(table["heading"]).max() < 0.1

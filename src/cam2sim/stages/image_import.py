@@ -98,6 +98,14 @@ def stamps_from_names(files: list[Path], *, fps: float) -> tuple[npt.NDArray[np.
     return stamps, f"frame index at {fps:g} fps"
 
 
+def _image_size(path: Path) -> tuple[int, int] | None:
+    """``(width, height)`` of an image file, or None when it cannot be read."""
+    import cv2  # noqa: PLC0415 -- lazy: cv2 is heavy
+
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    return None if image is None else (int(image.shape[1]), int(image.shape[0]))
+
+
 def _column(rows: list[dict[str, str]], *names: str) -> str | None:
     for name in names:
         if name in rows[0]:
@@ -120,6 +128,48 @@ class _PoseTable:
     xyz: npt.NDArray[np.float64]
     quat: npt.NDArray[np.float64]
     images: list[str] | None
+    by_index: bool = False  # row k is the k-th image (KITTI's poses.txt)
+
+
+# KITTI's camera-to-world poses: camera axes x right, y down, z forward, in the first camera's
+# frame. The vehicle frame is x forward, y left, z up; its columns in camera axes:
+_VEHICLE_IN_OPTICAL = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+# The world: the first camera's frame turned z up (x forward, y left at the start).
+_WORLD_FROM_FIRST_CAMERA = _VEHICLE_IN_OPTICAL.T
+
+
+def _is_kitti(line: str) -> bool:
+    """Whether a line is a KITTI pose: 12 numbers, whitespace-separated, no header."""
+    parts = line.split()
+    if len(parts) != 12 or "," in line:
+        return False
+    try:
+        [float(p) for p in parts]
+    except ValueError:
+        return False
+    return True
+
+
+def _read_kitti_poses(path: Path, lines: list[str]) -> _PoseTable:
+    """KITTI odometry poses (one 3x4 camera-to-world matrix a line, row k = image k).
+
+    The vehicle pose is the camera's position with the vehicle's axes (x forward, y left,
+    z up), in the first camera's frame turned z up; the camera's mount is then the identity
+    optical mount at the pose point (the pose point is the camera, above the road).
+    """
+    try:
+        m = np.array([[float(v) for v in ln.split()] for ln in lines]).reshape(-1, 3, 4)
+    except ValueError as err:
+        msg = f"{path}: a KITTI pose line is not 12 numbers ({err}); fix that line"
+        raise RecordingError(msg) from None
+    rot = _WORLD_FROM_FIRST_CAMERA @ m[:, :, :3] @ _VEHICLE_IN_OPTICAL
+    xyz = (_WORLD_FROM_FIRST_CAMERA @ m[:, :, 3:]).reshape(-1, 3)
+    if not (np.isfinite(xyz).all() and np.isfinite(rot).all()):
+        msg = f"{path}: NaN/inf in the poses; remove those lines"
+        raise RecordingError(msg)
+    quat = frames.quat_from_matrix(rot)
+    stamps = np.arange(len(m), dtype=np.int64)  # placeholders: the images give the times
+    return _PoseTable(stamps, xyz, frames.quat_normalize(quat), None, by_index=True)
 
 
 def _read_pose_table(path: Path) -> _PoseTable:
@@ -129,6 +179,8 @@ def _read_pose_table(path: Path) -> _PoseTable:
     except FileNotFoundError:
         msg = f"--poses {path} does not exist"
         raise RecordingError(msg) from None
+    if lines and _is_kitti(lines[0]):
+        return _read_kitti_poses(path, lines)
     if lines and lines[0].startswith("#"):
         lines[0] = lines[0].lstrip("#")
     rows = [{k.strip(): (v or "").strip() for k, v in r.items()} for r in csv.DictReader(lines)]
@@ -174,16 +226,49 @@ def _read_pose_table(path: Path) -> _PoseTable:
     return _PoseTable(stamps, xyz, frames.quat_normalize(quat), images)
 
 
-def intrinsics_from_file(path: Path) -> tuple[CameraIntrinsics, MountRecord | None]:
+def _text_K(path: Path, text: str, size: tuple[int, int] | None) -> CameraIntrinsics | None:
+    """Intrinsics from a plain-text K (3x3, 9 numbers) or a KITTI ``P0:`` line; else None."""
+    first = next((ln for ln in text.splitlines() if ln.strip()), "")
+    tokens = first.split(":", 1)[1].split() if first.startswith("P0:") else text.split()
+    try:
+        values = [float(v) for v in tokens]
+    except ValueError:
+        return None
+    if len(values) == 12:  # a KITTI projection matrix P0 = K [I | 0]
+        values = [values[i] for i in (0, 1, 2, 4, 5, 6, 8, 9, 10)]
+    if len(values) != 9:
+        return None
+    if size is None:
+        msg = f"--calibration {path} is a bare K matrix; the image size must come from the images"
+        raise RecordingError(msg)
+    camera = PinholeCamera.from_K(np.asarray(values).reshape(3, 3), size[0], size[1], [])
+    return CameraIntrinsics.from_camera(camera, f"file {path} (K; size from the images)")
+
+
+def intrinsics_from_file(
+    path: Path, size: tuple[int, int] | None = None
+) -> tuple[CameraIntrinsics, MountRecord | None]:
     """Read camera intrinsics (and a mount, when the file has one).
 
-    Accepts our ``calibration.json``, a Cam2Sim ``camera.json``, or plain JSON
-    ``{K, distortion, width, height}``.
+    Accepts our ``calibration.json``, a Cam2Sim ``camera.json``, plain JSON
+    ``{K, distortion, width, height}``, or a plain-text K (3x3: KITTI's ``K.txt``, or the
+    ``P0:`` line of its ``calib.txt``), whose image ``size`` (width, height) the images give.
     """
     try:
-        raw: Any = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as err:
-        msg = f"--calibration {path}: cannot read JSON ({err})"
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as err:
+        msg = f"--calibration {path}: cannot read it ({err})"
+        raise RecordingError(msg) from None
+    try:
+        raw: Any = json.loads(text)
+    except json.JSONDecodeError as err:
+        intr = _text_K(Path(path), text, size)
+        if intr is not None:
+            return intr, None
+        msg = (
+            f"--calibration {path}: neither JSON ({err}) nor a plain 3x3 K matrix; pass a "
+            "calibration.json, a camera.json or a K.txt"
+        )
         raise RecordingError(msg) from None
     if isinstance(raw, dict) and "camera_mount" in raw:
         calib = Calibration.model_validate(raw)
@@ -195,9 +280,9 @@ def intrinsics_from_file(path: Path) -> tuple[CameraIntrinsics, MountRecord | No
     if isinstance(raw, dict) and isinstance(raw.get("camera"), dict):
         cam = raw["camera"]
         cal = cam.get("calibration", {})
-        size = cam.get("original_size", {})
+        original = cam.get("original_size", {})
         raw = {"K": cal.get("K"), "distortion": cal.get("distortion", [])}
-        raw |= {"width": size.get("x"), "height": size.get("y")}
+        raw |= {"width": original.get("x"), "height": original.get("y")}
         if isinstance(cam.get("position"), dict):
             pos = cam["position"]
             # Cam2Sim's camera.json uses CARLA's vehicle frame: x forward, y right, z up.
@@ -269,13 +354,17 @@ def _poses_for_images(
     world, xyz, quat = _world(table, opts.crs, existing)
     offset = AXIS_CONVENTION_YAW_OFFSET[opts.axis_convention]
     quat = frames.quat_normalize(frames.quat_multiply(quat, yaw_offset_quat(offset)))
-    if table.images is not None:
-        index = {name: i for i, name in enumerate(table.images)}
-        rows = np.array([index.get(f.name, -1) for f in files])
+    if table.images is not None or table.by_index:
+        if table.by_index:  # row k belongs to the k-th image; the images give the times
+            rows = np.where(np.arange(len(files)) < len(table.xyz), np.arange(len(files)), -1)
+        else:
+            index = {name: i for i, name in enumerate(table.images or [])}
+            rows = np.array([index.get(f.name, -1) for f in files])
         keep = rows >= 0
         if (~keep).any():
             dropped["no_pose_row"] = int((~keep).sum())
-        stamps = np.where(keep, table.stamp_ns[np.maximum(rows, 0)], stamps)
+        if not table.by_index:
+            stamps = np.where(keep, table.stamp_ns[np.maximum(rows, 0)], stamps)
         sel = rows[keep]
         traj_pos, traj_q = xyz[sel], quat[sel]
         speed = np.zeros(int(keep.sum()))
@@ -349,7 +438,9 @@ def import_images(
         ws = Workspace.create(root, config, comment="Created by cam2sim import.")
     stamps, time_source = stamps_from_names(files, fps=opts.fps)
     table = _read_pose_table(opts.poses) if opts.poses else None
-    intr, mount = intrinsics_from_file(opts.calibration) if opts.calibration else (None, None)
+    intr, mount = (None, None)
+    if opts.calibration:
+        intr, mount = intrinsics_from_file(opts.calibration, _image_size(files[0]))
     extra_inputs = [p for p in (opts.poses, opts.calibration) if p is not None]
     sources = [SourceRecord(path=str(p), fingerprint=file_fingerprint(p)) for p in extra_inputs]
     inputs_hash = hash_inputs({"files": [f.name for f in files], "opts": repr(opts)})
@@ -382,6 +473,12 @@ def import_images(
         }
         if pose_cols is not None:
             write_table(paths.poses_csv, base | pose_cols, precision=POSE_PRECISION)
+            # The trajectory the map, scenario and derived steering read: the images' poses in
+            # time order (an extracted bag's holds every pose message).
+            order = np.argsort(kept_stamps, kind="stable")
+            trajectory = {"stamp_ns": kept_stamps[order], "t": kept_stamps[order] / 1e9}
+            trajectory |= {k: np.asarray(v)[order] for k, v in pose_cols.items()}
+            write_table(paths.trajectory_csv, trajectory, precision=POSE_PRECISION)
         else:
             write_table(paths.frames_csv, base, precision=POSE_PRECISION)
         if intr is not None and (intr.width, intr.height) != size:
