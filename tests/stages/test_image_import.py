@@ -353,3 +353,17 @@ def test_import_kitti_03_as_published(tmp_path: Path, shared_data: Path) -> None
     assert np.abs(table["z"]).max() < 1.0
     assert 8.0 < float(np.median(table["speed"])) < 11.0
     assert np.abs(table["heading"]).max() < 0.1
+
+
+def test_cam2sim_run_takes_an_imported_dataset_as_extracted(tmp_path: Path) -> None:
+    from cam2sim.stages.pipeline import PipelineOptions, run_pipeline
+
+    stamps = [10**18 + i * 33_333_333 for i in range(4)]
+    _write_images(tmp_path / "images", [f"{s}.png" for s in stamps])
+    import_images(tmp_path / "ws", tmp_path / "images")
+    ws = Workspace.open(tmp_path / "ws")
+    result = run_pipeline(ws, options=PipelineOptions(steps=("extract",)))
+    extract = result.outcome("extract")
+    assert extract.state == "up_to_date"  # no bag to extract: the import is the dataset
+    assert "cam2sim import" in extract.message
+    assert not result.failed

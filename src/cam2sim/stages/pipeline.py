@@ -368,7 +368,19 @@ class _Pipeline:
 
     # -- steps ------------------------------------------------------------------------------
     def extract(self, step: _Step) -> None:
+        if self._imported():
+            step.up_to_date = True
+            step.message = "imported with cam2sim import (run it again to change the dataset)"
+            return
         self._recorded("extract", lambda: extract(self.ws, progress=self.progress), step)
+
+    def _imported(self) -> bool:
+        """Whether the dataset came from ``cam2sim import`` (images, no bag to extract)."""
+        record = self.ws.stage_record("extract")
+        path = dataset_paths(self.ws.dataset_dir).dataset_json
+        if record is None or record.state != "done" or not path.is_file():
+            return False
+        return bool(DatasetInfo.load(path).kind == "images")
 
     def map(self, step: _Step) -> None:
 
