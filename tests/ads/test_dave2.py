@@ -298,6 +298,22 @@ def test_cli_train_export_and_serve_errors(tmp_path: Path) -> None:
     assert out.exit_code == 1
 
 
+def _check_pose_point_above_the_road(ws: Workspace) -> None:
+    """Poses above the road (GPS/IMU, a KITTI camera): the recovery camera stands on the road."""
+    from cam2sim.core.config import VehicleConfig, save_config
+    from cam2sim.stages.ads import recovery_geometry
+
+    config = ws.load_config()
+    raised = config.model_copy(
+        update={"vehicle": VehicleConfig(reference="offset", reference_offset_m=(0.0, 0.0, 0.93))}
+    )
+    save_config(raised, ws.config_path)
+    geometry = recovery_geometry(ws)
+    assert geometry is not None
+    assert geometry.height_m == pytest.approx(1.3 + 0.93)  # the mount plus the pose point
+    save_config(config, ws.config_path)
+
+
 def test_recovery_views_from_the_workspace_calibration(tmp_path: Path) -> None:
     import math
 
@@ -323,6 +339,7 @@ def test_recovery_views_from_the_workspace_calibration(tmp_path: Path) -> None:
     assert math.degrees(geometry.pitch_rad) == pytest.approx(5.0, abs=1e-6)  # looking down
     assert geometry.curvature_per_unit > 0  # the default calibration (no path to fit)
     options = TrainOptions(epochs=2, batch_size=16, device="cpu", workers=1)
+    _check_pose_point_above_the_road(ws)
     train_ads(ws, options=options)
     report = json.loads((ws.ads_dir / "train_report.json").read_text())
     assert report["recovery"]["max_lateral_m"] == options.recovery_m

@@ -199,10 +199,12 @@ def train_model(
 def recovery_geometry(ws: Workspace) -> RecoveryGeometry | None:
     """The camera and steering geometry the recovery views need, or None (logged why).
 
-    The camera's intrinsics and mount come from the dataset's calibration (its height over the
-    ground is the mount's height over the reference point, which the recording convention puts
-    on the ground: ``base_link``); the curvature per steering unit is the scenario stage's fit
-    of the recorded steering against the recorded path (or its default).
+    The camera's intrinsics and mount come from the dataset's calibration. Its height over the
+    road is the mount's height over the recorded pose point plus that point's height over the
+    road (``vehicle.reference`` in config.yaml: 0 for ``base_link`` on the ground, 1.65 m for
+    poses at a KITTI camera), as everywhere else in the pipeline. The curvature per steering
+    unit is the scenario stage's fit of the recorded steering against the recorded path (or its
+    default).
     """
     import math  # noqa: PLC0415
 
@@ -219,9 +221,14 @@ def recovery_geometry(ws: Workspace) -> RecoveryGeometry | None:
     mount = calib.camera_mount
     forward = np.array([0.0, 0.0, 1.0] if mount.axes == "optical" else [1.0, 0.0, 0.0])
     ahead = quat_rotate(np.asarray(mount.quat_xyzw), forward)
-    height = float(mount.translation_m[2])
+    pose_point_m = float(ws.load_config().vehicle.reference_xyz()[2])
+    height = float(mount.translation_m[2]) + pose_point_m
     if not height > 0:
-        logger.info("no recovery views: the camera mount is %.2f m over the reference", height)
+        logger.info(
+            "no recovery views: the camera is %.2f m over the road (mount %.2f m over the pose "
+            "point, %.2f m over the road); set vehicle.reference in config.yaml",
+            height, float(mount.translation_m[2]), pose_point_m,
+        )  # fmt: skip
         return None
     cam = calib.camera
     return RecoveryGeometry(
