@@ -351,17 +351,23 @@ def test_calibration_fit_recovers_k_on_synthetic_data() -> None:
         fit_steering_calibration(t, unrelated, stamp, xy, h, v)
 
 
-@pytest.mark.skipif(not DRIVES.is_dir(), reason="shared reference drives not present")
-@pytest.mark.parametrize("n", [1, 2, 3])
-def test_calibration_fit_on_the_reference_drives(n: int) -> None:
+def _reference_drive(n: int) -> tuple[np.ndarray, ...]:
+    """Measured steering ``(M, 2)``, pose times, positions, ENU headings and speeds of drive n."""
     tr = np.genfromtxt(DRIVES / f"trajectory{n}.csv", delimiter=",", names=True)
     st = np.loadtxt(DRIVES / f"steering_{n}.txt", delimiter=",", comments="#")
     t = tr["timestamp"]
     xy = np.stack([tr["x"], tr["y"]], -1)
     heading = tr["yaw"] - math.pi / 2  # odometry yaw -> ENU heading
-    grid = np.arange(t[0], t[-1], 0.2)
+    grid = np.arange(t[0], t[-1], 0.2)  # speed over 0.2 s: the stamps come in bursts
     gx, gy = np.interp(grid, t, xy[:, 0]), np.interp(grid, t, xy[:, 1])
     speed = np.interp(t, grid, np.hypot(np.gradient(gx, grid), np.gradient(gy, grid)))
+    return st, t, xy, heading, speed
+
+
+@pytest.mark.skipif(not DRIVES.is_dir(), reason="shared reference drives not present")
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_calibration_fit_on_the_reference_drives(n: int) -> None:
+    st, t, xy, heading, speed = _reference_drive(n)
     cal = fit_steering_calibration(st[:, 0], st[:, 1], t, xy, heading, speed)
     print(f"drive {n}: k={cal.curvature_per_unit:.5f} 1/m per unit, {cal.samples} samples")  # noqa: T201
     assert cal.curvature_per_unit == pytest.approx(0.022, rel=0.05)
@@ -374,14 +380,7 @@ def test_steering_derived_from_the_poses_follows_the_measured_steering(n: int) -
     from cam2sim.core.vehicle import SteeringCalibration
     from cam2sim.scenario.calibration import steering_from_poses
 
-    tr = np.genfromtxt(DRIVES / f"trajectory{n}.csv", delimiter=",", names=True)
-    st = np.loadtxt(DRIVES / f"steering_{n}.txt", delimiter=",", comments="#")
-    t = tr["timestamp"]
-    xy = np.stack([tr["x"], tr["y"]], -1)
-    heading = tr["yaw"] - math.pi / 2
-    grid = np.arange(t[0], t[-1], 0.2)
-    gx, gy = np.interp(grid, t, xy[:, 0]), np.interp(grid, t, xy[:, 1])
-    speed = np.interp(t, grid, np.hypot(np.gradient(gx, grid), np.gradient(gy, grid)))
+    st, t, xy, heading, speed = _reference_drive(n)
     ts, derived = steering_from_poses(t, xy, heading, speed, SteeringCalibration())
     assert np.all(np.diff(ts) >= 0)
     inside = (ts > st[0, 0]) & (ts < st[-1, 0])

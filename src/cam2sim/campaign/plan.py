@@ -16,14 +16,25 @@ import json
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import pydantic
 
 from cam2sim.core.config import read_yaml
 from cam2sim.core.errors import ConfigError
 
-__all__ = ["DriveSettings", "Perturbation", "Plan", "RunSpec", "expand", "load_plan"]
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+__all__ = [
+    "DriveSettings",
+    "Perturbation",
+    "Plan",
+    "RunSpec",
+    "expand",
+    "load_plan",
+    "validation_message",
+]
 
 CampaignCamera = Literal["raster", "splat", "truth", "none"]
 
@@ -172,21 +183,41 @@ class RunSpec:
         return self.camera == "splat"
 
 
-def _message(err: pydantic.ValidationError, source: Path) -> str:
+def validation_message(
+    err: pydantic.ValidationError,
+    source: Path,
+    *,
+    what: str,
+    known: Callable[[tuple[int | str, ...]], list[str]],
+    doc: str,
+) -> str:
+    """One line per invalid key of a YAML file: the key, what is wrong, and the fix.
+
+    ``what`` names the file's kind (``campaign plan``); ``known(loc)`` the keys a misspelt one
+    at ``loc`` is matched against; ``doc`` where an example is.
+    """
     parts = []
     for item in err.errors():
         loc = ".".join(str(p) for p in item["loc"]) or "<root>"
         if item["type"] == "extra_forbidden":
-            last = str(item["loc"][-1])
-            known = Plan.model_fields if len(item["loc"]) == 1 else {}
-            close = difflib.get_close_matches(last, list(known), n=1)
+            close = difflib.get_close_matches(str(item["loc"][-1]), known(item["loc"]), n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             parts.append(f"{loc}: unknown key{hint}; remove it or fix its spelling")
         elif item["type"] == "missing":
-            parts.append(f"{loc}: missing; add it (see the example plan in the README)")
+            parts.append(f"{loc}: missing; add it (see {doc})")
         else:
             parts.append(f"{loc}: {item['msg']} (found {item.get('input')!r})")
-    return f"{source}: invalid campaign plan: " + "; ".join(parts)
+    return f"{source}: invalid {what}: " + "; ".join(parts)
+
+
+def _plan_keys(loc: tuple[int | str, ...]) -> list[str]:
+    return list(Plan.model_fields) if len(loc) == 1 else []
+
+
+def _message(err: pydantic.ValidationError, source: Path) -> str:
+    return validation_message(
+        err, source, what="campaign plan", known=_plan_keys, doc="the example plan in the README"
+    )
 
 
 def load_plan(path: Path) -> Plan:

@@ -26,7 +26,6 @@ ids and a re-run resumes.
 
 from __future__ import annotations
 
-import difflib
 import hashlib
 import json
 from dataclasses import asdict, dataclass
@@ -35,6 +34,7 @@ from typing import Any, Literal
 
 import pydantic
 
+from cam2sim.campaign.plan import validation_message
 from cam2sim.core.config import read_yaml
 from cam2sim.core.errors import ConfigError
 
@@ -149,21 +149,15 @@ class WorldSpec:
         return True
 
 
+def _suite_keys(loc: tuple[int | str, ...]) -> list[str]:
+    del loc  # one list for every level: the suite's keys are distinct
+    return [*Suite.model_fields, *SuiteWorld.model_fields, *SuiteSettings.model_fields]
+
+
 def _message(err: pydantic.ValidationError, source: Path) -> str:
-    parts = []
-    for item in err.errors():
-        loc = ".".join(str(p) for p in item["loc"]) or "<root>"
-        if item["type"] == "extra_forbidden":
-            last = str(item["loc"][-1])
-            known = [*Suite.model_fields, *SuiteWorld.model_fields, *SuiteSettings.model_fields]
-            close = difflib.get_close_matches(last, known, n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            parts.append(f"{loc}: unknown key{hint}; remove it or fix its spelling")
-        elif item["type"] == "missing":
-            parts.append(f"{loc}: missing; add it (see docs/bench.md)")
-        else:
-            parts.append(f"{loc}: {item['msg']} (found {item.get('input')!r})")
-    return f"{source}: invalid benchmark suite: " + "; ".join(parts)
+    return validation_message(
+        err, source, what="benchmark suite", known=_suite_keys, doc="docs/bench.md"
+    )
 
 
 def load_suite(path: Path) -> Suite:
