@@ -318,3 +318,24 @@ def test_a_recording_without_steering_gets_it_from_its_poses(
     assert stamps[-1] <= trajectory["stamp_ns"][-1]
     assert stamps.size > 0.8 * SPEED * DURATION_S / 0.5  # a sample every 0.5 m driven
     np.testing.assert_allclose(table["value"], 0.0, atol=1e-6)  # the street is straight
+
+
+@pytest.mark.skipif(not has_egl(), reason="no headless OpenGL (EGL) here")
+def test_the_drive_step_runs_cameras_side_by_side_with_the_same_results(
+    tmp_path: Path, recording: tuple[Path, Path]
+) -> None:
+    bag, osm = recording
+    trajectories = {}
+    for workers in (1, 2):
+        ws = Workspace.create(tmp_path / f"ws{workers}", _config(bag))
+        options = _fast(osm, cameras=("raster", "none"), runs=2, drive_workers=workers)
+        result = run_pipeline(ws, options=options)
+        assert result.outcome("drive").state == "done", result.outcomes
+        runs = ws.stage_record("drive").runs  # type: ignore[union-attr]
+        assert [r.split("-")[-2:] for r in runs] == [
+            ["raster", "s0"], ["raster", "s1"], ["none", "s0"], ["none", "s1"]
+        ]  # fmt: skip
+        trajectories[workers] = [
+            (ws.runs_dir / r / "trajectory.csv").read_text(encoding="utf-8") for r in runs
+        ]
+    assert trajectories[1] == trajectories[2]  # seeded runs: the processes change nothing

@@ -61,6 +61,7 @@ __all__ = [
     "PipelineResult",
     "StepOutcome",
     "StepState",
+    "default_drive_workers",
     "run_pipeline",
     "small_splat_options",
 ]
@@ -125,6 +126,9 @@ class PipelineOptions:
             the workspace has one (every camera's runs alike), else on the map.
         save_frames: Keep the camera frames of every closed-loop run (``cam2sim bench`` shows
             the frames at a failure).
+        drive_workers: Processes the drive step runs its cameras' runs in (one camera each);
+            None: :func:`default_drive_workers`. The runs are seeded, so their results do not
+            depend on it.
     """
 
     osm: Path | None = None
@@ -144,6 +148,7 @@ class PipelineOptions:
     ads: Any = None
     judge: Literal["map", "truth"] | None = None
     save_frames: bool = False
+    drive_workers: int | None = None
 
     def __post_init__(self) -> None:
         unknown = sorted((set(self.steps) | set(self.skip)) - set(STEPS))
@@ -545,11 +550,15 @@ class _Pipeline:
         runs = self._runs_current("drive", inputs)
         if runs is None:
             started = dt.datetime.now(dt.UTC)
-            runs = [
-                r.run_id
-                for opts in all_opts
-                for r in drive(self.ws, options=opts, progress=self.progress)
-            ]
+            workers = self.options.drive_workers or default_drive_workers(len(all_opts))
+            if workers > 1 and len(all_opts) > 1:
+                runs = _drives_in_processes(self.ws.root, all_opts, workers, self.progress)
+            else:
+                runs = [
+                    r.run_id
+                    for opts in all_opts
+                    for r in drive(self.ws, options=opts, progress=self.progress)
+                ]
             self.ws.record_stage(
                 "drive", state="done", started=started, inputs_hash=inputs, runs=tuple(runs)
             )
@@ -636,6 +645,41 @@ def run_pipeline(
             stopped = name
     report("pipeline", len(STEPS), len(STEPS))
     return PipelineResult(tuple(outcomes), pipe.report)
+
+
+def default_drive_workers(cameras: int) -> int:
+    """Processes for the drive step: one a camera where there are 4 CPUs a camera, else 1.
+
+    On a laptop's few cores the cameras' runs share them anyway (one process, no start-up
+    cost); on a GPU machine (16 CPUs a world) the truth, splat and raster runs go side by side.
+    """
+    import os  # noqa: PLC0415
+
+    return max(1, min(cameras, (os.cpu_count() or 1) // 4))
+
+
+def _drive_camera(root: str, options: DriveOptions) -> list[str]:
+    """One camera's runs in a worker process; their run ids."""
+    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
+
+    return [r.run_id for r in drive(Workspace.open(Path(root)), options=options)]
+
+
+def _drives_in_processes(
+    root: Path, all_opts: Sequence[DriveOptions], workers: int, report: ProgressCallback
+) -> list[str]:
+    """Every camera's runs, ``workers`` cameras at a time; run ids in the cameras' order."""
+    import multiprocessing  # noqa: PLC0415
+    from concurrent.futures import ProcessPoolExecutor  # noqa: PLC0415
+
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
+        futures = [pool.submit(_drive_camera, str(root), opts) for opts in all_opts]
+        done: list[list[str]] = []
+        for k, future in enumerate(futures):
+            done.append(future.result())
+            report("drive cameras", k + 1, len(futures))
+    return [run for runs in done for run in runs]
 
 
 def _run_step(name: str, handler: Callable[[_Step], None]) -> StepOutcome:
