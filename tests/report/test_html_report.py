@@ -5,8 +5,10 @@ from __future__ import annotations
 import json
 import os
 import re
+import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import typer
 from typer.testing import CliRunner
@@ -337,3 +339,27 @@ def test_the_report_reads_the_drive_metrics_and_says_which_command_writes_them(
     sections = dict(re.findall(r'<section id="(\w+)">(.*?)</section>', html, re.DOTALL))
     assert "Min-Fréchet" in sections["behaviour"]
     assert "1 drive run(s) not in" in sections["summary"]
+
+
+def test_frame_clips_are_written_without_ffmpegs_codec_warning(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """OpenCV's FFmpeg backend prints "tag 'VP80' is not supported" on opening a WebM writer."""
+    import cv2
+
+    from cam2sim.report.html import _webm
+
+    files = []
+    for k in range(4):
+        path = tmp_path / f"{k:06d}.png"
+        cv2.imwrite(str(path), np.full((48, 64, 3), 40 * k, np.uint8))
+        files.append(path)
+    print("before", file=sys.stderr, flush=True)  # noqa: T201
+    clip = _webm(files)
+    print("after", file=sys.stderr, flush=True)  # noqa: T201
+    assert clip is not None
+    assert clip[:4] == b"\x1a\x45\xdf\xa3"  # a Matroska/WebM file
+    err = capfd.readouterr().err
+    assert "FFMPEG" not in err
+    assert "before" in err
+    assert "after" in err  # stderr works again after the writer opened

@@ -32,6 +32,7 @@ import numpy as np
 from cam2sim import __version__
 from cam2sim.core.errors import Cam2SimError
 from cam2sim.core.files import write_text_atomic
+from cam2sim.core.native import native_stderr_silenced
 from cam2sim.core.plots import pyplot
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.run_record import RunRecord
@@ -481,7 +482,8 @@ def _webm(files: list[Path], fps: float = 10.0) -> bytes | None:
     size = (_VIDEO_WIDTH, max(2, round(h * _VIDEO_WIDTH / w) // 2 * 2))
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "clip.webm"
-        writer = cv2.VideoWriter(str(out), cv2.VideoWriter.fourcc(*"VP80"), fps, size)
+        with native_stderr_silenced():  # FFmpeg's "tag 'VP80' is not supported" (it is)
+            writer = cv2.VideoWriter(str(out), cv2.VideoWriter.fourcc(*"VP80"), fps, size)
         if not writer.isOpened():
             return None
         try:
