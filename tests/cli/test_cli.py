@@ -255,3 +255,34 @@ def test_splat_trains_antialiased_unless_told_classic(
     result = CliRunner().invoke(app, ["splat", str(tmp_path / "ws"), *flags])
     assert seen == [antialiased], result.output
     assert "stopped here" in result.output
+
+
+def test_progress_off_a_terminal_is_plain_lines() -> None:
+    """`cam2sim demo > log 2>&1`: a line per task start and end, one every 30 s in between."""
+    import io
+
+    from cam2sim.cli.display import LineProgress, ProgressSink, progress_bars
+
+    out = io.StringIO()
+    lines = LineProgress(out, every_s=0.0)
+    lines("splat training", 0, 700)
+    lines("splat training", 350, 700)
+    lines("splat training", 700, 700)
+    lines("splat training", 700, 700)  # the end is said once
+    lines("drive", 0, None)
+    text = out.getvalue().splitlines()
+    assert [t.split("] ", 1)[1] for t in text] == [
+        "splat training: started (0/700)",
+        "splat training: 350/700",
+        "splat training: done (700/700)",
+        "drive: started (0)",
+    ]
+    assert all(t.startswith("[") and " s] " in t for t in text)
+    quiet = LineProgress(io.StringIO(), every_s=30.0)
+    quiet("t", 0, 10)
+    quiet("t", 5, 10)  # within 30 s of the last line: nothing
+    assert quiet._stream.getvalue().count("\n") == 1  # type: ignore[attr-defined]
+    with progress_bars() as sink:  # pytest's stderr is no terminal
+        assert isinstance(sink, LineProgress)
+    with progress_bars(enabled=False) as sink:  # --no-progress
+        assert isinstance(sink, ProgressSink)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
 from typing import TYPE_CHECKING, Annotated
 
@@ -74,7 +73,7 @@ def train(
     )
     try:
         ws = Workspace.open(workspace)
-        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+        with progress_bars() as sink:
             result = train_ads(ws, options=opts, force=force, progress=sink)
     except Cam2SimError as err:
         raise _fail(err) from None
@@ -120,7 +119,7 @@ def export(
     del onnx  # ONNX is the one export format; the flag mirrors the documented command
     try:
         ws = Workspace.open(workspace)
-        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+        with progress_bars() as sink:
             result = export_ads(ws, out=out, progress=sink)
     except Cam2SimError as err:
         raise _fail(err) from None

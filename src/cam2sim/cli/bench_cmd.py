@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import sys
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
 from typing import TYPE_CHECKING, Annotated
 
@@ -79,7 +78,7 @@ def bench(
     else:
         cpus = cpus_per_world or max(1, (os.cpu_count() or 1) // max(1, _gpus()))
         executor = RayCluster(ray, task=execute_world, cpus_per_job=cpus)
-    with progress_bars(enabled=sys.stderr.isatty()) as sink:
+    with progress_bars() as sink:
         result = run_bench(suite, output=out, executor=executor, retry_failed=retry_failed,
                            progress=sink)  # fmt: skip
     _print(result.aggregate)

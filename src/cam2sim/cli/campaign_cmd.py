@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
 from typing import TYPE_CHECKING, Annotated
 
@@ -73,7 +72,7 @@ def campaign(
 
     executor = LocalPool(workers) if ray is None else RayCluster(ray, num_cpus=workers)
     try:
-        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+        with progress_bars() as sink:
             result = run_campaign(plan, executor=executor, retry_failed=retry_failed, progress=sink)
     except Cam2SimError as err:
         error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)

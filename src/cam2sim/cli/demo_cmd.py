@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 from typing import Annotated
@@ -84,7 +83,7 @@ def demo(
         options = ExperimentOptions(
             runs=runs, seed=seed, steps=comma_list(steps) or STEPS, skip=comma_list(skip)
         )
-        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+        with progress_bars() as sink:
             done = run_experiment(
                 out,
                 source,

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from enum import StrEnum
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
 from typing import Annotated
@@ -73,7 +72,7 @@ def detect(
             workers=workers,
         )
         ws = Workspace.open(workspace)
-        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+        with progress_bars() as sink:
             result = run_detect(ws, options=options, force=force, progress=sink)
     except Cam2SimError as err:
         raise _fail(err) from None

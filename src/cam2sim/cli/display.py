@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import time
 import warnings
-from typing import TYPE_CHECKING, TextIO
+from typing import IO, TYPE_CHECKING, TextIO
 
 from rich.console import Console
 from rich.logging import RichHandler
@@ -30,12 +31,14 @@ if TYPE_CHECKING:
     from cam2sim.metrics.drive_quality import DriveMetrics
 
 __all__ = [
+    "LineProgress",
     "console",
     "error_console",
     "print_behaviour",
     "print_table",
     "progress_bars",
     "setup_logging",
+    "show_progress",
 ]
 
 console = Console()
@@ -76,9 +79,68 @@ def setup_logging(*, verbose: int) -> None:
     warnings.showwarning = show
 
 
+_LINE_EVERY_S = 30.0
+"""Off a terminal, a running task prints a line at most this often."""
+
+
+class LineProgress:
+    """Progress as plain lines, for logs and pipes (no terminal to draw bars on).
+
+    One line when a task starts, one when it completes, and one every :data:`_LINE_EVERY_S`
+    seconds in between: ``[  42 s] splat training: 350/700``.
+    """
+
+    def __init__(self, stream: IO[str], *, every_s: float = _LINE_EVERY_S) -> None:
+        self._stream = stream
+        self._every_s = every_s
+        self._started = time.monotonic()
+        self._last: dict[str, float] = {}
+        self._done: set[str] = set()
+
+    def _line(self, text: str) -> None:
+        elapsed = time.monotonic() - self._started
+        self._stream.write(f"[{elapsed:5.0f} s] {text}\n")
+        self._stream.flush()
+
+    def __call__(self, task: str, completed: int, total: int | None) -> None:
+        """Print the task's start, its end, and a line every so often in between."""
+        now = time.monotonic()
+        count = f"{completed}/{total}" if total is not None else str(completed)
+        if task not in self._last:
+            self._last[task] = now
+            self._done.discard(task)
+            self._line(f"{task}: started ({count})")
+            return
+        if total is not None and completed >= total:
+            if task not in self._done:
+                self._done.add(task)
+                self._line(f"{task}: done ({count})")
+            return
+        if now - self._last[task] >= self._every_s:
+            self._last[task] = now
+            self._line(f"{task}: {count}")
+
+
+_shown = {"progress": True}
+
+
+def show_progress(*, enabled: bool) -> None:
+    """Whether commands show progress at all (``cam2sim --no-progress`` turns it off)."""
+    _shown["progress"] = enabled
+
+
 @contextlib.contextmanager
-def progress_bars(*, enabled: bool = True) -> Iterator[ProgressSink]:
-    """Yield a stage progress callback that draws one rich bar per task."""
+def progress_bars(*, enabled: bool | None = None) -> Iterator[ProgressSink | LineProgress]:
+    """Yield a stage progress callback: rich bars on a terminal, plain lines elsewhere.
+
+    ``enabled`` None follows :func:`show_progress` (on unless ``--no-progress``); False shows
+    nothing.
+    """
+    if enabled is None:
+        enabled = _shown["progress"]
+    if enabled and not error_console.is_terminal:
+        yield LineProgress(error_console.file)
+        return
     bars = Progress(
         SpinnerColumn(),
         TextColumn("[bold]{task.description}"),

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -44,10 +43,6 @@ class NetChoice(StrEnum):
 
     ALEX = "alex"
     VGG = "vgg"
-
-
-def _show_progress() -> bool:
-    return sys.stderr.isatty()
 
 
 def _stats_table(title: str, rows: Sequence[tuple[str, MetricStats, str]]) -> Table:
@@ -122,7 +117,7 @@ def images(
         batch_size=batch_size,
     )
     try:
-        with progress_bars(enabled=_show_progress()) as sink:
+        with progress_bars() as sink:
             result = evaluate_image_folders(real_dir, sim_dir, options=options, progress=sink)
         json_path, csv_path = write_image_quality(result, out)
     except Cam2SimError as err:
@@ -184,7 +179,7 @@ def semantic(
         if tolerance is not None:
             pal = replace(pal, tolerance=tolerance)
         options = SemanticOptions(palette=pal, hood_rows=hood_rows, hood_mask=hood_mask)
-        with progress_bars(enabled=_show_progress()) as sink:
+        with progress_bars() as sink:
             if comparison:
                 with atomic_folder(out / "comparison") as tmp:
                     result = evaluate_semantic_folders(
@@ -348,7 +343,7 @@ def workspace(
         given = tuple(real or ())
         found = (ws.root / "real",) if (ws.root / "real").is_dir() else ()
         options = EvaluateOptions(real=given or found, real_crs=real_crs, force=force)
-        with progress_bars(enabled=_show_progress()) as sink:
+        with progress_bars() as sink:
             result = evaluate_workspace(ws, options=options, progress=sink)
         metrics = DriveMetrics.load(result.metrics)
     except Cam2SimError as err:

@@ -23,6 +23,7 @@ from cam2sim.cli.display import (
     print_table,
     progress_bars,
     setup_logging,
+    show_progress,
 )
 from cam2sim.cli.evaluate import evaluate_app
 from cam2sim.cli.map_cmd import map_
@@ -163,7 +164,8 @@ def _root(
     del version
     _state["verbose"] = verbose
     _state["debug"] = debug
-    _state["progress"] = not no_progress and sys.stderr.isatty()
+    _state["progress"] = not no_progress
+    show_progress(enabled=not no_progress)
     setup_logging(verbose=verbose)
 
 

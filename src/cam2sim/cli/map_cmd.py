@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from enum import StrEnum
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
 from typing import Annotated
@@ -101,7 +100,7 @@ def map_(
             ),
         )
         ws = Workspace.open(workspace)
-        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+        with progress_bars() as sink:
             result = build_map(ws, options=options, force=force, progress=sink)
     except Cam2SimError as err:
         error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
 from typing import Annotated
 
@@ -44,7 +43,7 @@ def report(
 
     try:
         ws = Workspace.open(workspace)
-        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+        with progress_bars() as sink:
             if real:  # scored against these drives first; the report itself only reads
                 options = EvaluateOptions(real=tuple(real), real_crs=real_crs)
                 evaluate_workspace(ws, options=options, progress=sink)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from enum import StrEnum
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
 from typing import Annotated, Any
@@ -151,7 +150,7 @@ def replay(
             carla=_carla(workspace, sim, carla_host, carla_port),
         )
         ws = Workspace.open(workspace)
-        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+        with progress_bars() as sink:
             result = run_replay(ws, options=opts, progress=sink)
     except Cam2SimError as err:
         raise _fail(err) from None
@@ -224,7 +223,7 @@ def drive(
             judge="truth" if judge is Judge.TRUTH else "map",
         )
         ws = Workspace.open(workspace)
-        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+        with progress_bars() as sink:
             results = run_drive(ws, options=opts, progress=sink)
     except Cam2SimError as err:
         raise _fail(err) from None

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
 from typing import TYPE_CHECKING, Annotated
 
@@ -135,7 +134,7 @@ def run(
             continue_on_error=continue_on_error,
         )
         ws = _workspace(out, list(bags or []), config)
-        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+        with progress_bars() as sink:
             result = run_pipeline(ws, options=options, progress=sink)
     except Cam2SimError as err:
         error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from enum import StrEnum
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
 from typing import Annotated
@@ -51,7 +50,7 @@ def scenario(
 
     try:
         ws = Workspace.open(workspace)
-        with progress_bars(enabled=sys.stderr.isatty()) as sink:
+        with progress_bars() as sink:
             result = run_scenario(
                 ws,
                 options=ScenarioOptions(heading=heading.value, keep_conflicts=keep_conflicts),
