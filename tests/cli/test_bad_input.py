@@ -90,7 +90,31 @@ _FOOTWAY_OSM = (
 )
 
 
+def _images_folder(root: Path) -> None:
+    (root / "frames").mkdir()
+    for k in range(3):
+        (root / "frames" / f"{k:06d}.png").write_bytes(b"not really")
+
+
+def _demo_out(root: Path) -> None:
+    """A folder laid out as `cam2sim demo -o root/out` leaves it: the workspace in out/ws."""
+    (root / "out").mkdir()
+    (root / "ws").rename(root / "out" / "ws")
+
+
 CASES = [
+    Case(
+        "a folder of images where a bag is expected",
+        _images_folder,
+        lambda root: ["inspect", str(root / "frames")],
+        ("no bag here", "holds 3 images", "cam2sim import WS --images"),
+    ),
+    Case(
+        "a demo's -o folder where its workspace is expected",
+        _demo_out,
+        lambda root: ["report", str(root / "out")],
+        ("is not a workspace but holds one", "out/ws"),
+    ),
     Case(
         "an unknown densification for the splat stage",
         _nothing,

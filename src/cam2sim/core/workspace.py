@@ -244,6 +244,13 @@ class Workspace:
         """
         ws = cls(root)
         if not ws.manifest_path.is_file():
+            inner = Path(root) / "ws"
+            if (inner / cls.MANIFEST).is_file():  # a cam2sim demo's -o folder
+                msg = (
+                    f"{ws.root} is not a workspace but holds one: {inner} (cam2sim demo puts the "
+                    f"workspace in OUT/ws); pass {inner}"
+                )
+                raise WorkspaceError(msg)
             msg = (
                 f"{ws.root} is not a cam2sim workspace (no {cls.MANIFEST}); create one with "
                 f"`cam2sim init {root} --bag BAG` or `cam2sim import {root} --images DIR`"

@@ -83,8 +83,24 @@ def _bag_paths(paths: Sequence[Path]) -> list[Path]:
                 "recording.bags in config.yaml)"
             )
             raise RecordingError(msg)
+        if p.is_dir() and not _looks_like_a_bag(p):
+            images = sum(1 for f in p.iterdir() if f.suffix.lower() in (".png", ".jpg", ".jpeg"))
+            hint = (
+                f"; it holds {images} images: import them with `cam2sim import WS --images {p}`"
+                if images
+                else "; pass a .bag or .mcap file, or a ROS2 bag folder (with metadata.yaml)"
+            )
+            msg = f"no bag here: {p} is a folder without a ROS2 bag's metadata.yaml{hint}"
+            raise RecordingError(msg)
         out.append(p)
     return out
+
+
+def _looks_like_a_bag(folder: Path) -> bool:
+    """Whether a folder is a ROS2 bag (``metadata.yaml``, or its .db3/.mcap storage files)."""
+    if (folder / "metadata.yaml").is_file():
+        return True
+    return any(f.suffix in (".db3", ".mcap") for f in folder.iterdir())
 
 
 class Recording:
