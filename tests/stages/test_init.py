@@ -71,8 +71,12 @@ def test_init_notes_name_the_alternative_camera_topics(tmp_path: Path) -> None:
     assert "chose /cam_front/image_raw" in camera_note
     assert "/cam_rear/depth/image" in camera_note
     assert "/cam_rear/image/compressed" in camera_note
-    assert any("signals: speed, gear, speed_2" in n for n in notes)
+    assert any("signals: speed, gear, speed_2 (name the steering one" in n for n in notes)
     assert any("pose: /odom" in n and "EPSG:32632" in n for n in notes)
+    # A recording whose steering topic already gets the name is not told to rename it.
+    steering = write_bag(tmp_path / "bag2", {"/steering": ("std_msgs/msg/Float64", 4)})
+    notes = init_workspace(tmp_path / "ws2", [steering]).notes
+    assert "signals: steering" in notes
     # The notes are also written into config.yaml as comments.
     text = (tmp_path / "ws" / "config.yaml").read_text()
     assert "# Guessed by cam2sim init:" in text

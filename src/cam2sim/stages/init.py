@@ -122,7 +122,12 @@ def config_from_topics(
         if t.msgtype in _SCALAR_TYPES:
             signals[_signal_name(t.name, set(signals))] = SignalConfig(topic=t.name, field="data")
     if signals:
-        notes.append(f"signals: {', '.join(signals)} (rename them, e.g. steering)")
+        hint = (
+            ""
+            if "steering" in signals
+            else " (name the steering one 'steering': DAVE-2 trains on it)"
+        )
+        notes.append(f"signals: {', '.join(signals)}{hint}")
     config = Config(
         recording=RecordingConfig(bags=list(bags)),
         topics=TopicsConfig(
