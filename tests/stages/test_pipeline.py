@@ -339,3 +339,35 @@ def test_the_drive_step_runs_cameras_side_by_side_with_the_same_results(
             (ws.runs_dir / r / "trajectory.csv").read_text(encoding="utf-8") for r in runs
         ]
     assert trajectories[1] == trajectories[2]  # seeded runs: the processes change nothing
+
+
+def test_run_varies_its_runs_unless_told_not_to(
+    tmp_path: Path, recording: tuple[Path, Path]
+) -> None:
+    import typer
+    from typer.testing import CliRunner
+
+    from cam2sim.cli.run_pipeline_cmd import run
+
+    app = typer.Typer()
+    app.command("run")(run)
+    app.command("noop")(lambda: None)
+    from cam2sim.core.config import save_config
+
+    bag, osm = recording
+    config = tmp_path / "config.yaml"
+    save_config(_config(bag), config)
+    steps = "extract,map,detect,scenario,drive"
+    for flag, varied in (("--vary", True), ("--no-vary", False)):
+        ws = tmp_path / flag
+        args = ["run", "-o", str(ws), "--config", str(config), "--osm", str(osm)]
+        args += ["--steps", steps]
+        args += ["--camera", "none", "--runs", "2", "--policy", "pure-pursuit", flag]
+        result = CliRunner().invoke(app, args)
+        assert result.exit_code == 0, result.output
+        runs = sorted(p for p in (ws / "runs").iterdir() if p.is_dir())
+        meta = [json.loads((r / "run.json").read_text(encoding="utf-8")) for r in runs]
+        assert len(meta) == 2
+        assert all(("variation" in m) == varied for m in meta)
+        trajectories = [(r / "trajectory.csv").read_text(encoding="utf-8") for r in runs]
+        assert (trajectories[0] != trajectories[1]) == varied  # seeded differences, or none

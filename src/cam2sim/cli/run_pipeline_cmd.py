@@ -106,6 +106,13 @@ def run(
         typer.Option(help="Camera detector for recordings without LiDAR (.onnx, .pt)."),
     ] = None,
     runs: Annotated[int, typer.Option(min=1, help="Drive runs per camera.")] = 3,
+    vary: Annotated[
+        bool,
+        typer.Option(
+            help="Make the runs differ as a driver's repeated drives do (seeded start pose, "
+            "speed and steering noise, as the demo's); without it they are identical.",
+        ),
+    ] = True,
     splat_on_cpu: Annotated[
         bool, typer.Option(help="Train splats on the CPU (small preset) when there is no GPU.")
     ] = True,
@@ -119,7 +126,9 @@ def run(
 
     Example: cam2sim run drive.mcap -o ws --osm area.osm --skip splat
     """
+    from cam2sim.stages.experiment import DEMO_STEERING_NOISE  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.stages.pipeline import STEPS, PipelineOptions, run_pipeline  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.stages.variation import DEMO_RUN_VARIATION  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     try:
         options = PipelineOptions(
@@ -130,6 +139,8 @@ def run(
             policy=policy,
             cameras=tuple(camera) if camera else None,  # type: ignore[arg-type]
             runs=runs,
+            steering_noise_std=DEMO_STEERING_NOISE if vary else 0.0,
+            run_variation=DEMO_RUN_VARIATION if vary else None,
             splat_on_cpu=splat_on_cpu,
             continue_on_error=continue_on_error,
         )
