@@ -105,6 +105,9 @@ def test_a_bare_workspace_says_what_to_run_in_every_section(tmp_path: Path) -> N
     for sid, body in sections[1:]:
         assert "not available: run <code>cam2sim " in body, sid
     _no_external_resources(html)
+    # Inputs read as text, not JSON.
+    assert "<td>recording bags</td><td>x.bag</td>" in html
+    assert "[&quot;" not in html
 
 
 def test_the_latest_pipeline_steps_are_listed_and_a_failed_one_is_a_warning(
@@ -339,6 +342,20 @@ def test_the_report_reads_the_drive_metrics_and_says_which_command_writes_them(
     sections = dict(re.findall(r'<section id="(\w+)">(.*?)</section>', html, re.DOTALL))
     assert "Min-Fréchet" in sections["behaviour"]
     assert "1 drive run(s) not in" in sections["summary"]
+
+
+def test_an_imported_workspace_names_its_images_as_its_input(tmp_path: Path) -> None:
+    import cv2
+
+    from cam2sim.stages.image_import import import_images
+
+    (tmp_path / "frames").mkdir()
+    for k in range(3):
+        cv2.imwrite(str(tmp_path / "frames" / f"{k:06d}.png"), np.zeros((8, 8, 3), np.uint8))
+    import_images(tmp_path / "ws", tmp_path / "frames")
+    html = write_report(Workspace.open(tmp_path / "ws")).read_text(encoding="utf-8")
+    assert f"<td>imported</td><td>{tmp_path / 'frames'}</td>" in html
+    assert "recording bags" not in html
 
 
 def test_frame_clips_are_written_without_ffmpegs_codec_warning(

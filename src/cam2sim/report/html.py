@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import base64
 import datetime as dt
-import json
 from dataclasses import dataclass, field
 from html import escape
 from pathlib import Path
@@ -36,7 +35,7 @@ from cam2sim.core.native import native_stderr_silenced
 from cam2sim.core.plots import pyplot
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.run_record import RunRecord
-from cam2sim.core.workspace import run_paths
+from cam2sim.core.workspace import dataset_paths, run_paths
 from cam2sim.detect.boxes import footprint_corners
 from cam2sim.metrics import splat_gate as gate
 from cam2sim.metrics.behaviour import REAL_METHOD, behaviour_table
@@ -214,6 +213,40 @@ def _pipeline_steps(ctx: _Context, manifest: Manifest) -> list[tuple[str, ...]]:
     return rows
 
 
+def _as_text(value: object) -> str:
+    """A config value as a person reads it: lists joined by commas, no JSON quotes."""
+    if isinstance(value, list | tuple):
+        return ", ".join(_as_text(v) for v in value)
+    if isinstance(value, dict):
+        return ", ".join(f"{k} {_as_text(v)}" for k, v in value.items())
+    return str(value)
+
+
+def _inputs(ctx: _Context, manifest: Manifest) -> list[tuple[str, str]]:
+    """What the workspace was made from: the recording or imported files, and the map's OSM."""
+    from cam2sim.core.dataset import DatasetInfo  # noqa: PLC0415
+    from cam2sim.map.report import MapReport  # noqa: PLC0415
+
+    inputs: list[tuple[str, str]] = []
+    dataset = dataset_paths(ctx.ws.dataset_dir).dataset_json
+    info = DatasetInfo.load(dataset) if dataset.is_file() else None
+    if info is not None and info.kind == "images":
+        inputs += [("imported", _as_text([src.path for src in info.sources]))]
+    else:
+        config = manifest.config
+        if not config and ctx.ws.config_path.is_file():  # no stage ran yet: config.yaml
+            config = ctx.ws.load_config().model_dump(mode="json")
+        recording = (config or {}).get("recording")
+        if isinstance(recording, dict):
+            inputs += [(f"recording {k}", _as_text(v)) for k, v in recording.items() if v]
+    report = ctx.ws.map_dir / "map_report.json"
+    if report.is_file():
+        source = MapReport.load(report).source
+        where = source.path if source.kind == "file" else f"Overpass ({source.url})"
+        inputs.append(("map from OSM", str(where)))
+    return inputs
+
+
 def _summary(ctx: _Context) -> str:
     manifest = ctx.ws.read_manifest()
     created = manifest.created.strftime("%Y-%m-%d %H:%M UTC")
@@ -222,10 +255,7 @@ def _summary(ctx: _Context) -> str:
         f"created {_e(created)}.</p>"
     )
     parts = [intro]
-    inputs: list[tuple[str, str]] = []
-    recording = (manifest.config or {}).get("recording")
-    if isinstance(recording, dict):
-        inputs += [(f"recording.{k}", json.dumps(v)) for k, v in recording.items() if v]
+    inputs = _inputs(ctx, manifest)
     if ctx.scenario is not None:
         sc = ctx.scenario
         inputs += [
