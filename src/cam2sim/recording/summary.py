@@ -66,10 +66,13 @@ def summarize_recording(
         infos = rec.topics()
         stamps: dict[str, list[int]] = {name: [] for name in infos}
         total = sum(i.count for i in infos.values())
+        n = 0
         for n, raw in enumerate(rec.raw_messages(), start=1):
             stamps[raw.topic].append(raw.receive_ns)
             if progress is not None and n % 1000 == 0:
                 progress("messages", n, total)
+        if progress is not None:
+            progress("messages", n, n)  # the end (the count the index gave may differ)
         start = min((s[0] for s in stamps.values() if s), default=rec.start_ns)
         end = max((s[-1] for s in stamps.values() if s), default=rec.end_ns)
     topics = []
