@@ -31,6 +31,7 @@ from cam2sim.stages.pipeline import (
     STEPS,
     PipelineOptions,
     PipelineResult,
+    demo_splat_options,
     run_pipeline,
 )
 from conftest import has_egl
@@ -371,3 +372,25 @@ def test_run_varies_its_runs_unless_told_not_to(
         assert all(("variation" in m) == varied for m in meta)
         trajectories = [(r / "trajectory.csv").read_text(encoding="utf-8") for r in runs]
         assert (trajectories[0] != trajectories[1]) == varied  # seeded differences, or none
+
+
+@pytest.mark.parametrize("cuda", [False, True])
+def test_the_demo_splat_stops_each_chunk_on_its_own_quality_not_on_a_clock(cuda: bool) -> None:
+    from cam2sim.splat.train import plateau_reached
+
+    train = demo_splat_options(cuda=cuda).train
+    assert train is not None
+    # Steps, not seconds, are the rule: every chunk gets at least min_steps; the time budget
+    # is each chunk's own safety cap, never a share of the others' seconds.
+    assert train.min_steps < train.max_steps
+    assert train.budget_per_chunk
+    assert train.time_budget_s is not None and train.time_budget_s >= 100
+    step = train.val_every
+    start = train.min_steps - train.patience * step
+    window = range(start, train.min_steps + 1, step)
+    # A chunk still gaining 2 dB per 1,000 steps (the CPU munich-r0 chunks at 700 steps) trains
+    # on; one gaining nothing stops at min_steps.
+    rising = [(s, 25.0 + 0.002 * s, 0.80 + 0.00005 * s) for s in window]
+    flat = [(s, 27.0, 0.85) for s in window]
+    assert not plateau_reached(rising, train.patience, train.min_gain_db, train.min_gain_ssim)
+    assert plateau_reached(flat, train.patience, train.min_gain_db, train.min_gain_ssim)
