@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any, Final, Literal
 from cam2sim.core.dataset import DatasetInfo
 from cam2sim.core.errors import ConfigError, StageError
 from cam2sim.core.files import file_fingerprint
+from cam2sim.core.machine import available_cpus
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.workspace import StepState, dataset_paths, hash_inputs, run_paths
 from cam2sim.render.truth import truth_world_path
@@ -564,9 +565,15 @@ class _Pipeline:
         runs = self._runs_current("drive", inputs)
         if runs is None:
             started = dt.datetime.now(dt.UTC)
-            workers = self.options.drive_workers or default_drive_workers(len(all_opts))
-            if workers > 1 and len(all_opts) > 1:
-                runs = _drives_in_processes(self.ws.root, all_opts, workers, self.progress)
+            # One job a run (camera and seed): the seeded runs do not depend on each other.
+            jobs = [
+                dataclasses.replace(o, runs=1, seed=o.seed + r)
+                for o in all_opts
+                for r in range(o.runs)
+            ]
+            workers = self.options.drive_workers or default_drive_workers(len(jobs))
+            if workers > 1 and len(jobs) > 1:
+                runs = _drives_in_processes(self.ws.root, jobs, workers, self.progress)
             else:
                 runs = [
                     r.run_id
@@ -661,19 +668,19 @@ def run_pipeline(
     return PipelineResult(tuple(outcomes), pipe.report)
 
 
-def default_drive_workers(cameras: int) -> int:
-    """Processes for the drive step: one a camera where there are 4 CPUs a camera, else 1.
+def default_drive_workers(jobs: int) -> int:
+    """Processes for the drive step's ``jobs`` runs: one a run where there are 4 CPUs a run.
 
-    On a laptop's few cores the cameras' runs share them anyway (one process, no start-up
-    cost); on a GPU machine (16 CPUs a world) the truth, splat and raster runs go side by side.
+    On a laptop's few cores the runs share them anyway (one process, no start-up cost); on a
+    GPU machine the truth, splat and raster runs of every seed go side by side: one after
+    another they took 66-127 s of a GPU benchmark world, each run 20-25 s (issue 37). The CPUs
+    are the ones this process may use (a Ray task's share, else the machine's).
     """
-    import os  # noqa: PLC0415
-
-    return max(1, min(cameras, (os.cpu_count() or 1) // 4))
+    return max(1, min(jobs, available_cpus() // 4))
 
 
 def _drive_camera(root: str, options: DriveOptions) -> list[str]:
-    """One camera's runs in a worker process; their run ids."""
+    """One job's runs (a camera, one seed or several) in a worker process; their run ids."""
     from cam2sim.core.workspace import Workspace  # noqa: PLC0415
 
     return [r.run_id for r in drive(Workspace.open(Path(root)), options=options)]
@@ -682,7 +689,7 @@ def _drive_camera(root: str, options: DriveOptions) -> list[str]:
 def _drives_in_processes(
     root: Path, all_opts: Sequence[DriveOptions], workers: int, report: ProgressCallback
 ) -> list[str]:
-    """Every camera's runs, ``workers`` cameras at a time; run ids in the cameras' order."""
+    """Every job's runs, ``workers`` jobs at a time; run ids in the jobs' order."""
     import multiprocessing  # noqa: PLC0415
     from concurrent.futures import ProcessPoolExecutor  # noqa: PLC0415
 
@@ -692,7 +699,7 @@ def _drives_in_processes(
         done: list[list[str]] = []
         for k, future in enumerate(futures):
             done.append(future.result())
-            report("drive cameras", k + 1, len(futures))
+            report("drive runs", k + 1, len(futures))
     return [run for runs in done for run in runs]
 
 
