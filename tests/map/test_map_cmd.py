@@ -72,7 +72,13 @@ def test_map_command_builds_the_map(street_ws: Workspace) -> None:
 
 def test_errors_are_one_line_and_exit_1(street_ws: Workspace) -> None:
     result = invoke(
-        str(street_ws.root), "--overpass-url", closed_port_url(), "--overpass-retries", "0"
+        str(street_ws.root),
+        "--road",
+        "osm",
+        "--overpass-url",
+        closed_port_url(),
+        "--overpass-retries",
+        "0",
     )
     assert result.exit_code == 1
     assert "error:" in result.output

@@ -6,6 +6,7 @@ import dataclasses
 import datetime as dt
 import math
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -167,11 +168,27 @@ def test_overpass_is_queried_and_cached(street_ws: Workspace, fake_overpass) -> 
 
 
 def test_unreachable_overpass_says_to_pass_osm(street_ws: Workspace) -> None:
-    options = MapOptions(overpass=OverpassOptions(url=closed_port_url(), retries=0))
+    options = MapOptions(overpass=OverpassOptions(url=closed_port_url(), retries=0), road="osm")
     before = old_map(street_ws)
     with pytest.raises(StageError, match=r"when offline, pass --osm FILE"):
         build_map(street_ws, options=options)
     assert snapshot(street_ws.map_dir) == before
+
+
+def test_offline_without_osm_builds_the_road_from_the_driven_path(street_ws: Workspace) -> None:
+    options = MapOptions(overpass=OverpassOptions(url=closed_port_url(), retries=0))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = build_map(street_ws, options=options)
+    said = " | ".join(str(w.message) for w in caught)
+    assert "no OSM data could be had" in said and "follows the driven path" in said
+    report = MapReport.load(street_ws.map_dir / MAP_FILES["report"])
+    assert report.source.kind == "trajectory"
+    assert report.georeferenced  # the poses have a CRS: the road is placed on the Earth
+    assert report.route.covered_fraction == pytest.approx(1.0)
+    assert report.roads.junctions == 0
+    assert "<geoReference>" in result.xodr_path.read_text()
+    assert not (street_ws.map_dir / MAP_FILES["source"]).exists()  # no OSM, no buildings
 
 
 def test_workspace_without_world_frame_says_to_extract(tmp_path: Path) -> None:
@@ -180,16 +197,42 @@ def test_workspace_without_world_frame_says_to_extract(tmp_path: Path) -> None:
         build_map(ws, options=MapOptions(osm=MUNICH))
 
 
-def test_local_world_frame_cannot_hold_a_map(tmp_path: Path) -> None:
-    ws = Workspace.create(tmp_path / "ws", Config())
+def test_local_world_frame_cannot_hold_osm_but_gets_a_road_along_the_path(
+    tmp_path: Path, street_route: Route
+) -> None:
+    ws = make_workspace(tmp_path / "ws", street_route)
     ws.record_stage(
         "extract",
         state="done",
         started=dt.datetime.now(dt.UTC),
         world=WorldFrameRecord(proj_string=None),
     )
-    with pytest.raises(StageError, match="not geo-referenced"):
+    with pytest.raises(StageError, match="not geo-referenced.*drop --osm"):
         build_map(ws, options=MapOptions(osm=MUNICH))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = build_map(ws)
+    assert any("not geo-referenced" in str(w.message) for w in caught)
+    assert result.report.source.kind == "trajectory"
+    assert not result.report.georeferenced
+    assert result.report.proj_string is None and result.report.box is None
+    assert result.report.route.covered_fraction == pytest.approx(1.0)
+    assert "geoReference" not in result.xodr_path.read_text()
+
+
+def test_a_users_xodr_is_used_as_it_is(tmp_path: Path, street_ws: Workspace) -> None:
+    first = build_map(street_ws, options=MapOptions(osm=MUNICH))
+    mine = tmp_path / "mine.xodr"
+    mine.write_text(first.xodr_path.read_text())
+    result = build_map(street_ws, options=MapOptions(xodr=mine))
+    assert result.report.source.kind == "xodr"
+    assert result.xodr_path.read_text() == mine.read_text()
+    broken = tmp_path / "broken.xodr"
+    broken.write_text("<OpenDRIVE><road")
+    before = snapshot(street_ws.map_dir)
+    with pytest.raises(StageError, match="broken.xodr"):
+        build_map(street_ws, options=MapOptions(xodr=broken))
+    assert snapshot(street_ws.map_dir) == before
 
 
 def test_margin_is_validated() -> None:

@@ -15,8 +15,17 @@ from cam2sim.core.errors import Cam2SimError
 from cam2sim.core.workspace import Workspace
 from cam2sim.map.convert import CARLA_ROAD_TYPES, ConvertOptions
 from cam2sim.map.overpass import DEFAULT_URL, OverpassOptions
+from cam2sim.map.trajectory_road import TrajectoryRoadOptions
 
-__all__ = ["SidewalkChoice", "map_"]
+__all__ = ["RoadChoice", "SidewalkChoice", "map_"]
+
+
+class RoadChoice(StrEnum):
+    """Where the road comes from."""
+
+    AUTO = "auto"
+    OSM = "osm"
+    TRAJECTORY = "trajectory"
 
 
 class SidewalkChoice(StrEnum):
@@ -41,6 +50,23 @@ def map_(
             "without it the Overpass API is queried.",
         ),
     ] = None,
+    road: Annotated[
+        RoadChoice,
+        typer.Option(
+            help="auto: OSM, or the driven path when the poses have no CRS or Overpass is "
+            "unreachable; osm: OSM or fail; trajectory: a road along the driven path.",
+        ),
+    ] = RoadChoice.AUTO,
+    xodr: Annotated[
+        Path | None,
+        typer.Option("--xodr", help="Use this OpenDRIVE map as it is (no OSM)."),
+    ] = None,
+    lanes: Annotated[
+        int,
+        typer.Option(
+            "--lanes", min=1, max=4, help="Driving lanes each way of a road along the path."
+        ),
+    ] = 1,
     margin: Annotated[
         float, typer.Option("--margin", min=0.0, help="Margin around the route's box, metres.")
     ] = 100.0,
@@ -78,6 +104,9 @@ def map_(
 ) -> None:
     """Build WS/map/ (map.xodr, map_report.json, map.png) around the whole recorded route.
 
+    Without OSM (poses without a CRS, or offline without --osm) the road is built along the
+    driven path: one road, --lanes lanes each way, the car in the outermost of its direction.
+
     Example: cam2sim map ws --osm area.osm.pbf --margin 150 --sidewalks parking
     """
     from cam2sim.stages.map import MapOptions, build_map  # noqa: PLC0415 -- lazy: imports shapely
@@ -85,6 +114,9 @@ def map_(
     try:
         options = MapOptions(
             osm=osm,
+            road=road.value,
+            xodr=xodr,
+            trajectory=TrajectoryRoadOptions(lanes=lanes),
             margin_m=margin,
             convert=ConvertOptions(
                 road_types=_road_types(road_types) or CARLA_ROAD_TYPES,

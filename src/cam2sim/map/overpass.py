@@ -19,7 +19,14 @@ from cam2sim.core.files import write_bytes_atomic
 if TYPE_CHECKING:
     from cam2sim.map.osm import BBox
 
-__all__ = ["OverpassOptions", "OverpassResult", "cache_name", "fetch_overpass", "overpass_query"]
+__all__ = [
+    "OverpassOptions",
+    "OverpassResult",
+    "OverpassUnreachableError",
+    "cache_name",
+    "fetch_overpass",
+    "overpass_query",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -112,6 +119,10 @@ def _request(url: str, query: str, timeout_s: float) -> bytes:
     return data
 
 
+class OverpassUnreachableError(StageError):
+    """The Overpass API could not be reached or kept failing (offline, say)."""
+
+
 class _RetryableError(Exception):
     """A failure worth another attempt."""
 
@@ -180,4 +191,4 @@ def fetch_overpass(
         f"{options.retries + 1} attempts ({last}); when offline, pass --osm FILE with an OSM "
         f"extract covering {box} (export it from openstreetmap.org or JOSM)"
     )
-    raise StageError(msg)
+    raise OverpassUnreachableError(msg)

@@ -60,10 +60,13 @@ class _Model(pydantic.BaseModel):
 
 
 class SourceReport(_Model):
-    """Where the OSM data came from."""
+    """Where the road data came from: an OSM file or Overpass, the driven path, a user's map."""
 
-    kind: Literal["file", "overpass"]
-    path: str | None = pydantic.Field(None, description="the --osm file")
+    kind: Literal["file", "overpass", "trajectory", "xodr"] = pydantic.Field(
+        description="file: --osm; overpass: the Overpass API; trajectory: a road built from the "
+        "driven path (dataset/trajectory.csv); xodr: the user's --xodr map"
+    )
+    path: str | None = pydantic.Field(None, description="the --osm, trajectory or --xodr file")
     url: str | None = pydantic.Field(None, description="the Overpass server")
     query: str | None = pydantic.Field(None, description="the Overpass QL sent")
     from_cache: bool = False
@@ -167,16 +170,24 @@ class AlignmentReport(_Model):
 class MapReport(Artifact):
     """``WS/map/map_report.json``."""
 
-    proj_string: str = pydantic.Field(description="the world frame; also the geoReference")
-    box: tuple[float, float, float, float] = pydantic.Field(
-        description="south, west, north, east (degrees WGS84): route box plus margin"
+    proj_string: str | None = pydantic.Field(
+        description="the world frame; also the geoReference (null: not geo-referenced)"
+    )
+    georeferenced: bool = pydantic.Field(
+        True, description="the map's coordinates can be placed on the Earth"
+    )
+    box: tuple[float, float, float, float] | None = pydantic.Field(
+        description="south, west, north, east (degrees WGS84): route box plus margin; null "
+        "when not geo-referenced"
     )
     margin_m: float
     options: dict[str, object] = pydantic.Field(description="conversion options")
     source: SourceReport
     roads: RoadCounts
     route: RouteReport
-    osm_alignment: AlignmentReport
+    osm_alignment: AlignmentReport | None = pydantic.Field(
+        description="the map's roads against the OSM ways (null without OSM)"
+    )
     warnings: list[str]
 
 

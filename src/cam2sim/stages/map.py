@@ -5,6 +5,13 @@ local file (``--osm``) or an Overpass API query (cached in ``WS/map/overpass/``)
 converter turns them into OpenDRIVE in the workspace's own projection, so map coordinates are
 world coordinates. The route is then fitted onto the map (``map_report.json``, ``map.png``).
 
+Where no OSM can be had, the road is built from the driven path
+(:mod:`cam2sim.map.trajectory_road`): always when the poses are not geo-referenced (no CRS),
+and with ``road="auto"`` when the Overpass API cannot be reached and no ``--osm`` was given
+(a warning in the report says so). ``road="trajectory"`` asks for it; ``xodr`` takes the
+user's own OpenDRIVE file instead. ``map_report.json`` says which (``source.kind``) and
+whether the map is geo-referenced.
+
 Writes ``WS/map/``: ``source.osm`` (the OSM data converted), ``map.xodr``, ``map_report.json``,
 ``map.png`` and the Overpass cache. The folder is built beside the old one and swapped in at the
 end: a failed run leaves the previous map as it was.
@@ -20,22 +27,31 @@ import shutil
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path  # noqa: TC003 - dataclass field types
+from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
 
+from cam2sim.core.dataset import DatasetInfo
 from cam2sim.core.errors import ConfigError, StageError
 from cam2sim.core.files import atomic_folder, file_fingerprint, write_text_atomic
 from cam2sim.core.frames.projection import WorldFrame
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.table import read_table
+from cam2sim.scenario.body import vehicle_geometry
 from cam2sim.core.workspace import Workspace, dataset_paths, hash_inputs
 from cam2sim.map.buildings import Building, building_footprints
 from cam2sim.map.check import osm_alignment
 from cam2sim.map.convert import ConvertOptions, osm_to_xodr
 from cam2sim.map.osm import BBox, OsmData, parse_osm_xml, read_osm
-from cam2sim.map.overpass import OverpassOptions, fetch_overpass, overpass_query
+from cam2sim.map.overpass import (
+    OverpassOptions,
+    OverpassUnreachableError,
+    fetch_overpass,
+    overpass_query,
+)
 from cam2sim.map.query import DRIVING, RoadMap
+from cam2sim.map.trajectory_road import TrajectoryRoadOptions, trajectory_road
 from cam2sim.map.report import (
     AlignmentReport,
     MapReport,
@@ -80,16 +96,34 @@ class MapOptions:
         margin_m: Margin around the route's bounding box, metres.
         convert: Road types, lane width, sidewalk mode, traffic lights.
         overpass: Server, timeouts, retries and cache refresh of the Overpass query.
+        road: ``auto`` (OSM when the poses are geo-referenced, falling back to the driven path
+            when the Overpass API is unreachable), ``osm`` (OSM or fail), ``trajectory`` (the
+            road along the driven path).
+        xodr: The user's own OpenDRIVE map, used as it is (the other options are ignored).
+        trajectory: Lanes and widths of the road along the driven path (its lane width is
+            ``convert.lane_width_m``).
     """
 
     osm: Path | None = None
     margin_m: float = 100.0
     convert: ConvertOptions = field(default_factory=ConvertOptions)
     overpass: OverpassOptions = field(default_factory=OverpassOptions)
+    road: Literal["auto", "osm", "trajectory"] = "auto"
+    xodr: Path | None = None
+    trajectory: TrajectoryRoadOptions = field(default_factory=TrajectoryRoadOptions)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.margin_m) and 0.0 <= self.margin_m <= _MAX_MARGIN_M):
             msg = f"--margin {self.margin_m!r} m is out of range; give 0 to {_MAX_MARGIN_M:.0f} m"
+            raise ConfigError(msg)
+        if self.road not in ("auto", "osm", "trajectory"):
+            msg = f"road={self.road!r}; choose auto, osm or trajectory"
+            raise ConfigError(msg)
+        if self.road == "trajectory" and self.osm is not None:
+            msg = "--road trajectory builds the road from the driven path; drop --osm"
+            raise ConfigError(msg)
+        if self.xodr is not None and self.osm is not None:
+            msg = "give --osm or --xodr, not both"
             raise ConfigError(msg)
 
 
@@ -122,17 +156,14 @@ class _Route:
     lon: npt.NDArray[np.float64]
 
 
-def _world_frame(ws: Workspace) -> WorldFrame:
+def _world_frame(ws: Workspace) -> WorldFrame | None:
+    """The workspace's world frame; None when the poses are not geo-referenced."""
     record = ws.world_frame()
     if record is None:
         msg = f"{ws.root} has no world frame yet; run `cam2sim extract {ws.root}` first"
         raise StageError(msg)
     if record.origin_lat_deg is None or record.origin_lon_deg is None:
-        msg = (
-            "the workspace's world frame is not geo-referenced (the poses have no CRS), so no "
-            "map can be placed in it; set pose.crs in config.yaml and re-run cam2sim extract"
-        )
-        raise StageError(msg)
+        return None
     frame = WorldFrame(record.origin_lat_deg, record.origin_lon_deg, record.origin_alt_m)
     if record.proj_string is not None and record.proj_string != frame.proj_string:
         msg = (
@@ -143,15 +174,24 @@ def _world_frame(ws: Workspace) -> WorldFrame:
     return frame
 
 
-def _read_route(ws: Workspace, frame: WorldFrame) -> _Route:
+def _geo_frame(ws: Workspace) -> WorldFrame:
+    """The world frame where a map must be placed on the Earth (OSM buildings)."""
+    frame = _world_frame(ws)
+    if frame is None:
+        _geo_frame_error()
+    assert frame is not None  # _geo_frame_error raised
+    return frame
+
+
+def _read_route(ws: Workspace, frame: WorldFrame | None) -> _Route:
     path = dataset_paths(ws.dataset_dir).trajectory_csv
     if not path.is_file():
-        msg = f"{path} does not exist; run `cam2sim extract {ws.root}` first"
+        msg = f"{path} does not exist; {_redo(ws)}"
         raise StageError(msg)
     table = read_table(path)
     missing = [c for c in ("t", "x", "y") if c not in table]
     if missing:
-        msg = f"{path} lacks columns {missing}; re-run cam2sim extract"
+        msg = f"{path} lacks columns {missing}; {_redo(ws)}"
         raise StageError(msg)
     xyz = np.stack(
         [
@@ -162,11 +202,22 @@ def _read_route(ws: Workspace, frame: WorldFrame) -> _Route:
         axis=-1,
     )
     if xyz.shape[0] == 0 or not np.all(np.isfinite(xyz[:, :2])):
-        msg = f"{path} holds no poses or non-finite ones; re-run cam2sim extract"
+        msg = f"{path} holds no poses or non-finite ones; {_redo(ws)}"
         raise StageError(msg)
     heading = table["heading"].astype(np.float64) if "heading" in table else None
+    if frame is None:
+        nan = np.full(len(xyz), np.nan)
+        return _Route(xyz, table["t"].astype(np.float64), heading, nan, nan)
     geo = frame.to_wgs84(xyz)
     return _Route(xyz, table["t"].astype(np.float64), heading, geo.lat_deg, geo.lon_deg)
+
+
+def _redo(ws: Workspace) -> str:
+    """What re-makes the trajectory: extract for a recording, import for images and poses."""
+    info = dataset_paths(ws.dataset_dir).dataset_json
+    if info.is_file() and DatasetInfo.load(info).kind == "images":
+        return f"re-run `cam2sim import {ws.root} --images DIR --poses FILE`"
+    return f"run `cam2sim extract {ws.root}` first"
 
 
 def route_box(frame: WorldFrame, xy: npt.ArrayLike, margin_m: float) -> BBox:
@@ -184,13 +235,45 @@ def route_box(frame: WorldFrame, xy: npt.ArrayLike, margin_m: float) -> BBox:
     return BBox.around(geo.lat_deg, geo.lon_deg)
 
 
-def _source_key(options: MapOptions, box: BBox) -> dict[str, object]:
+def _source_key(options: MapOptions, box: BBox | None, mode: str) -> dict[str, object]:
+    if mode == "xodr":
+        assert options.xodr is not None  # the mode says so
+        if not options.xodr.is_file():
+            msg = f"--xodr {options.xodr} does not exist; give an OpenDRIVE (.xodr) file"
+            raise StageError(msg)
+        return {"xodr": str(options.xodr.resolve()), "fingerprint": file_fingerprint(options.xodr)}
+    if mode == "trajectory":
+        return {"trajectory": dataclasses.asdict(options.trajectory)}
     if options.osm is not None:
         if not options.osm.is_file():
             msg = f"--osm {options.osm} does not exist; give an .osm, .osm.pbf or Overpass JSON"
             raise StageError(msg)
         return {"osm": str(options.osm.resolve()), "fingerprint": file_fingerprint(options.osm)}
+    assert box is not None  # OSM needs a geo-referenced frame
     return {"url": options.overpass.url, "query": overpass_query(box, options.overpass.timeout_s)}
+
+
+def _road_mode(options: MapOptions, frame: WorldFrame | None) -> str:
+    """Where the road comes from: ``xodr``, ``osm`` or ``trajectory``."""
+    if options.xodr is not None:
+        return "xodr"
+    if options.road == "trajectory":
+        return "trajectory"
+    if frame is None:
+        if options.road == "osm" or options.osm is not None:
+            _geo_frame_error()
+        return "trajectory"
+    return "osm"
+
+
+def _geo_frame_error() -> None:
+    msg = (
+        "the workspace's world frame is not geo-referenced (the poses have no CRS), so no "
+        "OSM data can be placed in it; set pose.crs in config.yaml and re-run cam2sim "
+        "extract (or import with --crs), or drop --osm: the road is then built from the "
+        "driven path"
+    )
+    raise StageError(msg)
 
 
 def _check_covers(osm: OsmData, route: _Route) -> None:
@@ -291,14 +374,23 @@ def build_map(
     progress = progress or no_progress
     frame = _world_frame(ws)
     route = _read_route(ws, frame)
-    box = route_box(frame, route.xyz, options.margin_m)
+    mode = _road_mode(options, frame)
+    box = route_box(frame, route.xyz, options.margin_m) if frame is not None else None
+    trajectory_csv = dataset_paths(ws.dataset_dir).trajectory_csv
+    road_options = dataclasses.replace(
+        options.trajectory,
+        lane_width_m=options.convert.lane_width_m,
+        pose_height_m=float(vehicle_geometry(ws.load_config().vehicle).reference_xyz[2]),
+    )
     inputs_hash = hash_inputs(
         {
-            "source": _source_key(options, box),
+            "source": _source_key(options, box, mode),
+            "road": options.road,
+            "road_options": dataclasses.asdict(road_options),
             "margin_m": options.margin_m,
             "convert": options.convert.as_dict(),
-            "proj_string": frame.proj_string,
-            "trajectory": file_fingerprint(dataset_paths(ws.dataset_dir).trajectory_csv),
+            "proj_string": frame.proj_string if frame is not None else None,
+            "trajectory": file_fingerprint(trajectory_csv),
         }
     )
     if not force and ws.is_up_to_date(STAGE, inputs_hash):
@@ -308,38 +400,74 @@ def build_map(
             return MapResult(ws.map_dir, cached, skipped=True)
     with stage_run(ws, STAGE, inputs_hash=inputs_hash, config=None):
         progress("map", 0, 5)
-        osm, source = _load_source(ws, options, box, route)
-        osm = osm.crop(box)
-        _require_roads(osm, box, options.convert)
-        osm_xml = osm.to_xml()
-        progress("map", 1, 5)
-        xodr = osm_to_xodr(osm_xml, frame.proj_string, options.convert)
-        progress("map", 2, 5)
-        road_map = RoadMap.from_xodr(xodr)
-        if not road_map.lane_indices(DRIVING).size:
-            count = len(osm.highways(options.convert.road_types))
-            msg = (
-                f"the converter made no driving lane from {count} roads in {box}; add road "
-                "types with --road-types or check the OSM data"
+        notes: list[str] = []
+        osm_xml: str | None = None
+        alignment: AlignmentReport | None = None
+        if mode == "osm":
+            assert frame is not None and box is not None  # mode osm needs them
+            try:
+                osm, source = _load_source(ws, options, box, route)
+            except OverpassUnreachableError as err:
+                if options.road != "auto":
+                    raise
+                notes.append(
+                    f"no OSM data could be had ({err}); the road was built from the driven path. "
+                    f"Online, `cam2sim map {ws.root} --force` uses OSM instead"
+                )
+                mode = "trajectory"
+            else:
+                osm = osm.crop(box)
+                _require_roads(osm, box, options.convert)
+                osm_xml = osm.to_xml()
+                progress("map", 1, 5)
+                xodr = osm_to_xodr(osm_xml, frame.proj_string, options.convert)
+        if mode == "trajectory":
+            road = trajectory_road(
+                route.xyz,
+                road_options,
+                proj_string=frame.proj_string if frame is not None else None,
             )
-            raise StageError(msg)
+            xodr = road.xodr
+            notes.append(
+                f"the road follows the driven path ({road.length_m:.0f} m, "
+                f"{road_options.lanes} lane(s) each way of {road_options.lane_width_m:.2f} m; "
+                f"smoothing moved the path by up to {road.smoothing_m:.2f} m): no junctions, "
+                "side streets or buildings"
+            )
+            source = _file_source("trajectory", trajectory_csv)
+        elif mode == "xodr":
+            assert options.xodr is not None  # the mode says so
+            xodr = options.xodr.read_text(encoding="utf-8")
+            source = _file_source("xodr", options.xodr)
+        if frame is None:
+            notes.append(
+                "the map is not geo-referenced: the poses have no CRS (import with --crs, or "
+                "set pose.crs, to place it on the Earth)"
+            )
+        progress("map", 2, 5)
+        road_map = _road_map(xodr, source)
         fit = fit_route(road_map, route.xyz[:, :2], route.t, route.heading)
-        alignment = osm_alignment(osm, road_map, frame, options.convert.road_types)
+        if osm_xml is not None:
+            assert frame is not None  # OSM needs it
+            aligned = osm_alignment(osm, road_map, frame, options.convert.road_types)
+            alignment = AlignmentReport.from_alignment(aligned)
         progress("map", 3, 5)
         report = MapReport(
-            proj_string=frame.proj_string,
-            box=(box.south, box.west, box.north, box.east),
+            proj_string=frame.proj_string if frame is not None else None,
+            georeferenced=frame is not None,
+            box=(box.south, box.west, box.north, box.east) if box is not None else None,
             margin_m=options.margin_m,
             options=options.convert.as_dict(),
             source=source,
             roads=road_counts(road_map),
             route=fit.report,
-            osm_alignment=AlignmentReport.from_alignment(alignment),
-            warnings=route_warnings(fit.report),
+            osm_alignment=alignment,
+            warnings=[*notes, *route_warnings(fit.report)],
         )
         cache = ws.map_dir / MAP_FILES["cache"]
         with atomic_folder(ws.map_dir) as tmp:
-            write_text_atomic(tmp / MAP_FILES["source"], osm_xml)
+            if osm_xml is not None:
+                write_text_atomic(tmp / MAP_FILES["source"], osm_xml)
             write_text_atomic(tmp / MAP_FILES["xodr"], xodr)
             report.save(tmp / MAP_FILES["report"])
             covered = fit.report.covered_fraction
@@ -360,7 +488,8 @@ def build_map(
             progress("map", 4, 5)
     progress("map", 5, 5)
     logger.info(
-        "map: %d roads, %d junctions; %.1f%% of the route on a driving lane",
+        "map (%s): %d roads, %d junctions; %.1f%% of the route on a driving lane",
+        source.kind,
         report.roads.roads,
         report.roads.junctions,
         100.0 * (fit.report.covered_fraction or 0.0),
@@ -368,6 +497,35 @@ def build_map(
     for text in report.warnings:
         warnings.warn(text, stacklevel=2)
     return MapResult(ws.map_dir, report, skipped=False)
+
+
+def _file_source(kind: Literal["trajectory", "xodr"], path: Path) -> SourceReport:
+    data = path.read_bytes()
+    return SourceReport(
+        kind=kind,
+        path=str(path),
+        sha256=hashlib.sha256(data).hexdigest(),
+        nodes=0,
+        ways=0,
+        deleted_dropped=0,
+    )
+
+
+def _road_map(xodr: str, source: SourceReport) -> RoadMap:
+    """The map's roads, with at least one driving lane."""
+    where = source.path or source.kind
+    try:
+        road_map = RoadMap.from_xodr(xodr)
+    except StageError as err:
+        msg = f"{where}: not a readable OpenDRIVE map ({err})"
+        raise StageError(msg) from None
+    if not road_map.lane_indices(DRIVING).size:
+        msg = (
+            f"{where}: the map has no driving lane; add road types with --road-types, check "
+            "the OSM data, or give a map with driving lanes"
+        )
+        raise StageError(msg)
+    return road_map
 
 
 def load_road_map(ws: Workspace) -> RoadMap:
@@ -391,4 +549,4 @@ def load_buildings(ws: Workspace, *, default_height_m: float = 10.0) -> list[Bui
     path = ws.map_dir / MAP_FILES["source"]
     if not path.is_file():
         return []
-    return building_footprints(read_osm(path), _world_frame(ws), default_height_m=default_height_m)
+    return building_footprints(read_osm(path), _geo_frame(ws), default_height_m=default_height_m)
