@@ -59,16 +59,17 @@ def test_the_car_drives_in_the_right_lane_of_a_road_that_follows_its_path() -> N
     assert float(np.median(fit.offset_m)) < 0.1
     assert float(fit.offset_m.max()) < 0.5
     assert road.fit_m < 0.15
-    # The road is 2 x 3.35 m: its centre 1.675 m left of the eastward straight (y > 0).
+    # The road is 2 x 3.35 m: its centre 1.675 m left of the eastward straight (y > 0); it
+    # starts 10 m before the first pose and ends 10 m after the last.
     start = road.centre_xy[0]
-    assert start[1] == pytest.approx(1.675, abs=0.1)
-    assert road.length_m == pytest.approx(100 + np.pi * (20 - 1.675) / 2 + 60, rel=0.02)
+    assert start == pytest.approx([-10.0, 1.675], abs=0.1)
+    assert road.length_m == pytest.approx(20 + 100 + np.pi * (20 - 1.675) / 2 + 60, rel=0.02)
     assert 'a="0.000000"' in road.xodr  # the road under a pose 0.7 m above it
 
 
 def test_left_hand_traffic_puts_the_road_on_the_other_side() -> None:
     road = trajectory_road(_l_path(), TrajectoryRoadOptions(driving_side="left", lanes=2))
-    assert road.centre_xy[0][1] == pytest.approx(-3.35 * 1.5, abs=0.1)
+    assert road.centre_xy[0][1] == pytest.approx(-3.35 * 1.5, abs=0.1)  # right of the path
     assert 'rule="LHT"' in road.xodr
     assert RoadMap.from_xodr(road.xodr).lane_indices(DRIVING).size == 4
 
@@ -96,7 +97,7 @@ def test_smoothing_keeps_the_ends_and_drops_standstills() -> None:
 def test_kitti_03s_poses_give_a_road_it_drove_on() -> None:
     xyz = _kitti_xyz()
     road = trajectory_road(xyz, TrajectoryRoadOptions(pose_height_m=1.65))
-    assert 540 < road.length_m < 580  # the 561 m country road
+    assert 560 < road.length_m < 600  # the 561 m country road and 10 m at each end
     road_map = RoadMap.from_xodr(road.xodr)
     fit = fit_route(road_map, xyz[:, :2], np.arange(len(xyz)) / 10.0, None)
     assert fit.report.covered_fraction == pytest.approx(1.0)

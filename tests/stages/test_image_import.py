@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import cv2
@@ -367,3 +368,28 @@ def test_cam2sim_run_takes_an_imported_dataset_as_extracted(tmp_path: Path) -> N
     assert extract.state == "up_to_date"  # no bag to extract: the import is the dataset
     assert "cam2sim import" in extract.message
     assert not result.failed
+
+
+def test_kitti_03_import_map_from_its_path_and_scenario(tmp_path: Path, shared_data: Path) -> None:
+    """A real drive with poses but no CRS and no OSM: the map is the road it drove on."""
+    pytest.importorskip("carla", reason="the scenario's checks need carla (cam2sim[map])")
+    from cam2sim.stages.map import build_map
+    from cam2sim.stages.scenario import run_scenario
+
+    kitti = shared_data / "posed" / "kitti-odometry-03"
+    opts = ImportOptions(poses=kitti / "poses.txt", calibration=kitti / "K.txt", fps=10.0)
+    import_images(tmp_path / "ws", kitti / "images", options=opts)
+    ws = Workspace.open(tmp_path / "ws")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = build_map(ws)
+    assert any("not geo-referenced" in str(w.message) for w in caught)
+    report = result.report
+    assert report.source.kind == "trajectory" and not report.georeferenced
+    assert report.route.covered_fraction == pytest.approx(1.0)
+    assert report.route.lateral_offset.p95_m is not None
+    assert report.route.lateral_offset.p95_m < 0.1
+    scenario = run_scenario(ws)
+    assert scenario.scenario is not None
+    assert len(scenario.scenario.trajectory.t) == 40
+    assert ws.scenario_path.is_file()

@@ -15,6 +15,8 @@
   reference line (the road's centre) lies that far to the left (right) of the smoothed path.
 - **Elevation**: the road under the pose point, ``z - pose_height_m``, smoothed like the path,
   one linear ``elevation`` record an arc.
+- **Ends**: ``extend_m`` of straight road before the first and after the last pose, so the
+  car stands on the road there.
 - **Header**: ``<geoReference>`` with the world frame's projection when there is one; else
   none, and the map is local (not geo-referenced).
 
@@ -54,6 +56,7 @@ class TrajectoryRoadOptions:
         smooth_m: Standard deviation of the Gaussian that smooths the path, metres.
         segment_m: Length of one arc record.
         pose_height_m: Height of the pose point above the road (``vehicle.reference`` z).
+        extend_m: Straight road before the first and after the last pose.
     """
 
     lanes: int = 1
@@ -63,6 +66,7 @@ class TrajectoryRoadOptions:
     smooth_m: float = 2.0
     segment_m: float = 2.0
     pose_height_m: float = 0.0
+    extend_m: float = 10.0
 
     def __post_init__(self) -> None:
         problems = []
@@ -74,6 +78,8 @@ class TrajectoryRoadOptions:
             problems.append(f"sidewalk {self.sidewalk_m!r} m (give 0 to 10)")
         if self.driving_side not in ("right", "left"):
             problems.append(f"driving side {self.driving_side!r} (give right or left)")
+        if not (0.0 <= self.extend_m <= 100.0):
+            problems.append(f"extend_m={self.extend_m} (give 0 to 100)")
         if not (0.0 <= self.smooth_m <= 50.0 and 0.5 <= self.segment_m <= 50.0):
             problems.append(f"smooth_m={self.smooth_m}, segment_m={self.segment_m}")
         if problems:
@@ -120,12 +126,7 @@ def smooth_path(
         pts = np.column_stack([pts, np.zeros(len(pts))])
     step = np.hypot(*np.diff(pts[:, :2], axis=0).T) if len(pts) > 1 else np.zeros(0)
     dist = np.concatenate([[0.0], np.cumsum(step)])
-    if dist[-1] < _MIN_LENGTH_M:
-        msg = (
-            f"the recorded car drove only {dist[-1]:.1f} m; a road from the driven path needs "
-            f"at least {_MIN_LENGTH_M:.0f} m (give an OSM file with --osm or a map with --xodr)"
-        )
-        raise StageError(msg)
+    _require_length(float(dist[-1]))
     moved = np.concatenate([[True], step > 1e-6])
     dist, pts = dist[moved], pts[moved]
     n = max(int(math.ceil(dist[-1] / step_m)), 2)
@@ -152,6 +153,15 @@ def smooth_path(
     return np.concatenate([[0.0], np.cumsum(ds)]), out
 
 
+def _require_length(driven_m: float) -> None:
+    if driven_m < _MIN_LENGTH_M:
+        msg = (
+            f"the recorded car drove only {driven_m:.1f} m; a road from the driven path needs "
+            f"at least {_MIN_LENGTH_M:.0f} m (give an OSM file with --osm or a map with --xodr)"
+        )
+        raise StageError(msg)
+
+
 def trajectory_road(
     xyz: npt.ArrayLike,
     options: TrajectoryRoadOptions | None = None,
@@ -172,6 +182,9 @@ def trajectory_road(
         StageError: The path is shorter than 10 m or not finite.
     """
     opts = options or TrajectoryRoadOptions()
+    raw = np.asarray(xyz, dtype=np.float64)
+    smooth_path(raw, smooth_m=0.0)  # the checks on the recorded path itself
+    xyz = _extended(raw, opts.extend_m)
     s, path = smooth_path(xyz, smooth_m=opts.smooth_m)
     _, unsmoothed = smooth_path(xyz, smooth_m=0.0)  # the same stations before smoothing
     smoothing = float(np.max(np.hypot(*(unsmoothed[:, :2] - path[:, :2]).T)))
@@ -214,6 +227,35 @@ def trajectory_road(
         smoothing_m=smoothing,
         centre_xy=centre,
     )
+
+
+def _extended(xyz: npt.NDArray[np.float64], extend_m: float) -> npt.NDArray[np.float64]:
+    """The path with ``extend_m`` of straight road before its start and after its end.
+
+    The directions are those of the first and last 10 m driven (their principal axes), so the
+    car at the first and last pose stands on the road, not at its edge.
+    """
+    if extend_m <= 0 or len(xyz) < 2 or not np.all(np.isfinite(xyz[:, :2])):
+        return xyz
+    if xyz.shape[1] == 2:
+        xyz = np.column_stack([xyz, np.zeros(len(xyz))])
+    dist = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xyz[:, :2], axis=0).T))])
+    if dist[-1] <= 0:
+        return xyz
+    reach = min(10.0, float(dist[-1]))
+    first = _direction(xyz[dist <= reach, :2])
+    last = _direction(xyz[dist >= dist[-1] - reach, :2])
+    k = np.arange(1, int(math.ceil(extend_m)) + 1)[:, None] * (extend_m / math.ceil(extend_m))
+    before = xyz[0] - k[::-1] * np.append(first, 0.0)
+    after = xyz[-1] + k * np.append(last, 0.0)
+    return np.concatenate([before, xyz, after])
+
+
+def _direction(xy: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Unit direction of travel along points (their principal axis, first to last)."""
+    centred = xy - xy.mean(axis=0)
+    axis = np.linalg.svd(centred, full_matrices=False)[2][0]
+    return axis if float(np.dot(xy[-1] - xy[0], axis)) >= 0 else -axis
 
 
 def _xodr_text(
