@@ -354,3 +354,29 @@ def test_recovery_views_from_the_workspace_calibration(tmp_path: Path) -> None:
     out = CliRunner().invoke(app, args)
     assert out.exit_code == 0, out.output
     assert "recovery views up to 0.4 m / 4 deg" in " ".join(out.output.split())
+
+
+def test_the_crop_follows_the_camera_without_squashing_it() -> None:
+    assert Dave2Config.for_camera(800, 503) == Dave2Config()  # the published camera
+    kitti = Dave2Config.for_camera(1242, 375)  # KITTI's grey cameras
+    assert kitti.source_size == (1242, 375)
+    top, bottom = kitti.crop_rows
+    assert (top, bottom) == (152, 349)  # 204/503 .. 468/503 of the rows
+    left, right = kitti.crop_cols or (0, 0)
+    # The crop has the network input's shape (200x66), centred: no 2:1 squash.
+    assert (right - left) / (bottom - top) == pytest.approx(200 / 66, abs=0.01)
+    assert (left + right) / 2 == pytest.approx(621, abs=1)
+    # A frame bright only inside the crop gives an all-bright input; outside, all dark.
+    frame = np.zeros((375, 1242, 3), np.uint8)
+    frame[top:bottom, left:right] = 200
+    x = preprocess(frame, kitti)
+    assert x.shape == (1, 3, 66, 200)
+    assert float(x.min()) == 200.0
+    frame[:] = 0
+    frame[:, :left] = 255
+    frame[:, right:] = 255
+    assert float(preprocess(frame, kitti).max()) == 0.0
+    narrow = Dave2Config.for_camera(640, 480)  # narrower than the crop wants: every column
+    assert narrow.crop_cols is None
+    with pytest.raises(ValueError, match="crop columns"):
+        Dave2Config(crop_cols=(700, 900))

@@ -43,14 +43,23 @@ def _render(lateral_m: float, yaw_rad: float, pitch_rad: float) -> np.ndarray:
     return np.repeat(gray[..., None], 3, -1).clip(0, 255).astype(np.uint8)
 
 
+# The published crop (frames resized to 800x503), and a crop of centre columns at the camera's
+# own size (what Dave2Config.for_camera gives a wide camera).
+CROPS = {
+    "published": Dave2Config(),
+    "centre columns": Dave2Config(source_size=(W, H), crop_rows=(81, 186), crop_cols=(60, 260)),
+}
+
+
+@pytest.mark.parametrize("crop", list(CROPS))
 @pytest.mark.parametrize("pitch_deg", [0.0, 4.0])
 @pytest.mark.parametrize(("lateral", "yaw_deg"), [(0.6, 0.0), (-0.6, 0.0), (0.0, 4.0), (0.5, -3.0)])
 def test_warp_matches_the_displaced_camera(
-    lateral: float, yaw_deg: float, pitch_deg: float
+    lateral: float, yaw_deg: float, pitch_deg: float, crop: str
 ) -> None:
     from cam2sim.ads.recovery import recovery_views
 
-    cfg = Dave2Config()
+    cfg = CROPS[crop]
     pitch = math.radians(pitch_deg)
     geometry = RecoveryGeometry(K, W, H, CAM_HEIGHT, pitch, 0.022)
     base = preprocess(_render(0.0, 0.0, pitch)[None], cfg).astype(np.float32)
@@ -64,8 +73,9 @@ def test_warp_matches_the_displaced_camera(
     assert err < 6.0
 
 
-def test_no_displacement_is_the_identity() -> None:
-    cfg = Dave2Config()
+@pytest.mark.parametrize("crop", list(CROPS))
+def test_no_displacement_is_the_identity(crop: str) -> None:
+    cfg = CROPS[crop]
     geometry = RecoveryGeometry(K, W, H, CAM_HEIGHT, 0.05, 0.022)
     src = source_pixels(geometry, cfg, [0.0], [0.0])[0]
     w, h = cfg.input_size

@@ -3,7 +3,10 @@
 Preprocessing (:func:`preprocess`, the reference system's ``system_under_test``): resize the
 camera frame to the source size (800x503, bilinear), keep rows 204..468 (800x264), resize to the
 network input (200x66, bilinear), and hand the network float32 values in ``[0, 255]``, channels
-first. Normalisation (``x / 127.5 - 1``) is the network's first layer, so exported models take
+first. :meth:`Dave2Config.for_camera` fits these to another camera: its own size as the source
+size (no resize), the same share of its rows, and as many centre columns as keep the crop's
+shape the network input's (a 1242x375 camera is not squashed 6:3 into 200x66); for an 800x503
+camera it is the published preprocessing. Normalisation (``x / 127.5 - 1``) is the network's first layer, so exported models take
 raw pixel values.
 
 Network (Bojarski et al. 2016, "End to End Learning for Self-Driving Cars"): normalisation, five
@@ -46,6 +49,7 @@ class Dave2Config(pydantic.BaseModel):
         source_size: ``(width, height)`` every frame is first resized to (the training size of
             the published model).
         crop_rows: ``(top, bottom)`` rows kept of the source-size frame, bottom exclusive.
+        crop_cols: ``(left, right)`` columns kept, right exclusive; None keeps every column.
         input_size: ``(width, height)`` of the network input.
         dropout: Dropout probability before the fully connected layers (training only).
     """
@@ -54,6 +58,7 @@ class Dave2Config(pydantic.BaseModel):
 
     source_size: tuple[int, int] = (800, 503)
     crop_rows: tuple[int, int] = (204, 468)
+    crop_cols: tuple[int, int] | None = None
     input_size: tuple[int, int] = (200, 66)
     dropout: float = pydantic.Field(default=0.2, ge=0.0, lt=1.0)
 
@@ -66,11 +71,40 @@ class Dave2Config(pydantic.BaseModel):
         if bottom > self.source_size[1]:
             msg = f"crop rows {self.crop_rows} reach below the source height {self.source_size[1]}"
             raise ValueError(msg)
+        if self.crop_cols is not None:
+            left, right = self.crop_cols
+            if not 0 <= left < right <= self.source_size[0]:
+                msg = f"crop columns {self.crop_cols} must satisfy 0 <= left < right <= width"
+                raise ValueError(msg)
         w, h = self.input_size
         if _conv_out(w) < 1 or _conv_out(h) < 1:
             msg = f"input_size {self.input_size} is too small for five convolutions (>= 61x61)"
             raise ValueError(msg)
         return self
+
+    @classmethod
+    def for_camera(cls, width: int, height: int) -> Dave2Config:
+        """The published preprocessing fitted to a ``width`` x ``height`` camera.
+
+        The source size is the camera's (frames are not resized first), the crop keeps the same
+        share of the rows as the published 204..468 of 503, and as many centre columns as make
+        the crop's width-to-height ratio the network input's (all columns when the camera is
+        narrower than that). ``for_camera(800, 503)`` is ``Dave2Config()``.
+        """
+        if width < 1 or height < 1:
+            msg = f"camera size must be positive, got {width}x{height}"
+            raise ConfigError(msg)
+        base = cls()
+        top, bottom = base.crop_rows
+        source_h = base.source_size[1]
+        rows = (round(top * height / source_h), round(bottom * height / source_h))
+        iw, ih = base.input_size
+        want = round((rows[1] - rows[0]) * iw / ih)
+        cols = None
+        if want < width:
+            left = (width - want) // 2
+            cols = (left, left + want)
+        return cls(source_size=(width, height), crop_rows=rows, crop_cols=cols)
 
     def rows_read(self, height: int) -> tuple[int, int]:
         """Rows ``[first, stop)`` of a frame ``height`` rows high that :func:`preprocess` reads.
@@ -135,13 +169,14 @@ def preprocess(
     h, w = x.shape[1:3]
     sw, sh = cfg.source_size
     top, bottom = cfg.crop_rows
+    left, right = cfg.crop_cols or (0, sw)
     iw, ih = cfg.input_size
     # One cv2 call per image and step: faster than stacking the batch along channels (OpenCV's
     # resize has SIMD paths for 1-4 channels only) and bit-identical to the reference.
     out = np.empty((x.shape[0], ih, iw, 3), np.uint8)
     for k, image in enumerate(x):
         src = image if (w, h) == (sw, sh) else _resize(image, (sw, sh))
-        out[k] = _resize(src[top:bottom], (iw, ih))
+        out[k] = _resize(src[top:bottom, left:right], (iw, ih))
     return np.ascontiguousarray(out.transpose(0, 3, 1, 2), dtype=np.float32)
 
 

@@ -6,8 +6,9 @@ Its metadata props carry the preprocessing, so :class:`~cam2sim.ads.policy.Model
 and scales camera frames as training did:
 
 - ``cam2sim.dave2``: the :class:`~cam2sim.ads.dave2.Dave2Config` JSON (read by the policy);
-- ``cam2sim.source_size``, ``cam2sim.crop_rows``, ``cam2sim.input_size``,
-  ``cam2sim.pixel_range``: the same, for people reading the file with other tools.
+- ``cam2sim.source_size``, ``cam2sim.crop_rows``, ``cam2sim.crop_cols``,
+  ``cam2sim.input_size``, ``cam2sim.pixel_range``: the same, for people reading the file with
+  other tools.
 
 The exporter is torch's TorchScript-based one (``dynamo=False``): the dynamo exporter needs
 ``onnxscript``, which cam2sim does not depend on. Needs ``onnx`` and ``onnxruntime``.
@@ -77,6 +78,7 @@ def _metadata(config: Dave2Config) -> dict[str, str]:
         METADATA_KEY: config.to_json(),
         "cam2sim.source_size": f"{sw}x{sh}",
         "cam2sim.crop_rows": f"{top},{bottom}",
+        "cam2sim.crop_cols": ",".join(str(c) for c in config.crop_cols or (0, sw)),
         "cam2sim.input_size": f"{iw}x{ih}",
         "cam2sim.pixel_range": "0..255",
     }

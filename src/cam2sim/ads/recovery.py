@@ -100,9 +100,10 @@ def _net_to_frame(config: Dave2Config, width: int, height: int) -> tuple[float, 
     """``(sx, ox, sy, oy)``: frame pixel = ``s * net pixel + o`` (pixel centres)."""
     sw, sh = config.source_size
     top, bottom = config.crop_rows
+    left, right = config.crop_cols or (0, sw)
     nw, nh = config.input_size
     # net -> source-size frame (crop) -> camera frame, each a scale between pixel centres.
-    ax, bx = sw / nw, 0.5 * sw / nw - 0.5
+    ax, bx = (right - left) / nw, left + 0.5 * (right - left) / nw - 0.5
     ay, by = (bottom - top) / nh, top + 0.5 * (bottom - top) / nh - 0.5
     cx, dx = width / sw, 0.5 * width / sw - 0.5
     cy, dy = height / sh, 0.5 * height / sh - 0.5

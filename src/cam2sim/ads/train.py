@@ -107,7 +107,8 @@ class TrainOptions:
         recovery_deg: Largest turn of the recovery views, degrees.
         recovery_lookahead_m: Pure-pursuit look-ahead of their labels, metres.
         recovery_share: Share of each batch shown displaced.
-        config: Network sizes and preprocessing.
+        config: Network sizes and preprocessing; None: the published ones, fitted to the
+            workspace's camera by the ads stage (:meth:`Dave2Config.for_camera`).
         seed: Seeds torch and numpy.
         device: ``cuda``/``cpu``; None takes CUDA when available.
         workers: Threads decoding frames.
@@ -130,10 +131,15 @@ class TrainOptions:
     recovery_deg: float = 4.0
     recovery_lookahead_m: float = 10.0
     recovery_share: float = 0.5
-    config: Dave2Config = field(default_factory=Dave2Config)
+    config: Dave2Config | None = None
     seed: int = 0
     device: str | None = None
     workers: int = 2
+
+    @property
+    def dave2(self) -> Dave2Config:
+        """The network's sizes: :attr:`config`, or the published ones when it is None."""
+        return self.config or Dave2Config()
 
     @property
     def uses_recovery(self) -> bool:
@@ -342,7 +348,7 @@ def assemble(
 
     def chunk(start: int) -> npt.NDArray[np.uint8]:
         rgb = np.stack([load(i) for i in frame[start : start + _LOAD_CHUNK]])
-        return preprocess(rgb, options.config).astype(np.uint8)
+        return preprocess(rgb, options.dave2).astype(np.uint8)
 
     n = len(frame)
     starts = range(0, n, _LOAD_CHUNK)
@@ -493,7 +499,7 @@ def train_dave2(
     if not spread > 0:
         msg = f"signal {opts.signal!r} is constant over the training frames; nothing to learn"
         raise StageError(msg)
-    model = build_dave2(opts.config).to(device)
+    model = build_dave2(opts.dave2).to(device)
     model.get_buffer("output_scale").fill_(spread)
     # Tiny gradients turn subnormal on CPU and slow every step ~10x; flush them while training.
     flush = device.type == "cpu" and torch.set_flush_denormal(True)
@@ -580,7 +586,7 @@ def _fit(
             share=opts.recovery_share,
         )
     report = report.model_copy(update=update)
-    info = Dave2ModelInfo(config=opts.config, signal=opts.signal)
+    info = Dave2ModelInfo(config=opts.dave2, signal=opts.signal)
     return TrainedModel(model.cpu(), info, report, val.t, val.steering, pred)
 
 
@@ -599,7 +605,7 @@ def _displace(
     yaw = np.radians(rng.uniform(-opts.recovery_deg, opts.recovery_deg, len(pick)))
     rows = torch.from_numpy(pick).to(x.device)
     x, y = x.clone(), y.clone()
-    x[rows] = recovery_views(x[rows], geometry, opts.config, lateral, yaw)
+    x[rows] = recovery_views(x[rows], geometry, opts.dave2, lateral, yaw)
     label = recovery_label(
         y[rows].cpu().numpy(),
         lateral,

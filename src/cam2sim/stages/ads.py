@@ -10,7 +10,7 @@ random inputs and on up to 8 of the dataset's frames (:mod:`cam2sim.ads.export`)
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Final
 
 from cam2sim.ads.recovery import RecoveryGeometry
@@ -191,6 +191,13 @@ def train_model(
 
     info = _dataset(ws)
     report = progress or no_progress
+    calib_path = dataset_paths(ws.dataset_dir).calibration_json
+    if options.config is None and calib_path.is_file():  # the published crop, fitted to it
+        from cam2sim.ads.dave2 import Dave2Config  # noqa: PLC0415
+
+        camera = Calibration.load(calib_path).camera
+        if camera is not None:
+            options = replace(options, config=Dave2Config.for_camera(camera.width, camera.height))
     data = tr.assemble(dataset_paths(ws.dataset_dir), info.frame_format, options, report)
     geometry = recovery_geometry(ws) if options.uses_recovery else None
     return tr.train_dave2(data, options, report, geometry=geometry)
