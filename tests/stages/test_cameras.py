@@ -138,3 +138,26 @@ def test_runs_see_through_the_recorded_lens_and_comparisons_through_a_pinhole() 
     flat = cameras.scaled_intrinsics(scenario, (320, 200))  # type: ignore[arg-type]
     assert flat.distortion == ()
     assert flat.K().tolist() == run.K().tolist()
+
+
+@pytest.mark.usefixtures("registry")
+def test_a_grey_recordings_cameras_render_grey() -> None:
+    @dataclass
+    class _Red:
+        def render(self, T: Any, camera: PinholeCamera) -> _Frame:
+            image = np.zeros((camera.height, camera.width, 3), np.uint8)
+            image[..., 0] = 200
+            return _Frame(image)
+
+        def close(self) -> None:
+            pass
+
+    register_camera("red", lambda ctx: _Red())
+    grey_camera = type("Intrinsics", (), {"grey": True})()
+    ctx = type("Ctx", (), {"scenario": type("Sc", (), {"camera": grey_camera})()})()
+    camera = PinholeCamera.from_K(np.eye(3), 8, 4)
+    with Cameras(ctx, ("red",)) as cams:  # type: ignore[arg-type]
+        image = cams.render("red", np.eye(4), camera)
+    assert (image == round(0.299 * 200)).all()  # the luma of pure red, in every channel
+    with Cameras(None, ("red",)) as cams:  # type: ignore[arg-type]
+        assert (cams.render("red", np.eye(4), camera)[..., 0] == 200).all()

@@ -393,3 +393,22 @@ def test_kitti_03_import_map_from_its_path_and_scenario(tmp_path: Path, shared_d
     assert scenario.scenario is not None
     assert len(scenario.scenario.trajectory.t) == 40
     assert ws.scenario_path.is_file()
+
+
+def test_a_grey_camera_is_recorded_grey_and_its_simulated_views_too(
+    tmp_path: Path, shared_data: Path
+) -> None:
+    from cam2sim.core.images import as_grey, frames_are_grey
+
+    kitti = shared_data / "posed" / "kitti-odometry-03"
+    opts = ImportOptions(poses=kitti / "poses.txt", calibration=kitti / "K.txt", fps=10.0)
+    import_images(tmp_path / "ws", kitti / "images", options=opts)
+    calib = Calibration.load(DatasetPaths(tmp_path / "ws" / "dataset").calibration_json)
+    assert calib.camera is not None and calib.camera.grey  # KITTI's grey 1242x375 cameras
+    colour = _write_images(tmp_path / "colour", ["a.png", "b.png"])
+    assert not frames_are_grey(colour)
+    rgb = np.array([[[255, 0, 0], [0, 255, 0], [10, 20, 30]]], np.uint8)
+    grey = as_grey(rgb)
+    assert grey.shape == rgb.shape and (grey[..., 0] == grey[..., 2]).all()
+    expect = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    assert np.abs(grey[..., 0].astype(int) - expect.astype(int)).max() <= 1

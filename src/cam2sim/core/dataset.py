@@ -63,6 +63,9 @@ class CameraIntrinsics(_Record):
     distortion: tuple[float, ...] = ()
     distortion_model: Literal["plumb_bob", "equidistant"] = "plumb_bob"
     source: str = pydantic.Field(description="config, camera_info topic, or file")
+    grey: bool = pydantic.Field(
+        False, description="the recorded frames are grey (one channel, or three equal ones)"
+    )
 
     @classmethod
     def from_camera(cls, camera: PinholeCamera, source: str) -> CameraIntrinsics:

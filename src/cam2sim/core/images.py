@@ -17,7 +17,7 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
 
-__all__ = ["read_mask", "read_rgb", "write_rgb"]
+__all__ = ["as_grey", "frames_are_grey", "read_mask", "read_rgb", "write_rgb"]
 
 
 def read_rgb(path: Path) -> npt.NDArray[np.uint8]:
@@ -85,3 +85,37 @@ def write_rgb(path: Path, image: npt.NDArray[np.uint8]) -> None:
         msg = f"cannot encode {path} as {suffix or '.png'}; use .png or .webp"
         raise WorkspaceError(msg)
     write_bytes_atomic(path, data.tobytes())
+
+
+def frames_are_grey(paths: list[Path], *, samples: int = 5) -> bool:
+    """Whether a recording's frames are grey: one channel, or three equal ones.
+
+    Up to ``samples`` frames spread over ``paths`` are read; all must be grey. False for no
+    frames.
+    """
+    import cv2  # noqa: PLC0415
+
+    if not paths:
+        return False
+    pick = np.unique(np.linspace(0, len(paths) - 1, min(samples, len(paths))).astype(int))
+    for k in pick:
+        image = cv2.imread(str(paths[int(k)]), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            return False
+        if image.ndim == 3 and image.shape[2] >= 3:
+            rgb = image[..., :3]
+            same = np.array_equal(rgb[..., 0], rgb[..., 1])
+            if not (same and np.array_equal(rgb[..., 1], rgb[..., 2])):
+                return False
+    return True
+
+
+def as_grey(rgb: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
+    """``(..., H, W, 3)`` RGB as a grey camera records it: luma (BT.601) in all three channels.
+
+    The weights are OpenCV's ``COLOR_RGB2GRAY``, the conversion a grey sensor's frames are
+    compared with elsewhere.
+    """
+    luma = rgb[..., 0] * 0.299 + rgb[..., 1] * 0.587 + rgb[..., 2] * 0.114
+    grey = np.clip(np.rint(luma), 0, 255).astype(np.uint8)
+    return np.repeat(grey[..., None], 3, axis=-1)

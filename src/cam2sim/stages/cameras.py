@@ -21,6 +21,7 @@ import numpy as np
 from cam2sim.core import frames as fr
 from cam2sim.core.errors import StageError
 from cam2sim.core.files import write_bytes_atomic
+from cam2sim.core.images import as_grey
 from cam2sim.render.meshes import BuildingFootprint
 from cam2sim.render.raster import RasterRenderer, RasterScene
 from cam2sim.render.truth import TruthRenderer
@@ -221,6 +222,9 @@ class Cameras:
                 renderer that cannot open (its own message).
         """
         self.renderers: dict[str, Any] = {}
+        # A grey recording's camera: every view is made grey as that sensor would record it.
+        camera = ctx.scenario.camera if ctx is not None else None
+        self.grey = bool(camera is not None and camera.grey)
         self.carla: Any = None  # a CarlaSimulator whose hero is teleported (replay)
         # Per camera with lens distortion: the pinhole camera to render and the remap tables.
         self._lenses: dict[PinholeCamera, Any] = {}
@@ -253,8 +257,19 @@ class Cameras:
 
         A ``camera`` with lens distortion is drawn through its pinhole camera and remapped
         (:meth:`~cam2sim.core.camera.PinholeCamera.pinhole_remap`): the image is what that
-        camera records (always whole before ``rows`` are cut from it).
+        camera records (always whole before ``rows`` are cut from it). For a grey recording
+        (``CameraIntrinsics.grey``) the view is grey (:func:`~cam2sim.core.images.as_grey`).
         """
+        image = self._render(name, T, camera, rows)
+        return as_grey(image) if self.grey else image
+
+    def _render(
+        self,
+        name: str,
+        T: npt.NDArray[np.float64],
+        camera: PinholeCamera,
+        rows: tuple[int, int] | None,
+    ) -> npt.NDArray[np.uint8]:
         renderer = self.renderers[name]
         if camera not in self._lenses:
             self._lenses[camera] = camera.pinhole_remap()

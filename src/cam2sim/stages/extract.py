@@ -41,6 +41,7 @@ from cam2sim.core.files import (
     file_fingerprint,
     write_bytes_atomic,
 )
+from cam2sim.core.images import frames_are_grey
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.table import write_table
 from cam2sim.core.trajectory import Trajectory, heading_from_motion
@@ -703,6 +704,9 @@ def extract(
                 f"are {size[0]}x{size[1]}; fix camera.intrinsics",
                 stacklevel=2,
             )
+        if intrinsics is not None:  # a grey camera's simulated views are made grey too
+            frames = sorted(paths.frames_dir.glob("*")) if paths.frames_dir.is_dir() else []
+            intrinsics = intrinsics.model_copy(update={"grey": frames_are_grey(frames)})
         Calibration(camera=intrinsics, camera_mount=camera_mount, lidar_mount=lidar_mount).save(
             paths.calibration_json
         )

@@ -36,6 +36,7 @@ from cam2sim.core.dataset import (
 )
 from cam2sim.core.errors import RecordingError
 from cam2sim.core.files import atomic_folder, file_fingerprint, write_bytes_atomic
+from cam2sim.core.images import frames_are_grey
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.table import write_table
 from cam2sim.core.trajectory import Trajectory
@@ -481,6 +482,8 @@ def import_images(
             write_table(paths.trajectory_csv, trajectory, precision=POSE_PRECISION)
         else:
             write_table(paths.frames_csv, base, precision=POSE_PRECISION)
+        if intr is not None:  # a grey camera's simulated views are made grey too
+            intr = intr.model_copy(update={"grey": frames_are_grey(kept)})
         if intr is not None and (intr.width, intr.height) != size:
             msg = (
                 f"calibration is for {intr.width}x{intr.height} but images are {size[0]}x{size[1]}"
