@@ -115,7 +115,8 @@ class PipelineOptions:
             seeded per run), so that repeated runs of a deterministic policy differ.
         run_variation: Seeded start-pose and speed differences between drive runs
             (:mod:`cam2sim.stages.variation`); None: none.
-        splat: Splat options; None: the defaults on CUDA, :func:`small_splat_options` on CPU.
+        splat: Splat options; None: the defaults on CUDA, on CPU :func:`demo_splat_options`'s
+            CPU preset (its points triangulated from the frames when there is no LiDAR).
         splat_on_cpu: Train splats without a GPU (slow even with the small preset); False makes
             ``splat`` not applicable there.
         steering_signal: Signal the ads step trains on; None: ``steering``, else the first
@@ -449,8 +450,13 @@ class _Pipeline:
                 if not self.options.splat_on_cpu:
                     msg = "no CUDA GPU, and splat training on the CPU is turned off"
                     raise _NotApplicableError(msg)
-                opts = small_splat_options()
-                step.message = "no CUDA GPU: trained the small CPU preset"
+                opts = demo_splat_options()
+                if self._dataset_info().counts.lidar_scans == 0:  # points from the frames
+                    assert opts.prepare is not None  # the preset sets it
+                    opts = dataclasses.replace(
+                        opts, prepare=dataclasses.replace(opts.prepare, triangulate=True)
+                    )
+                step.message = "no CUDA GPU: trained the CPU preset"
         results: list[SplatResult] = []
         self._recorded(
             "splat",
