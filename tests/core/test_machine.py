@@ -1,11 +1,13 @@
 from __future__ import annotations
 
 import os
-
-import pytest
+from typing import TYPE_CHECKING
 
 from cam2sim.core.machine import available_cpus
 from cam2sim.stages.pipeline import default_drive_workers
+
+if TYPE_CHECKING:
+    import pytest
 
 
 def test_a_ray_tasks_share_caps_the_cpus(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -181,7 +181,8 @@ def test_offline_without_osm_builds_the_road_from_the_driven_path(street_ws: Wor
         warnings.simplefilter("always")
         result = build_map(street_ws, options=options)
     said = " | ".join(str(w.message) for w in caught)
-    assert "no OSM data could be had" in said and "follows the driven path" in said
+    assert "no OSM data could be had" in said
+    assert "follows the driven path" in said
     report = MapReport.load(street_ws.map_dir / MAP_FILES["report"])
     assert report.source.kind == "trajectory"
     assert report.georeferenced  # the poses have a CRS: the road is placed on the Earth
@@ -215,7 +216,8 @@ def test_local_world_frame_cannot_hold_osm_but_gets_a_road_along_the_path(
     assert any("not geo-referenced" in str(w.message) for w in caught)
     assert result.report.source.kind == "trajectory"
     assert not result.report.georeferenced
-    assert result.report.proj_string is None and result.report.box is None
+    assert result.report.proj_string is None
+    assert result.report.box is None
     assert result.report.route.covered_fraction == pytest.approx(1.0)
     assert "geoReference" not in result.xodr_path.read_text()
 

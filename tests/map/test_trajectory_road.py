@@ -50,7 +50,8 @@ def test_the_car_drives_in_the_right_lane_of_a_road_that_follows_its_path() -> N
     xyz = _l_path(noise_m=0.05)
     road = trajectory_road(xyz, TrajectoryRoadOptions(pose_height_m=0.7))
     drive = parse_opendrive(road.xodr)
-    assert len(drive.roads) == 1 and not drive.junctions
+    assert len(drive.roads) == 1
+    assert not drive.junctions
     road_map = RoadMap.from_xodr(road.xodr)
     fit = fit_route(road_map, xyz[:, :2], np.arange(len(xyz)) * 0.05, None)
     assert fit.report.covered_fraction == pytest.approx(1.0)

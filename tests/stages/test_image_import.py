@@ -385,7 +385,8 @@ def test_kitti_03_import_map_from_its_path_and_scenario(tmp_path: Path, shared_d
         result = build_map(ws)
     assert any("not geo-referenced" in str(w.message) for w in caught)
     report = result.report
-    assert report.source.kind == "trajectory" and not report.georeferenced
+    assert report.source.kind == "trajectory"
+    assert not report.georeferenced
     assert report.route.covered_fraction == pytest.approx(1.0)
     assert report.route.lateral_offset.p95_m is not None
     assert report.route.lateral_offset.p95_m < 0.1
@@ -404,11 +405,13 @@ def test_a_grey_camera_is_recorded_grey_and_its_simulated_views_too(
     opts = ImportOptions(poses=kitti / "poses.txt", calibration=kitti / "K.txt", fps=10.0)
     import_images(tmp_path / "ws", kitti / "images", options=opts)
     calib = Calibration.load(DatasetPaths(tmp_path / "ws" / "dataset").calibration_json)
-    assert calib.camera is not None and calib.camera.grey  # KITTI's grey 1242x375 cameras
+    assert calib.camera is not None
+    assert calib.camera.grey
     colour = _write_images(tmp_path / "colour", ["a.png", "b.png"])
     assert not frames_are_grey(colour)
     rgb = np.array([[[255, 0, 0], [0, 255, 0], [10, 20, 30]]], np.uint8)
     grey = as_grey(rgb)
-    assert grey.shape == rgb.shape and (grey[..., 0] == grey[..., 2]).all()
+    assert grey.shape == rgb.shape
+    assert (grey[..., 0] == grey[..., 2]).all()
     expect = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
     assert np.abs(grey[..., 0].astype(int) - expect.astype(int)).max() <= 1

@@ -384,7 +384,8 @@ def test_the_demo_splat_stops_each_chunk_on_its_own_quality_not_on_a_clock(cuda:
     # is each chunk's own safety cap, never a share of the others' seconds.
     assert train.min_steps < train.max_steps
     assert train.budget_per_chunk
-    assert train.time_budget_s is not None and train.time_budget_s >= 100
+    assert train.time_budget_s is not None
+    assert train.time_budget_s >= 100
     step = train.val_every
     start = train.min_steps - train.patience * step
     window = range(start, train.min_steps + 1, step)
@@ -394,3 +395,20 @@ def test_the_demo_splat_stops_each_chunk_on_its_own_quality_not_on_a_clock(cuda:
     flat = [(s, 27.0, 0.85) for s in window]
     assert not plateau_reached(rising, train.patience, train.min_gain_db, train.min_gain_ssim)
     assert plateau_reached(flat, train.patience, train.min_gain_db, train.min_gain_ssim)
+
+
+def test_run_remembers_the_osm_and_detector_it_was_given(tmp_path: Path) -> None:
+    from cam2sim.stages.pipeline import remember_inputs
+
+    ws = Workspace.create(tmp_path / "ws", Config())
+    osm = tmp_path / "area.osm"
+    first = remember_inputs(ws, PipelineOptions(osm=osm, detect_model="yolo.onnx"))
+    assert first.osm == osm
+    resumed = remember_inputs(ws, PipelineOptions())  # the resume gives neither
+    assert resumed.osm == osm
+    assert resumed.detect_model == "yolo.onnx"
+    other = tmp_path / "other.osm"
+    assert remember_inputs(ws, PipelineOptions(osm=other)).osm == other
+    assert remember_inputs(ws, PipelineOptions()).osm == other  # the latest one given
+    fresh = Workspace.create(tmp_path / "fresh", Config())
+    assert remember_inputs(fresh, PipelineOptions()).osm is None

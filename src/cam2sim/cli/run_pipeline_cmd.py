@@ -127,7 +127,7 @@ def run(
     Example: cam2sim run drive.mcap -o ws --osm area.osm --skip splat
     """
     from cam2sim.stages.experiment import DEMO_STEERING_NOISE  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
-    from cam2sim.stages.pipeline import STEPS, PipelineOptions, run_pipeline  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.stages.pipeline import STEPS, PipelineOptions, remember_inputs, run_pipeline  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.stages.variation import DEMO_RUN_VARIATION  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     try:
@@ -145,6 +145,7 @@ def run(
             continue_on_error=continue_on_error,
         )
         ws = _workspace(out, list(bags or []), config)
+        options = remember_inputs(ws, options)  # a resume needs no --osm again
         with progress_bars() as sink:
             result = run_pipeline(ws, options=options, progress=sink)
     except Cam2SimError as err:

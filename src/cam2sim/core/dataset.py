@@ -64,7 +64,8 @@ class CameraIntrinsics(_Record):
     distortion_model: Literal["plumb_bob", "equidistant"] = "plumb_bob"
     source: str = pydantic.Field(description="config, camera_info topic, or file")
     grey: bool = pydantic.Field(
-        False, description="the recorded frames are grey (one channel, or three equal ones)"
+        default=False,
+        description="the recorded frames are grey (one channel, or three equal ones)",
     )
 
     @classmethod

@@ -174,7 +174,7 @@ class MapReport(Artifact):
         description="the world frame; also the geoReference (null: not geo-referenced)"
     )
     georeferenced: bool = pydantic.Field(
-        True, description="the map's coordinates can be placed on the Earth"
+        default=True, description="the map's coordinates can be placed on the Earth"
     )
     box: tuple[float, float, float, float] | None = pydantic.Field(
         description="south, west, north, east (degrees WGS84): route box plus margin; null "

@@ -4,11 +4,11 @@
 
 - **Reference line**: the path resampled every ``step_m`` and smoothed with a Gaussian of
   ``smooth_m`` (odd reflection at the ends keeps the end points and their headings), then
-  described as a chain of ``arc`` records every ``segment_m`` (``line`` where straight). Each arc's curvature is the
-  smoothed heading change over its length, and its start point is integrated exactly from the
-  previous arc (closed form, vectorised), so the line is continuous in position and heading
-  (G1) as OpenDRIVE requires; :attr:`TrajectoryRoad.fit_m` is its largest distance from the
-  smoothed path.
+  described as a chain of ``arc`` records every ``segment_m`` (``line`` where straight). Each
+  arc's curvature is the smoothed heading change over its length, and its start point is
+  integrated exactly from the previous arc (closed form, vectorised), so the line is
+  continuous in position and heading (G1) as OpenDRIVE requires;
+  :attr:`TrajectoryRoad.fit_m` is its largest distance from the smoothed path.
 - **Lanes**: ``lanes`` driving lanes each way of ``lane_width_m``, a sidewalk of
   ``sidewalk_m`` on each side. The recorded car drove in the outermost lane of its direction
   (right-hand traffic: lane -``lanes``; left-hand: +``lanes``, with ``rule="LHT"``), so the
@@ -129,13 +129,13 @@ def smooth_path(
     _require_length(float(dist[-1]))
     moved = np.concatenate([[True], step > 1e-6])
     dist, pts = dist[moved], pts[moved]
-    n = max(int(math.ceil(dist[-1] / step_m)), 2)
+    n = max(math.ceil(dist[-1] / step_m), 2)
     s = np.linspace(0.0, dist[-1], n + 1)
     res = np.column_stack([np.interp(s, dist, pts[:, k]) for k in range(3)])
     if smooth_m <= 0:
         return s, res
     sigma = smooth_m / (s[1] - s[0])
-    half = int(math.ceil(3 * sigma))
+    half = math.ceil(3 * sigma)
     kernel = np.exp(-0.5 * (np.arange(-half, half + 1) / sigma) ** 2)
     kernel /= kernel.sum()
     pad = min(half, len(res) - 1)
@@ -191,7 +191,7 @@ def trajectory_road(
     tangent = np.gradient(path[:, :2], s, axis=0)
     heading = np.unwrap(np.arctan2(tangent[:, 1], tangent[:, 0]))
     # The arcs' nodes: every segment_m, and the end.
-    count = max(int(round(s[-1] / opts.segment_m)), 1)
+    count = max(round(s[-1] / opts.segment_m), 1)
     node_s = np.linspace(0.0, s[-1], count + 1)
     node_h = np.interp(node_s, s, heading)
     node_xy = np.column_stack([np.interp(node_s, s, path[:, k]) for k in range(2)])
@@ -245,7 +245,7 @@ def _extended(xyz: npt.NDArray[np.float64], extend_m: float) -> npt.NDArray[np.f
     reach = min(10.0, float(dist[-1]))
     first = _direction(xyz[dist <= reach, :2])
     last = _direction(xyz[dist >= dist[-1] - reach, :2])
-    k = np.arange(1, int(math.ceil(extend_m)) + 1)[:, None] * (extend_m / math.ceil(extend_m))
+    k = np.arange(1, math.ceil(extend_m) + 1)[:, None] * (extend_m / math.ceil(extend_m))
     before = xyz[0] - k[::-1] * np.append(first, 0.0)
     after = xyz[-1] + k * np.append(last, 0.0)
     return np.concatenate([before, xyz, after])
@@ -254,7 +254,7 @@ def _extended(xyz: npt.NDArray[np.float64], extend_m: float) -> npt.NDArray[np.f
 def _direction(xy: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Unit direction of travel along points (their principal axis, first to last)."""
     centred = xy - xy.mean(axis=0)
-    axis = np.linalg.svd(centred, full_matrices=False)[2][0]
+    axis: npt.NDArray[np.float64] = np.linalg.svd(centred, full_matrices=False)[2][0]
     return axis if float(np.dot(xy[-1] - xy[0], axis)) >= 0 else -axis
 
 
@@ -272,8 +272,7 @@ def _xodr_text(
     total = float(starts[-1])
     # A straight stretch is a line: CARLA's arc divides by its curvature (NaN at zero).
     shapes = [
-        "<line/>" if abs(k) < _LINE_CURVATURE else f'<arc curvature="{k:.9e}"/>'
-        for k in curvature
+        "<line/>" if abs(k) < _LINE_CURVATURE else f'<arc curvature="{k:.9e}"/>' for k in curvature
     ]
     geometry = "\n".join(
         f'      <geometry s="{s0:.6f}" x="{x:.6f}" y="{y:.6f}" hdg="{h:.9f}" '
@@ -288,9 +287,7 @@ def _xodr_text(
         for s0, z, g in zip(starts[:-1], ground_z[:-1], grade, strict=True)
     )
     lanes = _lane_section(opts)
-    geo = (
-        f"    <geoReference><![CDATA[{proj_string}]]></geoReference>\n" if proj_string else ""
-    )
+    geo = f"    <geoReference><![CDATA[{proj_string}]]></geoReference>\n" if proj_string else ""
     xs, ys = centre[:, 0], centre[:, 1]
     rule = ' rule="LHT"' if opts.driving_side == "left" else ""
     return (

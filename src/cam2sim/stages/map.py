@@ -38,7 +38,6 @@ from cam2sim.core.files import atomic_folder, file_fingerprint, write_text_atomi
 from cam2sim.core.frames.projection import WorldFrame
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.table import read_table
-from cam2sim.scenario.body import vehicle_geometry
 from cam2sim.core.workspace import Workspace, dataset_paths, hash_inputs
 from cam2sim.map.buildings import Building, building_footprints
 from cam2sim.map.check import osm_alignment
@@ -51,7 +50,6 @@ from cam2sim.map.overpass import (
     overpass_query,
 )
 from cam2sim.map.query import DRIVING, RoadMap
-from cam2sim.map.trajectory_road import TrajectoryRoadOptions, trajectory_road
 from cam2sim.map.report import (
     AlignmentReport,
     MapReport,
@@ -61,6 +59,8 @@ from cam2sim.map.report import (
     road_counts,
     route_warnings,
 )
+from cam2sim.map.trajectory_road import TrajectoryRoadOptions, trajectory_road
+from cam2sim.scenario.body import vehicle_geometry
 from cam2sim.stages._runner import stage_run
 
 __all__ = [
@@ -346,6 +346,68 @@ def _cached_report(ws: Workspace) -> MapReport | None:
     return MapReport.load(path)
 
 
+@dataclass(frozen=True, eq=False)
+class _Place:
+    """Where the route is: the world frame (None: local), its OSM box, the route itself."""
+
+    frame: WorldFrame | None
+    box: BBox | None
+    route: _Route
+
+
+def _road_source(
+    ws: Workspace,
+    options: MapOptions,
+    mode: str,
+    place: _Place,
+    road_options: TrajectoryRoadOptions,
+) -> tuple[str, SourceReport, OsmData | None, str | None, list[str]]:
+    """The OpenDRIVE text and where it came from: OSM, the driven path, or the user's file.
+
+    Returns ``(xodr, source, osm, osm_xml, notes)``; ``osm`` and ``osm_xml`` only from OSM.
+    """
+    frame, box, route = place.frame, place.box, place.route
+    notes: list[str] = []
+    if mode == "osm":
+        assert frame is not None
+        assert box is not None
+        try:
+            osm, source = _load_source(ws, options, box, route)
+        except OverpassUnreachableError as err:
+            if options.road != "auto":
+                raise
+            notes.append(
+                f"no OSM data could be had ({err}); the road was built from the driven path. "
+                f"Online, `cam2sim map {ws.root} --force` uses OSM instead"
+            )
+        else:
+            osm = osm.crop(box)
+            _require_roads(osm, box, options.convert)
+            osm_xml = osm.to_xml()
+            xodr = osm_to_xodr(osm_xml, frame.proj_string, options.convert)
+            return xodr, source, osm, osm_xml, notes
+    if mode == "xodr":
+        assert options.xodr is not None  # the mode says so
+        return (
+            options.xodr.read_text(encoding="utf-8"),
+            _file_source("xodr", options.xodr),
+            None,
+            None,
+            notes,
+        )
+    road = trajectory_road(
+        route.xyz, road_options, proj_string=frame.proj_string if frame is not None else None
+    )
+    notes.append(
+        f"the road follows the driven path ({road.length_m:.0f} m, "
+        f"{road_options.lanes} lane(s) each way of {road_options.lane_width_m:.2f} m; "
+        f"smoothing moved the path by up to {road.smoothing_m:.2f} m): no junctions, "
+        "side streets or buildings"
+    )
+    trajectory_csv = dataset_paths(ws.dataset_dir).trajectory_csv
+    return road.xodr, _file_source("trajectory", trajectory_csv), None, None, notes
+
+
 def build_map(
     ws: Workspace,
     *,
@@ -400,45 +462,8 @@ def build_map(
             return MapResult(ws.map_dir, cached, skipped=True)
     with stage_run(ws, STAGE, inputs_hash=inputs_hash, config=None):
         progress("map", 0, 5)
-        notes: list[str] = []
-        osm_xml: str | None = None
-        alignment: AlignmentReport | None = None
-        if mode == "osm":
-            assert frame is not None and box is not None  # mode osm needs them
-            try:
-                osm, source = _load_source(ws, options, box, route)
-            except OverpassUnreachableError as err:
-                if options.road != "auto":
-                    raise
-                notes.append(
-                    f"no OSM data could be had ({err}); the road was built from the driven path. "
-                    f"Online, `cam2sim map {ws.root} --force` uses OSM instead"
-                )
-                mode = "trajectory"
-            else:
-                osm = osm.crop(box)
-                _require_roads(osm, box, options.convert)
-                osm_xml = osm.to_xml()
-                progress("map", 1, 5)
-                xodr = osm_to_xodr(osm_xml, frame.proj_string, options.convert)
-        if mode == "trajectory":
-            road = trajectory_road(
-                route.xyz,
-                road_options,
-                proj_string=frame.proj_string if frame is not None else None,
-            )
-            xodr = road.xodr
-            notes.append(
-                f"the road follows the driven path ({road.length_m:.0f} m, "
-                f"{road_options.lanes} lane(s) each way of {road_options.lane_width_m:.2f} m; "
-                f"smoothing moved the path by up to {road.smoothing_m:.2f} m): no junctions, "
-                "side streets or buildings"
-            )
-            source = _file_source("trajectory", trajectory_csv)
-        elif mode == "xodr":
-            assert options.xodr is not None  # the mode says so
-            xodr = options.xodr.read_text(encoding="utf-8")
-            source = _file_source("xodr", options.xodr)
+        made = _road_source(ws, options, mode, _Place(frame, box, route), road_options)
+        xodr, source, osm, osm_xml, notes = made
         if frame is None:
             notes.append(
                 "the map is not geo-referenced: the poses have no CRS (import with --crs, or "
@@ -447,7 +472,8 @@ def build_map(
         progress("map", 2, 5)
         road_map = _road_map(xodr, source)
         fit = fit_route(road_map, route.xyz[:, :2], route.t, route.heading)
-        if osm_xml is not None:
+        alignment: AlignmentReport | None = None
+        if osm is not None:
             assert frame is not None  # OSM needs it
             aligned = osm_alignment(osm, road_map, frame, options.convert.road_types)
             alignment = AlignmentReport.from_alignment(aligned)

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, Final, Literal
 
 from cam2sim.core.dataset import DatasetInfo
 from cam2sim.core.errors import ConfigError, StageError
-from cam2sim.core.files import file_fingerprint
+from cam2sim.core.files import file_fingerprint, write_text_atomic
 from cam2sim.core.machine import available_cpus
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.workspace import StepState, dataset_paths, hash_inputs, run_paths
@@ -63,6 +63,7 @@ __all__ = [
     "StepOutcome",
     "StepState",
     "default_drive_workers",
+    "remember_inputs",
     "run_pipeline",
     "small_splat_options",
 ]
@@ -672,6 +673,42 @@ def run_pipeline(
             stopped = name
     report("pipeline", len(STEPS), len(STEPS))
     return PipelineResult(tuple(outcomes), pipe.report)
+
+
+RUN_INPUTS: Final = "run_inputs.json"
+"""``WS/run_inputs.json``: the inputs ``cam2sim run`` was last given (``--osm``, the detector)."""
+
+
+def remember_inputs(ws: Workspace, options: PipelineOptions) -> PipelineOptions:
+    """``options`` with the inputs an earlier run was given where this one gives none.
+
+    A resume needs no repeat of ``--osm`` or ``--detect-model``: what a run is given is saved in
+    ``WS/run_inputs.json`` and taken again by the next run that omits it (logged). A run that
+    gives one again replaces it.
+    """
+    import json  # noqa: PLC0415
+
+    path = ws.root / RUN_INPUTS
+    saved: dict[str, str] = {}
+    if path.is_file():
+        try:
+            loaded = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            loaded = {}
+        if isinstance(loaded, dict):
+            saved = {k: v for k, v in loaded.items() if isinstance(v, str)}
+    given = {"osm": options.osm, "detect_model": options.detect_model}
+    used: dict[str, Any] = {}
+    for key, value in given.items():
+        if value is not None:
+            saved[key] = str(value)
+            used[key] = value
+        elif key in saved:
+            used[key] = Path(saved[key]) if key == "osm" else saved[key]
+            logger.info("run: using %s %s from the last run", key, saved[key])
+    if saved:
+        write_text_atomic(path, json.dumps(saved, indent=2) + "\n")
+    return dataclasses.replace(options, **used)
 
 
 def default_drive_workers(jobs: int) -> int:
