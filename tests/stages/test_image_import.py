@@ -415,3 +415,28 @@ def test_a_grey_camera_is_recorded_grey_and_its_simulated_views_too(
     assert (grey[..., 0] == grey[..., 2]).all()
     expect = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
     assert np.abs(grey[..., 0].astype(int) - expect.astype(int)).max() <= 1
+
+
+def test_import_brings_signals_and_where_the_poses_sit_on_the_car(tmp_path: Path) -> None:
+    stamps = [10**18 + i * 100_000_000 for i in range(5)]
+    _write_images(tmp_path / "images", [f"{s}.png" for s in stamps])
+    steer = tmp_path / "steer.csv"
+    rows = [f"{_stamp_text(s)},{0.1 * i}" for i, s in enumerate(reversed(stamps))]
+    steer.write_text("timestamp,steering\n" + "\n".join(rows) + "\n", encoding="utf-8")
+    opts = ImportOptions(signals=(("steering", steer),), pose_offset_m=(0.8, 0.0, 1.65))
+    info = import_images(tmp_path / "ws", tmp_path / "images", options=opts).info
+    assert info.counts.signals == {"steering": 5}
+    table = read_table(DatasetPaths(tmp_path / "ws" / "dataset").signal_file("steering"))
+    assert list(table["stamp_ns"]) == stamps  # in time order
+    assert table["value"][0] == pytest.approx(0.4)
+    vehicle = Workspace.open(tmp_path / "ws").load_config().vehicle
+    assert vehicle.reference_xyz() == (0.8, 0.0, 1.65)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("when,a,b\n1,2,3\n", encoding="utf-8")
+    with pytest.raises(RecordingError, match=r"bad.csv: needs a time column"):  # before any write
+        import_images(
+            tmp_path / "ws2",
+            tmp_path / "images",
+            options=ImportOptions(signals=(("steering", bad),)),
+        )
+    assert not (tmp_path / "ws2").exists()

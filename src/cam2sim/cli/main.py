@@ -5,7 +5,7 @@ from __future__ import annotations
 import errno
 import select
 import sys
-from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
+from pathlib import Path
 from typing import Annotated, Any
 
 import typer
@@ -33,7 +33,7 @@ from cam2sim.cli.run_pipeline_cmd import run
 from cam2sim.cli.scenario_cmd import scenario
 from cam2sim.cli.splat_cmd import splat
 from cam2sim.core.config import AxisConvention
-from cam2sim.core.errors import Cam2SimError
+from cam2sim.core.errors import Cam2SimError, ConfigError
 from cam2sim.core.workspace import Workspace
 
 __all__ = ["app", "main"]
@@ -273,6 +273,7 @@ def extract(
 @app.command("import")
 def import_(
     workspace: Annotated[Path, typer.Argument(help="The workspace folder (created if new).")],
+    *,
     images: Annotated[Path, typer.Option(help="Folder of .png/.jpg frames.")],
     poses: Annotated[
         Path | None,
@@ -289,17 +290,37 @@ def import_(
         AxisConvention, typer.Option(help="Where the pose frame's x axis points on the car.")
     ] = AxisConvention.X_FORWARD,
     fps: Annotated[float, typer.Option(help="Frame rate when file names carry no time.")] = 30.0,
+    signal: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="NAME=CSV: a signal (t,value) on the images' time base, e.g. "
+            "steering=steer.csv; repeatable."
+        ),
+    ] = None,
+    pose_offset: Annotated[
+        str | None,
+        typer.Option(
+            help="X,Y,Z: where the poses sit on the car from its footprint centre (m, x forward, "
+            "z up), e.g. 0.8,0,1.65 for a camera pose."
+        ),
+    ] = None,
 ) -> None:
-    """Import images (and optional poses and calibration) as the workspace dataset.
+    """Import images (and optional poses, calibration, signals) as the workspace dataset.
 
     Example: cam2sim import ws --images frames/ --poses poses.csv --crs EPSG:32632
     """
     from cam2sim.stages.image_import import ImportOptions, import_images  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
-    opts = ImportOptions(
-        poses=poses, calibration=calibration, crs=crs, axis_convention=axis_convention, fps=fps
-    )
     try:
+        opts = ImportOptions(
+            poses=poses,
+            calibration=calibration,
+            crs=crs,
+            axis_convention=axis_convention,
+            fps=fps,
+            signals=tuple(_name_path(s) for s in signal or ()),
+            pose_offset_m=_xyz(pose_offset) if pose_offset else None,
+        )
         with progress_bars(enabled=bool(_state["progress"])) as sink:
             result = import_images(workspace, images, options=opts, progress=sink)
     except Cam2SimError as err:
@@ -307,6 +328,23 @@ def import_(
     info = result.info
     kind = "pose-less " if info.pose_less else ""
     console.print(f"{result.dataset_dir}: {kind}dataset of {info.counts.frames} frames")
+
+
+def _name_path(text: str) -> tuple[str, Path]:
+    name, sep, path = text.partition("=")
+    if not sep or not name or not path:
+        msg = f"--signal takes NAME=CSV, e.g. steering=steer.csv; got {text!r}"
+        raise ConfigError(msg)
+    return name.strip(), Path(path)
+
+
+def _xyz(text: str) -> tuple[float, float, float]:
+    try:
+        x, y, z = (float(v) for v in text.split(","))
+    except ValueError:
+        msg = f"--pose-offset takes X,Y,Z in metres, e.g. 0.8,0,1.65; got {text!r}"
+        raise ConfigError(msg) from None
+    return (x, y, z)
 
 
 def main() -> None:

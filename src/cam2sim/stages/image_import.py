@@ -24,7 +24,13 @@ import numpy.typing as npt
 
 from cam2sim.core import frames
 from cam2sim.core.camera import PinholeCamera
-from cam2sim.core.config import AXIS_CONVENTION_YAW_OFFSET, AxisConvention, Config, PoseConfig
+from cam2sim.core.config import (
+    AXIS_CONVENTION_YAW_OFFSET,
+    AxisConvention,
+    Config,
+    PoseConfig,
+    VehicleConfig,
+)
 from cam2sim.core.dataset import (
     POSE_PRECISION,
     Calibration,
@@ -171,6 +177,70 @@ def _read_kitti_poses(path: Path, lines: list[str]) -> _PoseTable:
     quat = frames.quat_from_matrix(rot)
     stamps = np.arange(len(m), dtype=np.int64)  # placeholders: the images give the times
     return _PoseTable(stamps, xyz, frames.quat_normalize(quat), None, by_index=True)
+
+
+def _open_workspace(root: Path, opts: ImportOptions) -> tuple[Workspace, Config]:
+    """The workspace at ``root`` and its config; a new one gets the import's pose settings."""
+    if (root / Workspace.MANIFEST).is_file():
+        ws = Workspace.open(root)
+        return ws, ws.load_config()
+    config = Config(pose=PoseConfig(crs=opts.crs, axis_convention=opts.axis_convention))
+    if opts.pose_offset_m is not None:  # where on the car the poses are (a camera, say)
+        vehicle = VehicleConfig(reference="offset", reference_offset_m=opts.pose_offset_m)
+        config = config.model_copy(update={"vehicle": vehicle})
+    return Workspace.create(root, config, comment="Created by cam2sim import."), config
+
+
+def _write_signals(
+    paths: DatasetPaths,
+    signals: dict[str, tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]],
+) -> None:
+    for name, (stamps, values) in signals.items():
+        write_table(
+            paths.signal_file(name),
+            {"stamp_ns": stamps, "t": stamps / 1e9, "value": values},
+            precision=POSE_PRECISION,
+        )
+
+
+def _read_signal(name: str, path: Path) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
+    """A signal CSV (``--signal NAME=CSV``): a time column and a value column, in time order.
+
+    Time: ``stamp_ns``, ``timestamp``, ``t`` or ``time`` (seconds, on the images' time base);
+    value: ``value``, a column named ``name``, or the only other column.
+    """
+    if not name.isidentifier():
+        msg = f"--signal {name}={path}: the name must be a word (letters, digits, _), e.g. steering"
+        raise RecordingError(msg)
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            rows = [
+                {k.strip(): (v or "").strip() for k, v in r.items()} for r in csv.DictReader(handle)
+            ]
+    except FileNotFoundError:
+        msg = f"--signal {name}={path}: no such file"
+        raise RecordingError(msg) from None
+    if not rows:
+        msg = f"{path}: no rows; expected a header line (t,value) and one row per sample"
+        raise RecordingError(msg)
+    tcol = _column(rows, "stamp_ns", "timestamp", "t", "time")
+    others = [c for c in rows[0] if c != tcol]
+    vcol = _column(rows, "value", name) or (others[0] if len(others) == 1 else None)
+    if tcol is None or vcol is None:
+        msg = (
+            f"{path}: needs a time column (stamp_ns, timestamp, t or time) and a value column "
+            f"(value or {name}); found {', '.join(rows[0])}"
+        )
+        raise RecordingError(msg)
+    try:
+        parse = int if tcol == "stamp_ns" else _stamp_ns
+        stamps = np.array([parse(r[tcol]) for r in rows], dtype=np.int64)
+        values = np.array([float(r[vcol]) for r in rows], dtype=np.float64)
+    except ValueError as err:
+        msg = f"{path}: a row is not a number ({err})"
+        raise RecordingError(msg) from None
+    order = np.argsort(stamps, kind="stable")
+    return stamps[order], values[order]
 
 
 def _read_pose_table(path: Path) -> _PoseTable:
@@ -412,6 +482,8 @@ class ImportOptions:
     axis_convention: AxisConvention = AxisConvention.X_FORWARD
     fps: float = 30.0
     max_pose_gap_s: float = 0.5
+    signals: tuple[tuple[str, Path], ...] = ()
+    pose_offset_m: tuple[float, float, float] | None = None
 
 
 def import_images(
@@ -431,18 +503,15 @@ def import_images(
     opts = options or ImportOptions()
     progress = progress or no_progress
     files = _list_images(Path(images))
-    if (Path(root) / Workspace.MANIFEST).is_file():
-        ws = Workspace.open(root)
-        config = ws.load_config()
-    else:
-        config = Config(pose=PoseConfig(crs=opts.crs, axis_convention=opts.axis_convention))
-        ws = Workspace.create(root, config, comment="Created by cam2sim import.")
+    signals = {name: _read_signal(name, path) for name, path in opts.signals}
+    ws, config = _open_workspace(Path(root), opts)
     stamps, time_source = stamps_from_names(files, fps=opts.fps)
     table = _read_pose_table(opts.poses) if opts.poses else None
     intr, mount = (None, None)
     if opts.calibration:
         intr, mount = intrinsics_from_file(opts.calibration, _image_size(files[0]))
     extra_inputs = [p for p in (opts.poses, opts.calibration) if p is not None]
+    extra_inputs += [path for _, path in opts.signals]
     sources = [SourceRecord(path=str(p), fingerprint=file_fingerprint(p)) for p in extra_inputs]
     inputs_hash = hash_inputs({"files": [f.name for f in files], "opts": repr(opts)})
     with (
@@ -482,6 +551,7 @@ def import_images(
             write_table(paths.trajectory_csv, trajectory, precision=POSE_PRECISION)
         else:
             write_table(paths.frames_csv, base, precision=POSE_PRECISION)
+        _write_signals(paths, signals)
         if intr is not None:  # a grey camera's simulated views are made grey too
             intr = intr.model_copy(update={"grey": frames_are_grey(kept)})
         if intr is not None and (intr.width, intr.height) != size:
@@ -508,7 +578,9 @@ def import_images(
             ),
             time_base="file",
             counts=DatasetCounts(
-                frames=len(kept), pose_samples=0 if table is None else len(table.stamp_ns)
+                frames=len(kept),
+                pose_samples=0 if table is None else len(table.stamp_ns),
+                signals={name: len(v[0]) for name, v in signals.items()},
             ),
             start_ns=int(kept_stamps.min()),
             end_ns=int(kept_stamps.max()),
