@@ -297,6 +297,13 @@ def import_(
             "steering=steer.csv; repeatable."
         ),
     ] = None,
+    rig: Annotated[
+        Path | None,
+        typer.Option(
+            help="YAML of the rig's other cameras (images, offset_m from the front camera); "
+            "the splat is scored at their real frames."
+        ),
+    ] = None,
     pose_offset: Annotated[
         str | None,
         typer.Option(
@@ -320,6 +327,7 @@ def import_(
             fps=fps,
             signals=tuple(_name_path(s) for s in signal or ()),
             pose_offset_m=_xyz(pose_offset) if pose_offset else None,
+            rig=rig,
         )
         with progress_bars(enabled=bool(_state["progress"])) as sink:
             result = import_images(workspace, images, options=opts, progress=sink)

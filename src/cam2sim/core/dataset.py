@@ -9,13 +9,17 @@ z up) at the recording's pose reference point, heading is radians CCW from +x.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
+import numpy as np
 import pydantic
 
 from cam2sim.core.camera import PinholeCamera
 from cam2sim.core.schema import Artifact
 from cam2sim.core.workspace import WorldFrameRecord
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
 __all__ = [
     "LIDAR_COLUMNS",
@@ -122,6 +126,25 @@ class Calibration(Artifact):
     lidar_mount: MountRecord | None = None
 
 
+class RigCamera(Artifact):
+    """``dataset/cameras/<name>/camera.json``: a rig camera beside the front one.
+
+    Its frames (``frames/NNNNNN``) are taken at the front camera's frames of the same number;
+    its pose is the front camera's times ``T_front_cam`` (optical axes both).
+    """
+
+    name: str
+    intrinsics: CameraIntrinsics
+    T_front_cam: tuple[tuple[float, float, float, float], ...] = pydantic.Field(
+        description="4x4: this camera (optical axes) -> the front camera (optical axes)"
+    )
+    source: str = pydantic.Field(description="the rig file it came from")
+
+    def T(self) -> npt.NDArray[np.float64]:
+        """``T_front_cam`` as a ``(4, 4)`` array."""
+        return np.asarray(self.T_front_cam, dtype=np.float64)
+
+
 class SourceRecord(_Record):
     """One input file and its fingerprint."""
 
@@ -157,3 +180,6 @@ class DatasetInfo(Artifact):
     )
     frame_format: Literal["png", "jpeg"]
     world: WorldFrameRecord
+    rig: tuple[str, ...] = pydantic.Field(
+        default=(), description="the rig's other cameras (dataset/cameras/<name>/)"
+    )

@@ -550,6 +550,20 @@ class DatasetPaths:
         return self.root / "calibration.json"
 
     @property
+    def rig_dir(self) -> Path:
+        """The rig's other cameras (beside the front one), one folder each."""
+        return self.root / "cameras"
+
+    def rig_camera_json(self, name: str) -> Path:
+        """Rig camera ``name``'s intrinsics and pose on the front camera."""
+        return self.rig_dir / name / "camera.json"
+
+    def rig_frame_file(self, name: str, index: int, fmt: str) -> Path:
+        """Rig camera ``name``'s image at front frame ``index``."""
+        suffix = "jpg" if fmt == "jpeg" else fmt
+        return self.rig_dir / name / "frames" / f"{index:06d}.{suffix}"
+
+    @property
     def dataset_json(self) -> Path:
         """Counts, time span, dropped frames and why, source fingerprints."""
         return self.root / "dataset.json"

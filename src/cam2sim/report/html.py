@@ -656,6 +656,30 @@ def _splat(ctx: _Context) -> str:
             "pose (on path), moved along the camera's x axis (+ = right) or turned about the "
             "vertical (+ = left). Coverage: 0 on a training view, toward 1 far from all.</p>"
         )
+    if ev.rig:
+        rows = [
+            (
+                row.label(), _fmt(row.psnr_db.mean, ".2f"), _fmt(row.ssim.mean, ".3f"),
+                _fmt(row.coverage.mean, ".2f"), row.ssim.n,
+            )
+            for row in ev.rig
+        ]  # fmt: skip
+        on_path = ev.truth.on_path() if ev.truth is not None else None
+        headers = ["camera", "PSNR dB", "SSIM", "coverage", "frames"]
+        caption = (
+            "Validity envelope at real pixels: the splat at the rig's other cameras, scored "
+            "against what they recorded (the front camera's held-out poses moved to them)"
+        )
+        parts.append(_table(headers, rows, caption))
+        beside = (
+            f" On the path, against the ground truth: {_fmt(on_path.psnr_db.mean, '.2f')} dB."
+            if on_path is not None
+            else ""
+        )
+        parts.append(
+            '<p class="note">Compare with the held-out PSNR above (the front camera, on the '
+            f"path): how much the splat loses where the car was never driven.{beside}</p>"
+        )
     parts += [f'<p class="note">{_e(note)}</p>' for note in ev.notes]
     parts.append(_splat_training(ctx))
     rule = (

@@ -58,6 +58,7 @@ from cam2sim.splat.scene import FrameRecord, SceneRecord
 from cam2sim.splat.scores import (
     MetricSummary,
     PairScores,
+    RigScore,
     TruthEnvelope,
     TruthScore,
     even_picks,
@@ -143,6 +144,11 @@ class SplatEval(Artifact):
     lower_fraction: float
     frames: list[HeldOutFrame]
     offsets: list[OffsetScore]
+    rig: list[RigScore] = pydantic.Field(
+        default_factory=list,
+        description="Against the real frames of the rig's other cameras (real pixels off the "
+        "path; cam2sim.splat.envelope.rig_scores, added by the splat stage)",
+    )
     truth: TruthEnvelope | None = pydantic.Field(
         None, description="Against the ground-truth world; None without one"
     )

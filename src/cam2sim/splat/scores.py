@@ -83,6 +83,26 @@ class TruthScore(pydantic.BaseModel):
         return f"yaw {self.yaw_deg:+g} deg" if self.yaw_deg else "on path"
 
 
+class RigScore(pydantic.BaseModel):
+    """The splat against a rig camera's real frames: real-pixel truth off the recorded path."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+    name: str = pydantic.Field(description="The rig camera (dataset/cameras/<name>/)")
+    lateral_m: float = pydantic.Field(description="From the front camera along its x, m (+ right)")
+    yaw_deg: float = pydantic.Field(description="Turned from the front camera, degrees (+ left)")
+    frames: list[int] = pydantic.Field(description="Held-out frames scored (scene indices)")
+    psnr_db: MetricSummary
+    ssim: MetricSummary
+    lpips: MetricSummary
+    coverage: MetricSummary
+
+    def label(self) -> str:
+        """``camera right (+0.54 m)``."""
+        turn = f", yaw {self.yaw_deg:+.0f} deg" if abs(self.yaw_deg) >= 0.5 else ""
+        return f"camera {self.name} ({self.lateral_m:+.2f} m{turn})"
+
+
 class TruthEnvelope(pydantic.BaseModel):
     """The splat models against the ground truth, on and off the path (module doc)."""
 

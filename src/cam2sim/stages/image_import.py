@@ -49,6 +49,7 @@ from cam2sim.core.trajectory import Trajectory
 from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
 from cam2sim.recording.pose import yaw_offset_quat
 from cam2sim.stages._runner import stage_run
+from cam2sim.stages.rig import read_rig, write_rig
 
 __all__ = ["ImportResult", "import_images", "intrinsics_from_file", "stamps_from_names"]
 
@@ -484,6 +485,7 @@ class ImportOptions:
     max_pose_gap_s: float = 0.5
     signals: tuple[tuple[str, Path], ...] = ()
     pose_offset_m: tuple[float, float, float] | None = None
+    rig: Path | None = None
 
 
 def import_images(
@@ -504,14 +506,17 @@ def import_images(
     progress = progress or no_progress
     files = _list_images(Path(images))
     signals = {name: _read_signal(name, path) for name, path in opts.signals}
+    rig = read_rig(opts.rig) if opts.rig is not None else []
     ws, config = _open_workspace(Path(root), opts)
     stamps, time_source = stamps_from_names(files, fps=opts.fps)
     table = _read_pose_table(opts.poses) if opts.poses else None
     intr, mount = (None, None)
     if opts.calibration:
         intr, mount = intrinsics_from_file(opts.calibration, _image_size(files[0]))
-    extra_inputs = [p for p in (opts.poses, opts.calibration) if p is not None]
-    extra_inputs += [path for _, path in opts.signals]
+    extra_inputs = [
+        *(p for p in (opts.poses, opts.calibration, opts.rig) if p is not None),
+        *(path for _, path in opts.signals),
+    ]
     sources = [SourceRecord(path=str(p), fingerprint=file_fingerprint(p)) for p in extra_inputs]
     inputs_hash = hash_inputs({"files": [f.name for f in files], "opts": repr(opts)})
     with (
@@ -554,6 +559,10 @@ def import_images(
         _write_signals(paths, signals)
         if intr is not None:  # a grey camera's simulated views are made grey too
             intr = intr.model_copy(update={"grey": frames_are_grey(kept)})
+        rig_names = write_rig(
+            paths, rig, keep, intr, source=opts.rig or Path(), fmt=fmt,
+            list_images=_list_images, intrinsics_from_file=intrinsics_from_file,
+        )  # fmt: skip
         if intr is not None and (intr.width, intr.height) != size:
             msg = (
                 f"calibration is for {intr.width}x{intr.height} but images are {size[0]}x{size[1]}"
@@ -588,6 +597,7 @@ def import_images(
             dropped={"camera": dropped} if dropped else {},
             frame_format=fmt,
             world=world,
+            rig=rig_names,
         )
         info.save(paths.dataset_json)
         run.world = world

@@ -10,24 +10,29 @@ models against it on and off the recorded path (:mod:`cam2sim.splat.envelope`).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import functools
 import logging
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+from cam2sim.core.dataset import Calibration, DatasetInfo, RigCamera
 from cam2sim.core.errors import Cam2SimError, StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
-from cam2sim.core.workspace import Workspace, hash_inputs
+from cam2sim.core.workspace import Workspace, dataset_paths, hash_inputs
 from cam2sim.render.truth import TruthRenderer, truth_world_path
 from cam2sim.scenario.model import Scenario
 from cam2sim.splat.distributed import train_scene_on_ray
-from cam2sim.splat.envelope import TruthEnvelopeOptions, TruthReference
+from cam2sim.splat.envelope import RigView, TruthEnvelopeOptions, TruthReference, rig_scores
 from cam2sim.splat.evaluate import evaluate_splat
 from cam2sim.splat.prepare import prepare_scene
+from cam2sim.splat.render import SplatRenderer
 from cam2sim.splat.scene import SceneRecord
 from cam2sim.splat.train import train_scene
 from cam2sim.stages._runner import stage_run
 from cam2sim.stages.cameras import ground_height_at
+from cam2sim.stages.rig import rig_offset
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -38,6 +43,7 @@ if TYPE_CHECKING:
 
     from cam2sim.splat.evaluate import SplatEval
     from cam2sim.splat.prepare import PrepareOptions
+    from cam2sim.splat.scores import RigScore
     from cam2sim.splat.train import SceneTrainResult, TrainOptions
 
 __all__ = ["SplatResult", "SplatStageOptions", "run_splat"]
@@ -154,11 +160,49 @@ def run_splat(
                     truth=truth,
                     progress=report,
                 )
-            if notes:
+            rig = _rig_views(ws)
+            if rig:  # the rig's other cameras: real pixels off the recorded path
+                rows = _score_rig(models_dir, scene, rig)
+                evaluation = evaluation.model_copy(update={"rig": rows})
+            if notes or rig:
                 evaluation = evaluation.model_copy(update={"notes": [*evaluation.notes, *notes]})
                 evaluation.save(ws.splat_dir / "eval.json")
             lap("evaluate")
     return SplatResult(prep_dir, models_dir, trained, evaluation, seconds)
+
+
+def _rig_views(ws: Workspace) -> list[RigView]:
+    """The dataset's rig cameras as the splat evaluation scores them."""
+    paths = dataset_paths(ws.dataset_dir)
+    info = DatasetInfo.load(paths.dataset_json)
+    front = Calibration.load(paths.calibration_json).camera
+    if not info.rig or front is None:
+        return []
+    views = []
+    for name in info.rig:
+        record = RigCamera.load(paths.rig_camera_json(name))
+        lateral, yaw = rig_offset(record)
+        views.append(
+            RigView(
+                name=name,
+                T_front_cam=record.T(),
+                camera=dataclasses.replace(
+                    record.intrinsics.camera(), distortion=(), distortion_model="plumb_bob"
+                ),
+                front_width=front.width,
+                frame_file=functools.partial(paths.rig_frame_file, name, fmt=info.frame_format),
+                lateral_m=lateral,
+                yaw_deg=yaw,
+            )
+        )
+    return views
+
+
+def _score_rig(models_dir: Path, scene: SceneRecord, rig: list[RigView]) -> list[RigScore]:
+    """PSNR and SSIM at the rig cameras' real frames (LPIPS left out: PSNR, SSIM suffice)."""
+    held = [f for f in scene.frames if f.held_out]
+    with SplatRenderer(models_dir) as renderer:
+        return rig_scores(renderer, rig, held, lpips=None)
 
 
 @contextlib.contextmanager
