@@ -657,7 +657,7 @@ def _splat(ctx: _Context) -> str:
             "vertical (+ = left). Coverage: 0 on a training view, toward 1 far from all.</p>"
         )
     if ev.rig:
-        rows = [
+        rig_rows = [
             (
                 row.label(), _fmt(row.psnr_db.mean, ".2f"), _fmt(row.ssim.mean, ".3f"),
                 _fmt(row.coverage.mean, ".2f"), row.ssim.n,
@@ -670,7 +670,7 @@ def _splat(ctx: _Context) -> str:
             "Validity envelope at real pixels: the splat at the rig's other cameras, scored "
             "against what they recorded (the front camera's held-out poses moved to them)"
         )
-        parts.append(_table(headers, rows, caption))
+        parts.append(_table(headers, rig_rows, caption))
         beside = (
             f" On the path, against the ground truth: {_fmt(on_path.psnr_db.mean, '.2f')} dB."
             if on_path is not None
