@@ -93,6 +93,37 @@ def test_report_embeds_every_section_and_no_external_resource(
         assert "cam2sim replay" in html
 
 
+def test_the_tables_are_exported_as_csv_and_latex_with_the_htmls_numbers(
+    built: tuple[Workspace, Path, bool],
+) -> None:
+    import csv
+    import html as html_lib
+
+    ws, path, rendered = built
+    page = html_lib.unescape(path.read_text(encoding="utf-8"))
+    tables = ws.report_dir / "tables"
+    names = {"behaviour", "behaviour_paper"} | ({"semantic"} if rendered else set())
+    assert names <= {p.stem for p in tables.glob("*.csv")}
+    for name in names:
+        rows = list(csv.reader((tables / f"{name}.csv").read_text(encoding="utf-8").splitlines()))
+        assert len(rows) >= 2
+        for row in rows[1:]:  # every data row is a row of the HTML, cell for cell
+            assert "<tr><td>" + "</td><td>".join(row) + "</td></tr>" in page
+        tex = (tables / f"{name}.tex").read_text(encoding="utf-8")
+        assert "\\begin{tabular}" in tex
+        assert f"\\label{{tab:{name}}}" in tex
+        assert tex.count(" \\\\\n") == len(rows)  # header and data rows
+        assert "%" not in tex.replace("\\%", "")  # escaped for LaTeX
+
+
+def test_latex_escapes_what_latex_reads_as_commands() -> None:
+    from cam2sim.report.exports import latex_escape
+
+    assert latex_escape("failure rate % & runs_#1 ± 2") == (
+        "failure rate \\% \\& runs\\_\\#1 $\\pm$ 2"
+    )
+
+
 def test_a_bare_workspace_says_what_to_run_in_every_section(tmp_path: Path) -> None:
     ws = Workspace.create(tmp_path / "ws", Config(recording=RecordingConfig(bags=["x.bag"])))
     out = tmp_path / "elsewhere" / "r.html"

@@ -43,6 +43,7 @@ from cam2sim.metrics.drive_io import load_run_dir
 from cam2sim.metrics.drive_quality import DriveMetrics
 from cam2sim.metrics.image_quality import PSNR_CAP_DB, ImageQualityResult
 from cam2sim.metrics.semantic import SemanticResult
+from cam2sim.report.exports import ExportedTable, write_tables
 from cam2sim.report.splat_figures import envelope_figure, training_figure
 from cam2sim.scenario.model import Scenario
 from cam2sim.splat.chunk_header import ChunkHeader, outliers_path, pose_correction_sizes
@@ -108,6 +109,15 @@ class _Context:
     meta: dict[str, RunRecord] = field(default_factory=dict)
     drives: dict[str, DriveRun] = field(default_factory=dict)
     metrics: DriveMetrics | None = None
+    exported: list[ExportedTable] = field(default_factory=list)
+
+    def table(
+        self, name: str, headers: Sequence[str], rows: Sequence[Sequence[object]], caption: str
+    ) -> str:
+        """The HTML of a table that is also exported as ``report/tables/<name>.csv|.tex``."""
+        table = ExportedTable.of(name, headers, rows, caption)
+        self.exported.append(table)
+        return _table(table.headers, table.rows, caption)
 
 
 # -- small HTML helpers ---------------------------------------------------------------------------
@@ -352,7 +362,8 @@ def _behaviour(ctx: _Context, why: str | None) -> str:
 
     paper = behaviour_table(m)
     parts = [
-        _table(
+        ctx.table(
+            "behaviour_paper",
             ["metric", *paper.columns],
             [(name, *values) for name, values in paper.rows],
             "Behaviour (the paper's layout)",
@@ -388,7 +399,7 @@ def _behaviour(ctx: _Context, why: str | None) -> str:
         "Averages over successful runs; jitter over all runs. OR out of road, CC collision, "
         "OS oversteer, US understeer.</p>"
     )
-    parts += [_table(headers, rows, "Drive behaviour per method"), note]
+    parts += [ctx.table("behaviour", headers, rows, "Drive behaviour per method"), note]
     return "".join(parts)
 
 
@@ -548,7 +559,9 @@ def _semantic(ctx: _Context) -> str:
         rows = [(f"IoU {c}", s.classes[c], ".4f") for c in res.classes]
         rows.append(("mIoU", s.miou, ".4f"))
         caption = f"{path.relative_to(ctx.ws.root)}: {len(res.frames)} segmentation pairs"
-        parts.append(_table(["metric", "mean", "std", "n"], _stats_rows(rows), caption))
+        name = "semantic" if path.parent.name == "semantic" else f"semantic_{path.parent.name}"
+        table = ctx.table(name, ["metric", "mean", "std", "n"], _stats_rows(rows), caption)
+        parts.append(table)
         if (path.parent / "real").is_dir() and (path.parent / "sim").is_dir():
             parts.append(
                 '<p class="note">Labels of the ground-truth world (real) against the simulated '
@@ -629,7 +642,8 @@ def _splat(ctx: _Context) -> str:
         return _na("Splat quality (eval.json unreadable)", f"cam2sim splat {ctx.ws.root} --force")
     held = [("PSNR dB", ev.psnr_db, ".2f"), ("SSIM", ev.ssim, ".3f"), ("LPIPS", ev.lpips, ".3f")]
     caption = f"Held out: {ev.n_held_out} recorded frames never trained on"
-    parts = [_table(["metric", "mean", "p10", "p90", "frames"], _summary_rows(held), caption)]
+    headers = ["metric", "mean", "p10", "p90", "frames"]
+    parts = [ctx.table("splat_held_out", headers, _summary_rows(held), caption)]
     if ev.truth is None:
         parts.append(
             '<p class="note">Not scored against a ground truth: the workspace has no '
@@ -646,7 +660,7 @@ def _splat(ctx: _Context) -> str:
         ]  # fmt: skip
         headers = ["pose", "PSNR dB", "SSIM", "LPIPS", "coverage", "frames"]
         caption = "Validity envelope, measured: splat vs the ground truth without sensor noise"
-        parts.append(_table(headers, rows, caption))
+        parts.append(ctx.table("splat_envelope", headers, rows, caption))
         fig = envelope_figure(
             ev.truth, min_psnr_db=gate.TRUTH_MIN_PSNR_DB, min_ssim=gate.TRUTH_MIN_SSIM
         )
@@ -670,7 +684,7 @@ def _splat(ctx: _Context) -> str:
             "Validity envelope at real pixels: the splat at the rig's other cameras, scored "
             "against what they recorded (the front camera's held-out poses moved to them)"
         )
-        parts.append(_table(headers, rig_rows, caption))
+        parts.append(ctx.table("splat_rig", headers, rig_rows, caption))
         beside = (
             f" On the path, against the ground truth: {_fmt(on_path.psnr_db.mean, '.2f')} dB."
             if on_path is not None
@@ -808,5 +822,6 @@ def write_report(
         + "</body></html>\n"
     )
     path = out if out is not None else ws.report_dir / "report.html"
+    write_tables(path.parent / "tables", ctx.exported)
     write_text_atomic(path, page)
     return path
