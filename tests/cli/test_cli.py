@@ -286,3 +286,41 @@ def test_progress_off_a_terminal_is_plain_lines() -> None:
         assert isinstance(sink, LineProgress)
     with progress_bars(enabled=False) as sink:  # --no-progress
         assert isinstance(sink, ProgressSink)
+
+
+def _commands(group: Any, prefix: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], Any]]:
+    out = []
+    for name, cmd in group.commands.items():
+        out.append(((*prefix, name), cmd))
+        if hasattr(cmd, "commands"):  # a group (typer's own click types)
+            out += _commands(cmd, (*prefix, name))
+    return out
+
+
+def test_every_commands_help_reads_at_80_columns() -> None:
+    import typer.main
+
+    root = typer.main.get_command(app)
+    commands = _commands(root)
+    assert len(commands) >= 25  # the commands and the subcommands of evaluate and ads
+    for path, cmd in commands:
+        result = invoke(*path, "--help", columns=80)
+        assert result.exit_code == 0, (path, result.output)
+        text = result.output
+        assert "<bool>" not in text, path  # switches take no value
+        assert "…" not in text, path  # nothing cut
+        assert max(len(line) for line in text.splitlines()) <= 80, path
+        for param in cmd.params:
+            if getattr(param, "hidden", False):
+                continue
+            for flag in [*param.opts, *param.secondary_opts]:
+                if flag.startswith("-"):
+                    assert flag in text, (path, flag)  # every flag name whole
+
+
+def test_the_commands_are_listed_in_the_order_a_user_runs_them() -> None:
+    text = invoke("--help", columns=80).output
+    listed = [line.split()[0] for line in text.split("Commands:")[1].splitlines() if line.strip()]
+    assert listed[:4] == ["inspect", "init", "extract", "import"]
+    assert listed.index("map") < listed.index("detect") < listed.index("scenario")
+    assert listed.index("report") < listed.index("run") < listed.index("demo")

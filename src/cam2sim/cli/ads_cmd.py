@@ -20,6 +20,7 @@ __all__ = ["ads_app"]
 ads_app = typer.Typer(
     help="The system under test: train DAVE-2 on the recording, export it, serve it.",
     no_args_is_help=True,
+    rich_markup_mode=None,  # click's plain help: readable at 80 columns
 )
 
 
@@ -105,14 +106,16 @@ def _recovery_line(r: RecoveryRecord | None) -> str:
 def export(
     workspace: Annotated[Path, typer.Argument(help="The workspace folder.")],
     *,
-    onnx: Annotated[bool, typer.Option("--onnx", help="Export to ONNX (the only format).")] = True,
+    onnx: Annotated[
+        bool, typer.Option("--onnx", hidden=True, help="Export to ONNX (the only format).")
+    ] = True,
     out: Annotated[
         Path | None, typer.Option(help="Output file (default WS/ads/dave2.onnx).")
     ] = None,
 ) -> None:
     """Export the trained model to ONNX and check onnxruntime against torch.
 
-    Example: cam2sim ads export ws --onnx
+    Example: cam2sim ads export ws
     """
     from cam2sim.stages.ads import export_ads  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 

@@ -47,6 +47,13 @@ _CLICK_FLOW: tuple[type[BaseException], ...] = (
 )
 
 
+COMMAND_ORDER = (
+    "inspect", "init", "extract", "import", "map", "detect", "refine", "scenario", "splat",
+    "ads", "replay", "drive", "evaluate", "report", "run", "demo", "campaign", "bench",
+)  # fmt: skip
+"""``cam2sim --help`` lists the commands in this order: as a user runs them."""
+
+
 class _Guarded(typer.core.TyperGroup):
     """The root command group: an error no stage anticipated ends in one line, not a traceback.
 
@@ -54,6 +61,12 @@ class _Guarded(typer.core.TyperGroup):
     catches the rest (a bug, a full disk, a permission denied) and names it with a hint.
     ``--debug`` shows the traceback instead.
     """
+
+    def list_commands(self, ctx: Any) -> list[str]:
+        """The commands in the order a user runs them (then any others)."""
+        names = list(super().list_commands(ctx))
+        first = [n for n in COMMAND_ORDER if n in names]
+        return first + [n for n in names if n not in first]
 
     def invoke(self, ctx: Any) -> Any:
         try:
@@ -115,7 +128,7 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
-    rich_markup_mode="rich",
+    rich_markup_mode=None,  # click's plain help: no cut flag names at 80 columns
 )
 
 _state: dict[str, int | bool] = {"verbose": 0, "progress": True, "debug": False}

@@ -15,7 +15,6 @@ from cam2sim.core.errors import Cam2SimError
 from cam2sim.core.workspace import Workspace
 from cam2sim.map.convert import CARLA_ROAD_TYPES, ConvertOptions
 from cam2sim.map.overpass import DEFAULT_URL, OverpassOptions
-from cam2sim.map.trajectory_road import TrajectoryRoadOptions
 
 __all__ = ["RoadChoice", "SidewalkChoice", "map_"]
 
@@ -109,6 +108,7 @@ def map_(
 
     Example: cam2sim map ws --osm area.osm.pbf --margin 150 --sidewalks parking
     """
+    from cam2sim.map.trajectory_road import TrajectoryRoadOptions  # noqa: PLC0415 -- lazy: numpy
     from cam2sim.stages.map import MapOptions, build_map  # noqa: PLC0415 -- lazy: imports shapely
 
     try:
