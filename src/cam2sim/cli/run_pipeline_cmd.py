@@ -114,7 +114,7 @@ def run(
         ),
     ] = True,
     splat_on_cpu: Annotated[
-        bool, typer.Option(help="Train splats on the CPU (small preset) when there is no GPU.")
+        bool, typer.Option(help="Train splats on the CPU (the CPU preset) when there is no GPU.")
     ] = True,
     continue_on_error: Annotated[
         bool, typer.Option(help="Go on with the next steps after a step failed.")

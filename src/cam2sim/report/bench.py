@@ -34,7 +34,7 @@ if TYPE_CHECKING:
 
     from cam2sim.metrics.benchmark import Aggregate, WorldResult
 
-__all__ = ["bench_tables", "write_bench_report"]
+__all__ = ["bench_tables", "rates_figure", "write_bench_report"]
 
 COLOURS = {"Real": "#1b7837", "splat": "#2166ac", "Sim": "#b2182b"}
 """One colour per method, in every plot."""
@@ -191,6 +191,11 @@ def _profile_min(world: WorldResult) -> float | None:
 
 
 def _rates_plot(agg: Aggregate) -> str:
+    return _png(rates_figure(agg))
+
+
+def rates_figure(agg: Aggregate, *, title: str = "Failures over all streets") -> Any:
+    """Each method's failure rate over the closed-loop runs with its 95 % Wilson interval."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.5, 3.0))
     for i, r in enumerate(agg.rates):
@@ -202,8 +207,8 @@ def _rates_plot(agg: Aggregate) -> str:
     ax.set_xticks(range(len(agg.rates)), [r.method for r in agg.rates])
     ax.set_ylabel("failure rate, % (95 % Wilson interval)")
     ax.set_ylim(0, 110)
-    ax.set_title("Failures over all streets")
-    return _png(fig)
+    ax.set_title(title)
+    return fig
 
 
 def _profile_plot(world: WorldResult) -> str:

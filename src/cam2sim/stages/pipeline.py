@@ -118,7 +118,7 @@ class PipelineOptions:
             (:mod:`cam2sim.stages.variation`); None: none.
         splat: Splat options; None: the defaults on CUDA, on CPU :func:`demo_splat_options`'s
             CPU preset (its points triangulated from the frames when there is no LiDAR).
-        splat_on_cpu: Train splats without a GPU (slow even with the small preset); False makes
+        splat_on_cpu: Train splats without a GPU (the CPU preset: minutes a chunk); False makes
             ``splat`` not applicable there.
         steering_signal: Signal the ads step trains on; None: ``steering``, else the first
             signal whose name holds ``steer``.
