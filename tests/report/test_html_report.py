@@ -102,7 +102,7 @@ def test_the_tables_are_exported_as_csv_and_latex_with_the_htmls_numbers(
     ws, path, rendered = built
     page = html_lib.unescape(path.read_text(encoding="utf-8"))
     tables = ws.report_dir / "tables"
-    names = {"behaviour", "behaviour_paper"} | ({"semantic"} if rendered else set())
+    names = {"behaviour"} | ({"semantic"} if rendered else set())
     assert names <= {p.stem for p in tables.glob("*.csv")}
     for name in names:
         rows = list(csv.reader((tables / f"{name}.csv").read_text(encoding="utf-8").splitlines()))
@@ -114,6 +114,24 @@ def test_the_tables_are_exported_as_csv_and_latex_with_the_htmls_numbers(
         assert f"\\label{{tab:{name}}}" in tex
         assert tex.count(" \\\\\n") == len(rows)  # header and data rows
         assert "%" not in tex.replace("\\%", "")  # escaped for LaTeX
+
+
+def test_one_behaviour_table_one_name_per_method_and_labels_that_match_the_frames(
+    built: tuple[Workspace, Path, bool],
+) -> None:
+    ws, path, rendered = built
+    html = path.read_text(encoding="utf-8")
+    assert html.count("Behaviour per method") == 1
+    assert "Drive behaviour per method" not in html  # the same numbers twice, before
+    assert "no camera" in html  # the paper's names, not the runs' method ids, head the table
+    behaviour = html.split('<section id="behaviour">')[1].split("</section>")[0]
+    assert "<th>drive-none</th>" not in behaviour
+    assert "Frames: real | splat | simulator" not in html  # a heading that named no real order
+    if rendered:
+        frames = html.split('<section id="frames">')[1].split("</section>")[0]
+        # The replay rendered the raster camera beside the recorded frame: named Sim, in order.
+        assert "side by side: recorded (left, where there is a recorded frame) | Sim" in frames
+        assert "raster" not in frames.split("<figure>")[0].split("</h3>")[-1]
 
 
 def test_latex_escapes_what_latex_reads_as_commands() -> None:
@@ -158,6 +176,7 @@ def test_the_latest_pipeline_steps_are_listed_and_a_failed_one_is_a_warning(
     assert summary is not None
     body = summary.group(1)
     assert "Pipeline steps" in body
+    assert "<caption>Stages</caption>" not in body  # one table of what ran, not two
     assert "<td>replay</td><td>done</td><td>2026-11-22 06:22:45</td><td>18.7</td>" in body
     assert "step drive failed: policy missing" in body
     assert not legacy.exists()

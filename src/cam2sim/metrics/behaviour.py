@@ -37,6 +37,7 @@ if TYPE_CHECKING:
     from cam2sim.scenario.model import Scenario
 
 __all__ = [
+    "CAMERA_LABELS",
     "METHOD_LABELS",
     "REAL_METHOD",
     "BehaviourTable",
@@ -55,6 +56,14 @@ METHOD_LABELS: Final = {
     "drive-none": "no camera",
 }
 """Column names of the behaviour table (other methods keep their own name)."""
+CAMERA_LABELS: Final = {
+    "truth": "Real",
+    "splat": "splat",
+    "raster": "Sim",
+    "carla": "Sim (CARLA)",
+    "none": "no camera",
+}
+"""The paper's name of what a camera shows, wherever a camera is named to a reader."""
 
 
 def recorded_drive(scenario: Scenario, *, source: str = "") -> DriveRun:

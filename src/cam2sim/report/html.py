@@ -38,7 +38,7 @@ from cam2sim.core.run_record import RunRecord
 from cam2sim.core.workspace import dataset_paths, run_paths
 from cam2sim.detect.boxes import footprint_corners
 from cam2sim.metrics import splat_gate as gate
-from cam2sim.metrics.behaviour import REAL_METHOD, behaviour_table
+from cam2sim.metrics.behaviour import CAMERA_LABELS, REAL_METHOD, behaviour_table
 from cam2sim.metrics.drive_io import load_run_dir
 from cam2sim.metrics.drive_quality import DriveMetrics
 from cam2sim.metrics.image_quality import PSNR_CAP_DB, ImageQualityResult
@@ -282,14 +282,14 @@ def _summary(ctx: _Context) -> str:
                      rec.message or ""))  # fmt: skip
         if rec.state == "failed":
             ctx.warnings.insert(0, f"stage {name} failed: {rec.message or 'no message'}")
-    if rows:
+    steps = _pipeline_steps(ctx, manifest)
+    if steps:  # one table: the latest cam2sim run's steps (each stage's own record is in it)
+        parts.append(_table(["step", "state", "finished", "seconds", "message"], steps,
+                            "Pipeline steps (the latest cam2sim run)"))  # fmt: skip
+    elif rows:
         parts.append(_table(["stage", "state", "started", "seconds", "message"], rows, "Stages"))
     else:
         parts.append(_na("Stage timings", f"cam2sim extract {ctx.ws.root}"))
-    steps = _pipeline_steps(ctx, manifest)
-    if steps:
-        parts.append(_table(["step", "state", "finished", "seconds", "message"], steps,
-                            "Pipeline steps (the latest cam2sim run)"))  # fmt: skip
     if ctx.scenario is not None:
         ctx.warnings += [f"left out {r.id}: {'; '.join(r.reasons)}" for r in ctx.scenario.rejected]
     if ctx.warnings:
@@ -363,10 +363,10 @@ def _behaviour(ctx: _Context, why: str | None) -> str:
     paper = behaviour_table(m)
     parts = [
         ctx.table(
-            "behaviour_paper",
+            "behaviour",
             ["metric", *paper.columns],
             [(name, *values) for name, values in paper.rows],
-            "Behaviour (the paper's layout)",
+            "Behaviour per method (the paper's layout)",
         )
     ]
     parts += [f'<p class="warn"><b>{_e(note)}</b></p>' for note in paper.notes]
@@ -374,32 +374,20 @@ def _behaviour(ctx: _Context, why: str | None) -> str:
     ctx.warnings += [
         f"{g.method}: its runs fail the splat quality gate ({g.reason})" for g in unfit.values()
     ]
-    rows = []
-    for s in m.methods:
-        ft = s.failure_types
-        rows.append((
-            f"{s.method} (unfit)" if s.method in unfit else s.method, s.runs,
-            f"{100 * s.failure_rate:.0f}",
-            f"{s.completion_mean:.2f} ({s.completion_min:.2f}-{s.completion_max:.2f})",
-            f"{ft['out_of_road']}-{ft['collision']}-{ft['oversteer']}-{ft['understeer']}",
-            _fmt(s.avg_min_frechet_m, ".2f"), _fmt(s.avg_corridor_violation_pct, ".1f"),
-            _fmt(s.avg_mean_excess_m, ".3f"), _fmt(s.avg_mean_excess_when_out_m, ".3f"),
-            _fmt(s.avg_jitter, ".3f"),
-        ))  # fmt: skip
-    headers = [
-        "method", "runs", "failure rate %", "completion (min-max)", "failure types OR-CC-OS-US",
-        "Min-Fréchet m", "corridor violations %", "mean excess m", "excess when out m",
-        "steering jitter",
-    ]  # fmt: skip
+    meaning = {
+        "Real": "the recorded drive and the closed-loop runs in the ground-truth world (the "
+        "truth camera; completed ones are references, scored leave-one-out)",
+        "splat": "the splat camera in the reconstructed world",
+        "Sim": "the simulator's raster camera in the reconstructed world",
+    }
+    glossary = "; ".join(f"{k}: {v}" for k, v in meaning.items() if k in paper.columns)
     note = (
-        f'<p class="note">Segment {m.segment.length_m:.1f} m '
+        f'<p class="note">{_e(glossary)}. Segment {m.segment.length_m:.1f} m '
         f"(reference {_e(m.segment.reference_run)}), corridor mean width "
-        f"{m.corridor_mean_width_m:.2f} m. Real: the recorded drive and the closed-loop runs in "
-        "the ground-truth world (completed ones are references, scored leave-one-out). "
-        "Averages over successful runs; jitter over all runs. OR out of road, CC collision, "
-        "OS oversteer, US understeer.</p>"
+        f"{m.corridor_mean_width_m:.2f} m. Averages over successful runs; jitter over all "
+        "runs. Failure types: OR out of road, CC collision, OS oversteer, US understeer.</p>"
     )
-    parts += [ctx.table("behaviour", headers, rows, "Drive behaviour per method"), note]
+    parts.append(note)
     return "".join(parts)
 
 
@@ -484,7 +472,8 @@ def _frames(ctx: _Context) -> str:
     for run, folder in found[-3:]:
         files = sorted(folder.glob("*.png"))
         cams = ctx.meta[run.name].cameras or [ctx.meta[run.name].camera or "?"]
-        panels = " | ".join(["real (when recorded)", *map(str, cams)])
+        labels = [CAMERA_LABELS.get(str(c), str(c)) for c in cams]
+        panels = " | ".join(["recorded (left, where there is a recorded frame)", *labels])
         what = f"side by side: {panels}" if folder.name == "side_by_side" else folder.name
         parts.append(f"<h3>{_e(run.name)}</h3><p class='note'>{_e(what)}</p>")
         try:
@@ -610,7 +599,7 @@ def _images(ctx: _Context) -> str:
 
 
 #: Column names of the image-quality table, by the folder name of the compared images.
-_IMAGE_COLUMNS = {"splat": "splat", "raster": "Sim (raster)", "carla": "Sim (CARLA)"}
+_IMAGE_COLUMNS = CAMERA_LABELS
 
 
 def _image_column(path: Path, report_dir: Path) -> str:
@@ -802,7 +791,7 @@ def write_report(
         ("runs", "Runs", lambda: _runs(ctx)),
         ("splat", "Splat quality: held out, against the ground truth, the gate",
          lambda: _splat(ctx)),
-        ("frames", "Frames: real | splat | simulator", lambda: _frames(ctx)),
+        ("frames", "Frames, side by side", lambda: _frames(ctx)),
         ("semantic", "Semantic IoU", lambda: _semantic(ctx)),
         ("images", "Image quality", lambda: _images(ctx)),
     )  # fmt: skip
