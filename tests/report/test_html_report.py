@@ -119,7 +119,7 @@ def test_the_tables_are_exported_as_csv_and_latex_with_the_htmls_numbers(
 def test_one_behaviour_table_one_name_per_method_and_labels_that_match_the_frames(
     built: tuple[Workspace, Path, bool],
 ) -> None:
-    ws, path, rendered = built
+    _ws, path, rendered = built
     html = path.read_text(encoding="utf-8")
     assert html.count("Behaviour per method") == 1
     assert "Drive behaviour per method" not in html  # the same numbers twice, before
