@@ -430,3 +430,34 @@ def test_frame_clips_are_written_without_ffmpegs_codec_warning(
     assert "FFMPEG" not in err
     assert "before" in err
     assert "after" in err  # stderr works again after the writer opened
+
+
+def test_the_headline_says_what_its_columns_hold_and_warns_of_a_starved_splat(
+    tmp_path: Path,
+) -> None:
+    from cam2sim.splat.chunk_header import ChunkHeader
+
+    ws = _workspace(tmp_path / "ws")
+    drive(ws, options=DriveOptions(camera="none", runs=2))
+    evaluate_workspace(ws, options=EvaluateOptions(replay_runs=()))
+    models = ws.splat_dir / "models"
+    models.mkdir(parents=True)
+    for k, stopped in enumerate(("plateau", "time")):
+        ChunkHeader(
+            chunk_id=k, start_m=0.0, end_m=10.0, sh_degree=0, n_gaussians=10, n_sky=0,
+            scene_scale=1.0,
+            sky_radius_m=100.0, background=[0.0, 0.0, 0.0], train_views=[], steps=900 + k,
+            backend="gsplat", stopped=stopped,
+        ).save(models / f"chunk_{k:02d}.json")  # fmt: skip
+    _splat_eval(26.0).model_copy(update={"psnr_db_raw": _splat_eval(22.0).psnr_db}).save(
+        ws.splat_dir / "eval.json"
+    )
+    html = write_report(ws).read_text(encoding="utf-8")
+    behaviour = html.split('<section id="behaviour">')[1].split("</section>")[0]
+    assert "Real has one run more than the closed-loop columns: the recorded drive" in behaviour
+    assert "Real in this workspace is the recorded drive" in behaviour  # no truth world here
+    assert "2 chunk(s) trained with gsplat, 900/901 steps, stopped by plateau/time" in behaviour
+    assert "22.0 dB without its colour transform" in behaviour
+    warnings = html.split("<h3>Warnings</h3>")[1]
+    assert "stopped on their time budget" in warnings
+    assert "the transform, not the model" in warnings

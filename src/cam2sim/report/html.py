@@ -38,7 +38,12 @@ from cam2sim.core.run_record import RunRecord
 from cam2sim.core.workspace import dataset_paths, run_paths
 from cam2sim.detect.boxes import footprint_corners
 from cam2sim.metrics import splat_gate as gate
-from cam2sim.metrics.behaviour import CAMERA_LABELS, REAL_METHOD, behaviour_table
+from cam2sim.metrics.behaviour import (
+    CAMERA_LABELS,
+    METHOD_LABELS,
+    REAL_METHOD,
+    behaviour_table,
+)
 from cam2sim.metrics.drive_io import load_run_dir
 from cam2sim.metrics.drive_quality import DriveMetrics
 from cam2sim.metrics.image_quality import PSNR_CAP_DB, ImageQualityResult
@@ -388,7 +393,62 @@ def _behaviour(ctx: _Context, why: str | None) -> str:
         "runs. Failure types: OR out of road, CC collision, OS oversteer, US understeer.</p>"
     )
     parts.append(note)
+    parts.append(_headline_context(ctx, m))
     return "".join(parts)
+
+
+def _headline_context(ctx: _Context, m: DriveMetrics) -> str:
+    """What the columns hold: run counts, what Real is here, what the splat got (and warnings)."""
+    counts = ", ".join(f"{METHOD_LABELS.get(s.method, s.method)} {s.runs}" for s in m.methods)
+    truth = (ctx.ws.root / "truth" / "world.json").is_file()
+    real = (
+        "the demo's ground-truth world: the recorded drive through it and DAVE-2's closed-loop "
+        "runs in it (the truth camera)"
+        if truth
+        else "the recorded drive (and any further recorded drives given with --real); no "
+        "closed-loop run can drive in reality"
+    )
+    first = (
+        f"Runs per column: {counts}. Real has one run more than the closed-loop columns: the "
+        f"recorded drive. Real in this workspace is {real}."
+    )
+    lines = [first]
+    headers = []
+    for path in sorted((ctx.ws.splat_dir / "models").glob("chunk_*.json")):
+        try:
+            headers.append(ChunkHeader.load(path))
+        except Cam2SimError:
+            continue  # the splat section says which file is unreadable
+    if headers:
+        steps = "/".join(f"{h.steps:,}" for h in headers)
+        stops = "/".join(sorted({h.stopped or "-" for h in headers}))
+        lines.append(
+            f"The splat: {len(headers)} chunk(s) trained with {headers[0].backend or '?'}, "
+            f"{steps} steps, stopped by {stops}."
+        )
+        timed = [h.chunk_id for h in headers if h.stopped == "time"]
+        if timed:
+            ctx.warnings.append(
+                f"splat chunk(s) {', '.join(map(str, timed))} stopped on their time budget, "
+                "not on their own plateau: train longer (cam2sim splat --force on a GPU)"
+            )
+    ev_path = ctx.ws.splat_dir / "eval.json"
+    if ev_path.is_file():
+        try:
+            ev = SplatEval.load(ev_path)
+        except Cam2SimError:
+            ev = None
+        if ev is not None and ev.psnr_db.mean is not None:
+            raw = ev.psnr_db_raw.mean if ev.psnr_db_raw is not None else None
+            with_raw = f", {raw:.1f} dB without its colour transform" if raw is not None else ""
+            lines.append(f"Held out: {ev.psnr_db.mean:.1f} dB{with_raw}.")
+            if raw is not None and raw < gate.HELD_OUT_MIN_PSNR_DB:
+                ctx.warnings.append(
+                    f"without its per-view colour transform the splat scores {raw:.1f} dB held "
+                    f"out, under the gate's {gate.HELD_OUT_MIN_PSNR_DB:g} dB: the transform, not "
+                    "the model, makes up the difference"
+                )
+    return '<p class="note">' + " ".join(_e(line) for line in lines) + "</p>"
 
 
 def _runs(ctx: _Context) -> str:
