@@ -44,7 +44,9 @@ def _image_metrics(ws: Workspace, frames: Path) -> None:
 
     quality = evaluate_image_folders(frames, frames, options=ImageQualityOptions(lpips_net=None))
     write_image_quality(quality, ws.report_dir / "images")
-    evaluate_semantic_folders(frames, frames).save(ws.report_dir / "semantic" / "semantic.json")
+    semantic = ws.report_dir / "semantic"
+    result = evaluate_semantic_folders(frames, frames, comparison_dir=semantic / "comparison")
+    result.save(semantic / "semantic.json")
 
 
 @pytest.fixture(scope="module")
@@ -87,6 +89,8 @@ def test_report_embeds_every_section_and_no_external_resource(
         assert 'src="data:image/jpeg;base64,' in html  # chosen frames and the strip
         assert 'src="data:video/webm;base64,' in html  # a clip browsers can play
         assert "mIoU" in html
+        semantic = html.split('<section id="semantic">')[1].split("</section>")[0]
+        assert semantic.count('alt="labels ') == 3  # the comparison pictures already written
         assert "PSNR dB" in html
         assert "not available" not in html.split('id="frames"')[1]
     else:
@@ -452,8 +456,12 @@ def test_the_headline_says_what_its_columns_hold_and_warns_of_a_starved_splat(
     _splat_eval(26.0).model_copy(update={"psnr_db_raw": _splat_eval(22.0).psnr_db}).save(
         ws.splat_dir / "eval.json"
     )
+    ws.ads_dir.mkdir(parents=True, exist_ok=True)
+    (ws.ads_dir / "train_report.png").write_bytes(_png_bytes())
     html = write_report(ws).read_text(encoding="utf-8")
     behaviour = html.split('<section id="behaviour">')[1].split("</section>")[0]
+    assert "<h3>The system under test</h3>" in behaviour
+    assert 'alt="DAVE-2 training' in behaviour
     assert "Real has one run more than the closed-loop columns: the recorded drive" in behaviour
     assert "Real in this workspace is the recorded drive" in behaviour  # no truth world here
     assert "2 chunk(s) trained with gsplat, 900/901 steps, stopped by plateau/time" in behaviour
@@ -461,3 +469,11 @@ def test_the_headline_says_what_its_columns_hold_and_warns_of_a_starved_splat(
     warnings = html.split("<h3>Warnings</h3>")[1]
     assert "stopped on their time budget" in warnings
     assert "the transform, not the model" in warnings
+
+
+def _png_bytes() -> bytes:
+    import cv2
+
+    ok, data = cv2.imencode(".png", np.zeros((8, 8, 3), np.uint8))
+    assert ok
+    return data.tobytes()

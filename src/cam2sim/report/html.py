@@ -394,7 +394,23 @@ def _behaviour(ctx: _Context, why: str | None) -> str:
     )
     parts.append(note)
     parts.append(_headline_context(ctx, m))
+    parts.append(_dave2_training(ctx))
     return "".join(parts)
+
+
+def _dave2_training(ctx: _Context) -> str:
+    """DAVE-2's training curve against a constant prediction (``ads/train_report.png``)."""
+    figure = ctx.ws.ads_dir / "train_report.png"
+    if not figure.is_file():
+        return ""
+    alt = "DAVE-2 training: training and validation error by epoch, and predictions"
+    note = (
+        '<p class="note">The system under test, DAVE-2, as trained on the recorded frames: '
+        "its training and validation error by epoch against the validation variance (the error "
+        "of always predicting the mean steering; a model above that line learned nothing), and "
+        "its predictions on the validation frames.</p>"
+    )
+    return "<h3>The system under test</h3>" + note + _img(figure.read_bytes(), alt)
 
 
 def _headline_context(ctx: _Context, m: DriveMetrics) -> str:
@@ -611,6 +627,18 @@ def _semantic(ctx: _Context) -> str:
         name = "semantic" if path.parent.name == "semantic" else f"semantic_{path.parent.name}"
         table = ctx.table(name, ["metric", "mean", "std", "n"], _stats_rows(rows), caption)
         parts.append(table)
+        pictures = sorted((path.parent / "comparison").glob("*.png"))
+        if pictures:
+            picked = _evenly(pictures, 3)
+            parts.append(
+                '<p class="note">Labels side by side (real | where they differ, in white | '
+                f"simulated), {len(picked)} of {len(pictures)} frames:</p>"
+            )
+            parts += [
+                f"<figure>{_img(_jpeg(f, _FRAME_WIDTH), f'labels {f.stem}', mime='image/jpeg')}"
+                f"<figcaption>frame {_e(f.stem)}</figcaption></figure>"
+                for f in picked
+            ]
         if (path.parent / "real").is_dir() and (path.parent / "sim").is_dir():
             parts.append(
                 '<p class="note">Labels of the ground-truth world (real) against the simulated '
