@@ -293,10 +293,11 @@ def test_the_report_shows_the_splat_envelope_and_an_unfit_splat_plainly(tmp_path
     assert "splat (unfit): splat under-trained: held-out 21.3 dB &lt; 25 dB" in behaviour
     assert "Validity envelope, measured" in splat
     assert "<td>on path</td><td>21.30</td><td>0.850</td>" in splat
-    assert "<td>+2 m</td>" in splat
-    assert "<td>yaw +5 deg</td>" in splat
+    assert "<td>2 m right</td>" in splat  # words, not a sign to decode
+    assert "<td>turned 5° left</td>" in splat
     assert splat.count('src="data:image/png;base64,') == 1  # the envelope plot
-    assert "drive-splat: unfit (1/1 runs)" in splat
+    assert "splat: unfit (1/1 runs)" in splat
+    assert "drive-splat" not in splat + behaviour  # the paper's name, everywhere
     assert "its runs fail the splat quality gate" in sections["summary"]
     assert "unfit (0.25 / 0.30)" in sections["runs"]
     evaluation.model_copy(update={"truth": None}).save(ws.splat_dir / "eval.json")
@@ -477,3 +478,31 @@ def _png_bytes() -> bytes:
     ok, data = cv2.imencode(".png", np.zeros((8, 8, 3), np.uint8))
     assert ok
     return data.tobytes()
+
+
+def test_plots_have_one_legend_entry_and_colour_per_method(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from cam2sim.report import drive_figures
+
+    seen: dict[str, tuple[list[str], str, dict[str, set[str]]]] = {}
+
+    def keep(fig: object, path: Path) -> None:
+        ax = fig.axes[0]  # type: ignore[attr-defined]
+        legend = ax.get_legend()
+        labels = [t.get_text() for t in legend.get_texts()] if legend else []
+        colours: dict[str, set[str]] = {}
+        for line in ax.get_lines():
+            colours.setdefault(str(line.get_label()), set()).add(str(line.get_color()))
+        seen[path.name] = (labels, ax.get_ylabel(), colours)
+
+    monkeypatch.setattr(drive_figures, "_save", keep)
+    ws = _workspace(tmp_path / "ws")
+    drive(ws, options=DriveOptions(camera="none", runs=3))
+    evaluate_workspace(ws, options=EvaluateOptions(replay_runs=()))
+    labels, ylabel, _ = seen["lateral_offset.png"]
+    assert labels == ["real corridor", "Real", "no camera"]  # not one entry per run id
+    assert "+ = left" in ylabel  # the sign convention on the axis
+    steering_labels, steering_y, _ = seen["steering.png"]
+    assert len(steering_labels) == len(set(steering_labels))
+    assert "+ = left" in steering_y

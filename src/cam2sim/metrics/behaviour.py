@@ -38,6 +38,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "CAMERA_LABELS",
+    "METHOD_COLOURS",
     "METHOD_LABELS",
     "REAL_METHOD",
     "BehaviourTable",
@@ -64,6 +65,8 @@ CAMERA_LABELS: Final = {
     "none": "no camera",
 }
 """The paper's name of what a camera shows, wherever a camera is named to a reader."""
+METHOD_COLOURS: Final = {"Real": "#1b7837", "splat": "#2166ac", "Sim": "#b2182b"}
+"""One colour per method (by its label), in every plot of the reports."""
 
 
 def recorded_drive(scenario: Scenario, *, source: str = "") -> DriveRun:

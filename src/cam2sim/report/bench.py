@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 from cam2sim import __version__
 from cam2sim.core.files import write_text_atomic
 from cam2sim.core.plots import pyplot
+from cam2sim.metrics.behaviour import METHOD_COLOURS
 from cam2sim.metrics.benchmark import aggregate
 
 if TYPE_CHECKING:
@@ -36,8 +37,7 @@ if TYPE_CHECKING:
 
 __all__ = ["bench_tables", "rates_figure", "write_bench_report"]
 
-COLOURS = {"Real": "#1b7837", "splat": "#2166ac", "Sim": "#b2182b"}
-"""One colour per method, in every plot."""
+COLOURS = METHOD_COLOURS
 _GLOSSARY = (
     "Real: the recorded drive plus DAVE-2's closed-loop runs in the ground-truth world (the "
     "truth camera); splat: DAVE-2 driving on the splat's images; Sim: on the simulator's raster "

@@ -8,6 +8,7 @@ import numpy as np
 
 from cam2sim.core.plots import pyplot as _pyplot
 from cam2sim.core.plots import save_figure as _save
+from cam2sim.metrics.behaviour import METHOD_COLOURS, METHOD_LABELS
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -16,14 +17,19 @@ if TYPE_CHECKING:
 
 __all__ = ["write_drive_figures"]
 
-_REAL_COLOUR = "0.55"
+
+def _label(run: Any) -> str:
+    """The paper's name of a run's method: Real (recorded or in the truth world), splat, Sim."""
+    return "Real" if run.real else METHOD_LABELS.get(run.method, run.method)
 
 
 def _colours(ev: DriveEvaluation) -> dict[str, Any]:
+    """One colour per method label: the paper's three fixed, any other from tab10."""
     plt = _pyplot()
-    methods = list(dict.fromkeys(r.method for r in ev.runs if not r.real))
+    labels = list(dict.fromkeys(_label(r) for r in ev.runs))
     cmap = plt.get_cmap("tab10")
-    return {m: cmap(i % 10) for i, m in enumerate(methods)}
+    others = [lb for lb in labels if lb not in METHOD_COLOURS]
+    return {lb: METHOD_COLOURS.get(lb) or cmap(others.index(lb) % 10) for lb in labels}
 
 
 def _trajectories(ev: DriveEvaluation, path: Path) -> None:
@@ -40,8 +46,8 @@ def _trajectories(ev: DriveEvaluation, path: Path) -> None:
     ax.fill(band[:, 0], band[:, 1], color="tab:green", alpha=0.25, lw=0, label="real corridor")
     seen: set[str] = set()
     for run in ev.runs:
-        colour = _REAL_COLOUR if run.real else colours[run.method]
-        label = "real" if run.real else run.method
+        label = _label(run)
+        colour = colours[label]
         ax.plot(
             run.xy[:, 0],
             run.xy[:, 1],
@@ -72,6 +78,7 @@ def _lateral(ev: DriveEvaluation, path: Path) -> None:
     colours = _colours(ev)
     fig, ax = plt.subplots(figsize=(10, 4))
     s0 = ev.metrics.segment.start_m
+    seen: set[str] = set()
     ax.fill_between(
         ev.corridor_s - s0,
         ev.corridor_min,
@@ -84,17 +91,21 @@ def _lateral(ev: DriveEvaluation, path: Path) -> None:
         lat = ev.lateral.get(run.name)
         if lat is None:
             continue
-        colour = _REAL_COLOUR if run.real else colours[run.method]
-        ax.plot(ev.corridor_s - s0, lat, color=colour, lw=0.8, label=run.name)
+        label = _label(run)
+        ax.plot(
+            ev.corridor_s - s0, lat, color=colours[label], lw=0.8,
+            label=None if label in seen else label,
+        )  # fmt: skip
+        seen.add(label)
     ax.set_xlabel("progress along the segment (m)")
-    ax.set_ylabel("lateral offset, + left (m)")
-    ax.set_title("Lateral offset from the reference path")
+    ax.set_ylabel("lateral offset (m), + = left of the path")
+    ax.set_title("Lateral offset from the reference path, every run")
     _legend_below(ax)
     _save(fig, path)
 
 
 def _legend_below(ax: Any) -> None:
-    """One legend entry per run, below the axes, so no curve is hidden behind it."""
+    """One legend entry per method, below the axes, so no curve is hidden behind it."""
     ax.legend(fontsize=7, ncol=3, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
 
 
@@ -103,16 +114,21 @@ def _steering(ev: DriveEvaluation, path: Path) -> None:
     colours = _colours(ev)
     fig, ax = plt.subplots(figsize=(10, 4))
     s0 = ev.metrics.segment.start_m
+    seen: set[str] = set()
     for run in ev.runs:
         if run.steering_t.size == 0:
             continue
         s = np.interp(np.clip(run.steering_t, run.t[0], run.t[-1]), run.t, ev.progress[run.name])
-        colour = _REAL_COLOUR if run.real else colours[run.method]
-        ax.plot(s - s0, run.steering, color=colour, lw=0.8, label=run.name)
+        label = _label(run)
+        ax.plot(
+            s - s0, run.steering, color=colours[label], lw=0.8,
+            label=None if label in seen else label,
+        )  # fmt: skip
+        seen.add(label)
     ax.set_xlim(0, ev.metrics.segment.length_m)
     ax.set_xlabel("progress along the segment (m)")
-    ax.set_ylabel("steering command (model units)")
-    ax.set_title("Steering against progress")
+    ax.set_ylabel("steering command (model units), + = left")
+    ax.set_title("Steering against progress, every run")
     _legend_below(ax)
     _save(fig, path)
 

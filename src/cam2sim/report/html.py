@@ -63,6 +63,7 @@ if TYPE_CHECKING:
     from cam2sim.metrics.drive_io import DriveRun
     from cam2sim.metrics.image_quality import MetricStats
     from cam2sim.splat.evaluate import MetricSummary
+    from cam2sim.splat.scores import TruthScore
 
 __all__ = ["SECTION_IDS", "VIDEO_CAP_BYTES", "write_report"]
 
@@ -377,7 +378,9 @@ def _behaviour(ctx: _Context, why: str | None) -> str:
     parts += [f'<p class="warn"><b>{_e(note)}</b></p>' for note in paper.notes]
     unfit = {g.method: g for g in m.splat_gate if not g.fit}
     ctx.warnings += [
-        f"{g.method}: its runs fail the splat quality gate ({g.reason})" for g in unfit.values()
+        f"{METHOD_LABELS.get(g.method, g.method)}: its runs fail the splat quality gate "
+        f"({g.reason})"
+        for g in unfit.values()
     ]
     meaning = {
         "Real": "the recorded drive and the closed-loop runs in the ground-truth world (the "
@@ -730,7 +733,7 @@ def _splat(ctx: _Context) -> str:
     else:
         rows = [
             (
-                row.label(), _fmt(row.psnr_db.mean, ".2f"), _fmt(row.ssim.mean, ".3f"),
+                _pose_words(row), _fmt(row.psnr_db.mean, ".2f"), _fmt(row.ssim.mean, ".3f"),
                 _fmt(row.lpips.mean, ".3f"), _fmt(row.coverage.mean, ".2f"), row.ssim.n,
             )
             for row in ev.truth.scores
@@ -743,9 +746,10 @@ def _splat(ctx: _Context) -> str:
         )
         parts.append(_img(_figure_bytes(fig), "splat vs ground truth by lateral offset and yaw"))
         parts.append(
-            '<p class="note">Means over the same held-out frames at each pose: the recorded '
-            "pose (on path), moved along the camera's x axis (+ = right) or turned about the "
-            "vertical (+ = left). Coverage: 0 on a training view, toward 1 far from all.</p>"
+            f'<p class="note">Means over the same {len(ev.truth.frames)} held-out frames at each '
+            "pose (of the held-out frames above): the recorded pose (on path), moved sideways or "
+            "turned about the vertical. Coverage: 0 on a training view, toward 1 far from all."
+            "</p>"
         )
     if ev.rig:
         rig_rows = [
@@ -783,16 +787,26 @@ def _splat(ctx: _Context) -> str:
     parts.append(f'<p class="note">{rule}</p>')
     verdicts = ctx.metrics.splat_gate if ctx.metrics is not None else []
     for v in verdicts:
+        name = METHOD_LABELS.get(v.method, v.method)
         text = (
-            f"{v.method}: unfit ({v.unfit_runs}/{v.runs} runs): {v.reason}"
+            f"{name}: unfit ({v.unfit_runs}/{v.runs} runs): {v.reason}"
             if not v.fit
-            else (f"{v.method}: fit ({v.runs} runs)")
+            else (f"{name}: fit ({v.runs} runs)")
         )
         cls = "note" if v.fit else "warn"
         parts.append(f'<p class="{cls}"><b>{_e(text)}</b>. {_e(v.evidence)}.</p>')
     if not verdicts:
         parts.append('<p class="note">No drive with the splat camera recorded its quality.</p>')
     return "".join(parts)
+
+
+def _pose_words(row: TruthScore) -> str:
+    """``on path``, ``1 m left``, ``0.5 m right``, ``turned 5° left``: no sign to decode."""
+    if row.lateral_m:
+        return f"{abs(row.lateral_m):g} m {'right' if row.lateral_m > 0 else 'left'}"
+    if row.yaw_deg:
+        return f"turned {abs(row.yaw_deg):g}° {'left' if row.yaw_deg > 0 else 'right'}"
+    return "on path"
 
 
 def _splat_training(ctx: _Context) -> str:

@@ -36,12 +36,13 @@ def envelope_figure(
     ]
     if any(row.lpips.mean is not None for row in envelope.scores):
         metrics.append(("lpips", "LPIPS (lower is better)", None))
-    lateral = sorted((r for r in envelope.scores if r.yaw_deg == 0.0), key=lambda r: r.lateral_m)
+    # Drawn with + = left, as every lateral offset in the reports (eval.json keeps + = right).
+    lateral = sorted((r for r in envelope.scores if r.yaw_deg == 0.0), key=lambda r: -r.lateral_m)
     turns = [r for r in envelope.scores if r.yaw_deg != 0.0]
     fig, axes = pyplot().subplots(1, len(metrics), figsize=(4.0 * len(metrics), 3.2))
     for ax, (key, title, threshold) in zip(np.atleast_1d(axes), metrics, strict=True):
         stats: list[MetricSummary] = [getattr(r, key) for r in lateral]
-        x = [r.lateral_m for r in lateral]
+        x = [-r.lateral_m for r in lateral]
         mean = [np.nan if s.mean is None else s.mean for s in stats]
         low = [np.nan if s.p10 is None else s.p10 for s in stats]
         high = [np.nan if s.p90 is None else s.p90 for s in stats]
@@ -52,17 +53,17 @@ def envelope_figure(
             left = row.yaw_deg > 0
             if value is not None:
                 ax.plot(
-                    [-0.1 if left else 0.1], [value], "<" if left else ">", color="#d94801",
+                    [0.1 if left else -0.1], [value], ">" if left else "<", color="#d94801",
                     ms=8, label=row.label(),
                 )  # fmt: skip
         if threshold is not None:
             ax.axhline(threshold, color="0.4", ls="--", lw=1, label="gate")
         ax.set_title(title, fontsize=10)
-        ax.set_xlabel("lateral offset (m, + = right)")
+        ax.set_xlabel("lateral offset (m), + = left of the path")
         ax.grid(alpha=0.3)
     np.atleast_1d(axes)[0].legend(fontsize=7, loc="best")
     fig.suptitle(
-        f"Splat vs ground truth (no sensor noise), {len(envelope.frames)} held-out frames",
+        f"Splat vs ground truth (no sensor noise), {len(envelope.frames)} of the held-out frames",
         fontsize=10,
     )
     fig.tight_layout()
