@@ -506,3 +506,54 @@ def test_plots_have_one_legend_entry_and_colour_per_method(
     steering_labels, steering_y, _ = seen["steering.png"]
     assert len(steering_labels) == len(set(steering_labels))
     assert "+ = left" in steering_y
+
+
+def test_the_splat_section_shows_the_worst_median_and_best_held_out_frames(
+    tmp_path: Path,
+) -> None:
+    import cv2
+
+    from cam2sim.splat.evaluate import HeldOutFrame
+
+    ws = Workspace.create(tmp_path / "ws", Config(recording=RecordingConfig(bags=["x.bag"])))
+    frames = [
+        HeldOutFrame(index=i, psnr_db=p, ssim=0.8, lpips=None, coverage=0.1, chunks={})
+        for i, p in ((8, 27.0), (16, 31.0), (24, 22.0), (32, 29.0))
+    ]
+    _splat_eval(26.0).model_copy(update={"frames": frames}).save(ws.splat_dir / "eval.json")
+    for sub, ext in (("prep/images", "png"), ("renders", "webp")):
+        (ws.splat_dir / sub).mkdir(parents=True)
+        for f in frames:
+            cv2.imwrite(str(ws.splat_dir / sub / f"{f.index:06d}.{ext}"), np.zeros((20, 32, 3)))
+    html = write_report(ws).read_text(encoding="utf-8")
+    splat = html.split('<section id="splat">')[1].split("</section>")[0]
+    assert "worst: frame 24, 22.0 dB" in splat
+    assert "median: frame 32, 29.0 dB" in splat  # the upper median of four
+    assert "best: frame 16, 31.0 dB" in splat
+
+
+def test_a_failed_drive_shows_its_last_frame_and_each_method_its_own_frames(
+    tmp_path: Path,
+) -> None:
+    import cv2
+
+    ws = _workspace(tmp_path / "ws")
+    runs = drive(ws, options=DriveOptions(camera="none", runs=2))
+    for run, camera in zip(runs, ("raster", "splat"), strict=True):  # frames as if seen
+        meta = json.loads((run.folder / "run.json").read_text(encoding="utf-8"))
+        meta["camera"] = camera
+        (run.folder / "run.json").write_text(json.dumps(meta), encoding="utf-8")
+        frames = run.folder / "frames" / camera
+        frames.mkdir(parents=True)
+        for k in range(3):
+            cv2.imwrite(str(frames / f"{k:06d}.png"), np.full((10, 16, 3), 40 * k, np.uint8))
+    events = {"events": [{"kind": "collision", "t": 3.2, "reason": "hit parked vehicle pv_1"}]}
+    (runs[0].folder / "events.json").write_text(json.dumps(events), encoding="utf-8")
+    html = write_report(ws).read_text(encoding="utf-8")
+    frames_html = html.split('<section id="frames">')[1].split("</section>")[0]
+    assert "closed loop, splat: what DAVE-2 saw" in frames_html
+    assert "closed loop, Sim: what DAVE-2 saw" in frames_html
+    assert frames_html.index("closed loop, splat") < frames_html.index("closed loop, Sim")
+    assert "the last frame before it failed: collision at 3.2 s: hit parked vehicle pv_1" in (
+        frames_html
+    )

@@ -34,7 +34,7 @@ from cam2sim.core.files import write_text_atomic
 from cam2sim.core.native import native_stderr_silenced
 from cam2sim.core.plots import pyplot
 from cam2sim.core.progress import ProgressCallback, no_progress
-from cam2sim.core.run_record import RunRecord
+from cam2sim.core.run_record import RunEvents, RunRecord
 from cam2sim.core.workspace import dataset_paths, run_paths
 from cam2sim.detect.boxes import footprint_corners
 from cam2sim.metrics import splat_gate as gate
@@ -544,21 +544,43 @@ def _frame_folder(run: Path) -> Path | None:
 
 
 def _frames(ctx: _Context) -> str:
+    """The latest replay side by side, and the first kept drive of each camera (method).
+
+    A drive that ended in a failure also shows its last frame before it.
+    """
     found = [(run, f) for run in ctx.runs if (f := _frame_folder(run)) is not None]
     if not found:
         return _na("Frames", f"cam2sim replay {ctx.ws.root} --camera both")
+    replays = [(r, f) for r, f in found if ctx.meta[r.name].kind == "replay"]
+    chosen = replays[-1:]
+    by_camera: dict[str, tuple[Path, Path]] = {}
+    for run, folder in found:
+        meta = ctx.meta[run.name]
+        if meta.kind == "drive" and meta.camera and meta.camera not in by_camera:
+            by_camera[meta.camera] = (run, folder)
+    chosen += [by_camera[c] for c in sorted(by_camera, key=_camera_order)]
     parts = []
-    for run, folder in found[-3:]:
+    for run, folder in chosen:
         files = sorted(folder.glob("*.png"))
-        cams = ctx.meta[run.name].cameras or [ctx.meta[run.name].camera or "?"]
-        labels = [CAMERA_LABELS.get(str(c), str(c)) for c in cams]
-        panels = " | ".join(["recorded (left, where there is a recorded frame)", *labels])
-        what = f"side by side: {panels}" if folder.name == "side_by_side" else folder.name
+        meta = ctx.meta[run.name]
+        if meta.kind == "replay":
+            cams = meta.cameras or [meta.camera or "?"]
+            labels = [CAMERA_LABELS.get(str(c), str(c)) for c in cams]
+            panels = " | ".join(["recorded (left, where there is a recorded frame)", *labels])
+            what = f"replay, side by side: {panels}"
+        else:
+            label = CAMERA_LABELS.get(meta.camera or "", meta.camera or "?")
+            what = f"closed loop, {label}: what DAVE-2 saw (seed {meta.seed})"
         parts.append(f"<h3>{_e(run.name)}</h3><p class='note'>{_e(what)}</p>")
         try:
             for f in _evenly(files, _CHOSEN_FRAMES):
                 img = _img(_jpeg(f, _FRAME_WIDTH), f"frame {f.stem}", mime="image/jpeg")
                 parts.append(f"<figure>{img}<figcaption>frame {_e(f.stem)}</figcaption></figure>")
+            failure = _failure(run)
+            if failure is not None and files:
+                img = _img(_jpeg(files[-1], _FRAME_WIDTH), "the last frame", mime="image/jpeg")
+                caption = f"the last frame before it failed: {failure}"
+                parts.append(f"<figure>{img}<figcaption>{_e(caption)}</figcaption></figure>")
             strip = "".join(
                 _img(_jpeg(f, _STRIP_WIDTH), f"strip {f.stem}", mime="image/jpeg", cls="strip")
                 for f in _evenly(files, _STRIP_FRAMES)
@@ -567,6 +589,8 @@ def _frames(ctx: _Context) -> str:
             ctx.warnings.append(f"frames of {run.name}: {err}")
             continue
         parts.append(f'<p class="note">Video strip</p><div class="strip">{strip}</div>')
+        if meta.kind != "replay":
+            continue  # one clip: the replay's
         clip = _webm(files[:_VIDEO_FRAMES])
         if clip is not None and len(clip) <= VIDEO_CAP_BYTES:
             src = _data_uri(clip, "video/webm")
@@ -574,6 +598,28 @@ def _frames(ctx: _Context) -> str:
         elif run_paths(run).video.is_file():
             parts.append(f'<p class="note">the run\'s video: {_e(str(run_paths(run).video))}</p>')
     return "".join(parts)
+
+
+def _camera_order(camera: str) -> int:
+    """Real (truth), splat, Sim (raster), then the others: the behaviour table's order."""
+    order = ("truth", "splat", "raster", "carla")
+    return order.index(camera) if camera in order else len(order)
+
+
+def _failure(run: Path) -> str | None:
+    """``collision at 12.3 s: hit parked vehicle pv_3`` for a run that failed, else None."""
+    path = run_paths(run).events_json
+    if not path.is_file():
+        return None
+    try:
+        events = RunEvents.load(path).events
+    except Cam2SimError:
+        return None
+    for event in events:
+        if event.kind in ("collision", "off_road", "stuck", "timeout"):
+            reason = f": {event.reason}" if event.reason else ""
+            return f"{event.kind} at {event.t:.1f} s{reason}"
+    return None
 
 
 def _webm(files: list[Path], fps: float = 10.0) -> bytes | None:
@@ -724,6 +770,7 @@ def _splat(ctx: _Context) -> str:
     caption = f"Held out: {ev.n_held_out} recorded frames never trained on"
     headers = ["metric", "mean", "p10", "p90", "frames"]
     parts = [ctx.table("splat_held_out", headers, _summary_rows(held), caption)]
+    parts.append(_held_out_pictures(ctx, ev))
     if ev.truth is None:
         parts.append(
             '<p class="note">Not scored against a ground truth: the workspace has no '
@@ -798,6 +845,61 @@ def _splat(ctx: _Context) -> str:
     if not verdicts:
         parts.append('<p class="note">No drive with the splat camera recorded its quality.</p>')
     return "".join(parts)
+
+
+def _held_out_pictures(ctx: _Context, ev: SplatEval) -> str:
+    """The best, median and worst held-out frame: the real frame above the splat's render."""
+    prep = ctx.ws.splat_dir / "prep" / "images"
+    renders = ctx.ws.splat_dir / "renders"
+    scored = sorted(
+        (
+            f
+            for f in ev.frames
+            if f.psnr_db is not None and (renders / f"{f.index:06d}.webp").is_file()
+        ),
+        key=lambda f: f.psnr_db or 0.0,
+    )
+    if not scored or not prep.is_dir():
+        return ""
+    picks = {"worst": scored[0], "median": scored[len(scored) // 2], "best": scored[-1]}
+    intro = (
+        '<p class="note">Held-out frames, never trained on: the recorded frame (left) and the '
+        "splat's render at its pose (right), the worst, median and best by PSNR.</p>"
+    )
+    parts = [intro]
+    for name, frame in picks.items():
+        real = prep / f"{frame.index:06d}.png"
+        render = renders / f"{frame.index:06d}.webp"
+        try:
+            pair = _side_by_side(real, render)
+        except OSError as err:
+            ctx.warnings.append(f"held-out frame {frame.index}: {err}")
+            continue
+        caption = f"{name}: frame {frame.index}, {frame.psnr_db:.1f} dB"
+        img = _img(pair, caption, mime="image/jpeg")
+        parts.append(f"<figure>{img}<figcaption>{_e(caption)}</figcaption></figure>")
+    return "".join(parts)
+
+
+def _side_by_side(left: Path, right: Path) -> bytes:
+    """Two images of one size side by side, as a JPEG ``_FRAME_WIDTH`` wide."""
+    import cv2  # noqa: PLC0415
+
+    a = cv2.imread(str(left), cv2.IMREAD_COLOR)
+    b = cv2.imread(str(right), cv2.IMREAD_COLOR)
+    if a is None or b is None:
+        msg = f"cannot read {left if a is None else right}"
+        raise OSError(msg)
+    if b.shape != a.shape:
+        b = cv2.resize(b, (a.shape[1], a.shape[0]), interpolation=cv2.INTER_AREA)
+    both = np.concatenate([a, np.full((a.shape[0], 6, 3), 255, np.uint8), b], axis=1)
+    height = round(both.shape[0] * _FRAME_WIDTH / both.shape[1])
+    small = cv2.resize(both, (_FRAME_WIDTH, height), interpolation=cv2.INTER_AREA)
+    ok, data = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, 85])
+    if not ok:
+        msg = f"cannot encode {left.name} beside {right.name}"
+        raise OSError(msg)
+    return bytes(data.tobytes())
 
 
 def _pose_words(row: TruthScore) -> str:

@@ -127,6 +127,8 @@ class PipelineOptions:
         judge: Where the drives' leaving the road and collisions are judged (see
             :class:`~cam2sim.stages.runs.DriveOptions`); None: in the ground-truth world when
             the workspace has one (every camera's runs alike), else on the map.
+        report_frames: Keep the camera frames of each camera's first closed-loop run, for the
+            report's frames of every method (and the moment a run fails).
         save_frames: Keep the camera frames of every closed-loop run (``cam2sim bench`` shows
             the frames at a failure).
         drive_workers: Processes the drive step runs its cameras' runs in (one camera each);
@@ -151,6 +153,7 @@ class PipelineOptions:
     ads: Any = None
     judge: Literal["map", "truth"] | None = None
     save_frames: bool = False
+    report_frames: bool = True
     drive_workers: int | None = None
 
     def __post_init__(self) -> None:
@@ -573,8 +576,12 @@ class _Pipeline:
         if runs is None:
             started = dt.datetime.now(dt.UTC)
             # One job a run (camera and seed): the seeded runs do not depend on each other.
+            # The first run of each camera keeps its frames for the report (unless all do).
+            keep_first = self.options.report_frames
             jobs = [
-                dataclasses.replace(o, runs=1, seed=o.seed + r)
+                dataclasses.replace(
+                    o, runs=1, seed=o.seed + r, save_frames=o.save_frames or (keep_first and r == 0)
+                )
                 for o in all_opts
                 for r in range(o.runs)
             ]
@@ -584,7 +591,7 @@ class _Pipeline:
             else:
                 runs = [
                     r.run_id
-                    for opts in all_opts
+                    for opts in jobs
                     for r in drive(self.ws, options=opts, progress=self.progress)
                 ]
             self.ws.record_stage(

@@ -25,7 +25,7 @@ from cam2sim.render.truth import TruthRenderer, truth_world_path
 from cam2sim.scenario.model import Scenario
 from cam2sim.splat.distributed import train_scene_on_ray
 from cam2sim.splat.envelope import RigView, TruthEnvelopeOptions, TruthReference, rig_scores
-from cam2sim.splat.evaluate import evaluate_splat
+from cam2sim.splat.evaluate import EvalOptions, evaluate_splat
 from cam2sim.splat.prepare import prepare_scene
 from cam2sim.splat.render import SplatRenderer
 from cam2sim.splat.scene import SceneRecord
@@ -156,6 +156,8 @@ def run_splat(
                     models_dir,
                     offsets=() if scene.scale_ambiguous else opts.offsets_m,
                     lpips_weights=opts.lpips_weights,
+                    # the held-out renders the report shows beside the real frames
+                    options=EvalOptions(renders_dir=ws.splat_dir / RENDERS_DIR),
                     out_path=ws.splat_dir / "eval.json",
                     truth=truth,
                     progress=report,
@@ -169,6 +171,10 @@ def run_splat(
                 evaluation.save(ws.splat_dir / "eval.json")
             lap("evaluate")
     return SplatResult(prep_dir, models_dir, trained, evaluation, seconds)
+
+
+RENDERS_DIR = "renders"
+"""``WS/splat/renders/``: the splat's render of each held-out frame (``NNNNNN.webp``)."""
 
 
 def _rig_views(ws: Workspace) -> list[RigView]:
