@@ -410,5 +410,8 @@ def test_run_remembers_the_osm_and_detector_it_was_given(tmp_path: Path) -> None
     other = tmp_path / "other.osm"
     assert remember_inputs(ws, PipelineOptions(osm=other)).osm == other
     assert remember_inputs(ws, PipelineOptions()).osm == other  # the latest one given
+    drives = (tmp_path / "pass2.csv", tmp_path / "pass3")
+    assert remember_inputs(ws, PipelineOptions(real=drives)).real == drives
+    assert remember_inputs(ws, PipelineOptions()).real == drives  # further passes remembered
     fresh = Workspace.create(tmp_path / "fresh", Config())
     assert remember_inputs(fresh, PipelineOptions()).osm is None

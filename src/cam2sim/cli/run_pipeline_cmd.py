@@ -105,6 +105,14 @@ def run(
         str | None,
         typer.Option(help="Camera detector for recordings without LiDAR (.onnx, .pt)."),
     ] = None,
+    real: Annotated[
+        list[Path] | None,
+        typer.Option(
+            help="Further recorded drives of the street (trajectory*.csv or folders): they join "
+            "the recorded one as Real; repeatable."
+        ),
+    ] = None,
+    real_crs: Annotated[str, typer.Option(help="CRS of the --real drives' x, y.")] = "EPSG:32632",
     runs: Annotated[int, typer.Option(min=1, help="Drive runs per camera.")] = 3,
     vary: Annotated[
         bool,
@@ -136,6 +144,8 @@ def run(
             steps=comma_list(steps) or STEPS,
             skip=comma_list(skip),
             detect_model=detect_model,
+            real=tuple(real or ()),
+            real_crs=real_crs,
             policy=policy,
             cameras=tuple(camera) if camera else None,  # type: ignore[arg-type]
             runs=runs,

@@ -127,6 +127,9 @@ class PipelineOptions:
         judge: Where the drives' leaving the road and collisions are judged (see
             :class:`~cam2sim.stages.runs.DriveOptions`); None: in the ground-truth world when
             the workspace has one (every camera's runs alike), else on the map.
+        real: Further recorded drives of the same street (``trajectory*.csv`` files or folders)
+            that join the recorded one in the Real column, as the paper's three real drives.
+        real_crs: CRS of their x, y.
         report_frames: Keep the camera frames of each camera's first closed-loop run, for the
             report's frames of every method (and the moment a run fails).
         save_frames: Keep the camera frames of every closed-loop run (``cam2sim bench`` shows
@@ -154,6 +157,8 @@ class PipelineOptions:
     judge: Literal["map", "truth"] | None = None
     save_frames: bool = False
     report_frames: bool = True
+    real: tuple[Path, ...] = ()
+    real_crs: str = "EPSG:32632"
     drive_workers: int | None = None
 
     def __post_init__(self) -> None:
@@ -608,7 +613,12 @@ class _Pipeline:
         if not runs:
             msg = "no drive runs to evaluate; the drive step must run first"
             raise StageError(msg)
-        opts = EvaluateOptions(drive_runs=tuple(runs), replay_runs=tuple(self._made_runs("replay")))
+        opts = EvaluateOptions(
+            drive_runs=tuple(runs),
+            replay_runs=tuple(self._made_runs("replay")),
+            real=self.options.real,
+            real_crs=self.options.real_crs,
+        )
         results: list[EvaluateResult] = []
         self._recorded(
             EVALUATE_STAGE,
@@ -689,11 +699,12 @@ RUN_INPUTS: Final = "run_inputs.json"
 def remember_inputs(ws: Workspace, options: PipelineOptions) -> PipelineOptions:
     """``options`` with the inputs an earlier run was given where this one gives none.
 
-    A resume needs no repeat of ``--osm`` or ``--detect-model``: what a run is given is saved in
-    ``WS/run_inputs.json`` and taken again by the next run that omits it (logged). A run that
-    gives one again replaces it.
+    A resume needs no repeat of ``--osm``, ``--detect-model`` or ``--real``: what a run is
+    given is saved in ``WS/run_inputs.json`` and taken again by the next run that omits it
+    (logged). A run that gives one again replaces it.
     """
     import json  # noqa: PLC0415
+    import os  # noqa: PLC0415
 
     path = ws.root / RUN_INPUTS
     saved: dict[str, str] = {}
@@ -704,15 +715,26 @@ def remember_inputs(ws: Workspace, options: PipelineOptions) -> PipelineOptions:
             loaded = {}
         if isinstance(loaded, dict):
             saved = {k: v for k, v in loaded.items() if isinstance(v, str)}
-    given = {"osm": options.osm, "detect_model": options.detect_model}
+    given = {
+        "osm": options.osm,
+        "detect_model": options.detect_model,
+        "real": os.pathsep.join(str(p) for p in options.real) or None,
+    }
     used: dict[str, Any] = {}
     for key, value in given.items():
         if value is not None:
             saved[key] = str(value)
-            used[key] = value
         elif key in saved:
-            used[key] = Path(saved[key]) if key == "osm" else saved[key]
             logger.info("run: using %s %s from the last run", key, saved[key])
+        else:
+            continue
+        text = saved[key]
+        if key == "osm":
+            used[key] = Path(text)
+        elif key == "real":
+            used[key] = tuple(Path(p) for p in text.split(os.pathsep))
+        else:
+            used[key] = text
     if saved:
         write_text_atomic(path, json.dumps(saved, indent=2) + "\n")
     return dataclasses.replace(options, **used)
