@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Build here what the one-call GPU scripts carry (docs/benchmarks.md, issue 22), into folders
-# that .git/info/exclude must ignore (/.c19/ /.c19w/ /.u22/ /.carry/ /.c21/ /.gl/):
+# that .git/info/exclude must ignore (/.c19/ /.c19w/ /.u22/ /.carry/ /.c21/ /.gl/ /.ray/ /.osm/ /.k03/):
 #
 #   .c19w/                 gsplat 1.5.3, pydantic 2.14.4 and its four dependencies (cp312 wheels,
 #                          9.4 MB): what the GPU image lacks for training and evaluation
@@ -17,9 +17,12 @@
 #                          Tune, Train, Serve, Data, LLM, the dashboard's web client) as one
 #                          tar.xz (28 MB of the wheel's 79 MB), and jsonschema's wheels
 #   .osm/                  copies of ../shared/data/osm/ (2.4 MB): the GPU suite's extracts
+#   .k03/a, b, c           KITTI 03's 801 frames as JPEG (quality 90) in three parts of about
+#                          35 MB, poses.txt and K.txt in c: benchmarks/gpu_kitti.sh's calls
+#                          (KITTI03=DIR with images/; CC BY-NC-SA: never commit it)
 #
 #   bash benchmarks/carry_kit.sh [wheels] [lpips] [curves] [easy] [route] [demo] [ray] [osm]
-#                                                      # default: all
+#                                [kitti]               # default: all but kitti
 #
 # Needs the package installed (python3 quickstart.py test, or pip install -e ".[splat,...]")
 # and ../shared/data/images for the stretches.
@@ -27,7 +30,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 parts=("$@")
 [ ${#parts[@]} -eq 0 ] && parts=(wheels lpips curves easy route demo ray osm)
-for ignored in .c19 .c19w .u22 .carry .c21 .gl .ray .osm; do
+for ignored in .c19 .c19w .u22 .carry .c21 .gl .ray .osm .k03; do
   git check-ignore -q "$ignored/x" || { echo "add /$ignored/ to .git/info/exclude first" >&2; exit 2; }
 done
 for part in "${parts[@]}"; do
@@ -102,12 +105,32 @@ from cam2sim.splat.prepare import prepare_scene; prepare_scene(Workspace.open('$
     mkdir -p .osm
     cp ../shared/data/osm/* .osm/
     ;;
+  kitti)
+    : "${KITTI03:?set KITTI03 to the folder holding the KITTI 03 images/ folder}"
+    rm -rf .k03
+    python3 - "$KITTI03/images" << 'PY'
+import sys
+from pathlib import Path
+
+import cv2
+
+files = sorted(Path(sys.argv[1]).glob("*.png"))
+parts = ("a", "b", "c")
+for k, f in enumerate(files):
+    part = Path(".k03") / parts[k * len(parts) // len(files)] / "images"
+    part.mkdir(parents=True, exist_ok=True)
+    image = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(part / f"{f.stem}.jpg"), image, [cv2.IMWRITE_JPEG_QUALITY, 90])
+print(f"{len(files)} frames in {len(parts)} parts")
+PY
+    cp ../shared/data/posed/kitti-odometry-03/poses.txt ../shared/data/posed/kitti-odometry-03/K.txt .k03/c/
+    ;;
   route)
     rm -rf .carry/route400tri
     PYTHONPATH=src python3 benchmarks/splat_route.py --out .carry/route400tri
     ;;
   *)
-    echo "unknown part $part (wheels, lpips, curves, easy, route, demo, ray, osm)" >&2
+    echo "unknown part $part (wheels, lpips, curves, easy, route, demo, ray, osm, kitti)" >&2
     exit 2
     ;;
   esac
@@ -119,5 +142,6 @@ from cam2sim.splat.prepare import prepare_scene; prepare_scene(Workspace.open('$
   demo) du -sh .c21/a .c21/b .gl ;;
   ray) du -sh .ray ;;
   osm) du -sh .osm ;;
+  kitti) du -sh .k03/a .k03/b .k03/c ;;
   esac
 done

@@ -1,0 +1,85 @@
+#!/usr/bin/env bash
+# KITTI odometry 03 end to end on one GPU (issue 38; docs/real-recordings.md): import the 801
+# grey frames with their poses and K, then `cam2sim run` (map from the driven path, splat on
+# the GPU, DAVE-2, Real / splat / Sim drives, report). The frames (217 MB as PNG) do not fit
+# one call's 64 MiB, so they travel as JPEG (quality 90, 106 MB) in three parts, each copied to
+# /tmp/kitti03 on the device; the calls must follow each other within the 30 s idle window:
+#
+#   PHASE=setup bash benchmarks/gpu_kitti.sh     # carry .c21/a .gl: wheels, gsplat build
+#   PHASE=frames bash benchmarks/gpu_kitti.sh    # carry .k03/a   (then again with .k03/b)
+#   PHASE=run bash benchmarks/gpu_kitti.sh       # carry .c21/b .k03/c: the rest, then the run
+#                                                # in the background, watched WATCH_S seconds
+#   PHASE=wait bash benchmarks/gpu_kitti.sh      # watch it (repeat as needed)
+#   PHASE=collect bash benchmarks/gpu_kitti.sh   # $OUT: the log, report.html, the workspace's
+#                                                # JSON records (kitti.tgz)
+#
+# Build the carried folders here first: `bash benchmarks/carry_kit.sh demo kitti` (kitti needs
+# the sequence: KITTI03=/path/with/images bash benchmarks/carry_kit.sh kitti). KITTI is
+# CC BY-NC-SA 3.0: .k03/ stays out of git (.git/info/exclude).
+case ${PHASE:?set PHASE to setup, frames, run, wait or collect} in
+setup) WHEELS=.c21/a ;;
+run) WHEELS=.c21/b ;;
+frames | wait | collect) WHEELS= ;;
+*)
+  echo "PHASE=$PHASE: use setup, frames, run, wait or collect" >&2
+  exit 2
+  ;;
+esac
+if [ "$PHASE" != setup ] && [ ! -f /tmp/.gpu_kitti_setup ]; then
+  echo "this machine is fresh (the one set up went back): run PHASE=setup again first" >&2
+  exit 3
+fi
+export PYTHONUNBUFFERED=1 MAX_JOBS=${MAX_JOBS:-16}
+if [ -n "$WHEELS" ]; then
+  source "$(dirname "$0")/gpu_env.sh" # installs $WHEELS into /tmp/site, sets PYTHONPATH and $out
+else
+  export PYTHONPATH=/tmp/site:$PWD/src
+  out=${OUT:-/tmp/out}
+  mkdir -p "$out"
+fi
+for deb in .gl/*.deb; do [ -f "$deb" ] && dpkg -x "$deb" /; done # the EGL loader (device README)
+ldconfig
+export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
+export CAM2SIM_CACHE=/tmp/cam2sim_cache
+ws=/tmp/kitti_ws
+watch() { # until the run ends or WATCH_S passes: one line a minute
+  local until=$((SECONDS + ${WATCH_S:-560}))
+  while [ $SECONDS -lt $until ]; do
+    echo "$(date +%H:%M:%S) $(tail -n 1 /tmp/kitti.log)"
+    if ! pgrep -f "cam2sim run" > /dev/null; then
+      echo "the run has ended"
+      tail -n 40 /tmp/kitti.log
+      return 0
+    fi
+    sleep 60
+  done
+}
+case $PHASE in
+setup)
+  python3 -c "from cam2sim.splat.raster import build_gsplat; build_gsplat()" || exit 1
+  mkdir -p /tmp/kitti03/images && touch /tmp/.gpu_kitti_setup
+  ;;
+frames)
+  for part in .k03/*/; do cp "$part"images/* /tmp/kitti03/images/ 2>/dev/null; done
+  ls /tmp/kitti03/images | wc -l
+  ;;
+run)
+  cp .k03/c/images/* /tmp/kitti03/images/ && cp .k03/c/poses.txt .k03/c/K.txt /tmp/kitti03/ || exit 1
+  echo "frames: $(ls /tmp/kitti03/images | wc -l) (801 wanted)"
+  setsid nohup bash -c "time (python3 -m cam2sim import $ws --images /tmp/kitti03/images \
+    --poses /tmp/kitti03/poses.txt --calibration /tmp/kitti03/K.txt --fps 10 \
+    --pose-offset 0.8,0,1.65 && python3 -m cam2sim run -o $ws)" > /tmp/kitti.log 2>&1 < /dev/null &
+  sleep 5
+  watch
+  ;;
+wait) watch ;;
+collect)
+  tail -n 60 /tmp/kitti.log
+  cp /tmp/kitti.log "$out/kitti.log"
+  cp $ws/report/report.html "$out/report.html" 2>/dev/null
+  tar czf "$out/kitti.tgz" -C $ws workspace.json map/map_report.json splat/eval.json \
+    ads/train_report.json report/drive/metrics.json report/drive/behaviour.md \
+    $(cd $ws && ls splat/models/*.json report/tables/* 2>/dev/null)
+  ls -la "$out"
+  ;;
+esac
