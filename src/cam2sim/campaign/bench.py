@@ -101,7 +101,7 @@ def _method_rows(ws: Workspace) -> tuple[list[MethodRow], DriveMetrics]:
     from cam2sim.metrics.behaviour import METHOD_LABELS  # noqa: PLC0415 -- lazy: numpy
     from cam2sim.metrics.drive_quality import DriveMetrics  # noqa: PLC0415 -- lazy: numpy
 
-    path = ws.drive_eval_dir / "metrics.json"
+    path = ws.report_files.metrics_json
     if not path.is_file():
         msg = f"{ws.root} has no drive evaluation ({path}); its evaluate step did not run"
         raise StageError(msg)
@@ -196,12 +196,12 @@ def _splat_facts(ws: Workspace) -> dict[str, object]:
     from cam2sim.splat.evaluate import SplatEval  # noqa: PLC0415
 
     facts: dict[str, object] = {}
-    headers = sorted((ws.splat_dir / "models").glob("chunk_*.json"))
+    headers = sorted(ws.splat_files.models_dir.glob("chunk_*.json"))
     chunks = [ChunkHeader.load(h) for h in headers]
     facts["splat_steps"] = [c.steps for c in chunks]
     facts["splat_stopped"] = [str(c.stopped) for c in chunks]
     facts["splat_device"] = chunks[0].backend if chunks else None
-    path = ws.splat_dir / "eval.json"
+    path = ws.splat_files.eval_json
     if path.is_file():
         ev = SplatEval.load(path)
         facts["splat_held_out_psnr_db"] = ev.psnr_db.mean

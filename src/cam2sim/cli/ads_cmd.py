@@ -160,10 +160,10 @@ def serve(
 
     try:
         ws = Workspace.open(workspace)
-        spec = model or str(ws.ads_dir / "dave2.onnx")
-        if model is None and not (ws.ads_dir / "dave2.onnx").is_file():
+        spec = model or str(ws.ads_files.onnx)
+        if model is None and not ws.ads_files.onnx.is_file():
             msg = (
-                f"{ws.ads_dir / 'dave2.onnx'} does not exist; run `cam2sim ads train` and "
+                f"{ws.ads_files.onnx} does not exist; run `cam2sim ads train` and "
                 "`cam2sim ads export` first, or pass --model"
             )
             raise _fail(Cam2SimError(msg))

@@ -341,7 +341,7 @@ def workspace(
     try:
         ws = Workspace.open(workspace)
         given = tuple(real or ())
-        found = (ws.root / "real",) if (ws.root / "real").is_dir() else ()
+        found = (ws.real_dir,) if ws.real_dir.is_dir() else ()
         options = EvaluateOptions(real=given or found, real_crs=real_crs, force=force)
         with progress_bars() as sink:
             result = evaluate_workspace(ws, options=options, progress=sink)

@@ -167,7 +167,7 @@ def run(
 def _finish(ws: Workspace, result: PipelineResult, total_s: float) -> None:
     """Print the summary table, the total and the report; exit 1 when a step failed."""
     print_table(_summary(result))
-    metrics = ws.drive_eval_dir / "metrics.json"
+    metrics = ws.report_files.metrics_json
     if metrics.is_file() and result.outcome("evaluate").state in ("done", "up_to_date"):
         from cam2sim.metrics.drive_quality import DriveMetrics  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 

@@ -151,7 +151,7 @@ def splat(
         scores = [f"{name} {fmt.format(v)}" for name, v, fmt in means if v is not None]
         console.print(
             f"held-out ({ev.n_held_out} frames): {', '.join(scores) or 'no scores'}; "
-            f"evaluation in {ws.splat_dir / 'eval.json'}",
+            f"evaluation in {ws.splat_files.eval_json}",
             highlight=False,
         )
         if ev.truth is not None:

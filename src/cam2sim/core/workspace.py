@@ -36,6 +36,7 @@ if TYPE_CHECKING:
 __all__ = [
     "LEGACY_PIPELINE_FILE",
     "SCENARIO_FILE",
+    "TRUTH_WORLD_FILE",
     "Manifest",
     "StageRecord",
     "StepRecord",
@@ -196,6 +197,8 @@ class _LegacyPipelineState(Artifact):
 
 
 SCENARIO_FILE = "scenario.json"
+TRUTH_WORLD_FILE = Path("truth") / "world.json"
+"""The ground-truth world of a workspace, relative to its root (``cam2sim demo`` writes it)."""
 """The scenario's file name in ``scenario/``."""
 
 
@@ -389,7 +392,7 @@ class Workspace:
     @property
     def map_xodr_path(self) -> Path:
         """``map/map.xodr``: the road map every later stage queries."""
-        return self.map_dir / "map.xodr"
+        return self.map_files.xodr
 
     @property
     def scenario_dir(self) -> Path:
@@ -437,6 +440,161 @@ class Workspace:
         reads them.
         """
         return self.report_dir / "drive"
+
+    @property
+    def truth_world_json(self) -> Path:
+        """``truth/world.json``: the ground-truth world, where there is one (the demo's)."""
+        return self.root / TRUTH_WORLD_FILE
+
+    @property
+    def real_dir(self) -> Path:
+        """``real/``: further recorded drives of the street, read as Real by evaluate."""
+        return self.root / "real"
+
+    @property
+    def detection_files(self) -> DetectionPaths:
+        """The detect stage's files."""
+        return DetectionPaths(self.detections_dir)
+
+    @property
+    def map_files(self) -> MapPaths:
+        """The map stage's files."""
+        return MapPaths(self.map_dir)
+
+    @property
+    def splat_files(self) -> SplatPaths:
+        """The splat stage's files."""
+        return SplatPaths(self.splat_dir)
+
+    @property
+    def ads_files(self) -> AdsPaths:
+        """The system under test's files."""
+        return AdsPaths(self.ads_dir)
+
+    @property
+    def report_files(self) -> ReportPaths:
+        """The evaluate stage's and the report's files."""
+        return ReportPaths(self.report_dir)
+
+
+class DetectionPaths:
+    """Paths of the detect stage's pictures and locks (``WS/detections/``)."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+
+    @property
+    def picture(self) -> Path:
+        """The bird's-eye picture of the parked vehicles."""
+        return self.root / "parked_vehicles.png"
+
+    @property
+    def editor_lock(self) -> Path:
+        """Held while ``cam2sim refine`` edits the list (one editor per workspace)."""
+        return self.root / ".editor.lock"
+
+
+class MapPaths:
+    """Paths of the map stage's artifacts (``WS/map/``)."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+
+    @property
+    def xodr(self) -> Path:
+        """The OpenDRIVE road map every later stage queries."""
+        return self.root / "map.xodr"
+
+    @property
+    def report_json(self) -> Path:
+        """Where the roads came from and how the route lies on them."""
+        return self.root / "map_report.json"
+
+    @property
+    def source_osm(self) -> Path:
+        """The OSM data converted (absent for a road along the driven path)."""
+        return self.root / "source.osm"
+
+
+class SplatPaths:
+    """Paths of the splat stage's artifacts (``WS/splat/``)."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+
+    @property
+    def prep_dir(self) -> Path:
+        """The prepared scene (``scene.json``, ``images/``, masks, points)."""
+        return self.root / "prep"
+
+    @property
+    def prep_images_dir(self) -> Path:
+        """The prepared frames the splat trains and is scored on, ``NNNNNN.png``."""
+        return self.prep_dir / "images"
+
+    @property
+    def models_dir(self) -> Path:
+        """One model per chunk, ``chunk_XX.pt`` with its ``chunk_XX.json`` header."""
+        return self.root / "models"
+
+    @property
+    def eval_json(self) -> Path:
+        """The evaluation: held out, offsets, against the truth and a rig's cameras."""
+        return self.root / "eval.json"
+
+    @property
+    def renders_dir(self) -> Path:
+        """The splat's render of each held-out frame, ``NNNNNN.webp``."""
+        return self.root / "renders"
+
+
+class AdsPaths:
+    """Paths of the system under test's artifacts (``WS/ads/``)."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+
+    @property
+    def onnx(self) -> Path:
+        """The exported DAVE-2 the drives load."""
+        return self.root / "dave2.onnx"
+
+    @property
+    def train_figure(self) -> Path:
+        """DAVE-2's training curve and validation predictions."""
+        return self.root / "train_report.png"
+
+
+class ReportPaths:
+    """Paths of the evaluate stage's and the report's artifacts (``WS/report/``)."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+
+    @property
+    def html(self) -> Path:
+        """The self-contained HTML report."""
+        return self.root / "report.html"
+
+    @property
+    def metrics_json(self) -> Path:
+        """The drive metrics (``drive/metrics.json``)."""
+        return self.root / "drive" / "metrics.json"
+
+    @property
+    def images_dir(self) -> Path:
+        """Image quality of the replay's cameras against the recorded frames."""
+        return self.root / "images"
+
+    @property
+    def semantic_dir(self) -> Path:
+        """Semantic IoU of the reconstructed world against the truth."""
+        return self.root / "semantic"
+
+    @property
+    def tables_dir(self) -> Path:
+        """The report's tables as CSV and LaTeX."""
+        return self.root / "tables"
 
 
 def run_paths(run_dir: Path) -> RunPaths:
@@ -569,4 +727,12 @@ class DatasetPaths:
         return self.root / "dataset.json"
 
 
-__all__ += ["DatasetPaths", "dataset_paths"]
+__all__ += [
+    "AdsPaths",
+    "DatasetPaths",
+    "DetectionPaths",
+    "MapPaths",
+    "ReportPaths",
+    "SplatPaths",
+    "dataset_paths",
+]

@@ -29,6 +29,7 @@ import pydantic
 
 from cam2sim.core.errors import StageError
 from cam2sim.core.schema import Artifact
+from cam2sim.core.workspace import TRUTH_WORLD_FILE
 from cam2sim.detect.synthetic import Ground, SceneBox, StreetScene
 from cam2sim.render.look import frame_noise_rng, photographic_look
 from cam2sim.render.raster import (
@@ -56,8 +57,6 @@ __all__ = [
     "truth_world_path",
 ]
 
-TRUTH_WORLD_FILE = Path("truth") / "world.json"
-"""Where a workspace keeps its ground-truth world, relative to the workspace root."""
 _FIT_HALF_M = 500.0
 _GEOMETRY = re.compile(r"<geometry\b[^>]*>")
 _ATTR = re.compile(r'\b(\w+)="([^"]*)"')

@@ -193,7 +193,7 @@ def _read_metrics(ctx: _Context) -> str | None:
     """Read the evaluate stage's ``metrics.json``; return why there is none, or None."""
     if not _drives(ctx):
         return "no closed-loop run"
-    path = ctx.ws.drive_eval_dir / "metrics.json"
+    path = ctx.ws.report_files.metrics_json
     if not path.is_file():
         return "the drives are not evaluated"
     try:
@@ -255,7 +255,7 @@ def _inputs(ctx: _Context, manifest: Manifest) -> list[tuple[str, str]]:
         recording = (config or {}).get("recording")
         if isinstance(recording, dict):
             inputs += [(f"recording {k}", _as_text(v)) for k, v in recording.items() if v]
-    report = ctx.ws.map_dir / "map_report.json"
+    report = ctx.ws.map_files.report_json
     if report.is_file():
         source = MapReport.load(report).source
         where = source.path if source.kind == "file" else f"Overpass ({source.url})"
@@ -322,7 +322,7 @@ def _map(ctx: _Context) -> str:
 
     sc = ctx.scenario
     fig, ax = pyplot().subplots(figsize=(10, 8))
-    xodr = ctx.ws.map_dir / "map.xodr"
+    xodr = ctx.ws.map_xodr_path
     if xodr.is_file():
         from cam2sim.map.query import RoadMap  # noqa: PLC0415 -- lazy: imports shapely
 
@@ -403,7 +403,7 @@ def _behaviour(ctx: _Context, why: str | None) -> str:
 
 def _dave2_training(ctx: _Context) -> str:
     """DAVE-2's training curve against a constant prediction (``ads/train_report.png``)."""
-    figure = ctx.ws.ads_dir / "train_report.png"
+    figure = ctx.ws.ads_files.train_figure
     if not figure.is_file():
         return ""
     alt = "DAVE-2 training: training and validation error by epoch, and predictions"
@@ -419,7 +419,7 @@ def _dave2_training(ctx: _Context) -> str:
 def _headline_context(ctx: _Context, m: DriveMetrics) -> str:
     """What the columns hold: run counts, what Real is here, what the splat got (and warnings)."""
     counts = ", ".join(f"{METHOD_LABELS.get(s.method, s.method)} {s.runs}" for s in m.methods)
-    truth = (ctx.ws.root / "truth" / "world.json").is_file()
+    truth = ctx.ws.truth_world_json.is_file()
     real = (
         "the demo's ground-truth world: the recorded drive through it and DAVE-2's closed-loop "
         "runs in it (the truth camera)"
@@ -433,7 +433,7 @@ def _headline_context(ctx: _Context, m: DriveMetrics) -> str:
     )
     lines = [first]
     headers = []
-    for path in sorted((ctx.ws.splat_dir / "models").glob("chunk_*.json")):
+    for path in sorted(ctx.ws.splat_files.models_dir.glob("chunk_*.json")):
         try:
             headers.append(ChunkHeader.load(path))
         except Cam2SimError:
@@ -451,7 +451,7 @@ def _headline_context(ctx: _Context, m: DriveMetrics) -> str:
                 f"splat chunk(s) {', '.join(map(str, timed))} stopped on their time budget, "
                 "not on their own plateau: train longer (cam2sim splat --force on a GPU)"
             )
-    ev_path = ctx.ws.splat_dir / "eval.json"
+    ev_path = ctx.ws.splat_files.eval_json
     if ev_path.is_file():
         try:
             ev = SplatEval.load(ev_path)
@@ -758,7 +758,7 @@ def _summary_rows(
 
 def _splat(ctx: _Context) -> str:
     """Held-out scores, the envelope against the ground truth (table and plot), the gate."""
-    path = ctx.ws.splat_dir / "eval.json"
+    path = ctx.ws.splat_files.eval_json
     if not path.is_file():
         return _na("Splat quality (WS/splat/eval.json)", f"cam2sim splat {ctx.ws.root}")
     try:
@@ -849,8 +849,8 @@ def _splat(ctx: _Context) -> str:
 
 def _held_out_pictures(ctx: _Context, ev: SplatEval) -> str:
     """The best, median and worst held-out frame: the real frame above the splat's render."""
-    prep = ctx.ws.splat_dir / "prep" / "images"
-    renders = ctx.ws.splat_dir / "renders"
+    prep = ctx.ws.splat_files.prep_images_dir
+    renders = ctx.ws.splat_files.renders_dir
     scored = sorted(
         (
             f
@@ -916,7 +916,7 @@ def _splat_training(ctx: _Context) -> str:
 
     Read from the headers (``chunk_XX.json``) and ``chunk_XX_outliers.jpg`` beside them.
     """
-    models = ctx.ws.splat_dir / "models"
+    models = ctx.ws.splat_files.models_dir
     rows, pictures, headers = [], [], []
     for path in sorted(models.glob("chunk_*.json")):
         try:
@@ -1014,7 +1014,7 @@ def write_report(
         + "".join(body[sid] for sid in SECTION_IDS)
         + "</body></html>\n"
     )
-    path = out if out is not None else ws.report_dir / "report.html"
+    path = out if out is not None else ws.report_files.html
     write_tables(path.parent / "tables", ctx.exported)
     write_text_atomic(path, page)
     return path

@@ -198,7 +198,7 @@ def _truth(ctx: RunContext) -> CameraRenderer:
 
 
 def _splat(ctx: RunContext) -> CameraRenderer:
-    models = ctx.ws.splat_dir / "models"
+    models = ctx.ws.splat_files.models_dir
     if not models.is_dir():
         msg = f"{ctx.ws.root} has no splat models; run `cam2sim splat {ctx.ws.root}`"
         raise StageError(msg)

@@ -356,6 +356,6 @@ def _figure(
         if bev is None
         else (ws.detections_dir / BEV_PNG, (bev.x_min, bev.x_max, bev.y_min, bev.y_max))
     )
-    path = ws.detections_dir / "parked_vehicles.png"
+    path = ws.detection_files.picture
     plot_parked_vehicles(path, doc, boxes, route, road_map, background)  # type: ignore[arg-type]
     return path

@@ -218,7 +218,7 @@ def _evaluate_reconstruction(
     else:
         try:
             _, note = evaluate_replay_images(
-                ws, folder, ws.report_dir / "images", progress=progress
+                ws, folder, ws.report_files.images_dir, progress=progress
             )
             notes += [note] if note else []
         except Cam2SimError as err:  # the drive metrics stand without it
@@ -227,7 +227,7 @@ def _evaluate_reconstruction(
         notes.append("no ground-truth world: semantic IoU not computed")
         return notes
     try:
-        evaluate_world_semantics(ws, ws.report_dir / "semantic", progress=progress)
+        evaluate_world_semantics(ws, ws.report_files.semantic_dir, progress=progress)
     except Cam2SimError as err:
         notes.append(f"semantic IoU not computed: {err}")
     return notes

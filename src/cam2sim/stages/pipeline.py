@@ -375,7 +375,7 @@ class _Pipeline:
     def _cameras(self) -> tuple[CameraName, ...]:
         if self.options.cameras is not None:
             return self.options.cameras
-        models = self.ws.splat_dir / "models"
+        models = self.ws.splat_files.models_dir
         has_splat = models.is_dir() and any(models.glob("chunk_*.pt"))
         return ("raster", "splat") if has_splat else ("raster",)
 
@@ -510,7 +510,7 @@ class _Pipeline:
         self._recorded(
             TRAIN_STAGE, lambda: train_ads(self.ws, options=opts, progress=self.progress), step
         )
-        onnx = self.ws.ads_dir / "dave2.onnx"
+        onnx = self.ws.ads_files.onnx
         if step.up_to_date and onnx.is_file():
             step.message = derived.strip(" ()")
             return
@@ -520,7 +520,7 @@ class _Pipeline:
     def _policy(self) -> str:
         if self.options.policy is not None:
             return self.options.policy
-        onnx = self.ws.ads_dir / "dave2.onnx"
+        onnx = self.ws.ads_files.onnx
         return str(onnx) if onnx.is_file() and self.options.wants("ads") else "pure-pursuit"
 
     def replay(self, step: _Step) -> None:

@@ -719,7 +719,7 @@ def _keep_frame(
 
 def _splat_quality(ws: Workspace, run_id: str, coverage: list[float]) -> dict[str, Any]:
     """``run.json``'s ``splat_quality`` and ``splat_gate`` (:mod:`cam2sim.metrics.splat_gate`)."""
-    path = ws.splat_dir / "eval.json"
+    path = ws.splat_files.eval_json
     evaluation, notes = None, []
     if not path.is_file():
         notes.append(f"{path} missing: the splat was not evaluated")

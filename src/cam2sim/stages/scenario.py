@@ -101,7 +101,7 @@ def size_class(size: tuple[float, float, float]) -> SizeClass:
 def _inputs(ws: Workspace, opts: ScenarioOptions) -> str:
     extract = ws.stage_record("extract")
     parked = parked_vehicles_path(ws.detections_dir)
-    xodr = ws.map_dir / "map.xodr"
+    xodr = ws.map_xodr_path
     return hash_inputs(
         {
             "dataset": extract.inputs_hash if extract else None,
@@ -132,7 +132,7 @@ def run_scenario(
     if record is None or record.state != "done":
         msg = f"{ws.root} has no dataset; run `cam2sim extract {ws.root}` (or import) first"
         raise StageError(msg)
-    if not (ws.map_dir / "map.xodr").is_file():
+    if not ws.map_xodr_path.is_file():
         msg = f"{ws.root} has no map; run `cam2sim map {ws.root}` first"
         raise StageError(msg)
     inputs = _inputs(ws, opts)
@@ -161,7 +161,7 @@ def _write_exports(ws: Workspace, scenario: Scenario, tmp: Path, report: Progres
     write_carla_files(scenario, tmp / "carla")
     report("scenario", 2, 4)
     xosc = tmp / XOSC_FILE
-    map_rel = os.path.relpath(ws.map_dir / "map.xodr", ws.scenario_dir)
+    map_rel = os.path.relpath(ws.map_xodr_path, ws.scenario_dir)
     write_openscenario(scenario, xosc, map_path=map_rel)
     errors = validate_openscenario(xosc)
     if errors:

@@ -113,8 +113,8 @@ def run_splat(
     if record is None or record.state != "done":
         msg = f"{ws.root} has no dataset; run `cam2sim extract {ws.root}` (or import) first"
         raise StageError(msg)
-    prep_dir = ws.splat_dir / "prep"
-    models_dir = ws.splat_dir / "models"
+    prep_dir = ws.splat_files.prep_dir
+    models_dir = ws.splat_files.models_dir
     inputs = hash_inputs({"dataset": record.inputs_hash, "options": repr(opts)})
     if not force and ws.is_up_to_date(STAGE, inputs):
         logger.info("splat: up to date; skipping")
@@ -157,8 +157,8 @@ def run_splat(
                     offsets=() if scene.scale_ambiguous else opts.offsets_m,
                     lpips_weights=opts.lpips_weights,
                     # the held-out renders the report shows beside the real frames
-                    options=EvalOptions(renders_dir=ws.splat_dir / RENDERS_DIR),
-                    out_path=ws.splat_dir / "eval.json",
+                    options=EvalOptions(renders_dir=ws.splat_files.renders_dir),
+                    out_path=ws.splat_files.eval_json,
                     truth=truth,
                     progress=report,
                 )
@@ -168,13 +168,9 @@ def run_splat(
                 evaluation = evaluation.model_copy(update={"rig": rows})
             if notes or rig:
                 evaluation = evaluation.model_copy(update={"notes": [*evaluation.notes, *notes]})
-                evaluation.save(ws.splat_dir / "eval.json")
+                evaluation.save(ws.splat_files.eval_json)
             lap("evaluate")
     return SplatResult(prep_dir, models_dir, trained, evaluation, seconds)
-
-
-RENDERS_DIR = "renders"
-"""``WS/splat/renders/``: the splat's render of each held-out frame (``NNNNNN.webp``)."""
 
 
 def _rig_views(ws: Workspace) -> list[RigView]:

@@ -661,7 +661,7 @@ def serve_editor(
         "each other's edits) or stop it first"
     )
     with (
-        process_lock(ws.detections_dir / ".editor.lock", busy=busy),
+        process_lock(ws.detection_files.editor_lock, busy=busy),
         EditorServer(ws, port=port) as server,
     ):
         logger.info("editor: serving %s at %s", ws.root, server.url)
