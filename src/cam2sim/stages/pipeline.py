@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
-import importlib
 import logging
 import time
 from dataclasses import dataclass
@@ -630,15 +629,10 @@ class _Pipeline:
         step.message = "; ".join([str(results[0].metrics), *results[0].notes])
 
     def report_step(self, step: _Step) -> None:
-        try:
-            module = importlib.import_module("cam2sim.report.html")  # written by its own worker
-        except ImportError:
-            msg = "report module missing (cam2sim.report.html)"
-            raise _NotApplicableError(msg) from None
-        path: Any = module.write_report(self.ws)
-        if path is not None:
-            self.report = path
-            step.message = str(path)
+        from cam2sim.report.html import write_report  # noqa: PLC0415 -- lazy: imports matplotlib
+
+        self.report = write_report(self.ws)
+        step.message = str(self.report)
 
 
 def run_pipeline(
