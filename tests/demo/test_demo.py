@@ -146,3 +146,46 @@ def test_the_fast_pipeline_steps_run_on_the_demo(tmp_path: Path, recording: Demo
     assert not result.failed, result.outcomes
     assert {states[s] for s in FAST} == {"done"}, result.outcomes
     assert (ws.report_dir / "drive" / "metrics.json").is_file()
+
+
+def test_the_demo_report_opens_in_chromium_with_every_section_and_image(
+    tmp_path: Path, recording: DemoRecording
+) -> None:
+    """The demo's own report (its fast steps, replay and the report) in a real browser."""
+    from conftest import has_egl, launch_chromium, playwright_with_chromium
+
+    if not has_egl():
+        pytest.skip("the replay's raster camera needs headless OpenGL (EGL)")
+    sync_api = playwright_with_chromium()
+    from cam2sim.core.config import load_config
+    from cam2sim.core.workspace import Workspace
+    from cam2sim.report.html import SECTION_IDS
+    from cam2sim.stages.pipeline import PipelineOptions, run_pipeline
+
+    ws = Workspace.create(tmp_path / "ws", load_config(recording.config))
+    steps = (*FAST[:4], "replay", *FAST[4:], "report")
+    options = PipelineOptions(
+        osm=recording.osm, steps=steps, cameras=("raster",), runs=1, replay_every=10
+    )
+    result = run_pipeline(ws, options=options)
+    assert not result.failed, result.outcomes
+    report = ws.report_files.html
+    assert report.stat().st_size < 30 * 2**20  # one self-contained file under 30 MB
+    with sync_api.sync_playwright() as pw:
+        browser = launch_chromium(pw)
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 900})
+            errors: list[str] = []
+            page.on("pageerror", lambda err: errors.append(str(err)))
+            page.goto(report.as_uri(), wait_until="load")
+            visible = [page.locator(f"section#{sid}").is_visible() for sid in SECTION_IDS]
+            images = page.evaluate("document.images.length")
+            loaded = page.evaluate(
+                "Array.from(document.images).every(i => i.complete && i.naturalWidth > 0)"
+            )
+        finally:
+            browser.close()
+    assert all(visible)
+    assert errors == []
+    assert images >= 8  # map, behaviour plots, frames of the replay and the drive, strips
+    assert loaded
