@@ -72,3 +72,14 @@ def test_read_json_names_the_file_the_place_and_the_fix(tmp_path: Path) -> None:
     path.write_bytes(b"\xff\xfe{")
     with pytest.raises(WorkspaceError, match="not valid JSON"):
         read_json(path)
+
+
+def test_atomic_writes_get_the_permissions_of_a_plain_open(tmp_path: Path) -> None:
+    import stat
+
+    plain = tmp_path / "plain.txt"
+    plain.write_text("x", encoding="utf-8")
+    atomic = tmp_path / "atomic.txt"
+    write_text_atomic(atomic, "x")
+    mode = stat.S_IMODE(atomic.stat().st_mode)
+    assert mode == stat.S_IMODE(plain.stat().st_mode)  # a shared report, not 0600

@@ -39,7 +39,8 @@ def atomic_write(path: Path) -> Iterator[BinaryIO]:
     """Yield a binary handle whose content replaces ``path`` only when the block succeeds.
 
     Readers see the old or the new file, never a part; on any exception the temporary file is
-    removed and ``path`` is untouched.
+    removed and ``path`` is untouched. The file gets the permissions a plain ``open`` would give
+    it (0666 less the umask), not the temporary file's private 0600: a report is shared.
 
     Args:
         path: Destination file. Its folder is created when missing.
@@ -52,11 +53,19 @@ def atomic_write(path: Path) -> Iterator[BinaryIO]:
             yield handle
             handle.flush()
             os.fsync(handle.fileno())
+        os.chmod(tmp_name, 0o666 & ~_umask())
         Path(tmp_name).replace(path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             Path(tmp_name).unlink()
         raise
+
+
+def _umask() -> int:
+    """The process's umask (read by setting it and setting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def write_bytes_atomic(path: Path, data: bytes) -> None:
