@@ -7,6 +7,7 @@ into place, and whole output folders are built beside the old one and swapped in
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import json
 import os
@@ -61,8 +62,9 @@ def atomic_write(path: Path) -> Iterator[BinaryIO]:
         raise
 
 
+@functools.cache
 def _umask() -> int:
-    """The process's umask (read by setting it and setting it back)."""
+    """The process's umask, read once (by setting it and setting it back: not thread-safe)."""
     mask = os.umask(0o022)
     os.umask(mask)
     return mask
