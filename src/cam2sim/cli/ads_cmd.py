@@ -6,9 +6,8 @@ from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
 from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.markup import escape
 
-from cam2sim.cli.display import console, error_console, progress_bars
+from cam2sim.cli.display import console, error_exit, progress_bars
 from cam2sim.core.errors import Cam2SimError
 from cam2sim.core.workspace import Workspace
 
@@ -22,11 +21,6 @@ ads_app = typer.Typer(
     no_args_is_help=True,
     rich_markup_mode=None,  # click's plain help: readable at 80 columns
 )
-
-
-def _fail(err: Cam2SimError) -> typer.Exit:
-    error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
-    return typer.Exit(code=1)
 
 
 @ads_app.command("train")
@@ -77,7 +71,7 @@ def train(
         with progress_bars() as sink:
             result = train_ads(ws, options=opts, force=force, progress=sink)
     except Cam2SimError as err:
-        raise _fail(err) from None
+        raise error_exit(err) from None
     rep = result.report
     if rep is None:
         console.print(f"{result.model} is up to date (use --force to train again)")
@@ -125,7 +119,7 @@ def export(
         with progress_bars() as sink:
             result = export_ads(ws, out=out, progress=sink)
     except Cam2SimError as err:
-        raise _fail(err) from None
+        raise error_exit(err) from None
     rep = result.report
     console.print(
         f"{result.path}: opset {rep.opset}, max |torch - onnxruntime| "
@@ -166,7 +160,7 @@ def serve(
                 f"{ws.ads_files.onnx} does not exist; run `cam2sim ads train` and "
                 "`cam2sim ads export` first, or pass --model"
             )
-            raise _fail(Cam2SimError(msg))
+            raise error_exit(Cam2SimError(msg))
 
         def ready(server: object) -> None:
             console.print(
@@ -176,6 +170,6 @@ def serve(
 
         run_server(spec, host=host, port=port, allow_remote=allow_remote, clip=clip, on_ready=ready)
     except Cam2SimError as err:
-        raise _fail(err) from None
+        raise error_exit(err) from None
     except KeyboardInterrupt:
         console.print("server stopped")

@@ -6,9 +6,8 @@ from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
 from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.markup import escape
 
-from cam2sim.cli.display import console, error_console, print_table, progress_bars
+from cam2sim.cli.display import console, error_exit, print_table, progress_bars
 from cam2sim.core.errors import Cam2SimError
 
 if TYPE_CHECKING:
@@ -75,8 +74,7 @@ def campaign(
         with progress_bars() as sink:
             result = run_campaign(plan, executor=executor, retry_failed=retry_failed, progress=sink)
     except Cam2SimError as err:
-        error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
-        raise typer.Exit(1) from None
+        raise error_exit(err) from None
     _print_summary(result.summary)
     rate = 60.0 * result.ran / result.seconds if result.seconds > 0 and result.ran else 0.0
     console.print(

@@ -7,9 +7,8 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.markup import escape
 
-from cam2sim.cli.display import console, error_console, progress_bars
+from cam2sim.cli.display import console, error_exit, progress_bars
 from cam2sim.cli.options import SkipOption, StepsOption, comma_list
 from cam2sim.cli.run_pipeline_cmd import _finish
 from cam2sim.core.errors import Cam2SimError
@@ -92,7 +91,6 @@ def demo(
                 say=lambda line: console.print(line, highlight=False),
             )
     except Cam2SimError as err:
-        error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
-        raise typer.Exit(1) from None
+        raise error_exit(err) from None
     ws, result = done.ws, done.result
     _finish(ws, result, time.perf_counter() - started)

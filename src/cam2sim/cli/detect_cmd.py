@@ -7,9 +7,8 @@ from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
 from typing import Annotated
 
 import typer
-from rich.markup import escape
 
-from cam2sim.cli.display import console, error_console, print_table, progress_bars
+from cam2sim.cli.display import console, error_exit, print_table, progress_bars
 from cam2sim.core.errors import Cam2SimError
 from cam2sim.core.workspace import Workspace
 
@@ -21,11 +20,6 @@ class SourceChoice(StrEnum):
 
     LIDAR = "lidar"
     CAMERA = "camera"
-
-
-def _fail(err: Cam2SimError) -> typer.Exit:
-    error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
-    return typer.Exit(code=1)
 
 
 def detect(
@@ -75,7 +69,7 @@ def detect(
         with progress_bars() as sink:
             result = run_detect(ws, options=options, force=force, progress=sink)
     except Cam2SimError as err:
-        raise _fail(err) from None
+        raise error_exit(err) from None
     doc = result.vehicles
     if doc is None:
         console.print(f"{result.path} is up to date (use --force to run again)")
@@ -131,6 +125,6 @@ def refine(
         ws = Workspace.open(workspace)
         serve_editor(ws, port=port, open_browser=open_browser, on_ready=ready)
     except Cam2SimError as err:
-        raise _fail(err) from None
+        raise error_exit(err) from None
     except KeyboardInterrupt:
         console.print("editor stopped")

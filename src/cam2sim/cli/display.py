@@ -8,6 +8,7 @@ import time
 import warnings
 from typing import IO, TYPE_CHECKING, TextIO
 
+import typer
 from rich.console import Console
 from rich.logging import RichHandler
 from rich.markup import escape
@@ -34,6 +35,7 @@ __all__ = [
     "LineProgress",
     "console",
     "error_console",
+    "error_exit",
     "print_behaviour",
     "print_table",
     "progress_bars",
@@ -43,6 +45,15 @@ __all__ = [
 
 console = Console()
 error_console = Console(stderr=True)
+
+
+def error_exit(err: BaseException) -> typer.Exit:
+    """Print ``error: <message>`` on stderr as one line and return the exit (code 1) to raise.
+
+    The message is escaped: brackets in it (a path, a list) are not read as console markup.
+    """
+    error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False, soft_wrap=True)
+    return typer.Exit(code=1)
 
 
 def print_table(table: Table) -> None:

@@ -7,12 +7,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.markup import escape
 from rich.table import Table
 
 from cam2sim.cli.display import (
     console,
-    error_console,
+    error_exit,
     print_behaviour,
     print_table,
     progress_bars,
@@ -121,8 +120,7 @@ def images(
             result = evaluate_image_folders(real_dir, sim_dir, options=options, progress=sink)
         json_path, csv_path = write_image_quality(result, out)
     except Cam2SimError as err:
-        error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
-        raise typer.Exit(1) from None
+        raise error_exit(err) from None
     s = result.summary
     rows = [("PSNR dB", s["psnr_db"], ".2f"), ("SSIM", s["ssim"], ".4f")]
     if result.lpips_net is not None:
@@ -191,8 +189,7 @@ def semantic(
                 )
         result.save(out / "semantic.json")
     except Cam2SimError as err:
-        error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
-        raise typer.Exit(1) from None
+        raise error_exit(err) from None
     s = result.summary
     rows = [(f"IoU {name}", s.classes[name], ".4f") for name in result.classes]
     rows.append(("mIoU", s.miou, ".4f"))
@@ -257,8 +254,7 @@ def drive(
             options=DriveOptions(frechet_points=frechet_points),
         )
     except Cam2SimError as err:
-        error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
-        raise typer.Exit(1) from None
+        raise error_exit(err) from None
     _print_drive_metrics(ev.metrics)
     console.print(f"wrote {out / 'metrics.json'} and 3 figures", highlight=False)
 
@@ -347,8 +343,7 @@ def workspace(
             result = evaluate_workspace(ws, options=options, progress=sink)
         metrics = DriveMetrics.load(result.metrics)
     except Cam2SimError as err:
-        error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
-        raise typer.Exit(1) from None
+        raise error_exit(err) from None
     _print_drive_metrics(metrics)
     for note in result.notes:
         console.print(note, highlight=False)

@@ -20,6 +20,7 @@ from cam2sim.cli.detect_cmd import detect, refine
 from cam2sim.cli.display import (
     console,
     error_console,
+    error_exit,
     print_table,
     progress_bars,
     setup_logging,
@@ -79,7 +80,7 @@ class _Guarded(typer.core.TyperGroup):
         except Cam2SimError as err:
             if _state["debug"]:
                 raise
-            raise _fail(err) from None
+            raise error_exit(err) from None
         except Exception as err:
             if isinstance(err, BrokenPipeError) and _stdout_reader_gone():
                 raise  # `cam2sim ... | head`: click's main ends quietly, as shell tools do
@@ -182,11 +183,6 @@ def _root(
     setup_logging(verbose=verbose)
 
 
-def _fail(err: Cam2SimError) -> typer.Exit:
-    error_console.print(f"[bold red]error:[/] {err}", highlight=False, soft_wrap=True)
-    return typer.Exit(code=1)
-
-
 @app.command()
 def inspect(
     bags: Annotated[list[Path], typer.Argument(help="Bag files or folders of one recording.")],
@@ -203,7 +199,7 @@ def inspect(
         with progress_bars(enabled=bool(_state["progress"])) as sink:
             summary = summarize_recording(bags, progress=sink)
     except Cam2SimError as err:
-        raise _fail(err) from None
+        raise error_exit(err) from None
     table = Table(title=f"{', '.join(summary.paths)}  ({summary.duration_s:.2f} s)")
     for col, justify in (
         ("topic", "left"),
@@ -245,7 +241,7 @@ def init(
     try:
         result = init_workspace(workspace, bag, force=force)
     except Cam2SimError as err:
-        raise _fail(err) from None
+        raise error_exit(err) from None
     console.print(f"created workspace [bold]{result.workspace.root}[/]")
     for note in result.notes:
         console.print(f"  - {note}", highlight=False)
@@ -268,7 +264,7 @@ def extract(
         with progress_bars(enabled=bool(_state["progress"])) as sink:
             result = run_extract(ws, force=force, progress=sink)
     except Cam2SimError as err:
-        raise _fail(err) from None
+        raise error_exit(err) from None
     info = result.info
     if result.skipped:
         console.print("dataset is up to date (use --force to re-extract)")
@@ -345,7 +341,7 @@ def import_(
         with progress_bars(enabled=bool(_state["progress"])) as sink:
             result = import_images(workspace, images, options=opts, progress=sink)
     except Cam2SimError as err:
-        raise _fail(err) from None
+        raise error_exit(err) from None
     info = result.info
     kind = "pose-less " if info.pose_less else ""
     console.print(f"{result.dataset_dir}: {kind}dataset of {info.counts.frames} frames")

@@ -6,9 +6,8 @@ from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
 from typing import Annotated
 
 import typer
-from rich.markup import escape
 
-from cam2sim.cli.display import console, error_console, progress_bars
+from cam2sim.cli.display import console, error_exit, progress_bars
 from cam2sim.core.errors import Cam2SimError
 from cam2sim.core.workspace import Workspace
 
@@ -49,6 +48,5 @@ def report(
                 evaluate_workspace(ws, options=options, progress=sink)
             path = write_report(ws, out=out, progress=sink)
     except Cam2SimError as err:
-        error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
-        raise typer.Exit(1) from None
+        raise error_exit(err) from None
     console.print(str(path), highlight=False, soft_wrap=True)

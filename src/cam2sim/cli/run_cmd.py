@@ -7,9 +7,8 @@ from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
 from typing import Annotated, Any
 
 import typer
-from rich.markup import escape
 
-from cam2sim.cli.display import console, error_console, progress_bars
+from cam2sim.cli.display import console, error_exit, progress_bars
 from cam2sim.cli.options import (
     CarlaHostOption,
     CarlaPortOption,
@@ -64,11 +63,6 @@ def _carla(ws: Path, sim: SimChoice, host: str | None, port: int | None) -> obje
         return CarlaOptions.model_validate(raw)
     except pydantic.ValidationError as err:
         raise ConfigError(format_validation_error(err, source="carla options")) from None
-
-
-def _fail(err: Cam2SimError) -> typer.Exit:
-    error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
-    return typer.Exit(code=1)
 
 
 def _span(text: str | None) -> tuple[int | None, int | None]:
@@ -153,7 +147,7 @@ def replay(
         with progress_bars() as sink:
             result = run_replay(ws, options=opts, progress=sink)
     except Cam2SimError as err:
-        raise _fail(err) from None
+        raise error_exit(err) from None
     console.print(
         f"{result.folder}: {result.steps} frames replayed in {result.seconds:.1f} s",
         highlight=False,
@@ -226,7 +220,7 @@ def drive(
         with progress_bars() as sink:
             results = run_drive(ws, options=opts, progress=sink)
     except Cam2SimError as err:
-        raise _fail(err) from None
+        raise error_exit(err) from None
     for r in results:
         ends = ", ".join(f"{e['kind']} at {e['t']:.1f} s" for e in r.events) or "no event"
         console.print(f"{r.folder}: {r.steps} steps in {r.seconds:.1f} s ({ends})", highlight=False)

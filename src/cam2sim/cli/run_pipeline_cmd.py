@@ -12,6 +12,7 @@ from rich.table import Table
 from cam2sim.cli.display import (
     console,
     error_console,
+    error_exit,
     print_behaviour,
     print_table,
     progress_bars,
@@ -159,8 +160,7 @@ def run(
         with progress_bars() as sink:
             result = run_pipeline(ws, options=options, progress=sink)
     except Cam2SimError as err:
-        error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
-        raise typer.Exit(1) from None
+        raise error_exit(err) from None
     _finish(ws, result, sum(o.seconds for o in result.outcomes))
 
 

@@ -7,9 +7,8 @@ from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
 from typing import Annotated
 
 import typer
-from rich.markup import escape
 
-from cam2sim.cli.display import console, error_console, progress_bars
+from cam2sim.cli.display import console, error_exit, progress_bars
 from cam2sim.core.errors import Cam2SimError
 from cam2sim.core.workspace import Workspace
 
@@ -58,8 +57,7 @@ def scenario(
                 progress=sink,
             )
     except Cam2SimError as err:
-        error_console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False)
-        raise typer.Exit(code=1) from None
+        raise error_exit(err) from None
     doc = result.scenario
     if doc is None:
         console.print(f"{result.folder} is up to date (use --force to rebuild)")

@@ -7,7 +7,7 @@ from typing import Annotated, get_args
 
 import typer
 
-from cam2sim.cli.display import console, error_console, progress_bars
+from cam2sim.cli.display import console, error_console, error_exit, progress_bars
 from cam2sim.core.errors import Cam2SimError
 from cam2sim.core.workspace import Workspace
 
@@ -121,15 +121,13 @@ def splat(
             lpips_weights=lpips_weights,
         )
     except ValueError as err:
-        error_console.print(f"[bold red]error:[/] {err}", highlight=False, soft_wrap=True)
-        raise typer.Exit(1) from None
+        raise error_exit(err) from None
     try:
         ws = Workspace.open(workspace)
         with progress_bars() as sink:
             result = run_splat(ws, options=options, force=force, progress=sink, ray=ray)
     except Cam2SimError as err:
-        error_console.print(f"[bold red]error:[/] {err}", highlight=False, soft_wrap=True)
-        raise typer.Exit(1) from None
+        raise error_exit(err) from None
     if result.trained is not None:
         for chunk in result.trained.chunks:
             psnr = chunk.val_history[-1][1] if chunk.val_history else None
