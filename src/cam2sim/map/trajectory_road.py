@@ -132,9 +132,13 @@ def smooth_path(
     n = max(math.ceil(dist[-1] / step_m), 2)
     s = np.linspace(0.0, dist[-1], n + 1)
     res = np.column_stack([np.interp(s, dist, pts[:, k]) for k in range(3)])
-    if smooth_m <= 0:
-        return s, res
-    sigma = smooth_m / (s[1] - s[0])
+    return (s, res) if smooth_m <= 0 else _smoothed(res, smooth_m / (s[1] - s[0]))
+
+
+def _smoothed(
+    res: npt.NDArray[np.float64], sigma: float
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Evenly resampled points smoothed by a Gaussian of ``sigma`` samples; new stations."""
     half = math.ceil(3 * sigma)
     kernel = np.exp(-0.5 * (np.arange(-half, half + 1) / sigma) ** 2)
     kernel /= kernel.sum()
@@ -184,9 +188,12 @@ def trajectory_road(
     opts = options or TrajectoryRoadOptions()
     raw = np.asarray(xyz, dtype=np.float64)
     smooth_path(raw, smooth_m=0.0)  # the checks on the recorded path itself
-    xyz = _extended(raw, opts.extend_m)
-    s, path = smooth_path(xyz, smooth_m=opts.smooth_m)
-    _, unsmoothed = smooth_path(xyz, smooth_m=0.0)  # the same stations before smoothing
+    ds, unsmoothed = smooth_path(_extended(raw, opts.extend_m), smooth_m=0.0)
+    s, path = (
+        _smoothed(unsmoothed, opts.smooth_m / (ds[1] - ds[0]))
+        if opts.smooth_m > 0
+        else (ds, unsmoothed)
+    )
     smoothing = float(np.max(np.hypot(*(unsmoothed[:, :2] - path[:, :2]).T)))
     tangent = np.gradient(path[:, :2], s, axis=0)
     heading = np.unwrap(np.arctan2(tangent[:, 1], tangent[:, 0]))

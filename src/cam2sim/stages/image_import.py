@@ -234,14 +234,23 @@ def _read_signal(name: str, path: Path) -> tuple[npt.NDArray[np.int64], npt.NDAr
         )
         raise RecordingError(msg)
     try:
-        parse = int if tcol == "stamp_ns" else _stamp_ns
-        stamps = np.array([parse(r[tcol]) for r in rows], dtype=np.int64)
+        stamps = _stamps(rows, tcol)
         values = np.array([float(r[vcol]) for r in rows], dtype=np.float64)
     except ValueError as err:
         msg = f"{path}: a row is not a number ({err})"
         raise RecordingError(msg) from None
     order = np.argsort(stamps, kind="stable")
     return stamps[order], values[order]
+
+
+def _stamps(rows: list[dict[str, str]], column: str) -> npt.NDArray[np.int64]:
+    """Nanosecond stamps of a table's time column (``stamp_ns`` as is, else seconds).
+
+    Raises:
+        ValueError: A cell is not a number.
+    """
+    parse = int if column == "stamp_ns" else _stamp_ns
+    return np.array([parse(r[column]) for r in rows], dtype=np.int64)
 
 
 def _read_pose_table(path: Path) -> _PoseTable:
@@ -268,8 +277,7 @@ def _read_pose_table(path: Path) -> _PoseTable:
         )
         raise RecordingError(msg)
     try:
-        parse = int if tcol == "stamp_ns" else _stamp_ns
-        stamps = np.array([parse(r[tcol]) for r in rows], dtype=np.int64)
+        stamps = _stamps(rows, tcol)
         z = [float(r.get("z") or 0.0) for r in rows]
         xyz = np.array([[float(r["x"]), float(r["y"]), zz] for r, zz in zip(rows, z, strict=True)])
         if all(c in rows[0] for c in ("qx", "qy", "qz", "qw")):
