@@ -40,6 +40,7 @@ from cam2sim.detect.boxes import footprint_corners
 from cam2sim.metrics import splat_gate as gate
 from cam2sim.metrics.behaviour import (
     CAMERA_LABELS,
+    METHOD_COLOURS,
     METHOD_LABELS,
     REAL_METHOD,
     behaviour_table,
@@ -349,9 +350,16 @@ def _map(ctx: _Context) -> str:
             ax.add_patch(Polygon(quad, closed=True, facecolor="#4292c6", edgecolor="k", zorder=3))
         ax.plot([], [], "s", color="#4292c6", label=f"parked ({len(sc.parked)})")
     cmap = pyplot().get_cmap("tab10")
-    for i, run in enumerate(ctx.runs):
-        xy = ctx.drives[run.name].xy
-        ax.plot(xy[:, 0], xy[:, 1], color=cmap(i % 10), lw=1.2, zorder=4, label=run.name)
+    seen: list[str] = []  # one colour and one legend entry per method
+    for run in ctx.runs:
+        drv = ctx.drives[run.name]
+        label = "Real" if drv.real else METHOD_LABELS.get(drv.method, drv.method)
+        colour = METHOD_COLOURS.get(label) or cmap(len(seen) % 10)
+        ax.plot(
+            drv.xy[:, 0], drv.xy[:, 1], color=colour, lw=1.2, zorder=4,
+            label=None if label in seen else label,
+        )  # fmt: skip
+        seen += [] if label in seen else [label]
     ax.set_aspect("equal")
     ax.set_xlabel("east (m)")
     ax.set_ylabel("north (m)")
