@@ -17,8 +17,9 @@
 #                          Tune, Train, Serve, Data, LLM, the dashboard's web client) as one
 #                          tar.xz (28 MB of the wheel's 79 MB), and jsonschema's wheels
 #   .osm/                  copies of ../shared/data/osm/ (2.4 MB): the GPU suite's extracts
-#   .k03/a, b, c           KITTI 03's 801 frames as JPEG (quality 90) in three parts of about
-#                          35 MB, poses.txt and K.txt in c: benchmarks/gpu_kitti.sh's calls
+#   .k03/a, b, c, p        KITTI 03's 801 frames as JPEG (quality 90) in three parts of about
+#                          35 MB, poses.txt and K.txt in c, the pycolmap wheel (38 MB) in p:
+#                          benchmarks/gpu_kitti.sh's calls
 #                          (KITTI03=DIR with images/; CC BY-NC-SA: never commit it)
 #
 #   bash benchmarks/carry_kit.sh [wheels] [lpips] [curves] [easy] [route] [demo] [ray] [osm]
@@ -124,6 +125,10 @@ for k, f in enumerate(files):
 print(f"{len(files)} frames in {len(parts)} parts")
 PY
     cp ../shared/data/posed/kitti-odometry-03/poses.txt ../shared/data/posed/kitti-odometry-03/K.txt .k03/c/
+    # pycolmap triangulates the starting points (no LiDAR); the GPU image lacks it.
+    mkdir -p .k03/p
+    python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 \
+      --implementation cp --platform manylinux_2_28_x86_64 -d .k03/p pycolmap==4.2.1
     ;;
   route)
     rm -rf .carry/route400tri
@@ -142,6 +147,6 @@ PY
   demo) du -sh .c21/a .c21/b .gl ;;
   ray) du -sh .ray ;;
   osm) du -sh .osm ;;
-  kitti) du -sh .k03/a .k03/b .k03/c ;;
+  kitti) du -sh .k03/a .k03/b .k03/c .k03/p ;;
   esac
 done

@@ -6,7 +6,8 @@
 # /tmp/kitti03 on the device; the calls must follow each other within the 30 s idle window:
 #
 #   PHASE=setup bash benchmarks/gpu_kitti.sh     # carry .c21/a .gl: wheels, gsplat build
-#   PHASE=frames bash benchmarks/gpu_kitti.sh    # carry .k03/a   (then again with .k03/b)
+#   PHASE=frames bash benchmarks/gpu_kitti.sh    # carry .k03/a (then again with .k03/b, and
+#                                                # with .k03/p: the pycolmap wheel)
 #   PHASE=run bash benchmarks/gpu_kitti.sh       # carry .c21/b .k03/c: the rest, then the run
 #                                                # in the background, watched WATCH_S seconds
 #   PHASE=wait bash benchmarks/gpu_kitti.sh      # watch it (repeat as needed)
@@ -61,7 +62,12 @@ setup)
   ;;
 frames)
   for part in .k03/*/; do cp "$part"images/* /tmp/kitti03/images/ 2>/dev/null; done
+  for wheel in .k03/*/*.whl; do
+    [ -f "$wheel" ] && python3 -m pip install -q --no-index --no-deps --no-compile \
+      --no-cache-dir --upgrade --target /tmp/site "$wheel"
+  done
   ls /tmp/kitti03/images | wc -l
+  python3 -c "import pycolmap; print('pycolmap', pycolmap.__version__)" 2>&1 | tail -1
   ;;
 run)
   cp .k03/c/images/* /tmp/kitti03/images/ && cp .k03/c/poses.txt .k03/c/K.txt /tmp/kitti03/ || exit 1

@@ -235,6 +235,57 @@ def test_keep_last_trains_every_epoch_and_keeps_the_last(tmp_path: Path) -> None
     assert report["val_mse"] == pytest.approx(report["epochs"][-1]["val_loss"], rel=1e-5)
 
 
+def test_block_split_validates_all_over_the_drive_with_gaps() -> None:
+    from cam2sim.ads.train import split_by_time
+
+    t = np.arange(0.0, 60.0, 0.1)  # a 60 s drive at 10 Hz
+    train, val = split_by_time(t, 0.2, 1.0, split="blocks", block_s=4.0)
+    # Every 5th block of 4 s, starting with block 2: 8-12 s, 28-32 s, 48-52 s.
+    blocks = sorted({int(b) for b in t[val] // 4.0})
+    assert blocks == [2, 7, 12]
+    assert t[val].min() == pytest.approx(8.0)
+    assert t[val].max() > 0.8 * t[-1]  # not only the drive's end, and not only its start
+    gaps = np.abs(t[train][:, None] - t[val][None, :]).min(axis=1)
+    assert gaps.min() > 1.0  # no training frame within gap_s of a validation frame
+    assert not set(train) & set(val)
+    assert len(train) + len(val) == len(t) - 6 * 10  # two 1 s gaps around each block
+    # The tail split keeps its meaning; a drive shorter than one block falls back to it.
+    tail_train, tail_val = split_by_time(t, 0.2, 1.0, split="tail")
+    assert t[tail_val].min() == pytest.approx(48.0)
+    assert t[tail_train].max() < 47.0
+    short = np.arange(0.0, 6.0, 0.1)
+    _, short_val = split_by_time(short, 0.2, 0.5, split="blocks", block_s=4.0)
+    assert short[short_val].min() == pytest.approx(4.8)
+
+
+def test_refit_keeps_a_network_trained_on_every_frame(tmp_path: Path) -> None:
+    from cam2sim.ads.train import TrainOptions, load_model
+    from cam2sim.stages.ads import train_ads
+
+    ws = make_drive(tmp_path / "ws")
+    options = TrainOptions.same_street(epochs=2, batch_size=16, device="cpu", workers=1)
+    assert (options.keep, options.split, options.refit_all) == ("last", "blocks", True)
+    train_ads(ws, options=options)
+    report = json.loads((ws.ads_dir / "train_report.json").read_text())
+    assert report["refit_all_frames"] is True
+    assert report["best_epoch"] == 2
+    assert [e["epoch"] for e in report["epochs"]] == [1, 2]  # the validated run's curve
+    validated = report["val_mse"]
+    # The kept network is not the validated one: on the validation frames it fits better,
+    # having trained on them.
+    model, _ = load_model(ws.ads_dir)
+    from cam2sim.ads import train as tr
+
+    info = json.loads((ws.dataset_dir / "dataset.json").read_text())
+    opts = TrainOptions.same_street(config=options.dave2, device="cpu")
+    data = tr.assemble(dataset_paths(ws.dataset_dir), info["frame_format"], opts)
+    _, val = tr.split_by_time(data.t, opts.val_fraction, opts.gap_s, split="blocks")
+    with torch.inference_mode():
+        pred = model(torch.from_numpy(data.images[val]).float()).view(-1).numpy()
+    refit_mse = float(np.mean((pred - data.steering[val]) ** 2))
+    assert refit_mse < validated
+
+
 def test_export_parity_and_policy_crop(trained: Workspace) -> None:
     import onnx
 

@@ -33,6 +33,7 @@ from cam2sim.stages.pipeline import (
     PipelineResult,
     demo_splat_options,
     run_pipeline,
+    run_splat_options,
 )
 from conftest import has_egl
 
@@ -395,6 +396,23 @@ def test_the_demo_splat_stops_each_chunk_on_its_own_quality_not_on_a_clock(cuda:
     flat = [(s, 27.0, 0.85) for s in window]
     assert not plateau_reached(rising, train.patience, train.min_gain_db, train.min_gain_ssim)
     assert plateau_reached(flat, train.patience, train.min_gain_db, train.min_gain_ssim)
+
+
+@pytest.mark.parametrize("cuda", [False, True])
+@pytest.mark.parametrize("lidar", [False, True])
+def test_run_splat_preset_counts_steps_and_triangulates_without_lidar(
+    cuda: bool, lidar: bool
+) -> None:
+    opts = run_splat_options(cuda=cuda, lidar=lidar)
+    assert opts.prepare is not None
+    assert opts.train is not None
+    assert opts.prepare.triangulate is not lidar  # points from the frames only without LiDAR
+    assert opts.train.budget_per_chunk
+    if cuda:  # far fewer than the 30,000-step default, each chunk to its own plateau
+        assert 1_000 < opts.train.min_steps < opts.train.max_steps <= 10_000
+        assert opts.train.min_gain_db > 0
+    else:
+        assert opts.train == demo_splat_options().train
 
 
 def test_run_remembers_the_osm_and_detector_it_was_given(tmp_path: Path) -> None:

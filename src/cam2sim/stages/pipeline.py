@@ -91,6 +91,10 @@ take (2,500 steps in 20-40 s on an H100): it ends only a chunk that something el
 and such a chunk is a warning in the report. The preset counts steps, not seconds: a budget of
 25 s a chunk gave chunks of one street 444 and 2,907 steps (issue 37)."""
 
+RUN_GPU_SPLAT_BUDGET_S: Final = 300.0
+"""A safety cap on each chunk's training seconds in ``cam2sim run`` on CUDA: 7,000 steps take
+60-110 s a chunk on an H100 (docs/benchmarks.md)."""
+
 
 @dataclass(frozen=True)
 class PipelineOptions:
@@ -115,14 +119,15 @@ class PipelineOptions:
             seeded per run), so that repeated runs of a deterministic policy differ.
         run_variation: Seeded start-pose and speed differences between drive runs
             (:mod:`cam2sim.stages.variation`); None: none.
-        splat: Splat options; None: the defaults on CUDA, on CPU :func:`demo_splat_options`'s
-            CPU preset (its points triangulated from the frames when there is no LiDAR).
+        splat: Splat options; None: :func:`run_splat_options` (its points triangulated from
+            the frames when there is no LiDAR).
         splat_on_cpu: Train splats without a GPU (the CPU preset: minutes a chunk); False makes
             ``splat`` not applicable there.
         steering_signal: Signal the ads step trains on; None: ``steering``, else the first
             signal whose name holds ``steer``.
         continue_on_error: Go on after a failed step (later steps may then fail too).
-        ads: DAVE-2 training options (None: the defaults, on the steering signal chosen).
+        ads: DAVE-2 training options (None: :meth:`TrainOptions.same_street
+            <cam2sim.ads.train.TrainOptions.same_street>`, on the steering signal chosen).
         judge: Where the drives' leaving the road and collisions are judged (see
             :class:`~cam2sim.stages.runs.DriveOptions`); None: in the ground-truth world when
             the workspace has one (every camera's runs alike), else on the map.
@@ -269,6 +274,30 @@ def demo_splat_options(*, cuda: bool = False) -> SplatStageOptions:
         budget_per_chunk=True,
     )
     return SplatStageOptions(prepare=prepare, train=train, offsets_m=(-1.0, 1.0))
+
+
+def run_splat_options(*, cuda: bool, lidar: bool) -> SplatStageOptions:
+    """``cam2sim run``'s splat: on CUDA each chunk trains to its own plateau, else the CPU preset.
+
+    ``cuda``: 2,000-7,000 steps a chunk, stopping when held-in PSNR gains less than 0.3 dB per
+    1,000 steps (the route's 4 chunks reach 31.6 dB held out in 7,000 steps and 5 minutes on
+    an H100, docs/benchmarks.md; the default 30,000 a chunk would take half an hour on a
+    recording of 5 chunks), at most :data:`RUN_GPU_SPLAT_BUDGET_S` seconds a chunk. CPU:
+    :func:`demo_splat_options`'s CPU preset. Either way the starting points are triangulated
+    from the frames (pycolmap) when the recording has no LiDAR.
+    """
+    if cuda:
+        train = TrainOptions(
+            max_steps=7_000, min_steps=2_000, val_every=500, patience=3,
+            min_gain_db=0.3, min_gain_ssim=0.003,
+            time_budget_s=RUN_GPU_SPLAT_BUDGET_S, budget_per_chunk=True,
+        )  # fmt: skip
+        opts = SplatStageOptions(prepare=PrepareOptions(), train=train)
+    else:
+        opts = demo_splat_options()
+    assert opts.prepare is not None  # both presets set it
+    prepare = dataclasses.replace(opts.prepare, triangulate=not lidar)
+    return dataclasses.replace(opts, prepare=prepare)
 
 
 def small_splat_options() -> SplatStageOptions:
@@ -454,16 +483,13 @@ class _Pipeline:
         if opts is None:
             import torch  # noqa: PLC0415
 
-            if not torch.cuda.is_available():
-                if not self.options.splat_on_cpu:
-                    msg = "no CUDA GPU, and splat training on the CPU is turned off"
-                    raise _NotApplicableError(msg)
-                opts = demo_splat_options()
-                if self._dataset_info().counts.lidar_scans == 0:  # points from the frames
-                    assert opts.prepare is not None  # the preset sets it
-                    opts = dataclasses.replace(
-                        opts, prepare=dataclasses.replace(opts.prepare, triangulate=True)
-                    )
+            cuda = torch.cuda.is_available()
+            if not cuda and not self.options.splat_on_cpu:
+                msg = "no CUDA GPU, and splat training on the CPU is turned off"
+                raise _NotApplicableError(msg)
+            lidar = self._dataset_info().counts.lidar_scans > 0
+            opts = run_splat_options(cuda=cuda, lidar=lidar)
+            if not cuda:
                 step.message = "no CUDA GPU: trained the CPU preset"
         results: list[SplatResult] = []
         self._recorded(
@@ -502,7 +528,7 @@ class _Pipeline:
             signal = derive_steering(self.ws)
             derived = " (steering derived from the poses: the recording has none)"
         opts = (
-            TrainOptions(signal=signal)
+            TrainOptions.same_street(signal)
             if self.options.ads is None
             else dataclasses.replace(self.options.ads, signal=signal)
         )
