@@ -669,8 +669,9 @@ def _refit(
     again = replace(opts, epochs=epochs, keep="last")
 
     # Validation frames are training frames now: the losses it records mean nothing.
-    def report_refit(_what: str, done: int, total: int | None) -> None:
-        progress("training DAVE-2 on every frame", done, total)
+    def report_refit(task: str, completed: int, total: int | None) -> None:
+        del task  # one name for the refit
+        progress("training DAVE-2 on every frame", completed, total)
 
     some = data.take(np.arange(min(2, len(data.t))))  # no frame is held out: a token set
     refit = _fit(model, data, some, again, device, report_refit, recovery)
