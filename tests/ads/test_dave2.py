@@ -235,6 +235,33 @@ def test_keep_last_trains_every_epoch_and_keeps_the_last(tmp_path: Path) -> None
     assert report["val_mse"] == pytest.approx(report["epochs"][-1]["val_loss"], rel=1e-5)
 
 
+def test_soft_frames_lose_detail_and_contrast_but_keep_labels() -> None:
+    from cam2sim.ads.train import augment
+
+    rng = np.random.default_rng(0)
+    x = torch.from_numpy(rng.uniform(0, 255, (64, 3, 66, 200)).astype(np.float32))
+    y = torch.linspace(-1, 1, 64)
+
+    def detail(images: torch.Tensor) -> torch.Tensor:  # mean |horizontal gradient| per image
+        return (images[..., 1:] - images[..., :-1]).abs().mean(dim=(1, 2, 3))
+
+    def run(blur: float) -> tuple[torch.Tensor, torch.Tensor]:
+        g = torch.Generator().manual_seed(3)
+        return augment(x, y, g, shift_px=0, steering_per_px=0.0, flip=False, blur_px=blur)
+
+    sharp, y_sharp = run(0.0)
+    soft, y_soft = run(3.0)
+    assert torch.equal(y_soft, y)  # softness does not steer
+    assert torch.equal(y_sharp, y)
+    ratio = detail(soft) / detail(sharp)
+    changed = ratio < 0.999
+    assert 16 <= int(changed.sum()) <= 48  # about half the batch, at random
+    assert torch.allclose(ratio[~changed], torch.ones(1), atol=1e-4)  # the rest untouched
+    # Of those changed, the blurred ones (3 of the 4 levels) lose most of their detail.
+    assert int((ratio < 0.5).sum()) >= 0.6 * int(changed.sum())
+    assert torch.equal(run(3.0)[0], soft)  # seeded
+
+
 def test_block_split_validates_all_over_the_drive_with_gaps() -> None:
     from cam2sim.ads.train import split_by_time
 
@@ -265,6 +292,7 @@ def test_refit_keeps_a_network_trained_on_every_frame(tmp_path: Path) -> None:
     ws = make_drive(tmp_path / "ws")
     options = TrainOptions.same_street(epochs=2, batch_size=16, device="cpu", workers=1)
     assert (options.keep, options.split, options.refit_all) == ("last", "blocks", True)
+    assert options.blur_px > 0
     train_ads(ws, options=options)
     report = json.loads((ws.ads_dir / "train_report.json").read_text())
     assert report["refit_all_frames"] is True
