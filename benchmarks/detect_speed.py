@@ -1,6 +1,6 @@
 """Speed of LiDAR detection and fusion (issue 6): 400 synthetic scans of 120,000 points.
 
-The scans come from :mod:`cam2sim.detect.synthetic`: a 520 m street with parked cars on both
+The scans come from :mod:`cam2sim.demo.lidar`: a 520 m street with parked cars on both
 kerbs, buildings behind, a 4 % slope, scanned by a 32-beam LiDAR (4,200 azimuths) every metre
 along the road. Each scan keeps exactly ``--points`` returns (a random subset, in scan order).
 All scans are generated first. Then ``GeometricDetector.detect`` is timed scan by scan
@@ -35,12 +35,13 @@ from rich.progress import Progress
 
 from cam2sim.core.dataset import LIDAR_COLUMNS, POSE_PRECISION
 from cam2sim.core.frames import Pose
+from cam2sim.core.scene import Ground
 from cam2sim.core.table import write_table
 from cam2sim.core.workspace import dataset_paths
+from cam2sim.demo.lidar import LidarModel, parked_street, scan_scene
 from cam2sim.detect.fusion import fuse
 from cam2sim.detect.lidar import GeometricDetector
 from cam2sim.detect.route import Route
-from cam2sim.detect.synthetic import Ground, LidarModel, parked_street, scan_scene
 
 LIDAR = LidarModel(beams=32, azimuths=4200)
 TARGET_S = 60.0

@@ -44,6 +44,7 @@ import numpy as np
 
 from cam2sim.core.camera import PinholeCamera
 from cam2sim.core.frames import Pose
+from cam2sim.demo.lidar import LidarModel, scan_scene
 from cam2sim.demo.route import PiecewiseRoute
 from cam2sim.demo.world import (
     CRS,
@@ -53,7 +54,6 @@ from cam2sim.demo.world import (
     footprint_ring,
     street_xodr,
 )
-from cam2sim.detect.synthetic import LidarModel, scan_scene
 from cam2sim.render.truth import TruthBuilding, TruthCar, TruthLook, TruthRenderer, TruthWorld
 from cam2sim.splat.geometry import chunk_membership, chunks_by_distance, voxel_downsample
 from cam2sim.splat.masks import sky_mask_classical

@@ -22,9 +22,10 @@ from cam2sim.core.config import (
 )
 from cam2sim.core.errors import ConfigError, StageError
 from cam2sim.core.frames import Pose, WorldFrame
+from cam2sim.core.scene import Ground, SceneBox, StreetScene
 from cam2sim.core.table import read_table
 from cam2sim.core.workspace import Workspace
-from cam2sim.detect.synthetic import Ground, LidarModel, SceneBox, StreetScene, scan_scene
+from cam2sim.demo.lidar import LidarModel, scan_scene
 from cam2sim.detect.vehicles import ParkedVehicles
 from cam2sim.recording.bagwriter import BagWriter
 from cam2sim.stages.detect import DetectOptions, run_detect

@@ -11,20 +11,17 @@ import numpy as np
 import pytest
 
 from cam2sim.core.frames import Pose, quat_rotate
-from cam2sim.detect.detector import LidarDetector, load_detector
-from cam2sim.detect.lidar import GeometricDetector, GeometricOptions
-from cam2sim.detect.synthetic import (
+from cam2sim.core.scene import Ground, SceneBox, StreetScene, car_on_ground
+from cam2sim.demo.lidar import (
     LABEL_GROUND,
     LABEL_STRUCTURE,
-    Ground,
     LidarModel,
-    SceneBox,
-    StreetScene,
     SyntheticScan,
-    car_on_ground,
     parked_street,
     scan_scene,
 )
+from cam2sim.detect.detector import LidarDetector, load_detector
+from cam2sim.detect.lidar import GeometricDetector, GeometricOptions
 
 if TYPE_CHECKING:
     from pathlib import Path

@@ -23,8 +23,9 @@ from cam2sim.core.config import (
 )
 from cam2sim.core.errors import ConfigError
 from cam2sim.core.frames import Pose
+from cam2sim.core.scene import Ground, SceneBox, StreetScene
 from cam2sim.core.workspace import Workspace
-from cam2sim.detect.synthetic import Ground, LidarModel, SceneBox, StreetScene, scan_scene
+from cam2sim.demo.lidar import LidarModel, scan_scene
 from cam2sim.map.convert import has_carla
 from cam2sim.recording.bagwriter import BagWriter
 from cam2sim.stages.pipeline import (

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, Final
 import numpy as np
 
 from cam2sim.core.frames import Pose
+from cam2sim.demo.lidar import LidarModel, scan_scene
 from cam2sim.demo.rig import (
     CAMERA_HZ,
     CAMERA_SIZE,
@@ -28,7 +29,6 @@ from cam2sim.demo.rig import (
     camera_matrix,
     demo_camera,
 )
-from cam2sim.detect.synthetic import LidarModel, scan_scene
 from cam2sim.recording.bagwriter import BagWriter
 from cam2sim.render.look import frame_noise_rng, photographic_look
 from cam2sim.render.raster import RasterRenderer

@@ -72,7 +72,7 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
 
-    from cam2sim.detect.synthetic import StreetScene
+    from cam2sim.core.scene import StreetScene
     from cam2sim.render.raster import RasterScene
 
 __all__ = [

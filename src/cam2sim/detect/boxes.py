@@ -20,7 +20,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["Axes", "Boxes", "footprint_corners"]
+__all__ = ["Axes", "Boxes"]
 
 Axes = Literal["link", "optical"]
 
@@ -114,22 +114,3 @@ class Boxes:
             np.concatenate([p.sigma_m for p in parts]),
             parts[0].axes,
         )
-
-
-def footprint_corners(
-    xy: npt.ArrayLike, yaw: npt.ArrayLike, length: npt.ArrayLike, width: npt.ArrayLike
-) -> npt.NDArray[np.float64]:
-    """``(N, 4, 2)`` rectangle corners: front-left, front-right, rear-right, rear-left."""
-    c = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-    yaw_a = np.asarray(yaw, dtype=np.float64).reshape(-1)
-    hl = np.asarray(length, dtype=np.float64).reshape(-1) / 2.0
-    hw = np.asarray(width, dtype=np.float64).reshape(-1) / 2.0
-    fwd = np.stack([np.cos(yaw_a), np.sin(yaw_a)], -1)
-    left = np.stack([-np.sin(yaw_a), np.cos(yaw_a)], -1)
-    signs = np.array([[1.0, 1.0], [1.0, -1.0], [-1.0, -1.0], [-1.0, 1.0]])
-    corners: npt.NDArray[np.float64] = (
-        c[:, None, :]
-        + signs[None, :, 0:1] * (hl[:, None, None] * fwd[:, None, :])
-        + signs[None, :, 1:2] * (hw[:, None, None] * left[:, None, :])
-    )
-    return corners

@@ -28,9 +28,9 @@ import numpy as np
 import pydantic
 
 from cam2sim.core.errors import StageError
+from cam2sim.core.scene import Ground, SceneBox, StreetScene
 from cam2sim.core.schema import Artifact
 from cam2sim.core.workspace import TRUTH_WORLD_FILE
-from cam2sim.detect.synthetic import Ground, SceneBox, StreetScene
 from cam2sim.render.look import frame_noise_rng, photographic_look
 from cam2sim.render.raster import (
     BuildingFootprint,

@@ -6,8 +6,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cam2sim.core.footprint import footprint_corners
 from cam2sim.core.plots import pyplot, save_figure
-from cam2sim.detect.boxes import footprint_corners
 
 if TYPE_CHECKING:
     from pathlib import Path

@@ -31,12 +31,12 @@ import numpy as np
 from cam2sim import __version__
 from cam2sim.core.errors import Cam2SimError
 from cam2sim.core.files import write_text_atomic
+from cam2sim.core.footprint import footprint_corners
 from cam2sim.core.native import native_stderr_silenced
 from cam2sim.core.plots import pyplot
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.run_record import RunEvents, RunRecord
 from cam2sim.core.workspace import dataset_paths, run_paths
-from cam2sim.detect.boxes import footprint_corners
 from cam2sim.metrics import splat_gate as gate
 from cam2sim.metrics.behaviour import (
     CAMERA_LABELS,

@@ -17,19 +17,44 @@ them and marks them in ``scenario.png``):
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from cam2sim.detect.boxes import footprint_corners
+from cam2sim.core.footprint import footprint_corners
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     import numpy.typing as npt
 
-    from cam2sim.detect.vehicles import ParkedVehicle
     from cam2sim.map.query import RoadMap
 
-__all__ = ["CheckOptions", "check_parked", "footprints"]
+__all__ = ["CheckOptions", "ParkedBox", "check_parked", "footprints"]
+
+
+class ParkedBox(Protocol):
+    """What the checks read of a parked vehicle (the detect stage's ``ParkedVehicle`` is one)."""
+
+    @property
+    def id(self) -> str:
+        """Stable identifier."""
+        ...
+
+    @property
+    def position(self) -> tuple[float, float, float]:
+        """Centre, metres, world frame."""
+        ...
+
+    @property
+    def yaw(self) -> float:
+        """Heading of the length axis, radians."""
+        ...
+
+    @property
+    def size(self) -> tuple[float, float, float]:
+        """Length, width, height, metres."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -48,7 +73,7 @@ class CheckOptions:
     overlap_m2: float = 0.2
 
 
-def footprints(vehicles: list[ParkedVehicle]) -> npt.NDArray[np.object_]:
+def footprints(vehicles: Sequence[ParkedBox]) -> npt.NDArray[np.object_]:
     """Shapely polygons of the vehicles' footprints."""
     import shapely  # noqa: PLC0415
 
@@ -64,7 +89,7 @@ def footprints(vehicles: list[ParkedVehicle]) -> npt.NDArray[np.object_]:
 
 
 def check_parked(
-    vehicles: list[ParkedVehicle],
+    vehicles: Sequence[ParkedBox],
     centre_path: npt.ArrayLike,
     ego_width_m: float,
     road_map: RoadMap | None,

@@ -21,7 +21,7 @@ import numpy.typing as npt
 import pydantic
 
 from cam2sim.core.errors import StageError
-from cam2sim.detect.boxes import footprint_corners
+from cam2sim.core.footprint import footprint_corners
 from cam2sim.sim.control import (
     EpisodeRuleOptions,
     EventLog,

@@ -1,10 +1,12 @@
-"""A synthetic street and a rotating multi-beam LiDAR that scans it, for tests and benchmarks.
+"""A rotating multi-beam LiDAR that scans a ground-truth world (:mod:`cam2sim.core.scene`).
 
-The scene lives in a world frame (x, y horizontal, z up, metres): a ground made of a road plane
-(optionally sloped) with kerbs and raised sidewalks along the world x axis, static boxes
-(buildings, walls) and parked cars. Cars are oriented boxes (their ground-truth boxes); the
-scanner draws each as a body plus a narrower, shorter cabin, with the ground visible under the
-body, so the returns have the profile of a real car rather than of a brick.
+The demo records its LiDAR with it; tests and benchmarks of the detector scan streets of their
+own. The scene (:class:`~cam2sim.core.scene.StreetScene`) lives in a world frame (x, y
+horizontal, z up, metres): a ground made of a road plane (optionally sloped) with kerbs and
+raised sidewalks along the world x axis, static boxes (buildings, walls) and parked cars. Cars
+are oriented boxes (their ground-truth boxes); the scanner draws each as a body plus a
+narrower, shorter cabin, with the ground visible under the body, so the returns have the
+profile of a real car rather than of a brick.
 
 The LiDAR is a grid of ``beams x azimuths`` rays from one origin (no motion during the sweep),
 cast at every surface at once with numpy: ray-plane intersections for the ground, slab tests for
@@ -22,12 +24,13 @@ Example::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from cam2sim.core.frames.rotation import quat_rotate
+from cam2sim.core.scene import Ground, SceneBox, StreetScene, car_on_ground
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -37,12 +40,8 @@ if TYPE_CHECKING:
 __all__ = [
     "LABEL_GROUND",
     "LABEL_STRUCTURE",
-    "Ground",
     "LidarModel",
-    "SceneBox",
-    "StreetScene",
     "SyntheticScan",
-    "car_on_ground",
     "parked_street",
     "scan_scene",
 ]
@@ -55,67 +54,6 @@ LABEL_STRUCTURE = -2
 _REFLECTIVITY = {LABEL_GROUND: 0.15, LABEL_STRUCTURE: 0.35}
 _CAR_REFLECTIVITY = 0.6
 _RAY_BLOCK = 65_536  # rays per block when casting against the ground (bounds temporaries)
-
-
-@dataclass(frozen=True)
-class SceneBox:
-    """An upright box in the world frame, turned about z only.
-
-    Attributes:
-        center: ``(3,)`` geometric centre, metres, world frame.
-        size: ``(3,)`` length (along ``yaw``), width, height, metres.
-        yaw: Angle of the length axis, radians CCW from world +x.
-    """
-
-    center: tuple[float, float, float]
-    size: tuple[float, float, float]
-    yaw: float
-
-
-@dataclass(frozen=True)
-class Ground:
-    """A road plane with kerbs: the road is ``|y| <= road_half_width_m``, sidewalks beyond.
-
-    Heights follow ``z = height_m + slope[0] * x + slope[1] * y`` on the road and
-    ``kerb_height_m`` more on the sidewalks; the kerbs are vertical faces at
-    ``y = ±road_half_width_m`` (the street runs along world x).
-
-    Attributes:
-        height_m: Road height at the world origin, metres. Default 0.
-        slope: ``(dz/dx, dz/dy)`` of the road, dimensionless. Default flat.
-        road_half_width_m: Half the kerb-to-kerb width, metres. Default 5.0.
-        kerb_height_m: Sidewalk height above the road, metres; 0 for no kerb. Default 0.12.
-    """
-
-    height_m: float = 0.0
-    slope: tuple[float, float] = (0.0, 0.0)
-    road_half_width_m: float = 5.0
-    kerb_height_m: float = 0.12
-
-    def height_at(self, xy: npt.ArrayLike) -> npt.NDArray[np.float64]:
-        """Ground height, metres, under ``(..., 2)`` world positions (sidewalks included)."""
-        p = np.asarray(xy, dtype=np.float64)
-        road = self.height_m + self.slope[0] * p[..., 0] + self.slope[1] * p[..., 1]
-        out: npt.NDArray[np.float64] = road + np.where(
-            np.abs(p[..., 1]) > self.road_half_width_m, self.kerb_height_m, 0.0
-        )
-        return out
-
-
-@dataclass(frozen=True)
-class StreetScene:
-    """Everything the synthetic LiDAR can hit.
-
-    Attributes:
-        ground: The road and sidewalks.
-        cars: Ground-truth boxes of the parked cars; a scan labels their returns by index.
-        structures: Buildings and walls (boxes reaching below the ground, so slopes leave no
-            gap under them).
-    """
-
-    ground: Ground = field(default_factory=Ground)
-    cars: tuple[SceneBox, ...] = ()
-    structures: tuple[SceneBox, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -163,14 +101,6 @@ class SyntheticScan:
         """``(n_cars,)`` number of returns on each car."""
         cars = self.labels[self.labels >= 0]
         return np.bincount(cars, minlength=n_cars).astype(np.int64)
-
-
-def car_on_ground(
-    ground: Ground, xy: tuple[float, float], yaw: float, size: tuple[float, float, float]
-) -> SceneBox:
-    """Return the box of a car standing on ``ground`` at world ``xy`` (metres), turned ``yaw``."""
-    z = float(ground.height_at(np.asarray(xy)))
-    return SceneBox((xy[0], xy[1], z + size[2] / 2.0), size, yaw)
 
 
 def _car_parts(car: SceneBox) -> list[SceneBox]:
