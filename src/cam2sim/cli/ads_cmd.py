@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from cam2sim.cli.display import console, error_exit, progress_bars
+from cam2sim.cli.display import StageErrorGroup, console, error_exit, progress_bars
 from cam2sim.core.errors import Cam2SimError
 from cam2sim.core.workspace import Workspace
 
@@ -17,6 +17,7 @@ if TYPE_CHECKING:
 __all__ = ["ads_app"]
 
 ads_app = typer.Typer(
+    cls=StageErrorGroup,
     help="The system under test: train DAVE-2 on the recording, export it, serve it.",
     no_args_is_help=True,
     rich_markup_mode=None,  # click's plain help: readable at 80 columns
@@ -66,12 +67,9 @@ def train(
         recovery_deg=recovery_deg,
         seed=seed,
     )
-    try:
-        ws = Workspace.open(workspace)
-        with progress_bars() as sink:
-            result = train_ads(ws, options=opts, force=force, progress=sink)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    ws = Workspace.open(workspace)
+    with progress_bars() as sink:
+        result = train_ads(ws, options=opts, force=force, progress=sink)
     rep = result.report
     if rep is None:
         console.print(f"{result.model} is up to date (use --force to train again)")
@@ -114,12 +112,9 @@ def export(
     from cam2sim.stages.ads import export_ads  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     del onnx  # ONNX is the one export format; the flag mirrors the documented command
-    try:
-        ws = Workspace.open(workspace)
-        with progress_bars() as sink:
-            result = export_ads(ws, out=out, progress=sink)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    ws = Workspace.open(workspace)
+    with progress_bars() as sink:
+        result = export_ads(ws, out=out, progress=sink)
     rep = result.report
     console.print(
         f"{result.path}: opset {rep.opset}, max |torch - onnxruntime| "
@@ -169,7 +164,5 @@ def serve(
             )
 
         run_server(spec, host=host, port=port, allow_remote=allow_remote, clip=clip, on_ready=ready)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
     except KeyboardInterrupt:
         console.print("server stopped")

@@ -7,8 +7,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from cam2sim.cli.display import console, error_exit, print_table, progress_bars
-from cam2sim.core.errors import Cam2SimError
+from cam2sim.cli.display import console, print_table, progress_bars
 
 if TYPE_CHECKING:
     from cam2sim.campaign.summary import SummaryRow
@@ -70,11 +69,8 @@ def campaign(
     from cam2sim.campaign.runner import run_campaign  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     executor = LocalPool(workers) if ray is None else RayCluster(ray, num_cpus=workers)
-    try:
-        with progress_bars() as sink:
-            result = run_campaign(plan, executor=executor, retry_failed=retry_failed, progress=sink)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    with progress_bars() as sink:
+        result = run_campaign(plan, executor=executor, retry_failed=retry_failed, progress=sink)
     _print_summary(result.summary)
     rate = 60.0 * result.ran / result.seconds if result.seconds > 0 and result.ran else 0.0
     console.print(

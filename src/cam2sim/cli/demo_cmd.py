@@ -8,10 +8,9 @@ from typing import Annotated
 
 import typer
 
-from cam2sim.cli.display import console, error_exit, progress_bars
+from cam2sim.cli.display import console, progress_bars
 from cam2sim.cli.options import SkipOption, StepsOption, comma_list
 from cam2sim.cli.run_pipeline_cmd import _finish
-from cam2sim.core.errors import Cam2SimError
 
 __all__ = ["demo"]
 
@@ -75,22 +74,19 @@ def demo(
     from cam2sim.stages.pipeline import STEPS  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     started = time.perf_counter()
-    try:
-        source = WorldSource(
-            builtin=world, osm=osm, route=route if route is None else (route[0], route[1])
+    source = WorldSource(
+        builtin=world, osm=osm, route=route if route is None else (route[0], route[1])
+    )
+    options = ExperimentOptions(
+        runs=runs, seed=seed, steps=comma_list(steps) or STEPS, skip=comma_list(skip)
+    )
+    with progress_bars() as sink:
+        done = run_experiment(
+            out,
+            source,
+            options,
+            progress=sink,
+            say=lambda line: console.print(line, highlight=False),
         )
-        options = ExperimentOptions(
-            runs=runs, seed=seed, steps=comma_list(steps) or STEPS, skip=comma_list(skip)
-        )
-        with progress_bars() as sink:
-            done = run_experiment(
-                out,
-                source,
-                options,
-                progress=sink,
-                say=lambda line: console.print(line, highlight=False),
-            )
-    except Cam2SimError as err:
-        raise error_exit(err) from None
     ws, result = done.ws, done.result
     _finish(ws, result, time.perf_counter() - started)

@@ -8,8 +8,7 @@ from typing import Annotated
 
 import typer
 
-from cam2sim.cli.display import console, error_exit, print_table, progress_bars
-from cam2sim.core.errors import Cam2SimError
+from cam2sim.cli.display import console, print_table, progress_bars
 from cam2sim.core.workspace import Workspace
 
 __all__ = ["SourceChoice", "detect", "refine"]
@@ -56,20 +55,17 @@ def detect(
     from cam2sim.detect.fusion import FusionOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.stages.detect import DetectOptions, run_detect  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
-    try:
-        options = DetectOptions(
-            source=None if source is None else source.value,
-            model=model,
-            every=every,
-            fusion=FusionOptions(min_hits=min_hits, max_range_m=max_range),
-            snap=snap,
-            workers=workers,
-        )
-        ws = Workspace.open(workspace)
-        with progress_bars() as sink:
-            result = run_detect(ws, options=options, force=force, progress=sink)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    options = DetectOptions(
+        source=None if source is None else source.value,
+        model=model,
+        every=every,
+        fusion=FusionOptions(min_hits=min_hits, max_range_m=max_range),
+        snap=snap,
+        workers=workers,
+    )
+    ws = Workspace.open(workspace)
+    with progress_bars() as sink:
+        result = run_detect(ws, options=options, force=force, progress=sink)
     doc = result.vehicles
     if doc is None:
         console.print(f"{result.path} is up to date (use --force to run again)")
@@ -124,7 +120,5 @@ def refine(
     try:
         ws = Workspace.open(workspace)
         serve_editor(ws, port=port, open_browser=open_browser, on_ready=ready)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
     except KeyboardInterrupt:
         console.print("editor stopped")

@@ -6,9 +6,10 @@ import contextlib
 import logging
 import time
 import warnings
-from typing import IO, TYPE_CHECKING, TextIO
+from typing import IO, TYPE_CHECKING, Any, ClassVar, TextIO
 
 import typer
+import typer.core
 from rich.console import Console
 from rich.logging import RichHandler
 from rich.markup import escape
@@ -31,8 +32,11 @@ if TYPE_CHECKING:
 
     from cam2sim.metrics.drive_quality import DriveMetrics
 
+from cam2sim.core.errors import Cam2SimError
+
 __all__ = [
     "LineProgress",
+    "StageErrorGroup",
     "console",
     "error_console",
     "error_exit",
@@ -45,6 +49,27 @@ __all__ = [
 
 console = Console()
 error_console = Console(stderr=True)
+
+
+class StageErrorGroup(typer.core.TyperGroup):
+    """A command group whose commands' stage errors end as one ``error:`` line.
+
+    The root group (``cam2sim``) and the sub-command groups (``cam2sim ads``, ``cam2sim
+    evaluate``) use it, so that no command catches :class:`~cam2sim.core.errors.Cam2SimError`
+    itself and a sub-group run on its own prints the same line. ``debug`` (the root's
+    ``--debug``) lets the traceback through instead.
+    """
+
+    debug: ClassVar[bool] = False
+
+    def invoke(self, ctx: Any) -> Any:
+        """Run the command; a stage error becomes one ``error:`` line and exit code 1."""
+        try:
+            return super().invoke(ctx)
+        except Cam2SimError as err:
+            if StageErrorGroup.debug:
+                raise
+            raise error_exit(err) from None
 
 
 def error_exit(err: BaseException) -> typer.Exit:

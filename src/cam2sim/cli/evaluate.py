@@ -10,13 +10,12 @@ import typer
 from rich.table import Table
 
 from cam2sim.cli.display import (
+    StageErrorGroup,
     console,
-    error_exit,
     print_behaviour,
     print_table,
     progress_bars,
 )
-from cam2sim.core.errors import Cam2SimError
 from cam2sim.core.files import atomic_folder
 from cam2sim.core.workspace import Workspace
 
@@ -29,6 +28,7 @@ if TYPE_CHECKING:
 __all__ = ["evaluate_app"]
 
 evaluate_app = typer.Typer(
+    cls=StageErrorGroup,
     help="Score simulated runs and images against the real drive.",
     no_args_is_help=True,
     add_completion=False,
@@ -115,12 +115,9 @@ def images(
         lpips_weights=lpips_weights,
         batch_size=batch_size,
     )
-    try:
-        with progress_bars() as sink:
-            result = evaluate_image_folders(real_dir, sim_dir, options=options, progress=sink)
-        json_path, csv_path = write_image_quality(result, out)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    with progress_bars() as sink:
+        result = evaluate_image_folders(real_dir, sim_dir, options=options, progress=sink)
+    json_path, csv_path = write_image_quality(result, out)
     s = result.summary
     rows = [("PSNR dB", s["psnr_db"], ".2f"), ("SSIM", s["ssim"], ".4f")]
     if result.lpips_net is not None:
@@ -172,24 +169,19 @@ def semantic(
         evaluate_semantic_folders,
     )
 
-    try:
-        pal = Palette.from_yaml(palette) if palette is not None else Palette.cityscapes()
-        if tolerance is not None:
-            pal = replace(pal, tolerance=tolerance)
-        options = SemanticOptions(palette=pal, hood_rows=hood_rows, hood_mask=hood_mask)
-        with progress_bars() as sink:
-            if comparison:
-                with atomic_folder(out / "comparison") as tmp:
-                    result = evaluate_semantic_folders(
-                        real_dir, sim_dir, options=options, comparison_dir=tmp, progress=sink
-                    )
-            else:
+    pal = Palette.from_yaml(palette) if palette is not None else Palette.cityscapes()
+    if tolerance is not None:
+        pal = replace(pal, tolerance=tolerance)
+    options = SemanticOptions(palette=pal, hood_rows=hood_rows, hood_mask=hood_mask)
+    with progress_bars() as sink:
+        if comparison:
+            with atomic_folder(out / "comparison") as tmp:
                 result = evaluate_semantic_folders(
-                    real_dir, sim_dir, options=options, progress=sink
+                    real_dir, sim_dir, options=options, comparison_dir=tmp, progress=sink
                 )
-        result.save(out / "semantic.json")
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+        else:
+            result = evaluate_semantic_folders(real_dir, sim_dir, options=options, progress=sink)
+    result.save(out / "semantic.json")
     s = result.summary
     rows = [(f"IoU {name}", s.classes[name], ".4f") for name in result.classes]
     rows.append(("mIoU", s.miou, ".4f"))
@@ -242,19 +234,16 @@ def drive(
     from cam2sim.metrics.drive_quality import DriveOptions, Segment  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.stages.evaluate import write_drive_evaluation  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
-    try:
-        real_runs = load_runs(real, real=True, crs=real_crs)
-        sim_runs = load_runs(sim, real=False, xodr=xodr) if sim else []
-        seg = Segment.load(segment) if segment else None
-        ev = write_drive_evaluation(  # runs in a ground-truth world (method real) are real
-            real_runs,
-            sim_runs,
-            out,
-            segment=seg,
-            options=DriveOptions(frechet_points=frechet_points),
-        )
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    real_runs = load_runs(real, real=True, crs=real_crs)
+    sim_runs = load_runs(sim, real=False, xodr=xodr) if sim else []
+    seg = Segment.load(segment) if segment else None
+    ev = write_drive_evaluation(  # runs in a ground-truth world (method real) are real
+        real_runs,
+        sim_runs,
+        out,
+        segment=seg,
+        options=DriveOptions(frechet_points=frechet_points),
+    )
     _print_drive_metrics(ev.metrics)
     console.print(f"wrote {out / 'metrics.json'} and 3 figures", highlight=False)
 
@@ -334,16 +323,13 @@ def workspace(
     from cam2sim.metrics.drive_quality import DriveMetrics  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.stages.evaluate import EvaluateOptions, evaluate_workspace  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
-    try:
-        ws = Workspace.open(workspace)
-        given = tuple(real or ())
-        found = (ws.real_dir,) if ws.real_dir.is_dir() else ()
-        options = EvaluateOptions(real=given or found, real_crs=real_crs, force=force)
-        with progress_bars() as sink:
-            result = evaluate_workspace(ws, options=options, progress=sink)
-        metrics = DriveMetrics.load(result.metrics)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    ws = Workspace.open(workspace)
+    given = tuple(real or ())
+    found = (ws.real_dir,) if ws.real_dir.is_dir() else ()
+    options = EvaluateOptions(real=given or found, real_crs=real_crs, force=force)
+    with progress_bars() as sink:
+        result = evaluate_workspace(ws, options=options, progress=sink)
+    metrics = DriveMetrics.load(result.metrics)
     _print_drive_metrics(metrics)
     for note in result.notes:
         console.print(note, highlight=False)

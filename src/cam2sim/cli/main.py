@@ -18,9 +18,9 @@ from cam2sim.cli.campaign_cmd import campaign
 from cam2sim.cli.demo_cmd import demo
 from cam2sim.cli.detect_cmd import detect, refine
 from cam2sim.cli.display import (
+    StageErrorGroup,
     console,
     error_console,
-    error_exit,
     print_table,
     progress_bars,
     setup_logging,
@@ -34,7 +34,7 @@ from cam2sim.cli.run_pipeline_cmd import run
 from cam2sim.cli.scenario_cmd import scenario
 from cam2sim.cli.splat_cmd import splat
 from cam2sim.core.config import AxisConvention
-from cam2sim.core.errors import Cam2SimError, ConfigError
+from cam2sim.core.errors import ConfigError
 from cam2sim.core.workspace import Workspace
 
 __all__ = ["app", "main"]
@@ -55,11 +55,12 @@ COMMAND_ORDER = (
 """``cam2sim --help`` lists the commands in this order: as a user runs them."""
 
 
-class _Guarded(typer.core.TyperGroup):
+class _Guarded(StageErrorGroup):
     """The root command group: an error no stage anticipated ends in one line, not a traceback.
 
-    Stage errors (:class:`~cam2sim.core.errors.Cam2SimError`) are printed by each command; this
-    catches the rest (a bug, a full disk, a permission denied) and names it with a hint.
+    Every command's stage errors (:class:`~cam2sim.core.errors.Cam2SimError`) end here, as one
+    ``error: <message>`` line (:func:`~cam2sim.cli.display.error_exit`); so does the rest (a
+    bug, a full disk, a permission denied), named with a hint. No command catches them itself.
     ``--debug`` shows the traceback instead.
     """
 
@@ -77,10 +78,6 @@ class _Guarded(typer.core.TyperGroup):
         except KeyboardInterrupt:
             error_console.print("interrupted; re-run the same command to resume", highlight=False)
             raise typer.Exit(code=130) from None
-        except Cam2SimError as err:
-            if _state["debug"]:
-                raise
-            raise error_exit(err) from None
         except Exception as err:
             if isinstance(err, BrokenPipeError) and _stdout_reader_gone():
                 raise  # `cam2sim ... | head`: click's main ends quietly, as shell tools do
@@ -178,6 +175,7 @@ def _root(
     del version
     _state["verbose"] = verbose
     _state["debug"] = debug
+    StageErrorGroup.debug = debug
     _state["progress"] = not no_progress
     show_progress(enabled=not no_progress)
     setup_logging(verbose=verbose)
@@ -195,11 +193,8 @@ def inspect(
 
     from cam2sim.recording.summary import summarize_recording  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
-    try:
-        with progress_bars(enabled=bool(_state["progress"])) as sink:
-            summary = summarize_recording(bags, progress=sink)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    with progress_bars(enabled=bool(_state["progress"])) as sink:
+        summary = summarize_recording(bags, progress=sink)
     table = Table(title=f"{', '.join(summary.paths)}  ({summary.duration_s:.2f} s)")
     for col, justify in (
         ("topic", "left"),
@@ -238,10 +233,7 @@ def init(
     """
     from cam2sim.stages.init import init_workspace  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
-    try:
-        result = init_workspace(workspace, bag, force=force)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    result = init_workspace(workspace, bag, force=force)
     console.print(f"created workspace [bold]{result.workspace.root}[/]")
     for note in result.notes:
         console.print(f"  - {note}", highlight=False)
@@ -259,12 +251,9 @@ def extract(
     """
     from cam2sim.stages.extract import extract as run_extract  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
-    try:
-        ws = Workspace.open(workspace)
-        with progress_bars(enabled=bool(_state["progress"])) as sink:
-            result = run_extract(ws, force=force, progress=sink)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    ws = Workspace.open(workspace)
+    with progress_bars(enabled=bool(_state["progress"])) as sink:
+        result = run_extract(ws, force=force, progress=sink)
     info = result.info
     if result.skipped:
         console.print("dataset is up to date (use --force to re-extract)")
@@ -327,21 +316,18 @@ def import_(
     """
     from cam2sim.stages.image_import import ImportOptions, import_images  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
-    try:
-        opts = ImportOptions(
-            poses=poses,
-            calibration=calibration,
-            crs=crs,
-            axis_convention=axis_convention,
-            fps=fps,
-            signals=tuple(_name_path(s) for s in signal or ()),
-            pose_offset_m=_xyz(pose_offset) if pose_offset else None,
-            rig=rig,
-        )
-        with progress_bars(enabled=bool(_state["progress"])) as sink:
-            result = import_images(workspace, images, options=opts, progress=sink)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    opts = ImportOptions(
+        poses=poses,
+        calibration=calibration,
+        crs=crs,
+        axis_convention=axis_convention,
+        fps=fps,
+        signals=tuple(_name_path(s) for s in signal or ()),
+        pose_offset_m=_xyz(pose_offset) if pose_offset else None,
+        rig=rig,
+    )
+    with progress_bars(enabled=bool(_state["progress"])) as sink:
+        result = import_images(workspace, images, options=opts, progress=sink)
     info = result.info
     kind = "pose-less " if info.pose_less else ""
     console.print(f"{result.dataset_dir}: {kind}dataset of {info.counts.frames} frames")

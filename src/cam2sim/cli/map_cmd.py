@@ -8,9 +8,8 @@ from typing import Annotated
 
 import typer
 
-from cam2sim.cli.display import console, error_exit, progress_bars
+from cam2sim.cli.display import console, progress_bars
 from cam2sim.cli.options import comma_list
-from cam2sim.core.errors import Cam2SimError
 from cam2sim.core.workspace import Workspace
 from cam2sim.map.convert import CARLA_ROAD_TYPES, ConvertOptions
 from cam2sim.map.overpass import DEFAULT_URL, OverpassOptions
@@ -110,31 +109,28 @@ def map_(
     from cam2sim.map.trajectory_road import TrajectoryRoadOptions  # noqa: PLC0415 -- lazy: numpy
     from cam2sim.stages.map import MapOptions, build_map  # noqa: PLC0415 -- lazy: imports shapely
 
-    try:
-        options = MapOptions(
-            osm=osm,
-            road=road.value,
-            xodr=xodr,
-            trajectory=TrajectoryRoadOptions(lanes=lanes),
-            margin_m=margin,
-            convert=ConvertOptions(
-                road_types=_road_types(road_types) or CARLA_ROAD_TYPES,
-                lane_width_m=lane_width,
-                sidewalks=sidewalks.value,
-                traffic_lights=traffic_lights,
-            ),
-            overpass=OverpassOptions(
-                url=overpass_url,
-                timeout_s=overpass_timeout,
-                retries=overpass_retries,
-                refresh=refresh_osm,
-            ),
-        )
-        ws = Workspace.open(workspace)
-        with progress_bars() as sink:
-            result = build_map(ws, options=options, force=force, progress=sink)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    options = MapOptions(
+        osm=osm,
+        road=road.value,
+        xodr=xodr,
+        trajectory=TrajectoryRoadOptions(lanes=lanes),
+        margin_m=margin,
+        convert=ConvertOptions(
+            road_types=_road_types(road_types) or CARLA_ROAD_TYPES,
+            lane_width_m=lane_width,
+            sidewalks=sidewalks.value,
+            traffic_lights=traffic_lights,
+        ),
+        overpass=OverpassOptions(
+            url=overpass_url,
+            timeout_s=overpass_timeout,
+            retries=overpass_retries,
+            refresh=refresh_osm,
+        ),
+    )
+    ws = Workspace.open(workspace)
+    with progress_bars() as sink:
+        result = build_map(ws, options=options, force=force, progress=sink)
     report = result.report
     if result.skipped:
         console.print("map is up to date (use --force to rebuild)")

@@ -7,8 +7,7 @@ from typing import Annotated
 
 import typer
 
-from cam2sim.cli.display import console, error_exit, progress_bars
-from cam2sim.core.errors import Cam2SimError
+from cam2sim.cli.display import console, progress_bars
 from cam2sim.core.workspace import Workspace
 
 __all__ = ["report"]
@@ -40,13 +39,10 @@ def report(
     from cam2sim.report.html import write_report  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.stages.evaluate import EvaluateOptions, evaluate_workspace  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
-    try:
-        ws = Workspace.open(workspace)
-        with progress_bars() as sink:
-            if real:  # scored against these drives first; the report itself only reads
-                options = EvaluateOptions(real=tuple(real), real_crs=real_crs)
-                evaluate_workspace(ws, options=options, progress=sink)
-            path = write_report(ws, out=out, progress=sink)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    ws = Workspace.open(workspace)
+    with progress_bars() as sink:
+        if real:  # scored against these drives first; the report itself only reads
+            options = EvaluateOptions(real=tuple(real), real_crs=real_crs)
+            evaluate_workspace(ws, options=options, progress=sink)
+        path = write_report(ws, out=out, progress=sink)
     console.print(str(path), highlight=False, soft_wrap=True)

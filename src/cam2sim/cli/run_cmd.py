@@ -8,14 +8,14 @@ from typing import Annotated, Any
 
 import typer
 
-from cam2sim.cli.display import console, error_exit, progress_bars
+from cam2sim.cli.display import console, progress_bars
 from cam2sim.cli.options import (
     CarlaHostOption,
     CarlaPortOption,
     SimChoice,
     SimOption,
 )
-from cam2sim.core.errors import Cam2SimError, ConfigError
+from cam2sim.core.errors import ConfigError
 from cam2sim.core.schema import format_validation_error
 from cam2sim.core.workspace import Workspace
 
@@ -134,20 +134,17 @@ def replay(
     cams = ("raster", "splat") if camera is ReplayCamera.BOTH else (camera.value,)
     if sim is SimChoice.CARLA and "carla" not in cams:
         cams = (*cams, "carla")
-    try:
-        opts = ReplayOptions(
-            cameras=cams,  # type: ignore[arg-type]
-            frames=_span(frames),
-            image_size=_size(size),
-            video=video,
-            simulator=sim.value,
-            carla=_carla(workspace, sim, carla_host, carla_port),
-        )
-        ws = Workspace.open(workspace)
-        with progress_bars() as sink:
-            result = run_replay(ws, options=opts, progress=sink)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    opts = ReplayOptions(
+        cameras=cams,  # type: ignore[arg-type]
+        frames=_span(frames),
+        image_size=_size(size),
+        video=video,
+        simulator=sim.value,
+        carla=_carla(workspace, sim, carla_host, carla_port),
+    )
+    ws = Workspace.open(workspace)
+    with progress_bars() as sink:
+        result = run_replay(ws, options=opts, progress=sink)
     console.print(
         f"{result.folder}: {result.steps} frames replayed in {result.seconds:.1f} s",
         highlight=False,
@@ -200,27 +197,24 @@ def drive(
     from cam2sim.stages.runs import DriveOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.stages.runs import drive as run_drive  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
-    try:
-        opts = DriveOptions(
-            policy=policy,
-            camera=camera.value,
-            runs=runs,
-            speed_kmh=speed,
-            seed=seed,
-            policy_every=every,
-            image_size=_size(size),
-            save_frames=save_frames,
-            video=video,
-            simulator=sim.value,
-            carla=_carla(workspace, sim, carla_host, carla_port),
-            variation=_variation(vary),
-            judge="truth" if judge is Judge.TRUTH else "map",
-        )
-        ws = Workspace.open(workspace)
-        with progress_bars() as sink:
-            results = run_drive(ws, options=opts, progress=sink)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    opts = DriveOptions(
+        policy=policy,
+        camera=camera.value,
+        runs=runs,
+        speed_kmh=speed,
+        seed=seed,
+        policy_every=every,
+        image_size=_size(size),
+        save_frames=save_frames,
+        video=video,
+        simulator=sim.value,
+        carla=_carla(workspace, sim, carla_host, carla_port),
+        variation=_variation(vary),
+        judge="truth" if judge is Judge.TRUTH else "map",
+    )
+    ws = Workspace.open(workspace)
+    with progress_bars() as sink:
+        results = run_drive(ws, options=opts, progress=sink)
     for r in results:
         ends = ", ".join(f"{e['kind']} at {e['t']:.1f} s" for e in r.events) or "no event"
         console.print(f"{r.folder}: {r.steps} steps in {r.seconds:.1f} s ({ends})", highlight=False)

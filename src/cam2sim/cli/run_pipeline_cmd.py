@@ -12,14 +12,12 @@ from rich.table import Table
 from cam2sim.cli.display import (
     console,
     error_console,
-    error_exit,
     print_behaviour,
     print_table,
     progress_bars,
 )
 from cam2sim.cli.options import SkipOption, StepsOption, comma_list
 from cam2sim.core.config import load_config, save_config
-from cam2sim.core.errors import Cam2SimError
 from cam2sim.core.workspace import Workspace
 
 if TYPE_CHECKING:
@@ -139,28 +137,25 @@ def run(
     from cam2sim.stages.pipeline import STEPS, PipelineOptions, remember_inputs, run_pipeline  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.stages.variation import DEMO_RUN_VARIATION  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
-    try:
-        options = PipelineOptions(
-            osm=osm,
-            steps=comma_list(steps) or STEPS,
-            skip=comma_list(skip),
-            detect_model=detect_model,
-            real=tuple(real or ()),
-            real_crs=real_crs,
-            policy=policy,
-            cameras=tuple(camera) if camera else None,  # type: ignore[arg-type]
-            runs=runs,
-            steering_noise_std=DEMO_STEERING_NOISE if vary else 0.0,
-            run_variation=DEMO_RUN_VARIATION if vary else None,
-            splat_on_cpu=splat_on_cpu,
-            continue_on_error=continue_on_error,
-        )
-        ws = _workspace(out, list(bags or []), config)
-        options = remember_inputs(ws, options)  # a resume needs no --osm again
-        with progress_bars() as sink:
-            result = run_pipeline(ws, options=options, progress=sink)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    options = PipelineOptions(
+        osm=osm,
+        steps=comma_list(steps) or STEPS,
+        skip=comma_list(skip),
+        detect_model=detect_model,
+        real=tuple(real or ()),
+        real_crs=real_crs,
+        policy=policy,
+        cameras=tuple(camera) if camera else None,  # type: ignore[arg-type]
+        runs=runs,
+        steering_noise_std=DEMO_STEERING_NOISE if vary else 0.0,
+        run_variation=DEMO_RUN_VARIATION if vary else None,
+        splat_on_cpu=splat_on_cpu,
+        continue_on_error=continue_on_error,
+    )
+    ws = _workspace(out, list(bags or []), config)
+    options = remember_inputs(ws, options)  # a resume needs no --osm again
+    with progress_bars() as sink:
+        result = run_pipeline(ws, options=options, progress=sink)
     _finish(ws, result, sum(o.seconds for o in result.outcomes))
 
 

@@ -8,8 +8,7 @@ from typing import Annotated
 
 import typer
 
-from cam2sim.cli.display import console, error_exit, progress_bars
-from cam2sim.core.errors import Cam2SimError
+from cam2sim.cli.display import console, progress_bars
 from cam2sim.core.workspace import Workspace
 
 __all__ = ["HeadingChoice", "scenario"]
@@ -47,17 +46,14 @@ def scenario(
     """
     from cam2sim.stages.scenario import ScenarioOptions, run_scenario  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
-    try:
-        ws = Workspace.open(workspace)
-        with progress_bars() as sink:
-            result = run_scenario(
-                ws,
-                options=ScenarioOptions(heading=heading.value, keep_conflicts=keep_conflicts),
-                force=force,
-                progress=sink,
-            )
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    ws = Workspace.open(workspace)
+    with progress_bars() as sink:
+        result = run_scenario(
+            ws,
+            options=ScenarioOptions(heading=heading.value, keep_conflicts=keep_conflicts),
+            force=force,
+            progress=sink,
+        )
     doc = result.scenario
     if doc is None:
         console.print(f"{result.folder} is up to date (use --force to rebuild)")

@@ -8,7 +8,6 @@ from typing import Annotated, get_args
 import typer
 
 from cam2sim.cli.display import console, error_console, error_exit, progress_bars
-from cam2sim.core.errors import Cam2SimError
 from cam2sim.core.workspace import Workspace
 
 __all__ = ["splat"]
@@ -122,12 +121,9 @@ def splat(
         )
     except ValueError as err:
         raise error_exit(err) from None
-    try:
-        ws = Workspace.open(workspace)
-        with progress_bars() as sink:
-            result = run_splat(ws, options=options, force=force, progress=sink, ray=ray)
-    except Cam2SimError as err:
-        raise error_exit(err) from None
+    ws = Workspace.open(workspace)
+    with progress_bars() as sink:
+        result = run_splat(ws, options=options, force=force, progress=sink, ray=ray)
     if result.trained is not None:
         for chunk in result.trained.chunks:
             psnr = chunk.val_history[-1][1] if chunk.val_history else None
