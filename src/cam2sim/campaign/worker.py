@@ -24,8 +24,6 @@ from typing import TYPE_CHECKING, Any
 
 from cam2sim.campaign.state import RunOutcome, RunStatus
 from cam2sim.core.workspace import Workspace
-from cam2sim.scenario.model import Scenario
-from cam2sim.sim.builtin import BuiltinOptions
 from cam2sim.stages.runs import DriveOptions, drive
 
 if TYPE_CHECKING:
@@ -123,11 +121,6 @@ def _drive(spec: RunSpec) -> str:
     """Run the spec with ``cam2sim drive``'s code; return the run id."""
     ws = Workspace.open(Path(spec.workspace_path))
     d = spec.drive
-    sim = None
-    scenario = ws.scenario_path
-    if d.steering_noise_std and scenario.is_file():
-        calibration = Scenario.load(scenario).steering_calibration
-        sim = BuiltinOptions(calibration=calibration, steering_noise_std=d.steering_noise_std)
     options = DriveOptions(
         policy=spec.policy_arg,
         camera=spec.camera,
@@ -139,7 +132,7 @@ def _drive(spec: RunSpec) -> str:
         max_steps=d.max_steps,
         save_frames=d.save_frames,
         video=d.video,
-        sim=sim,
+        steering_noise_std=d.steering_noise_std,
         start_offset=(spec.lateral_m, spec.heading_deg),
     )
     (result,) = drive(ws, options=options)

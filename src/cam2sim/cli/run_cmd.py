@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from enum import StrEnum
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -18,6 +18,9 @@ from cam2sim.cli.options import (
 from cam2sim.core.errors import ConfigError
 from cam2sim.core.schema import format_validation_error
 from cam2sim.core.workspace import Workspace
+
+if TYPE_CHECKING:
+    from cam2sim.sim.carla_backend import CarlaOptions
 
 __all__ = ["drive", "replay"]
 
@@ -49,7 +52,7 @@ class Judge(StrEnum):
     TRUTH = "truth"
 
 
-def _carla(ws: Path, sim: SimChoice, host: str | None, port: int | None) -> object:
+def _carla(ws: Path, sim: SimChoice, host: str | None, port: int | None) -> CarlaOptions | None:
     """CARLA options: config.yaml's ``carla`` block, with --carla-host/--carla-port on top."""
     if sim is not SimChoice.CARLA or (host is None and port is None):
         return None  # the run reads config.yaml's carla block

@@ -30,7 +30,6 @@ from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.workspace import StepState, dataset_paths, hash_inputs, run_paths
 from cam2sim.render.truth import truth_world_path
 from cam2sim.scenario.model import Scenario
-from cam2sim.sim.builtin import BuiltinOptions
 from cam2sim.splat.prepare import PrepareOptions
 from cam2sim.splat.train import DensifyOptions, TrainOptions
 from cam2sim.stages.ads import TRAIN_STAGE, derive_steering, export_ads, train_ads
@@ -414,16 +413,6 @@ class _Pipeline:
             return ("truth", *(c for c in cams if c != "truth"))
         return cams
 
-    def _sim_options(self) -> Any:
-        """Builtin simulator options with the steering noise (None: the drive defaults)."""
-        if not self.options.steering_noise_std:
-            return None
-
-        sc = Scenario.load(self.ws.scenario_path)
-        return BuiltinOptions(
-            calibration=sc.steering_calibration, steering_noise_std=self.options.steering_noise_std
-        )
-
     # -- steps ------------------------------------------------------------------------------
     def extract(self, step: _Step) -> None:
         if self._imported():
@@ -579,13 +568,12 @@ class _Pipeline:
     def drive(self, step: _Step) -> None:
         self._require_motion("closed-loop drives follow the recorded route")
         policy = self._policy()
-        sim = self._sim_options()
         all_opts = [
             DriveOptions(
                 policy=policy,
                 camera=cam,
                 runs=self.options.runs,
-                sim=sim,
+                steering_noise_std=self.options.steering_noise_std,
                 variation=self.options.run_variation,
                 judge=self._judge(),
                 save_frames=self.options.save_frames,

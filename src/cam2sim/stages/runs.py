@@ -132,6 +132,9 @@ class DriveOptions:
         save_frames: Write the rendered frames.
         video: Write ``video.mp4``.
         sim: Builtin simulator options (None: defaults with the scenario's calibration).
+        steering_noise_std: Steering noise of the builtin simulator (steering units per step,
+            seeded per run) over ``sim``'s, so that repeated runs of a deterministic policy
+            differ; 0 keeps ``sim``'s (none by default).
         simulator: ``builtin`` (embedded) or ``carla`` (a running CARLA server).
         carla: CARLA backend options (host, port, mesh, blueprints...); None: defaults.
         carla_client_factory: Builds the ``carla.Client`` (tests and embedding; None: connect).
@@ -155,9 +158,10 @@ class DriveOptions:
     max_steps: int = 100_000
     save_frames: bool = False
     video: bool = False
-    sim: Any = field(default=None)
+    sim: BuiltinOptions | None = None
+    steering_noise_std: float = 0.0
     simulator: SimulatorName = "builtin"
-    carla: Any = field(default=None)
+    carla: CarlaOptions | None = None
     carla_client_factory: Any = field(default=None)
     start_offset: tuple[float, float] = (0.0, 0.0)
     variation: RunVariation | None = None
@@ -485,7 +489,10 @@ def _drive_one(
         sim = _open_carla(ctx, sim_opts, opts.carla_client_factory)
     else:
         base = opts.sim or BuiltinOptions(calibration=sc.steering_calibration)
-        sim_opts = base.model_copy(update={"seed": seed})
+        update: dict[str, Any] = {"seed": seed}
+        if opts.steering_noise_std:
+            update["steering_noise_std"] = opts.steering_noise_std
+        sim_opts = base.model_copy(update=update)
         sim = BuiltinSimulator(sim_opts)
         sim.load(*judged)
     try:
