@@ -40,7 +40,6 @@ from __future__ import annotations
 import logging
 import math
 import socket
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, Protocol, cast, runtime_checkable
 
@@ -63,6 +62,7 @@ from cam2sim.core.backends import (
     to_numpy,
 )
 from cam2sim.core.errors import ConfigError, StageError
+from cam2sim.sim.interface import Observation, SteeringPolicy
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -90,48 +90,6 @@ _SPECS: Final = (
     "'pure-pursuit', 'constant:VALUE' (e.g. constant:-10), a model file "
     f"({', '.join(_MODEL_SUFFIXES)}) or 'tcp://HOST:PORT'"
 )
-
-
-@dataclass(frozen=True, slots=True)
-class Observation:
-    """What a policy sees at one decision.
-
-    Attributes:
-        t: Simulated time since reset, seconds.
-        image: ``(H, W, 3)`` uint8 RGB frame of the run's camera; None when the run has none.
-        state: The ego vehicle's state at ``t``.
-    """
-
-    t: float
-    image: npt.NDArray[np.uint8] | None
-    state: VehicleState
-
-
-@runtime_checkable
-class SteeringPolicy(Protocol):
-    """Turns observations into steering commands (in the recording's steering unit)."""
-
-    @property
-    def name(self) -> str:
-        """Short label for reports and logs."""
-        ...
-
-    @property
-    def needs_image(self) -> bool:
-        """Whether :meth:`predict` uses ``Observation.image`` (False: the run may skip it)."""
-        ...
-
-    def reset(self) -> None:
-        """Forget any state: a new run starts."""
-        ...
-
-    def predict(self, obs: Observation) -> float:
-        """The steering command for ``obs``, in the recording's steering unit."""
-        ...
-
-    def close(self) -> None:
-        """Release models, sessions and connections."""
-        ...
 
 
 @runtime_checkable

@@ -27,6 +27,9 @@ from cam2sim.core.vehicle import (
 )
 
 if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
+
     from cam2sim.map.query import RoadMap
     from cam2sim.scenario.model import Scenario
 
@@ -35,10 +38,12 @@ __all__ = [
     "DEFAULT_CURVATURE_PER_UNIT",
     "Control",
     "EventKind",
+    "Observation",
     "PlanarPose",
     "SimEvent",
     "Simulator",
     "SteeringCalibration",
+    "SteeringPolicy",
     "VehicleState",
 ]
 
@@ -81,5 +86,51 @@ class Simulator(Protocol):
     def events(self) -> tuple[SimEvent, ...]:
         """Events since the last reset, in order."""
 
+    @property
+    def done(self) -> bool:
+        """Whether the episode has ended (an event that ends it, the route's end, a timeout)."""
+
     def close(self) -> None:
         """Release the backend's resources."""
+
+
+@dataclass(frozen=True, slots=True)
+class Observation:
+    """What a policy sees at one decision.
+
+    Attributes:
+        t: Simulated time since reset, seconds.
+        image: ``(H, W, 3)`` uint8 RGB frame of the run's camera; None when the run has none.
+        state: The ego vehicle's state at ``t``.
+    """
+
+    t: float
+    image: npt.NDArray[np.uint8] | None
+    state: VehicleState
+
+
+@runtime_checkable
+class SteeringPolicy(Protocol):
+    """Turns observations into steering commands (in the recording's steering unit)."""
+
+    @property
+    def name(self) -> str:
+        """Short label for reports and logs."""
+        ...
+
+    @property
+    def needs_image(self) -> bool:
+        """Whether :meth:`predict` uses ``Observation.image`` (False: the run may skip it)."""
+        ...
+
+    def reset(self) -> None:
+        """Forget any state: a new run starts."""
+        ...
+
+    def predict(self, obs: Observation) -> float:
+        """The steering command for ``obs``, in the recording's steering unit."""
+        ...
+
+    def close(self) -> None:
+        """Release models, sessions and connections."""
+        ...

@@ -42,10 +42,10 @@ from cam2sim.core.workspace import dataset_paths, run_paths
 from cam2sim.detect.route import MIN_ROUTE_M
 from cam2sim.metrics.splat_gate import gate_run, path_quality
 from cam2sim.render.truth import TRUTH_WORLD_FILE, TruthWorld, truth_world_path
-from cam2sim.scenario.body import body_point_positions
 from cam2sim.sim.builtin import BuiltinOptions, BuiltinSimulator
 from cam2sim.sim.carla_backend import CarlaOptions, CarlaSimulator
-from cam2sim.sim.interface import Control, PlanarPose
+from cam2sim.sim.episode import EpisodeOptions, run_episode
+from cam2sim.sim.interface import PlanarPose
 from cam2sim.splat.evaluate import SplatEval
 from cam2sim.stages.cameras import (
     TRUTH_CAMERA,
@@ -68,6 +68,7 @@ if TYPE_CHECKING:
 
     from cam2sim.core.workspace import Workspace
     from cam2sim.scenario.model import Scenario
+    from cam2sim.sim.interface import Simulator, SteeringPolicy, VehicleState
     from cam2sim.stages.variation import DrawnVariation, RunVariation
 
 __all__ = [
@@ -474,7 +475,7 @@ def drive(
 def _drive_one(
     ctx: RunContext,
     opts: DriveOptions,
-    policy: Any,
+    policy: SteeringPolicy,
     cameras: Cameras,
     seed: int,
     report: ProgressCallback,
@@ -483,18 +484,20 @@ def _drive_one(
     """One run; the builtin simulator checks road and collisions in ``judged``."""
     sc = ctx.scenario
     target = None if opts.speed_kmh is None else opts.speed_kmh / 3.6
-    sim: Any
+    sim: Simulator
+    sim_opts: BuiltinOptions | CarlaOptions
     if opts.simulator == "carla":
-        sim_opts = _carla_options(opts.carla, sc, seed, ctx.ws)
-        sim = _open_carla(ctx, sim_opts, opts.carla_client_factory)
+        carla_opts = _carla_options(opts.carla, sc, seed, ctx.ws)
+        sim, sim_opts = _open_carla(ctx, carla_opts, opts.carla_client_factory), carla_opts
     else:
         base = opts.sim or BuiltinOptions(calibration=sc.steering_calibration)
         update: dict[str, Any] = {"seed": seed}
         if opts.steering_noise_std:
             update["steering_noise_std"] = opts.steering_noise_std
-        sim_opts = base.model_copy(update=update)
-        sim = BuiltinSimulator(sim_opts)
-        sim.load(*judged)
+        builtin_opts = base.model_copy(update=update)
+        builtin = BuiltinSimulator(builtin_opts)
+        builtin.load(*judged)
+        sim, sim_opts = builtin, builtin_opts
     try:
         return _drive_loop(ctx, opts, policy, cameras, sim, sim_opts, target, seed, report)
     finally:
@@ -517,7 +520,9 @@ def _truth_judge(ctx: RunContext) -> tuple[Scenario, Any]:
     return ctx.scenario.model_copy(update={"parked": tuple(parked)}), road_map
 
 
-def _carla_options(options: Any, sc: Scenario, seed: int, ws: Workspace | None = None) -> Any:
+def _carla_options(
+    options: CarlaOptions | None, sc: Scenario, seed: int, ws: Workspace | None = None
+) -> CarlaOptions:
     """The CARLA options of a run: given ones, else config.yaml's ``carla`` block."""
     import pydantic  # noqa: PLC0415
 
@@ -535,7 +540,7 @@ def _carla_options(options: Any, sc: Scenario, seed: int, ws: Workspace | None =
     return base.model_copy(update=update)
 
 
-def _open_carla(ctx: RunContext, options: Any, client_factory: Any) -> Any:
+def _open_carla(ctx: RunContext, options: CarlaOptions, client_factory: Any) -> CarlaSimulator:
     sim = CarlaSimulator(options, workspace_root=ctx.ws.root, client_factory=client_factory)
     try:
         sim.load(ctx.scenario, ctx.road_map)
@@ -545,87 +550,77 @@ def _open_carla(ctx: RunContext, options: Any, client_factory: Any) -> Any:
     return sim
 
 
-def _drive_loop(  # noqa: PLR0912, PLR0913, PLR0915, PLR0917 - one run: setup, step loop, writing
+def _drive_loop(  # noqa: PLR0913, PLR0917 - one run: its context, options, parts, seed
     ctx: RunContext,
     opts: DriveOptions,
-    policy: Any,
+    policy: SteeringPolicy,
     cameras: Cameras,
-    sim: Any,
-    sim_opts: Any,
+    sim: Simulator,
+    sim_opts: BuiltinOptions | CarlaOptions,
     target: float | None,
     seed: int,
     report: ProgressCallback,
 ) -> RunResult:
-    from cam2sim.ads.policy import Observation  # noqa: PLC0415 -- lazy: imports cv2
-
+    """One run folder around :func:`~cam2sim.sim.episode.run_episode`: frames, tables, meta."""
     sc = ctx.scenario
     offset, target, drawn = _varied(sc, opts, seed, target)
-    state = sim.reset(_start_pose(sc, offset))
-    policy.reset()
     cam_name = "carla" if opts.camera == "carla" else next(iter(cameras.renderers), None)
-    camera = run_camera(sc, opts.image_size) if cam_name else None
-    height = camera.height if camera is not None else 0
+    view = run_camera(sc, opts.image_size) if cam_name else None
+    height = view.height if view is not None else 0
     band = policy_band(
         policy, cameras, cam_name, height, keep_frames=opts.save_frames or opts.video
     )
     run_id, tmp = _new_run_dir(ctx.ws, "drive", f"{policy.name}-{cam_name or 'none'}-s{seed}")
-    rows: dict[str, list[float]] = {
-        k: [] for k in ("t", "x", "y", "z", "heading", "speed", "steering", "wheel_angle")
-    }
-    decisions: list[tuple[float, float]] = []
     fps = 1.0 / sim_opts.dt / opts.policy_every
     video = _Video(run_paths(tmp).video, fps) if opts.video else None
-    ref_xyz = sc.vehicle.reference_xyz
-    command = 0.0
-    render_s = policy_s = 0.0
     coverage: list[float] = []  # the splat camera's, per frame
-    failure: dict[str, Any] | None = None
-    started = time.perf_counter()
-    steps = 0
+    camera = None
+    if cam_name == "carla":
+        carla_sim: Any = sim  # CARLA's own camera: the frame of the last tick
+
+        def camera(state: VehicleState) -> npt.NDArray[np.uint8]:
+            del state
+            image: npt.NDArray[np.uint8] = carla_sim.camera_images().rgb
+            return image
+
+    elif cam_name is not None and view is not None:
+        name, lens = cam_name, view
+
+        def camera(state: VehicleState) -> npt.NDArray[np.uint8]:
+            return vehicle_view(sc, state, cameras, name, lens, coverage, band)
+
+    def keep(image: npt.NDArray[np.uint8], step: int) -> None:
+        assert cam_name is not None  # frames come only from a camera
+        _keep_frame(image, run_paths(tmp).frames_dir(cam_name), step, opts.save_frames, video)
+
+    options = EpisodeOptions(
+        max_steps=opts.max_steps,
+        policy_every=opts.policy_every,
+        target_speed=target,
+        reference_xyz=sc.vehicle.reference_xyz,
+    )
     try:
-        for steps in range(1, opts.max_steps + 1):
-            if (steps - 1) % opts.policy_every == 0:
-                image = None
-                if cam_name is not None and camera is not None:  # the policy sees each camera frame
-                    t0 = time.perf_counter()
-                    image = (
-                        sim.camera_images().rgb
-                        if cam_name == "carla"
-                        else vehicle_view(sc, state, cameras, cam_name, camera, coverage, band)
-                    )
-                    render_s += time.perf_counter() - t0
-                    where = run_paths(tmp).frames_dir(cam_name)
-                    _keep_frame(image, where, steps - 1, opts.save_frames, video)
-                t0 = time.perf_counter()
-                try:
-                    command = float(
-                        policy.predict(Observation(t=state.t, image=image, state=state))
-                    )
-                except Cam2SimError as err:  # a remote policy timed out or failed: end the run
-                    failure = {
-                        "kind": "policy_error", "t": state.t, "x": state.x, "y": state.y,
-                        "reason": str(err),
-                    }  # fmt: skip
-                    logger.warning("run %s: policy failed at t=%.2f s: %s", run_id, state.t, err)
-                    break
-                policy_s += time.perf_counter() - t0
-                decisions.append((state.t, command))
-            state = sim.step(Control(steering=command, target_speed=target))
-            _record(rows, state, ref_xyz)
-            if steps % 30 == 0:
-                report(f"run {run_id}", steps, None)
-            if sim.done:
-                break
-        seconds = time.perf_counter() - started
-        steps = len(rows["t"])  # simulated steps (a failed policy call simulates none)
+        episode = run_episode(
+            sim, policy, camera, options, _start_pose(sc, offset),
+            on_frame=keep, progress=lambda steps: report(f"run {run_id}", steps, None),
+        )  # fmt: skip
         events = [
-            {"kind": e.kind, "t": e.t, "x": e.x, "y": e.y, "reason": e.reason} for e in sim.events
+            {"kind": e.kind, "t": e.t, "x": e.x, "y": e.y, "reason": e.reason}
+            for e in episode.events
         ]
-        if failure is not None:
-            events.append(failure)
-        _write_tables(tmp, rows, decisions)
-        timing = {"seconds": seconds, "render_s": render_s, "policy_s": policy_s}
-        meta = _drive_meta(opts, policy.name, cam_name, seed, steps, len(decisions), timing)
+        if episode.failure is not None:
+            f = episode.failure
+            events.append(
+                {"kind": "policy_error", "t": f.t, "x": f.x, "y": f.y, "reason": f.reason}
+            )
+            logger.warning("run %s: policy failed at t=%.2f s: %s", run_id, f.t, f.reason)
+        _write_tables(tmp, episode.rows, episode.decisions)
+        timing = {
+            "seconds": episode.seconds, "render_s": episode.render_s, "policy_s": episode.policy_s
+        }  # fmt: skip
+        meta = _drive_meta(
+            opts, policy.name, cam_name, seed, episode.steps, len(episode.decisions), timing
+        )
         if band is not None:
             meta["rendered_rows"] = band
         meta |= {"simulator": sim_opts.model_dump(mode="json"), "proj_string": sc.world.proj_string}
@@ -640,7 +635,8 @@ def _drive_loop(  # noqa: PLR0912, PLR0913, PLR0915, PLR0917 - one run: setup, s
     finally:
         if video is not None:
             video.close()
-    return RunResult(run_id, _finish_run(ctx.ws, run_id, tmp), steps, tuple(events), seconds)
+    folder = _finish_run(ctx.ws, run_id, tmp)
+    return RunResult(run_id, folder, episode.steps, tuple(events), episode.seconds)
 
 
 def _drive_meta(
@@ -688,7 +684,7 @@ def _varied(
     return offset, target, drawn
 
 
-def _start_pose(sc: Scenario, offset: tuple[float, float]) -> Any:
+def _start_pose(sc: Scenario, offset: tuple[float, float]) -> PlanarPose | None:
     """The hero start moved by ``offset = (lateral_m, heading_deg)``; None when not moved."""
     import math  # noqa: PLC0415
 
@@ -699,19 +695,6 @@ def _start_pose(sc: Scenario, offset: tuple[float, float]) -> Any:
     x = s.position[0] - lateral * math.sin(s.heading)
     y = s.position[1] + lateral * math.cos(s.heading)
     return PlanarPose(x, y, s.heading + math.radians(heading_deg), s.speed)
-
-
-def _record(rows: dict[str, list[float]], state: Any, ref_xyz: tuple[float, float, float]) -> None:
-    """Append one simulator state, at the recorded reference point, to the run's rows."""
-    ref = body_point_positions(
-        [[state.x, state.y, state.z]], [state.heading], (0.0, 0.0, 0.0), ref_xyz
-    )[0]
-    values = (
-        state.t, ref[0], ref[1], ref[2], state.heading, state.speed, state.steering,
-        state.wheel_angle,
-    )  # fmt: skip
-    for key, value in zip(rows, values, strict=True):
-        rows[key].append(float(value))
 
 
 def _keep_frame(
