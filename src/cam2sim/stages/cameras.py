@@ -14,7 +14,7 @@ renderer plugs in with ``register_camera("mine", lambda ctx: MyRenderer(ctx.ws))
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, Final, Literal, Protocol, Self
+from typing import TYPE_CHECKING, Any, Final, Literal, Self
 
 import numpy as np
 
@@ -22,6 +22,7 @@ from cam2sim.core import frames as fr
 from cam2sim.core.errors import StageError
 from cam2sim.core.files import write_bytes_atomic
 from cam2sim.core.images import as_grey
+from cam2sim.render.interface import CameraRenderer
 from cam2sim.render.meshes import BuildingFootprint
 from cam2sim.render.raster import RasterRenderer, RasterScene
 from cam2sim.render.truth import TruthRenderer
@@ -144,30 +145,6 @@ def ground_height_at(scenario: Scenario, xy: npt.NDArray[np.float64]) -> float:
     ref = np.asarray(scenario.trajectory.reference, dtype=np.float64)
     i = int(np.argmin(np.hypot(ref[:, 0] - xy[0], ref[:, 1] - xy[1])))
     return float(ref[i, 2] - scenario.vehicle.reference_xyz[2])
-
-
-class RenderedFrame(Protocol):
-    """What a renderer returns: at least the RGB image."""
-
-    @property
-    def rgb(self) -> npt.NDArray[np.uint8]:
-        """``(H, W, 3)`` uint8."""
-        ...
-
-
-class CameraRenderer(Protocol):
-    """A camera of runs: renders world-frame camera poses; closed once at the end."""
-
-    def render(self, T_world_cam: npt.NDArray[np.float64], camera: PinholeCamera) -> RenderedFrame:
-        """The view from ``T_world_cam`` (camera -> world, optical axes) of ``camera``.
-
-        ``camera`` has no lens distortion: runs render undistorted pinhole images.
-        """
-        ...
-
-    def close(self) -> None:
-        """Release the renderer's resources."""
-        ...
 
 
 _CAMERAS: dict[str, Callable[[RunContext], CameraRenderer | None]] = {}
