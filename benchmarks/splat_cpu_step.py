@@ -25,7 +25,7 @@ from cam2sim.splat import raster_cpu, raster_torch
 from cam2sim.splat.profiling import PhaseTimer
 from cam2sim.splat.scene import SceneRecord, load_points
 from cam2sim.splat.train import _ChunkTrainer
-from cam2sim.stages.pipeline import demo_splat_options
+from cam2sim.stages.splat import SplatStageOptions
 from splat_gpu import _parse_value, options_from
 
 
@@ -33,7 +33,7 @@ def _trainer(ws: Path, chunk: int, settings: dict[str, Any]) -> _ChunkTrainer:
     prep = ws / "splat" / "prep"
     scene = SceneRecord.load(prep / "scene.json")
     xyz, rgb, _ = load_points(prep / "points.npz")
-    preset = demo_splat_options().train
+    preset = SplatStageOptions.demo().train
     assert preset is not None
     base = {
         k: getattr(preset, k)

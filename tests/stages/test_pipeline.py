@@ -32,10 +32,9 @@ from cam2sim.stages.pipeline import (
     STEPS,
     PipelineOptions,
     PipelineResult,
-    demo_splat_options,
     run_pipeline,
-    run_splat_options,
 )
+from cam2sim.stages.splat import SplatStageOptions
 from conftest import has_egl
 
 if TYPE_CHECKING:
@@ -380,7 +379,7 @@ def test_run_varies_its_runs_unless_told_not_to(
 def test_the_demo_splat_stops_each_chunk_on_its_own_quality_not_on_a_clock(cuda: bool) -> None:
     from cam2sim.splat.train import plateau_reached
 
-    train = demo_splat_options(cuda=cuda).train
+    train = SplatStageOptions.demo(cuda=cuda).train
     assert train is not None
     # Steps, not seconds, are the rule: every chunk gets at least min_steps; the time budget
     # is each chunk's own safety cap, never a share of the others' seconds.
@@ -404,7 +403,7 @@ def test_the_demo_splat_stops_each_chunk_on_its_own_quality_not_on_a_clock(cuda:
 def test_run_splat_preset_counts_steps_and_triangulates_without_lidar(
     cuda: bool, lidar: bool
 ) -> None:
-    opts = run_splat_options(cuda=cuda, lidar=lidar)
+    opts = SplatStageOptions.for_run(cuda=cuda, lidar=lidar)
     assert opts.prepare is not None
     assert opts.train is not None
     assert opts.prepare.triangulate is not lidar  # points from the frames only without LiDAR
@@ -413,7 +412,7 @@ def test_run_splat_preset_counts_steps_and_triangulates_without_lidar(
         assert 1_000 < opts.train.min_steps < opts.train.max_steps <= 10_000
         assert opts.train.min_gain_db > 0
     else:
-        assert opts.train == demo_splat_options().train
+        assert opts.train == SplatStageOptions.demo().train
 
 
 def test_run_remembers_the_osm_and_detector_it_was_given(tmp_path: Path) -> None:

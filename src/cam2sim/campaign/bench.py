@@ -255,7 +255,7 @@ def _run_world(spec: WorldSpec, out: Path) -> str:
         WorldSource,
         run_experiment,
     )
-    from cam2sim.stages.pipeline import demo_splat_options  # noqa: PLC0415
+    from cam2sim.stages.splat import SplatStageOptions  # noqa: PLC0415
 
     started = time.perf_counter()
     source = WorldSource(
@@ -269,7 +269,7 @@ def _run_world(spec: WorldSpec, out: Path) -> str:
     if settings.splat_steps is not None:  # a fixed step count instead of the preset's
         import torch  # noqa: PLC0415
 
-        splat = demo_splat_options(cuda=bool(torch.cuda.is_available()))
+        splat = SplatStageOptions.demo(cuda=bool(torch.cuda.is_available()))
         steps = settings.splat_steps
         assert splat.train is not None  # the preset sets it
         train = dataclasses.replace(

@@ -21,7 +21,8 @@ from cam2sim.core.files import write_bytes_atomic
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.workspace import Workspace
 from cam2sim.render.truth import truth_world_path
-from cam2sim.stages.pipeline import STEPS, PipelineOptions, demo_splat_options, run_pipeline
+from cam2sim.stages.pipeline import STEPS, PipelineOptions, run_pipeline
+from cam2sim.stages.splat import SplatStageOptions
 from cam2sim.stages.variation import DEMO_RUN_VARIATION
 
 if TYPE_CHECKING:
@@ -29,7 +30,6 @@ if TYPE_CHECKING:
 
     from cam2sim.demo.world import DemoStreet, DemoWorld
     from cam2sim.stages.pipeline import PipelineResult
-    from cam2sim.stages.splat import SplatStageOptions
 
 __all__ = [
     "DEMO_ADS_EPOCHS",
@@ -88,7 +88,7 @@ class ExperimentOptions:
         seed: Seed of the world (parked cars, facades) and its recording's noise.
         steps: Pipeline steps (:data:`~cam2sim.stages.pipeline.STEPS`).
         skip: Steps not to run.
-        splat: Splat preset; None: :func:`~cam2sim.stages.pipeline.demo_splat_options` for the
+        splat: Splat preset; None: :meth:`~cam2sim.stages.splat.SplatStageOptions.demo` for the
             device there is.
         ads_epochs: DAVE-2 training epochs.
         save_frames: Keep every closed-loop run's camera frames (the benchmark's failure
@@ -142,7 +142,7 @@ def experiment_pipeline_options(
         steering_noise_std=DEMO_STEERING_NOISE,
         # Runs differ as a driver's repeated drives do: start pose and speed.
         run_variation=DEMO_RUN_VARIATION,
-        splat=options.splat or demo_splat_options(cuda=cuda),
+        splat=options.splat or SplatStageOptions.demo(cuda=cuda),
         splat_on_cpu=True,
         # On the CPU everywhere: the same seeded model on a laptop and a GPU machine (a
         # CUDA-trained one left the road in the ground-truth world; docs/benchmarks.md).

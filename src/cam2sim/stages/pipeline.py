@@ -30,8 +30,6 @@ from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.workspace import StepState, dataset_paths, hash_inputs, run_paths
 from cam2sim.render.truth import truth_world_path
 from cam2sim.scenario.model import Scenario
-from cam2sim.splat.prepare import PrepareOptions
-from cam2sim.splat.train import DensifyOptions, TrainOptions
 from cam2sim.stages.ads import TRAIN_STAGE, derive_steering, export_ads, train_ads
 from cam2sim.stages.detect import DetectOptions, run_detect
 from cam2sim.stages.evaluate import (
@@ -63,7 +61,6 @@ __all__ = [
     "default_drive_workers",
     "remember_inputs",
     "run_pipeline",
-    "small_splat_options",
 ]
 
 logger = logging.getLogger(__name__)
@@ -80,19 +77,6 @@ STEPS: Final = (
     "evaluate",
     "report",
 )
-DEMO_CPU_SPLAT_BUDGET_S: Final = 300.0
-"""Most training seconds of each chunk of the demo's CPU splat: 1,400 steps of a chunk take
-about 140 s on the 2-core machine (docs/benchmarks.md); a slower one stops at the budget (a
-warning in the report), so a chunk cannot hold the demo up for long."""
-DEMO_GPU_SPLAT_BUDGET_S: Final = 120.0
-"""A safety cap on each chunk's training seconds on CUDA, far above what the preset's steps
-take (2,500 steps in 20-40 s on an H100): it ends only a chunk that something else slows badly,
-and such a chunk is a warning in the report. The preset counts steps, not seconds: a budget of
-25 s a chunk gave chunks of one street 444 and 2,907 steps (issue 37)."""
-
-RUN_GPU_SPLAT_BUDGET_S: Final = 300.0
-"""A safety cap on each chunk's training seconds in ``cam2sim run`` on CUDA: 7,000 steps take
-60-110 s a chunk on an H100 (docs/benchmarks.md)."""
 
 
 @dataclass(frozen=True)
@@ -118,7 +102,8 @@ class PipelineOptions:
             seeded per run), so that repeated runs of a deterministic policy differ.
         run_variation: Seeded start-pose and speed differences between drive runs
             (:mod:`cam2sim.stages.variation`); None: none.
-        splat: Splat options; None: :func:`run_splat_options` (its points triangulated from
+        splat: Splat options; None: :meth:`SplatStageOptions.for_run
+            <cam2sim.stages.splat.SplatStageOptions.for_run>` (its points triangulated from
             the frames when there is no LiDAR).
         splat_on_cpu: Train splats without a GPU (the CPU preset: minutes a chunk); False makes
             ``splat`` not applicable there.
@@ -220,89 +205,6 @@ class PipelineResult:
                 return o
         msg = f"no step {name!r}; steps are {', '.join(STEPS)}"
         raise KeyError(msg)
-
-
-def demo_splat_options(*, cuda: bool = False) -> SplatStageOptions:
-    """The demo's splat preset: on CUDA the default training in fewer steps, else a CPU preset.
-
-    Both count steps, not seconds, and stop each chunk on its own quality: after ``min_steps``
-    a chunk stops when its held-in PSNR rises by less than ``min_gain_db`` per 1,000 steps over
-    its last validations (:func:`cam2sim.splat.train.plateau_reached`), else at ``max_steps``.
-    A time budget per chunk is only a safety cap. A time budget as the rule starved the chunks
-    that hold the most Gaussians: 444 steps next to 2,907 on one street (issue 37), and on the
-    CPU 700 steps left a 391 m street at 22.8 dB at its bend, where 1,400 give 24.5 dB and the
-    splat runs pass (docs/benchmarks.md, "The street benchmark").
-
-    ``cuda``: gsplat, full size, densification, 1,500-2,500 steps a chunk, from LiDAR points on
-    a 0.2 m grid (the default 0.1 m gave 570k starting Gaussians on the demo's 183 m and 37 ms a
-    step; the demo has no time for triangulation either), at most
-    :data:`DEMO_GPU_SPLAT_BUDGET_S` seconds a chunk.
-
-    CPU: a frame every 0.5 m, 40k LiDAR points thinned with distance, 700-1,400 steps a chunk
-    at half size, at most :data:`DEMO_CPU_SPLAT_BUDGET_S` seconds a chunk: minutes on two cores
-    instead of hours. What the closed loop needs is a model that stays consistent between the
-    recorded poses, where the policy drives: many views (a frame every 0.5 m, not 2 m) and
-    nearly opaque starting Gaussians (0.5: a short run cannot raise 0.1 to a solid surface)
-    matter more than detail; densification is off (in so few steps it grows floaters that cost
-    more than they add).
-    """
-    if cuda:
-        train = TrainOptions(
-            max_steps=2_500, min_steps=1_500, val_every=250, patience=3,
-            min_gain_db=0.5, min_gain_ssim=0.005,
-            time_budget_s=DEMO_GPU_SPLAT_BUDGET_S, budget_per_chunk=True,
-        )  # fmt: skip
-        return SplatStageOptions(
-            prepare=PrepareOptions(triangulate=False, lidar_voxel_m=0.2), train=train
-        )
-    prepare = PrepareOptions(spacing_m=0.5, triangulate=False, lidar_voxel_m=0.25)
-    train = TrainOptions(
-        max_steps=1_400,
-        min_steps=700,
-        val_every=175,
-        patience=2,
-        min_gain_db=1.0,  # dB per 1,000 steps: a chunk gaining less has what it can get here
-        min_gain_ssim=0.02,
-        n_val_views=8,
-        downscale=2,
-        max_init_points=40_000,
-        sky_points=2_000,
-        init_opacity=0.5,
-        densify=DensifyOptions(enabled=False),
-        time_budget_s=DEMO_CPU_SPLAT_BUDGET_S,  # a slow machine trains fewer steps
-        budget_per_chunk=True,
-    )
-    return SplatStageOptions(prepare=prepare, train=train, offsets_m=(-1.0, 1.0))
-
-
-def run_splat_options(*, cuda: bool, lidar: bool) -> SplatStageOptions:
-    """``cam2sim run``'s splat: on CUDA each chunk trains to its own plateau, else the CPU preset.
-
-    ``cuda``: 2,000-7,000 steps a chunk, stopping when held-in PSNR gains less than 0.3 dB per
-    1,000 steps (the route's 4 chunks reach 31.6 dB held out in 7,000 steps and 5 minutes on
-    an H100, docs/benchmarks.md; the default 30,000 a chunk would take half an hour on a
-    recording of 5 chunks), at most :data:`RUN_GPU_SPLAT_BUDGET_S` seconds a chunk. CPU:
-    :func:`demo_splat_options`'s CPU preset. Either way the starting points are triangulated
-    from the frames (pycolmap) when the recording has no LiDAR.
-    """
-    if cuda:
-        train = TrainOptions(
-            max_steps=7_000, min_steps=2_000, val_every=500, patience=3,
-            min_gain_db=0.3, min_gain_ssim=0.003,
-            time_budget_s=RUN_GPU_SPLAT_BUDGET_S, budget_per_chunk=True,
-        )  # fmt: skip
-        opts = SplatStageOptions(prepare=PrepareOptions(), train=train)
-    else:
-        opts = demo_splat_options()
-    assert opts.prepare is not None  # both presets set it
-    prepare = dataclasses.replace(opts.prepare, triangulate=not lidar)
-    return dataclasses.replace(opts, prepare=prepare)
-
-
-def small_splat_options() -> SplatStageOptions:
-    """A CPU-sized splat preset: few training steps on quarter-size images, no LPIPS."""
-    train = TrainOptions(max_steps=500, min_steps=200, val_every=100, downscale=4)
-    return SplatStageOptions(train=train, offsets_m=(-1.0, 1.0))
 
 
 def _splat_summary(result: SplatResult) -> str:
@@ -477,7 +379,7 @@ class _Pipeline:
                 msg = "no CUDA GPU, and splat training on the CPU is turned off"
                 raise _NotApplicableError(msg)
             lidar = self._dataset_info().counts.lidar_scans > 0
-            opts = run_splat_options(cuda=cuda, lidar=lidar)
+            opts = SplatStageOptions.for_run(cuda=cuda, lidar=lidar)
             if not cuda:
                 step.message = "no CUDA GPU: trained the CPU preset"
         results: list[SplatResult] = []

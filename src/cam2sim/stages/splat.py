@@ -14,8 +14,8 @@ import dataclasses
 import functools
 import logging
 import time
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Final
 
 from cam2sim.core.dataset import Calibration, DatasetInfo, RigCamera
 from cam2sim.core.errors import Cam2SimError, StageError
@@ -26,10 +26,11 @@ from cam2sim.scenario.model import Scenario
 from cam2sim.splat.distributed import train_scene_on_ray
 from cam2sim.splat.envelope import RigView, TruthEnvelopeOptions, TruthReference, rig_scores
 from cam2sim.splat.evaluate import EvalOptions, evaluate_splat
-from cam2sim.splat.prepare import prepare_scene
+from cam2sim.splat.prepare import PrepareOptions, prepare_scene
 from cam2sim.splat.render import SplatRenderer
 from cam2sim.splat.scene import SceneRecord
-from cam2sim.splat.train import train_scene
+from cam2sim.splat.train import TrainOptions, train_scene
+from cam2sim.splat.train_options import DensifyOptions
 from cam2sim.stages._runner import stage_run
 from cam2sim.stages.cameras import ground_height_at
 from cam2sim.stages.rig import rig_offset
@@ -42,14 +43,28 @@ if TYPE_CHECKING:
     import numpy.typing as npt
 
     from cam2sim.splat.evaluate import SplatEval
-    from cam2sim.splat.prepare import PrepareOptions
     from cam2sim.splat.scores import RigScore
-    from cam2sim.splat.train import SceneTrainResult, TrainOptions
+    from cam2sim.splat.train import SceneTrainResult
 
 __all__ = ["SplatResult", "SplatStageOptions", "run_splat"]
 
 logger = logging.getLogger(__name__)
 STAGE = "splat"
+
+
+DEMO_CPU_SPLAT_BUDGET_S: Final = 300.0
+"""Most training seconds of each chunk of the demo's CPU splat: 1,400 steps of a chunk take
+about 140 s on the 2-core machine (docs/benchmarks.md); a slower one stops at the budget (a
+warning in the report), so a chunk cannot hold the demo up for long."""
+DEMO_GPU_SPLAT_BUDGET_S: Final = 120.0
+"""A safety cap on each chunk's training seconds on CUDA, far above what the preset's steps
+take (2,500 steps in 20-40 s on an H100): it ends only a chunk that something else slows badly,
+and such a chunk is a warning in the report. The preset counts steps, not seconds: a budget of
+25 s a chunk gave chunks of one street 444 and 2,907 steps (issue 37)."""
+
+RUN_GPU_SPLAT_BUDGET_S: Final = 300.0
+"""A safety cap on each chunk's training seconds in ``cam2sim run`` on CUDA: 7,000 steps take
+60-110 s a chunk on an H100 (docs/benchmarks.md)."""
 
 
 @dataclass(frozen=True)
@@ -76,6 +91,70 @@ class SplatStageOptions:
     truth_envelope: bool = True
     truth: TruthEnvelopeOptions | None = None
     steps: tuple[str, ...] = field(default=("prepare", "train", "evaluate"))
+
+    @classmethod
+    def demo(cls, *, cuda: bool = False) -> SplatStageOptions:
+        """The demo's splat preset: each chunk trains to its own plateau, counted in steps.
+
+        After ``min_steps`` a chunk stops when its held-in PSNR gains less than ``min_gain_db``
+        per 1,000 steps (:func:`cam2sim.splat.train.plateau_reached`), else at ``max_steps``;
+        the time budget a chunk is a safety cap only (docs/benchmarks.md, "The street
+        benchmark": a time rule starved the chunks with the most Gaussians).
+
+        ``cuda``: gsplat at full size with densification, 1,500-2,500 steps a chunk, from LiDAR
+        points on a 0.2 m grid, at most :data:`DEMO_GPU_SPLAT_BUDGET_S` seconds a chunk.
+        CPU: a frame every 0.5 m, 40k LiDAR points, nearly opaque starting Gaussians, no
+        densification, 700-1,400 steps a chunk at half size, at most
+        :data:`DEMO_CPU_SPLAT_BUDGET_S` seconds a chunk.
+        """
+        if cuda:
+            train = TrainOptions(
+                max_steps=2_500, min_steps=1_500, val_every=250, patience=3,
+                min_gain_db=0.5, min_gain_ssim=0.005,
+                time_budget_s=DEMO_GPU_SPLAT_BUDGET_S, budget_per_chunk=True,
+            )  # fmt: skip
+            return cls(prepare=PrepareOptions(triangulate=False, lidar_voxel_m=0.2), train=train)
+        prepare = PrepareOptions(spacing_m=0.5, triangulate=False, lidar_voxel_m=0.25)
+        train = TrainOptions(
+            max_steps=1_400,
+            min_steps=700,
+            val_every=175,
+            patience=2,
+            min_gain_db=1.0,  # dB per 1,000 steps: a chunk gaining less has what it can get here
+            min_gain_ssim=0.02,
+            n_val_views=8,
+            downscale=2,
+            max_init_points=40_000,
+            sky_points=2_000,
+            init_opacity=0.5,
+            densify=DensifyOptions(enabled=False),
+            time_budget_s=DEMO_CPU_SPLAT_BUDGET_S,  # a slow machine trains fewer steps
+            budget_per_chunk=True,
+        )
+        return cls(prepare=prepare, train=train, offsets_m=(-1.0, 1.0))
+
+    @classmethod
+    def for_run(cls, *, cuda: bool, lidar: bool) -> SplatStageOptions:
+        """``cam2sim run``'s splat: each chunk to its plateau on CUDA, the CPU demo preset else.
+
+        ``cuda``: 2,000-7,000 steps a chunk, stopping when held-in PSNR gains less than 0.3 dB
+        per 1,000 steps, at most :data:`RUN_GPU_SPLAT_BUDGET_S` seconds a chunk (the default
+        30,000 steps would take half an hour on a recording of 5 chunks). CPU: :meth:`demo`'s.
+        Either way the starting points are triangulated from the frames (pycolmap) when the
+        recording has no LiDAR.
+        """
+        if cuda:
+            train = TrainOptions(
+                max_steps=7_000, min_steps=2_000, val_every=500, patience=3,
+                min_gain_db=0.3, min_gain_ssim=0.003,
+                time_budget_s=RUN_GPU_SPLAT_BUDGET_S, budget_per_chunk=True,
+            )  # fmt: skip
+            opts = cls(prepare=PrepareOptions(), train=train)
+        else:
+            opts = cls.demo()
+        assert opts.prepare is not None  # both presets set it
+        prepare = replace(opts.prepare, triangulate=not lidar)
+        return replace(opts, prepare=prepare)
 
 
 @dataclass(frozen=True)
