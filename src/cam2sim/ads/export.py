@@ -23,14 +23,13 @@ import numpy as np
 import torch
 
 from cam2sim.ads.dave2 import METADATA_KEY, Dave2Config
-from cam2sim.core.backends import onnx_session
-from cam2sim.core.errors import BackendUnavailableError, StageError
+from cam2sim.core.backends import onnx_session, require_module
+from cam2sim.core.errors import StageError
 from cam2sim.core.files import write_bytes_atomic
 from cam2sim.core.schema import Artifact
 
 if TYPE_CHECKING:
     from pathlib import Path
-    from types import ModuleType
 
     import numpy.typing as npt
 
@@ -60,16 +59,6 @@ class ExportReport(Artifact):
     max_abs_diff_random: float
     max_abs_diff_real: float | None
     onnxruntime_version: str
-
-
-def _require(name: str) -> ModuleType:
-    import importlib  # noqa: PLC0415
-
-    try:
-        return importlib.import_module(name)
-    except ImportError as err:
-        msg = f"ONNX export needs {name}, which is not installed; {_HINT}"
-        raise BackendUnavailableError(msg) from err
 
 
 def _metadata(config: Dave2Config) -> dict[str, str]:
@@ -129,8 +118,8 @@ def export_onnx(
         BackendUnavailableError: onnx or onnxruntime is missing.
         StageError: onnxruntime differs from torch by more than :data:`PARITY_TOLERANCE`.
     """
-    onnx = _require("onnx")
-    ort = _require("onnxruntime")
+    onnx = require_module("onnx", _HINT, "ONNX export")
+    ort = require_module("onnxruntime", _HINT, "ONNX export")
     model = model.cpu().eval()
     proto = onnx.load_from_string(_onnx_bytes(model, config))
     meta = _metadata(config)

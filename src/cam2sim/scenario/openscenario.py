@@ -45,6 +45,7 @@ import numpy as np
 import numpy.typing as npt
 
 from cam2sim import __version__
+from cam2sim.core.backends import require_module
 from cam2sim.core.errors import BackendUnavailableError, ConfigError
 from cam2sim.core.files import write_bytes_atomic
 from cam2sim.scenario.model import BodyPoint
@@ -134,7 +135,7 @@ def write_openscenario(
     """
     _check_options(body_point, version_minor, max_vertex_spacing_m, stop_margin_s, map_path)
     _check_scenario(scenario)
-    xosc = _require("scenariogeneration.xosc")
+    xosc = require_module("scenariogeneration.xosc", _INSTALL_HINT, "OpenSCENARIO support")
     previous = (xosc.VersionBase.version_major, xosc.VersionBase.version_minor)
     # scenariogeneration keeps the target version in a class attribute; restore it afterwards.
     xosc.VersionBase().setVersion(major=1, minor=version_minor)
@@ -184,7 +185,7 @@ def validate_openscenario(path: Path) -> list[str]:
     if not path.is_file():
         msg = f"{str(path)!r} does not exist; write it first (cam2sim scenario)"
         raise FileNotFoundError(msg)
-    _require("xmlschema")
+    require_module("xmlschema", _INSTALL_HINT, "OpenSCENARIO support")
     import xmlschema  # noqa: PLC0415 - optional (scenario extra); _require said how to install
 
     try:
@@ -240,16 +241,6 @@ def _check_scenario(scenario: Scenario) -> None:
             f"{bad}; fix them in scenario.json"
         )
         raise ConfigError(msg)
-
-
-def _require(module: str) -> ModuleType:
-    """Import an optional dependency of the scenario extra, or say how to install it."""
-    try:
-        return importlib.import_module(module)
-    except ImportError as err:
-        top = module.partition(".")[0]
-        msg = f"OpenSCENARIO support needs {top}, which is not installed ({err}); {_INSTALL_HINT}"
-        raise BackendUnavailableError(msg) from None
 
 
 def _document(
@@ -507,7 +498,7 @@ def _version_minor(root: ET.Element, path: Path) -> int:
 @functools.cache
 def _schema(minor: int) -> xmlschema.XMLSchema:
     """The compiled official XSD for OpenSCENARIO 1.``minor`` (cached: compiling takes ~1 s)."""
-    _require("xmlschema")
+    require_module("xmlschema", _INSTALL_HINT, "OpenSCENARIO support")
     import xmlschema  # noqa: PLC0415 - optional (scenario extra); _require said how to install
 
     return xmlschema.XMLSchema(str(_schema_path(SCHEMA_FILES[minor])))
@@ -519,7 +510,7 @@ def _schema_path(filename: str) -> Path:
     Inside the package (``scenariogeneration/schemas/``) if a release puts it there, else in the
     distribution's file list (0.16 installs a top-level ``schemas/`` folder).
     """
-    _require("scenariogeneration")
+    require_module("scenariogeneration", _INSTALL_HINT, "OpenSCENARIO support")
     inside = importlib.resources.files("scenariogeneration") / "schemas" / filename
     if inside.is_file():
         return Path(str(inside))
