@@ -12,6 +12,7 @@ import pytest
 import typer
 from typer.testing import CliRunner, Result
 
+from cam2sim.cli.display import StageErrorGroup
 from cam2sim.cli.map_cmd import map_
 
 from .map_helpers import MUNICH, closed_port_url, requires_carla
@@ -19,7 +20,8 @@ from .map_helpers import MUNICH, closed_port_url, requires_carla
 if TYPE_CHECKING:
     from cam2sim.core.workspace import Workspace
 
-app = typer.Typer(add_completion=False, pretty_exceptions_enable=False)
+# A stage error ends in one line through the command group, as under the cam2sim root.
+app = typer.Typer(cls=StageErrorGroup, add_completion=False, pretty_exceptions_enable=False)
 app.command("map")(map_)
 
 
