@@ -15,6 +15,7 @@ import csv
 import io
 import logging
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Final
@@ -24,6 +25,7 @@ import numpy as np
 from cam2sim.core.errors import StageError, WorkspaceError
 from cam2sim.core.files import write_text_atomic
 from cam2sim.core.images import read_mask, read_rgb
+from cam2sim.core.machine import available_cpus
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.schema import Artifact
 from cam2sim.metrics.lpips import load_lpips
@@ -382,18 +384,55 @@ class ImageQualityResult(Artifact):
     sim_only: tuple[str, ...]
 
 
-def _batches(
-    pairs: Iterable[tuple[ImagePair, npt.NDArray[np.uint8], npt.NDArray[np.uint8]]], size: int
-) -> Iterator[list[tuple[ImagePair, npt.NDArray[np.uint8], npt.NDArray[np.uint8]]]]:
+@dataclass(frozen=True, eq=False)
+class _Scored:
+    """One pair read and scored on the CPU, waiting for LPIPS."""
+
+    pair: ImagePair
+    real: npt.NDArray[np.uint8]
+    sim: npt.NDArray[np.uint8]
+    exclude: npt.NDArray[np.bool_] | None
+    psnr_db: float | None
+    ssim: float | None
+
+
+def _batches(scored: Iterable[_Scored], size: int) -> Iterator[list[_Scored]]:
     """Group consecutive pairs into batches of at most ``size`` images of one shape."""
-    batch: list[tuple[ImagePair, npt.NDArray[np.uint8], npt.NDArray[np.uint8]]] = []
-    for item in pairs:
-        if batch and (len(batch) >= size or batch[0][1].shape != item[1].shape):
+    batch: list[_Scored] = []
+    for item in scored:
+        if batch and (len(batch) >= size or batch[0].real.shape != item.real.shape):
             yield batch
             batch = []
         batch.append(item)
     if batch:
         yield batch
+
+
+def _with_lpips(batch: list[_Scored], model: Lpips | None) -> list[ImageScores]:
+    """The batch's scores, with LPIPS when there is a model (one batch through the network)."""
+    lpips_values: tuple[float | None, ...] = (None,) * len(batch)
+    if model is not None:
+        stacked = None
+        if any(b.exclude is not None for b in batch):
+            shape = batch[0].real.shape[:2]
+            stacked = np.stack(
+                [np.zeros(shape, np.bool_) if b.exclude is None else b.exclude for b in batch]
+            )
+        lpips_values = model.distance_from_images(
+            np.stack([b.real for b in batch]), np.stack([b.sim for b in batch]), exclude=stacked
+        )
+    return [
+        ImageScores(
+            stem=b.pair.stem,
+            real=str(b.pair.real),
+            sim=str(b.pair.sim),
+            psnr_db=b.psnr_db,
+            ssim=b.ssim,
+            lpips=lp,
+            excluded_fraction=float(b.exclude.mean()) if b.exclude is not None else 0.0,
+        )
+        for b, lp in zip(batch, lpips_values, strict=True)
+    ]
 
 
 def evaluate_image_folders(
@@ -429,50 +468,40 @@ def evaluate_image_folders(
     if model is None and opts.lpips_net is not None:
         model = load_lpips(opts.lpips_net, weights=opts.lpips_weights)
 
-    def loaded() -> Iterator[tuple[ImagePair, npt.NDArray[np.uint8], npt.NDArray[np.uint8]]]:
-        for pair in pairing.pairs:
-            real, sim = read_rgb(pair.real), read_rgb(pair.sim)
-            check_pair_sizes(pair, real, sim)
-            if min(real.shape[:2]) < _SSIM_WIN:
-                msg = f"{pair.real} is smaller than {_SSIM_WIN}x{_SSIM_WIN} pixels; cannot score it"
-                raise StageError(msg)
-            yield pair, real, sim
+    def score(pair: ImagePair) -> _Scored:
+        """Read one pair and score it on the CPU (PSNR, SSIM): runs in a worker thread."""
+        real, sim = read_rgb(pair.real), read_rgb(pair.sim)
+        check_pair_sizes(pair, real, sim)
+        if min(real.shape[:2]) < _SSIM_WIN:
+            msg = f"{pair.real} is smaller than {_SSIM_WIN}x{_SSIM_WIN} pixels; cannot score it"
+            raise StageError(msg)
+        extra = [(opts.hood_mask, hood)] if hood is not None and opts.hood_mask else []
+        if pair.stem in masks:
+            path = masks[pair.stem]
+            extra.append((path, read_mask(path, keep_nonzero=opts.mask_keeps_nonzero)))
+        exclude = exclusion_mask(real.shape[:2], hood_rows=opts.hood_rows, masks=extra)
+        return _Scored(
+            pair,
+            real,
+            sim,
+            exclude,
+            psnr(real, sim, exclude=exclude),
+            ssim(real, sim, exclude=exclude),
+        )
 
     rows: list[ImageScores] = []
     total = len(pairing.pairs)
     progress("image pairs", 0, total)
-    for batch in _batches(loaded(), max(opts.batch_size, 1)):
-        excludes = []
-        for pair, real, _ in batch:
-            extra = [(opts.hood_mask, hood)] if hood is not None and opts.hood_mask else []
-            if pair.stem in masks:
-                path = masks[pair.stem]
-                extra.append((path, read_mask(path, keep_nonzero=opts.mask_keeps_nonzero)))
-            excludes.append(exclusion_mask(real.shape[:2], hood_rows=opts.hood_rows, masks=extra))
-        lpips_values: tuple[float | None, ...] = (None,) * len(batch)
-        if model is not None:
-            stacked = None
-            if any(e is not None for e in excludes):
-                shape = batch[0][1].shape[:2]
-                stacked = np.stack(
-                    [np.zeros(shape, np.bool_) if e is None else e for e in excludes]
-                )
-            lpips_values = model.distance_from_images(
-                np.stack([b[1] for b in batch]), np.stack([b[2] for b in batch]), exclude=stacked
-            )
-        for (pair, real, sim), exclude, lp in zip(batch, excludes, lpips_values, strict=True):
-            rows.append(
-                ImageScores(
-                    stem=pair.stem,
-                    real=str(pair.real),
-                    sim=str(pair.sim),
-                    psnr_db=psnr(real, sim, exclude=exclude),
-                    ssim=ssim(real, sim, exclude=exclude),
-                    lpips=lp,
-                    excluded_fraction=float(exclude.mean()) if exclude is not None else 0.0,
-                )
-            )
-        progress("image pairs", len(rows), total)
+    # OpenCV and numpy let go of the GIL in the heavy work: pairs are read and scored in threads,
+    # a few per CPU at a time (bounded memory); LPIPS takes them in batches in this thread.
+    workers = available_cpus()
+    window = max(opts.batch_size, 2 * workers)
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        for start in range(0, total, window):
+            scored = list(pool.map(score, pairing.pairs[start : start + window]))
+            for batch in _batches(scored, max(opts.batch_size, 1)):
+                rows.extend(_with_lpips(batch, model))
+            progress("image pairs", len(rows), total)
     _log.info(
         "scored %d image pairs (%d real-only, %d simulated-only stems)",
         len(rows),
