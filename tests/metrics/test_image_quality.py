@@ -14,7 +14,6 @@ from cam2sim.metrics.image_quality import (
     PSNR_CAP_DB,
     ImageQualityOptions,
     ImageQualityResult,
-    MetricStats,
     evaluate_image_folders,
     exclusion_mask,
     pair_images_by_stem,
@@ -23,9 +22,9 @@ from cam2sim.metrics.image_quality import (
     read_rgb,
     ssim,
     ssim_map,
-    stats_from_values,
     write_image_quality,
 )
+from cam2sim.metrics.summary import MetricSummary, summarise
 
 NO_LPIPS = ImageQualityOptions(lpips_net=None)
 
@@ -127,8 +126,10 @@ def test_ssim_rejects_tiny_and_mismatched_images() -> None:
 
 
 def test_stats_skip_missing_values_and_never_give_nan() -> None:
-    assert stats_from_values([1.0, None, 3.0, float("nan")]) == MetricStats(2.0, 1.0, 2)
-    assert stats_from_values([None, None]) == MetricStats(None, None, 0)
+    got = summarise([1.0, None, 3.0, float("nan")])
+    assert (got.mean, got.std, got.n) == (2.0, 1.0, 2)
+    assert (got.p10, got.p90) == pytest.approx((1.2, 2.8))
+    assert summarise([None, None]) == MetricSummary(mean=None, std=None, p10=None, p90=None, n=0)
 
 
 def test_exclusion_mask_combines_hood_rows_and_masks(tmp_path: Path) -> None:
@@ -208,7 +209,7 @@ def test_folder_scores_and_summary(tmp_path: Path) -> None:
     assert result.images[0].ssim == pytest.approx(1.0)
     assert result.images[1].psnr_db > result.images[2].psnr_db  # type: ignore[operator]
     assert result.summary["psnr_db"].n == 3
-    assert result.summary["lpips"] == MetricStats(None, None, 0)
+    assert result.summary["lpips"] == MetricSummary(n=0)
     assert result.lpips_net is None
 
 

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from collections.abc import Sequence
 
     from cam2sim.metrics.drive_quality import DriveMetrics
-    from cam2sim.metrics.image_quality import MetricStats
+    from cam2sim.metrics.summary import MetricSummary
 
 __all__ = ["evaluate_app"]
 
@@ -44,7 +44,7 @@ class NetChoice(StrEnum):
     VGG = "vgg"
 
 
-def _stats_table(title: str, rows: Sequence[tuple[str, MetricStats, str]]) -> Table:
+def _stats_table(title: str, rows: Sequence[tuple[str, MetricSummary, str]]) -> Table:
     """Build a rich table of ``(name, stats, number format)`` rows."""
     table = Table(title=title)
     for col, justify in (("metric", "left"), ("mean", "right"), ("std", "right"), ("n", "right")):

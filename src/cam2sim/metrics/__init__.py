@@ -26,7 +26,6 @@ from cam2sim.metrics.image_quality import (
     ImageQualityOptions,
     ImageQualityResult,
     ImageScores,
-    MetricStats,
     evaluate_image_folders,
     pair_images_by_stem,
     psnr,
@@ -44,6 +43,7 @@ from cam2sim.metrics.semantic import (
     labels_from_rgb,
     semantic_iou,
 )
+from cam2sim.metrics.summary import MetricSummary
 
 __all__ = [
     "PSNR_CAP_DB",
@@ -56,7 +56,7 @@ __all__ = [
     "ImageQualityResult",
     "ImageScores",
     "Lpips",
-    "MetricStats",
+    "MetricSummary",
     "Palette",
     "RunEvent",
     "Segment",

@@ -29,6 +29,7 @@ from cam2sim.core.machine import available_cpus
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.schema import Artifact
 from cam2sim.metrics.lpips import load_lpips
+from cam2sim.metrics.summary import MetricSummary, summarise
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Iterator
@@ -44,7 +45,6 @@ __all__ = [
     "ImageQualityOptions",
     "ImageQualityResult",
     "ImageScores",
-    "MetricStats",
     "Pairing",
     "check_pair_sizes",
     "evaluate_image_folders",
@@ -55,7 +55,6 @@ __all__ = [
     "read_rgb",
     "ssim",
     "ssim_map",
-    "stats_from_values",
     "write_image_quality",
 ]
 
@@ -192,26 +191,6 @@ def check_pair_sizes(
 
 
 # ------------------------------------------------------------------------------------ statistics
-
-
-@dataclass(frozen=True)
-class MetricStats:
-    """Mean, population standard deviation and count of one metric over frames.
-
-    ``mean`` and ``std`` are None when ``n`` is 0 (no frame had a value); never NaN.
-    """
-
-    mean: float | None
-    std: float | None
-    n: int
-
-
-def stats_from_values(values: Iterable[float | None]) -> MetricStats:
-    """Summarise the values that are not None (nor NaN) as :class:`MetricStats`."""
-    kept = np.asarray([v for v in values if v is not None and not math.isnan(v)], dtype=np.float64)
-    if kept.size == 0:
-        return MetricStats(mean=None, std=None, n=0)
-    return MetricStats(mean=float(kept.mean()), std=float(kept.std()), n=int(kept.size))
 
 
 # ------------------------------------------------------------------------------------- metrics
@@ -379,7 +358,7 @@ class ImageQualityResult(Artifact):
     mask_dir: str | None
     mask_keeps_nonzero: bool
     images: tuple[ImageScores, ...]
-    summary: dict[str, MetricStats]
+    summary: dict[str, MetricSummary]
     real_only: tuple[str, ...]
     sim_only: tuple[str, ...]
 
@@ -519,9 +498,9 @@ def evaluate_image_folders(
         mask_keeps_nonzero=opts.mask_keeps_nonzero,
         images=tuple(rows),
         summary={
-            "psnr_db": stats_from_values(r.psnr_db for r in rows),
-            "ssim": stats_from_values(r.ssim for r in rows),
-            "lpips": stats_from_values(r.lpips for r in rows),
+            "psnr_db": summarise(r.psnr_db for r in rows),
+            "ssim": summarise(r.ssim for r in rows),
+            "lpips": summarise(r.lpips for r in rows),
         },
         real_only=pairing.real_only,
         sim_only=pairing.sim_only,

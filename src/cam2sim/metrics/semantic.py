@@ -24,14 +24,13 @@ from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.schema import Artifact
 from cam2sim.metrics.image_quality import (
     ImagePair,
-    MetricStats,
     check_pair_sizes,
     exclusion_mask,
     pair_images_by_stem,
     read_mask,
     read_rgb,
-    stats_from_values,
 )
+from cam2sim.metrics.summary import MetricSummary, summarise
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Sequence
@@ -166,8 +165,8 @@ class SemanticFrame:
 class SemanticSummary:
     """Per class and for mIoU: mean, population std and count over the frames that have a value."""
 
-    classes: dict[str, MetricStats]
-    miou: MetricStats
+    classes: dict[str, MetricSummary]
+    miou: MetricSummary
 
     @classmethod
     def from_frames(
@@ -176,8 +175,8 @@ class SemanticSummary:
         """Summarise frames; a frame where a class is absent does not count for that class."""
         items = list(frames)
         return cls(
-            classes={c: stats_from_values(f.iou.get(c) for f in items) for c in classes},
-            miou=stats_from_values(f.miou for f in items),
+            classes={c: summarise(f.iou.get(c) for f in items) for c in classes},
+            miou=summarise(f.miou for f in items),
         )
 
 

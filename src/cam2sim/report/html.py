@@ -62,8 +62,7 @@ if TYPE_CHECKING:
 
     from cam2sim.core.workspace import Manifest, Workspace
     from cam2sim.metrics.drive_io import DriveRun
-    from cam2sim.metrics.image_quality import MetricStats
-    from cam2sim.splat.evaluate import MetricSummary
+    from cam2sim.metrics.summary import MetricSummary
     from cam2sim.splat.scores import TruthScore
 
 __all__ = ["SECTION_IDS", "VIDEO_CAP_BYTES", "write_report"]
@@ -659,7 +658,7 @@ def _webm(files: list[Path], fps: float = 10.0) -> bytes | None:
         return out.read_bytes() if out.stat().st_size else None
 
 
-def _stats_rows(rows: Iterable[tuple[str, MetricStats, str]]) -> list[tuple[str, str, str, int]]:
+def _stats_rows(rows: Iterable[tuple[str, MetricSummary, str]]) -> list[tuple[str, str, str, int]]:
     return [(n, _fmt(s.mean, f), _fmt(s.std, f), s.n) for n, s, f in rows]
 
 
@@ -752,7 +751,7 @@ def _image_column(path: Path, report_dir: Path) -> str:
     return _IMAGE_COLUMNS.get(folder, folder)
 
 
-def _stats_cell(stats: MetricStats | None, spec: str) -> str:
+def _stats_cell(stats: MetricSummary | None, spec: str) -> str:
     if stats is None or stats.mean is None:
         return "-"
     return f"{format(stats.mean, spec)} ± {_fmt(stats.std, spec)}"

@@ -10,12 +10,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import numpy as np
 import pydantic
 
 from cam2sim.metrics.image_quality import psnr, ssim
+from cam2sim.metrics.summary import MetricSummary, summarise
 
 if TYPE_CHECKING:
+    import numpy as np
     import numpy.typing as npt
 
     from cam2sim.metrics.lpips import Lpips
@@ -29,30 +30,6 @@ __all__ = [
     "score_pair",
     "summarise",
 ]
-
-
-class MetricSummary(pydantic.BaseModel):
-    """Mean, 10th and 90th percentile and count of one metric; None when ``n`` is 0."""
-
-    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
-
-    mean: float | None
-    p10: float | None
-    p90: float | None
-    n: int
-
-
-def summarise(values: list[float | None]) -> MetricSummary:
-    """Summarise the values that are not None as a :class:`MetricSummary`."""
-    kept = np.array([v for v in values if v is not None], dtype=np.float64)
-    if kept.size == 0:
-        return MetricSummary(mean=None, p10=None, p90=None, n=0)
-    return MetricSummary(
-        mean=float(kept.mean()),
-        p10=float(np.percentile(kept, 10)),
-        p90=float(np.percentile(kept, 90)),
-        n=int(kept.size),
-    )
 
 
 class TruthScore(pydantic.BaseModel):
