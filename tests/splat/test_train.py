@@ -27,6 +27,7 @@ from cam2sim.splat.densify import Densifier
 from cam2sim.splat.evaluate import EvalOptions, SplatEval, evaluate_splat
 from cam2sim.splat.raster import RasterOutput
 from cam2sim.splat.scene import ChunkRecord, FrameRecord, SceneRecord, save_points
+from cam2sim.splat.stop import plateau_reached, steps_that_fit, time_share
 from cam2sim.splat.train import (
     MCMC_MIN_STEPS,
     STREET_SCALE_M,
@@ -34,10 +35,7 @@ from cam2sim.splat.train import (
     LearningRates,
     SceneTrainResult,
     TrainOptions,
-    plateau_reached,
     resolve_options,
-    steps_that_fit,
-    time_share,
     train_chunk,
     train_scene,
 )

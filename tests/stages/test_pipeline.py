@@ -377,7 +377,7 @@ def test_run_varies_its_runs_unless_told_not_to(
 
 @pytest.mark.parametrize("cuda", [False, True])
 def test_the_demo_splat_stops_each_chunk_on_its_own_quality_not_on_a_clock(cuda: bool) -> None:
-    from cam2sim.splat.train import plateau_reached
+    from cam2sim.splat.stop import plateau_reached
 
     train = SplatStageOptions.demo(cuda=cuda).train
     assert train is not None

@@ -24,7 +24,8 @@ from cam2sim.core.errors import StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.splat.parallel import ChunkOutcomes
 from cam2sim.splat.scene import SceneRecord
-from cam2sim.splat.train import time_share, train_chunk
+from cam2sim.splat.stop import time_share
+from cam2sim.splat.train import train_chunk
 
 if TYPE_CHECKING:
     from cam2sim.splat.train import SceneTrainResult, TrainOptions, TrainResult

@@ -97,7 +97,7 @@ class SplatStageOptions:
         """The demo's splat preset: each chunk trains to its own plateau, counted in steps.
 
         After ``min_steps`` a chunk stops when its held-in PSNR gains less than ``min_gain_db``
-        per 1,000 steps (:func:`cam2sim.splat.train.plateau_reached`), else at ``max_steps``;
+        per 1,000 steps (:func:`cam2sim.splat.stop.plateau_reached`), else at ``max_steps``;
         the time budget a chunk is a safety cap only (docs/benchmarks.md, "The street
         benchmark": a time rule starved the chunks with the most Gaussians).
 
