@@ -9,6 +9,7 @@ import typer
 
 from cam2sim.cli.display import console, error_console, error_exit, progress_bars
 from cam2sim.core.workspace import Workspace
+from cam2sim.splat.train_options import DEFAULT_MAX_STEPS
 
 __all__ = ["splat"]
 
@@ -21,7 +22,9 @@ def splat(
     overlap: Annotated[
         float | None, typer.Option(help="Chunk overlap, metres (default min(30, length/4)).")
     ] = None,
-    max_steps: Annotated[int, typer.Option(help="Training step cap per chunk.")] = 30_000,
+    max_steps: Annotated[
+        int, typer.Option(help="Training step cap per chunk.")
+    ] = DEFAULT_MAX_STEPS,
     min_steps: Annotated[int, typer.Option(help="No plateau stop before this step.")] = 7_000,
     time_budget: Annotated[
         float | None,

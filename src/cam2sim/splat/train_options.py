@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path  # noqa: TC003 - a dataclass field's type
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Final, Literal
 
 from cam2sim.splat.raster import GSPLAT_TILE
 from cam2sim.splat.robust import RobustLoss
@@ -17,6 +17,7 @@ if TYPE_CHECKING:
     from cam2sim.splat.raster import RasterBackend
 
 __all__ = [
+    "DEFAULT_MAX_STEPS",
     "MCMC_GROUND_POINTS",
     "MCMC_MIN_STEPS",
     "MCMC_REFINE_STOP",
@@ -30,6 +31,9 @@ __all__ = [
     "TrainResult",
     "resolve_options",
 ]
+
+DEFAULT_MAX_STEPS: Final = 30_000
+"""Training steps a chunk at most, unless a preset or ``--max-steps`` says otherwise."""
 
 Stop = Literal["plateau", "max_steps", "time"]
 """Why a chunk's training ended (``TrainResult.stopped``)."""
@@ -267,7 +271,7 @@ class TrainOptions:
             (the demo on CUDA, whose 183 m street has 2 chunks and the 450 m one 4).
     """
 
-    max_steps: int = 30_000
+    max_steps: int = DEFAULT_MAX_STEPS
     min_steps: int = 7_000
     val_every: int = 1_000
     patience: int = 3
