@@ -375,6 +375,14 @@ def test_cli_train_export_and_serve_errors(tmp_path: Path) -> None:
     assert (ws.ads_dir / "dave2.onnx").is_file()
     out = runner.invoke(app, ["ads", "train", str(tmp_path / "ws"), "--signal", "nope"])
     assert out.exit_code == 1
+    # As `cam2sim run` trains it: validated, then trained again on every frame.
+    out = runner.invoke(
+        app, ["ads", "train", str(ws.root), "--same-street", "--epochs", "2", "--force"]
+    )
+    assert out.exit_code == 0, out.output
+    assert "trained again on every frame for 2 epochs" in " ".join(out.output.split())
+    report = json.loads((ws.ads_dir / "train_report.json").read_text())
+    assert report["refit_all_frames"] is True
 
 
 def _check_pose_point_above_the_road(ws: Workspace) -> None:

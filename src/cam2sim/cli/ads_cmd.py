@@ -31,7 +31,21 @@ def train(
     signal: Annotated[
         str, typer.Option(help="Steering signal to learn (a name under dataset/signals/).")
     ] = "steering",
-    epochs: Annotated[int, typer.Option(min=1, help="Most training epochs.")] = 30,
+    epochs: Annotated[
+        int | None,
+        typer.Option(min=1, help="Most training epochs (default: 30; 60 with --same-street)."),
+    ] = None,
+    same_street: Annotated[
+        bool,
+        typer.Option(
+            "--same-street",
+            help=(
+                "Train as `cam2sim run` does, for a closed-loop test on the recorded street: "
+                "validate on 4 s blocks spread over the drive, then train again on every frame; "
+                "half of each batch softened (blur, less contrast) as simulated frames are."
+            ),
+        ),
+    ] = False,
     batch_size: Annotated[int, typer.Option("--batch-size", min=1)] = 64,
     augment: Annotated[bool, typer.Option("--augment/--no-augment")] = True,
     recovery_m: Annotated[
@@ -55,12 +69,15 @@ def train(
 
     Example: cam2sim ads train ws --signal steering_cmd --epochs 40
     """
+    import dataclasses  # noqa: PLC0415
+
     from cam2sim.ads.train import TrainOptions  # noqa: PLC0415 -- lazy: imports torch, cv2
     from cam2sim.stages.ads import train_ads  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
-    opts = TrainOptions(
-        signal=signal,
-        epochs=epochs,
+    base = TrainOptions.same_street(signal) if same_street else TrainOptions(signal=signal)
+    opts = dataclasses.replace(
+        base,
+        epochs=base.epochs if epochs is None else epochs,
         batch_size=batch_size,
         augment=augment,
         recovery_m=recovery_m,
@@ -75,9 +92,14 @@ def train(
         console.print(f"{result.model} is up to date (use --force to train again)")
         return
     corr = "-" if rep.val_correlation is None else f"{rep.val_correlation:.3f}"
+    kept = (
+        f"trained again on every frame for {rep.best_epoch} epochs"
+        if rep.refit_all_frames
+        else f"best epoch {rep.best_epoch}"
+    )
     console.print(
         f"{result.model}: {rep.train_frames} training / {rep.val_frames} validation frames, "
-        f"best epoch {rep.best_epoch}; validation RMSE {rep.val_rmse:.4f} (baseline "
+        f"{kept}; validation RMSE {rep.val_rmse:.4f} (baseline "
         f"{rep.baseline_mse**0.5:.4f}), MAE {rep.val_mae:.4f}, correlation {corr}; "
         f"{_recovery_line(rep.recovery)}; report {result.figure}",
         highlight=False,
