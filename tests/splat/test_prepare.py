@@ -296,7 +296,8 @@ def test_prepare_scene_writes_a_valid_scene(tmp_path: Path) -> None:
     # 6 m at 0.5 m spacing: 13 frames; the 3 frames standing still are skipped.
     assert len(scene.frames) == 13
     assert [f.dataset_frame for f in scene.frames][:8] == [0, 2, 4, 6, 8, 10, 12, 16]
-    assert [f.held_out for f in scene.frames] == [i % 8 == 0 for i in range(13)]
+    # Every 8th frame from the middle of each 8: never the first, where the drives start.
+    assert [f.held_out for f in scene.frames] == [i % 8 == 4 for i in range(13)]
     assert {"frames", "triangulation", "lidar"} <= set(steps)
     for f in scene.frames:
         stem = f"{f.index:06d}.png"
