@@ -28,22 +28,9 @@ wait | collect) WHEELS= ;;
   exit 2
   ;;
 esac
-if [ "$PHASE" != setup ] && [ ! -f /tmp/.gpu_bench_setup ]; then
-  echo "this machine is fresh (the one set up went back): run PHASE=setup again first" >&2
-  exit 3
-fi
-export PYTHONUNBUFFERED=1 MAX_JOBS=${MAX_JOBS:-16}
-if [ -n "$WHEELS" ]; then
-  source "$(dirname "$0")/gpu_env.sh" # installs $WHEELS into /tmp/site, sets PYTHONPATH and $out
-else
-  export PYTHONPATH=/tmp/site:$PWD/src
-  out=${OUT:-/tmp/out}
-  mkdir -p "$out"
-fi
-for deb in .gl/*.deb; do [ -f "$deb" ] && dpkg -x "$deb" /; done # the EGL loader (device README)
-ldconfig
-export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
-export CAM2SIM_CACHE=/tmp/cam2sim_cache RAY_AUTH_MODE=disabled
+MARKER=/tmp/.gpu_bench_setup
+source "$(dirname "$0")/gpu_phase.sh"
+export RAY_AUTH_MODE=disabled
 bench=/tmp/bench
 watch() { # until the bench process ends or WATCH_S passes: one line a minute
   local until=$((SECONDS + ${WATCH_S:-560}))
@@ -62,7 +49,7 @@ case $PHASE in
 setup)
   python3 -c "from cam2sim.splat.raster import build_gsplat; build_gsplat()" || exit 1
   mkdir -p /tmp/osm && cp .osm/* /tmp/osm/ || exit 1
-  touch /tmp/.gpu_bench_setup || exit 1
+  touch "$MARKER" || exit 1
   ;;
 start)
   tar xJf .ray/ray-slim.tar.xz -C /tmp/site || exit 1

@@ -1,5 +1,5 @@
-# Sourced by the GPU scripts (gpu_sweep.sh, gpu_route.sh, gpu_demo.sh): install the carried wheels
-# ($WHEELS) into /tmp/site, put them and src/ on PYTHONPATH, and make $out (the call's $OUT).
+# Sourced by the GPU scripts (gpu_sweep.sh, gpu_route.sh, gpu_demo.sh, gpu_phase.sh): install
+# the carried wheels ($WHEELS) into /tmp/site, put them and src/ on PYTHONPATH, and make $out (the call's $OUT).
 set -o pipefail
 export PYTHONUNBUFFERED=1 MAX_JOBS=${MAX_JOBS:-16}
 : "${WHEELS:?set WHEELS to the folder of wheels}"

@@ -26,22 +26,8 @@ frames | wait | collect) WHEELS= ;;
   exit 2
   ;;
 esac
-if [ "$PHASE" != setup ] && [ ! -f /tmp/.gpu_kitti_setup ]; then
-  echo "this machine is fresh (the one set up went back): run PHASE=setup again first" >&2
-  exit 3
-fi
-export PYTHONUNBUFFERED=1 MAX_JOBS=${MAX_JOBS:-16}
-if [ -n "$WHEELS" ]; then
-  source "$(dirname "$0")/gpu_env.sh" # installs $WHEELS into /tmp/site, sets PYTHONPATH and $out
-else
-  export PYTHONPATH=/tmp/site:$PWD/src
-  out=${OUT:-/tmp/out}
-  mkdir -p "$out"
-fi
-for deb in .gl/*.deb; do [ -f "$deb" ] && dpkg -x "$deb" /; done # the EGL loader (device README)
-ldconfig
-export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
-export CAM2SIM_CACHE=/tmp/cam2sim_cache
+MARKER=/tmp/.gpu_kitti_setup
+source "$(dirname "$0")/gpu_phase.sh"
 ws=/tmp/kitti_ws
 watch() { # until the run ends or WATCH_S passes: one line a minute
   local until=$((SECONDS + ${WATCH_S:-560}))
@@ -58,7 +44,7 @@ watch() { # until the run ends or WATCH_S passes: one line a minute
 case $PHASE in
 setup)
   python3 -c "from cam2sim.splat.raster import build_gsplat; build_gsplat()" || exit 1
-  mkdir -p /tmp/kitti03/images && touch /tmp/.gpu_kitti_setup
+  mkdir -p /tmp/kitti03/images && touch "$MARKER"
   ;;
 frames)
   for part in .k03/*/; do cp "$part"images/* /tmp/kitti03/images/ 2>/dev/null; done

@@ -17,7 +17,7 @@ run compares with the recorded trajectory directly.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Final
 
 from cam2sim.core.errors import Cam2SimError
@@ -97,10 +97,11 @@ class Episode:
     seconds: float = 0.0
     render_s: float = 0.0
     policy_s: float = 0.0
-    steps: int = field(init=False)
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "steps", len(self.rows["t"]))
+    @property
+    def steps(self) -> int:
+        """Simulated steps (a failed policy call simulates none)."""
+        return len(self.rows["t"])
 
 
 def run_episode(
