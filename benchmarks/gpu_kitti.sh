@@ -12,7 +12,8 @@
 #                                                # in the background, watched WATCH_S seconds
 #   PHASE=wait bash benchmarks/gpu_kitti.sh      # watch it (repeat as needed)
 #   PHASE=collect bash benchmarks/gpu_kitti.sh   # $OUT: the log, report.html, the workspace's
-#                                                # JSON records (kitti.tgz)
+#                                                # JSON records (kitti.tgz), the closed
+#                                                # loop's frames and drives (loop.tgz)
 #
 # Build the carried folders here first: `bash benchmarks/carry_kit.sh demo kitti` (kitti needs
 # the sequence: KITTI03=/path/with/images bash benchmarks/carry_kit.sh kitti). KITTI is
@@ -72,6 +73,27 @@ collect)
   tar czf "$out/kitti.tgz" -C $ws workspace.json map/map_report.json splat/eval.json \
     ads/train_report.json report/drive/metrics.json report/drive/behaviour.md \
     $(cd $ws && ls splat/models/*.json report/tables/* 2>/dev/null)
+  # What the closed loop saw and did: every 8th replay frame of each camera (JPEG), each
+  # drive's steering, trajectory and events, and the network, to study DAVE-2 here.
+  mkdir -p "$out/loop" && cp $ws/ads/dave2.onnx $ws/ads/dave2.json "$out/loop/"
+  python3 - "$ws" "$out/loop" << 'PY'
+import shutil, sys
+from pathlib import Path
+import cv2
+ws, dst = Path(sys.argv[1]), Path(sys.argv[2])
+for run in sorted((ws / "runs").iterdir()):
+    for name in ("steering.csv", "trajectory.csv", "events.json"):
+        if (run / name).is_file():
+            (dst / run.name).mkdir(exist_ok=True)
+            shutil.copy(run / name, dst / run.name / name)
+    for cam in sorted((run / "frames").glob("*")) if "replay" in run.name else []:
+        (dst / "replay" / cam.name).mkdir(parents=True, exist_ok=True)
+        for f in sorted(cam.glob("*.png"))[::8]:
+            img = cv2.imread(str(f))
+            cv2.imwrite(str(dst / "replay" / cam.name / f"{f.stem}.jpg"), img,
+                        [cv2.IMWRITE_JPEG_QUALITY, 90])
+PY
+  tar czf "$out/loop.tgz" -C "$out" loop && rm -rf "$out/loop"
   ls -la "$out"
   ;;
 esac

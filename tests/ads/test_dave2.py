@@ -297,6 +297,12 @@ def test_refit_keeps_a_network_trained_on_every_frame(tmp_path: Path) -> None:
     report = json.loads((ws.ads_dir / "train_report.json").read_text())
     assert report["refit_all_frames"] is True
     assert report["best_epoch"] == 2
+    # The preset's dropout reaches the network and its record; the camera's crop is kept.
+    saved = json.loads((ws.ads_dir / "dave2.json").read_text())["config"]
+    assert saved["dropout"] == options.dropout == 0.5
+    assert options.dave2.crop_rows == Dave2Config().crop_rows
+    with pytest.raises(ValueError, match="dropout"):
+        TrainOptions(dropout=1.0)
     assert [e["epoch"] for e in report["epochs"]] == [1, 2]  # the validated run's curve
     validated = report["val_mse"]
     # The kept network is not the validated one: on the validation frames it fits better,
