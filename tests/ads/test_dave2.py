@@ -297,10 +297,6 @@ def test_refit_keeps_a_network_trained_on_every_frame(tmp_path: Path) -> None:
     report = json.loads((ws.ads_dir / "train_report.json").read_text())
     assert report["refit_all_frames"] is True
     assert report["best_epoch"] == 2
-    # The preset's dropout reaches the network and its record; the camera's crop is kept.
-    saved = json.loads((ws.ads_dir / "dave2.json").read_text())["config"]
-    assert saved["dropout"] == options.dropout == 0.5
-    assert options.dave2.crop_rows == Dave2Config().crop_rows
     with pytest.raises(ValueError, match="dropout"):
         TrainOptions(dropout=1.0)
     assert [e["epoch"] for e in report["epochs"]] == [1, 2]  # the validated run's curve
@@ -449,27 +445,34 @@ def test_recovery_views_from_the_workspace_calibration(tmp_path: Path) -> None:
     assert "recovery views up to 0.4 m / 4 deg" in " ".join(out.output.split())
 
 
-def test_the_crop_follows_the_camera_without_squashing_it() -> None:
+def test_the_crop_follows_the_camera_and_keeps_its_width() -> None:
     assert Dave2Config.for_camera(800, 503) == Dave2Config()  # the published camera
     kitti = Dave2Config.for_camera(1242, 375)  # KITTI's grey cameras
     assert kitti.source_size == (1242, 375)
     top, bottom = kitti.crop_rows
     assert (top, bottom) == (152, 349)  # 204/503 .. 468/503 of the rows
-    left, right = kitti.crop_cols or (0, 0)
-    # The crop has the network input's shape (200x66), centred: no 2:1 squash.
-    assert (right - left) / (bottom - top) == pytest.approx(200 / 66, abs=0.01)
-    assert (left + right) / 2 == pytest.approx(621, abs=1)
-    # A frame bright only inside the crop gives an all-bright input; outside, all dark.
+    assert kitti.crop_cols is None  # every column, as the published crop: the kerbs stay in
+    # A frame bright only on the crop's rows gives an all-bright input; off them, all dark.
     frame = np.zeros((375, 1242, 3), np.uint8)
-    frame[top:bottom, left:right] = 200
+    frame[top:bottom] = 200
     x = preprocess(frame, kitti)
     assert x.shape == (1, 3, 66, 200)
     assert float(x.min()) == 200.0
-    frame[:] = 0
-    frame[:, :left] = 255
-    frame[:, right:] = 255
+    frame[:] = 255
+    frame[top:bottom] = 0
     assert float(preprocess(frame, kitti).max()) == 0.0
-    narrow = Dave2Config.for_camera(640, 480)  # narrower than the crop wants: every column
-    assert narrow.crop_cols is None
+    # Its left and right edges reach the network's first and last columns.
+    frame[:] = 0
+    frame[:, :20] = 255
+    edge = preprocess(frame, kitti)[0, 0]
+    assert float(edge[:, 0].min()) == 255.0
+    assert float(edge[:, -1].max()) == 0.0
+    assert Dave2Config.for_camera(640, 480).crop_cols is None
+    # The training option's dropout changes the network, not the crop.
+    from cam2sim.ads.train import TrainOptions
+
+    opts = TrainOptions(config=kitti, dropout=0.5)
+    assert opts.dave2.dropout == 0.5
+    assert opts.dave2.crop_rows == kitti.crop_rows
     with pytest.raises(ValueError, match="crop columns"):
         Dave2Config(crop_cols=(700, 900))

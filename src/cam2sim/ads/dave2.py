@@ -4,9 +4,9 @@ Preprocessing (:func:`preprocess`, the reference system's ``system_under_test``)
 camera frame to the source size (800x503, bilinear), keep rows 204..468 (800x264), resize to the
 network input (200x66, bilinear), and hand the network float32 values in ``[0, 255]``, channels
 first. :meth:`Dave2Config.for_camera` fits these to another camera: its own size as the source
-size (no resize), the same share of its rows, and as many centre columns as keep the crop's
-shape the network input's (a 1242x375 camera is not squashed 6:3 into 200x66); for an 800x503
-camera it is the published preprocessing. Normalisation (``x / 127.5 - 1``) is the network's
+size (no resize), the same share of its rows and, as the published preprocessing, every column
+(a wider camera is squashed into 200x66: the road's edges at the sides are what the network
+steers by); for an 800x503 camera it is the published preprocessing. Normalisation (``x / 127.5 - 1``) is the network's
 first layer, so exported models take raw pixel values.
 
 Network (Bojarski et al. 2016, "End to End Learning for Self-Driving Cars"): normalisation, five
@@ -87,9 +87,12 @@ class Dave2Config(pydantic.BaseModel):
         """The published preprocessing fitted to a ``width`` x ``height`` camera.
 
         The source size is the camera's (frames are not resized first), the crop keeps the same
-        share of the rows as the published 204..468 of 503, and as many centre columns as make
-        the crop's width-to-height ratio the network input's (all columns when the camera is
-        narrower than that). ``for_camera(800, 503)`` is ``Dave2Config()``.
+        share of the rows as the published 204..468 of 503 and every column, as the published
+        crop keeps every column of its camera; a wider camera's crop is squashed into the
+        network input. On KITTI 03 (1242x375) the centre 597 columns alone, unsquashed, left
+        out the kerbs: DAVE-2 trained on them steered on the splat camera's frames with a
+        correlation of 0.09 with the recorded steering, every column 0.48-0.54
+        (docs/benchmarks.md). ``for_camera(800, 503)`` is ``Dave2Config()``.
         """
         if width < 1 or height < 1:
             msg = f"camera size must be positive, got {width}x{height}"
@@ -98,13 +101,7 @@ class Dave2Config(pydantic.BaseModel):
         top, bottom = base.crop_rows
         source_h = base.source_size[1]
         rows = (round(top * height / source_h), round(bottom * height / source_h))
-        iw, ih = base.input_size
-        want = round((rows[1] - rows[0]) * iw / ih)
-        cols = None
-        if want < width:
-            left = (width - want) // 2
-            cols = (left, left + want)
-        return cls(source_size=(width, height), crop_rows=rows, crop_cols=cols)
+        return cls(source_size=(width, height), crop_rows=rows)
 
     def rows_read(self, height: int) -> tuple[int, int]:
         """Rows ``[first, stop)`` of a frame ``height`` rows high that :func:`preprocess` reads.

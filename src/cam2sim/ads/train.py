@@ -127,8 +127,7 @@ class TrainOptions:
         config: Network sizes and preprocessing; None: the published ones, fitted to the
             workspace's camera by the ads stage (:meth:`Dave2Config.for_camera`).
         dropout: Dropout before the fully connected layers, over :attr:`config`'s; None keeps
-            it (0.2). More of it, with a larger :attr:`weight_decay`, keeps a network trained
-            on one short drive from learning the recorded frames' fine texture by heart.
+            it (0.2).
         seed: Seeds torch and numpy.
         device: ``cuda``/``cpu``; None takes CUDA when available.
         workers: Threads decoding frames.
@@ -173,14 +172,11 @@ class TrainOptions:
         recovery labels say 0.46; this preset moves it by 0.17 and in the right direction
         for 99 % of the frames. Soft frames (:attr:`blur_px` 3) cut its bias on a 19.6 dB CPU
         splat's straights from -0.61 to -0.35 units and on the raster camera's from -3.0 to
-        -1.0; dropout 0.5 and weight decay 1e-3 (one drive is few frames for 250,000 weights)
-        raise its correlation with the recorded steering on that splat's frames from 0.17 to
-        0.56 (docs/benchmarks.md).
+        -1.0 (docs/benchmarks.md).
         """
         preset = cls(
-            signal=signal, epochs=60, keep="last", split="blocks", refit_all=True, blur_px=3.0,
-            dropout=0.5, weight_decay=1e-3,
-        )  # fmt: skip
+            signal=signal, epochs=60, keep="last", split="blocks", refit_all=True, blur_px=3.0
+        )
         return replace(preset, **changes)
 
     @property
