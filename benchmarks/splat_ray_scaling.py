@@ -35,7 +35,7 @@ from cam2sim.splat.scene import SceneRecord
 from cam2sim.splat.train import TrainOptions
 
 sys.path.insert(0, str(Path(__file__).parent))
-from splat_concurrency import replicate_chunk  # noqa: E402 -- beside this file
+from splat_concurrency import replicate_chunk  # beside this file
 
 
 def _level(args: argparse.Namespace, gpus: int) -> dict[str, Any]:

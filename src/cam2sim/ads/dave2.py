@@ -6,8 +6,8 @@ network input (200x66, bilinear), and hand the network float32 values in ``[0, 2
 first. :meth:`Dave2Config.for_camera` fits these to another camera: its own size as the source
 size (no resize), the same share of its rows and, as the published preprocessing, every column
 (a wider camera is squashed into 200x66: the road's edges at the sides are what the network
-steers by); for an 800x503 camera it is the published preprocessing. Normalisation (``x / 127.5 - 1``) is the network's
-first layer, so exported models take raw pixel values.
+steers by); for an 800x503 camera it is the published preprocessing. Normalisation
+(``x / 127.5 - 1``) is the network's first layer, so exported models take raw pixel values.
 
 Network (Bojarski et al. 2016, "End to End Learning for Self-Driving Cars"): normalisation, five
 convolutions (24, 36, 48 filters 5x5 stride 2; 64, 64 filters 3x3 stride 1) with ELU, flatten,
