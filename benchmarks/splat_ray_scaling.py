@@ -40,9 +40,9 @@ from splat_concurrency import replicate_chunk  # beside this file
 
 def _level(args: argparse.Namespace, gpus: int) -> dict[str, Any]:
     """Train the replicated scene on a local Ray instance limited to ``gpus`` GPUs."""
+    device = {"device": args.device} if args.device else {}
     options = TrainOptions(
-        max_steps=args.steps, min_steps=args.steps, val_every=max(1, args.steps // 2),
-        device=args.device,
+        max_steps=args.steps, min_steps=args.steps, val_every=max(1, args.steps // 2), **device
     )  # fmt: skip
     models = Path(args.work) / f"models-{gpus}"
     started = time.perf_counter()
