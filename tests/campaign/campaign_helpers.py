@@ -47,3 +47,18 @@ def crashing_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOut
     if spec.policy == "constant:13":
         os.abort()
     return execute(spec, log, timeout_s)
+
+
+def dying_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOutcome:
+    """The worker's task, except that its worker process exits mid-run for two policies.
+
+    ``constant:13``: on the first attempt only (a marker beside the run's log says it died
+    once): what a worker killed for memory or a lost node does. ``constant:14``: every time.
+    """
+    from pathlib import Path
+
+    marker = Path(log).with_suffix(".died")
+    if spec.policy == "constant:14" or (spec.policy == "constant:13" and not marker.exists()):
+        marker.write_text("the worker exited here\n", encoding="utf-8")
+        os._exit(1)
+    return execute(spec, log, timeout_s)

@@ -5,11 +5,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import campaign_helpers
 import pytest
-from campaign_helpers import PLAN, needs_egl, write_campaign
+from campaign_helpers import PLAN, dying_execute, needs_egl, write_campaign
 
 from cam2sim.campaign.executors import LocalPool, RayCluster
 from cam2sim.campaign.runner import run_campaign
+from cam2sim.campaign.state import CampaignState
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
@@ -88,3 +90,35 @@ def test_splat_chunks_train_as_ray_tasks_into_the_same_models_folder(
         "chunk_00.json", "chunk_00.pt", "chunk_01.json", "chunk_01.pt",
     ]  # fmt: skip
     assert [c.model_path for c in result.chunks] == [models / "chunk_00.pt", models / "chunk_01.pt"]
+
+
+def test_a_killed_worker_is_retried_once_and_then_reported(tmp_path: Path, local_ray: None) -> None:
+    # The helpers' module is not importable in Ray's workers: send its functions by value.
+    ray.cloudpickle.register_pickle_by_value(campaign_helpers)
+    plan = write_campaign(
+        tmp_path,
+        PLAN.replace("[pure-pursuit]", '[pure-pursuit, "constant:13", "constant:14"]').replace(
+            "{lateral_m: [0.0, 0.3]}", "{}"
+        ),
+    )
+    result = run_campaign(plan, executor=RayCluster(task=dying_execute))
+    status = {r.policy: r.status for r in result.rows}
+    # Killed once: run again, and done; killed every time: reported, and the rest goes on.
+    assert status == {"pure-pursuit": "done", "constant:13": "done", "constant:14": "crashed"}
+    crashed = next(r for r in result.rows if r.status == "crashed")
+    log = (result.folder / "logs" / f"{crashed.spec_id}.log").read_text()
+    assert "the Ray task failed" in log
+    # Nothing half-written: every run folder is a finished run with its tables.
+    runs = tmp_path / "ws" / "runs"
+    finished = sorted(p for p in runs.iterdir() if not p.name.startswith("."))
+    assert len(finished) == 2
+    assert all((p / "run.json").is_file() and (p / "trajectory.csv").is_file() for p in finished)
+    # A resume redoes only what is not done: nothing without retries, the crashed run with.
+    state = CampaignState.load(result.folder / "state.json")
+    assert len(state.done()) == 2
+    again = run_campaign(plan, executor=RayCluster(task=dying_execute), retry_failed=False)
+    assert again.ran == 0
+    retried = run_campaign(plan, executor=RayCluster(task=dying_execute))
+    assert retried.ran == 1
+    assert [r.status for r in retried.rows if r.policy == "constant:14"] == ["crashed"]
+    assert sorted(p for p in runs.iterdir() if not p.name.startswith(".")) == finished

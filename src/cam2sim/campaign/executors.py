@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from cam2sim.campaign.state import RunOutcome
 from cam2sim.campaign.worker import execute
-from cam2sim.core.cluster import ray_session
+from cam2sim.core.cluster import LOST_WORKER_RETRIES, ray_session
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -174,7 +174,7 @@ class RayCluster:
             needs = {
                 "num_cpus": cpus,
                 "num_gpus": 1 if job.spec.needs_gpu and gpus > 0 else 0,
-                "max_retries": 0,
+                "max_retries": LOST_WORKER_RETRIES,
             }
             pending[task.options(**needs).remote(job.spec, job.log, job.timeout_s)] = job
         while pending:

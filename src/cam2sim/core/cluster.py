@@ -8,14 +8,23 @@ that instance is used and left running.
 from __future__ import annotations
 
 import contextlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
 from cam2sim.core.errors import BackendUnavailableError
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
 
-__all__ = ["import_ray", "ray_session"]
+__all__ = ["LOST_WORKER_RETRIES", "import_ray", "ray_session"]
+
+LOST_WORKER_RETRIES: Final = 1
+"""Times Ray runs a task again whose worker process or node died (killed for memory, a node
+lost or preempted). Safe: a campaign run writes only its own new folder, built under a
+temporary name and renamed when complete, and a splat chunk writes its model atomically, so a
+killed attempt leaves nothing a second one reads. An exception raised inside a task is its
+outcome (a failed run, a failed chunk) and is not retried: runs are seeded, it would fail the
+same way. A task whose worker dies again is reported (a campaign run as ``crashed``), as the
+campaigns' local pool does (it retries the runs of a broken pool one by one)."""
 
 
 def import_ray() -> Any:

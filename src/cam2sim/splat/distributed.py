@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from cam2sim.core.cluster import ray_session
+from cam2sim.core.cluster import LOST_WORKER_RETRIES, ray_session
 from cam2sim.core.errors import StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.splat.parallel import ChunkOutcomes
@@ -93,7 +93,11 @@ def train_scene_on_ray(
             msg = f"the Ray cluster at {address} has {have:g} GPUs, a chunk needs {gpus:g}; "
             msg += "add GPU nodes, or train on CPU workers with --device cpu"
             raise StageError(msg)
-        task = ray.remote(_train_one).options(num_gpus=gpus, num_cpus=1, max_retries=0)
+        # A chunk whose worker or node died trains once more (its model is written atomically,
+        # so nothing half-written is read); a chunk that fails (diverges) is reported.
+        task = ray.remote(_train_one).options(
+            num_gpus=gpus, num_cpus=1, max_retries=LOST_WORKER_RETRIES
+        )
         if options is not None and options.time_budget_s is not None:
             # Each chunk's share of the budget: as many run at once as the cluster has room for.
             slots = int(have // gpus) if gpus > 0 else int(ray.cluster_resources().get("CPU", 1))
