@@ -59,6 +59,7 @@ def dying_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOutcom
 
     marker = Path(log).with_suffix(".died")
     if spec.policy == "constant:14" or (spec.policy == "constant:13" and not marker.exists()):
+        marker.parent.mkdir(parents=True, exist_ok=True)
         marker.write_text("the worker exited here\n", encoding="utf-8")
         os._exit(1)
     return execute(spec, log, timeout_s)

@@ -20,6 +20,7 @@ from cam2sim.campaign.state import CampaignState
 from cam2sim.cli.main import app
 from cam2sim.core.errors import WorkspaceError
 from cam2sim.core.table import read_table
+from cam2sim.metrics.benchmark import wilson_interval
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -66,6 +67,16 @@ def test_a_campaign_runs_resumes_and_summarises(tmp_path: Path) -> None:
     assert len(summary["runs"]) == 4
     assert (folder / "summary.csv").read_text().splitlines()[0].startswith("workspace,policy,")
     assert (folder / "metrics" / "ws" / "metrics.json").is_file()
+    # The report: a row per camera with its completion rate and interval, and the plot.
+    page = (folder / "report.html").read_text()
+    assert page.count("<td>pure-pursuit</td>") == 2
+    for row in result.summary:
+        low, high = wilson_interval(row.successes, row.done)
+        cells = f"<td>{row.successes}/{row.done}</td><td>{100 * low:.0f}-{100 * high:.0f} %</td>"
+        assert f"<td>{row.camera}</td>" in page
+        assert cells in page
+    assert page.count("data:image/png;base64,") == 1
+    assert "Every run finished." in page
 
     # A second campaign does nothing; a deleted run folder is run again.
     again = run_campaign(plan, executor=LocalPool(2))
@@ -108,6 +119,16 @@ def test_failed_runs_are_recorded_with_their_logs_and_the_rest_goes_on(tmp_path:
         ("no-such-ws", "pure-pursuit", 0, 1),
         ("no-such-ws", "constant:nan", 0, 1),
     ]
+    # The report lists the three runs that did not finish, each with its log.
+    page = (result.folder / "report.html").read_text()
+    assert "Runs that did not finish" in page
+    assert page.count("<td>failed</td>") == 3
+    assert f"<td>logs/{bad_id}.log</td>" in page
+    # It renders again from summary.json alone.
+    from cam2sim.report.campaign import report_from_summary
+
+    (result.folder / "report.html").unlink()
+    assert report_from_summary(result.folder).read_text().count("<td>failed</td>") == 3
     # Failed runs are tried again, unless asked not to; finished ones never.
     assert run_campaign(plan, executor=LocalPool(2), retry_failed=False).ran == 0
     retried = run_campaign(plan, executor=LocalPool(2))

@@ -14,7 +14,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -172,6 +172,12 @@ def _run(
     seconds = time.perf_counter() - started
     rows, summary = summarize(specs, state, score_runs(specs, state, folder))
     write_summary(folder, rows, summary)
+    from cam2sim.report.campaign import write_campaign_report  # noqa: PLC0415 -- matplotlib
+
+    write_campaign_report(
+        folder, [asdict(s) for s in summary], [asdict(r) for r in rows], name=state.name,
+        seconds=seconds, ran=len(finished),
+    )  # fmt: skip
     return CampaignResult(
         folder=folder,
         specs=len(specs),

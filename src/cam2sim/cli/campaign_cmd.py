@@ -60,8 +60,9 @@ def campaign(
 ) -> None:
     """Run a test campaign: every workspace x policy x camera x seed x perturbation of PLAN.
 
-    Runs land in each workspace's runs/ as cam2sim drive runs do; state, logs and the summary
-    (summary.csv, summary.json) in the campaign folder. A re-run does only what is missing.
+    Runs land in each workspace's runs/ as cam2sim drive runs do; state, logs, the summary
+    (summary.csv, summary.json) and report.html in the campaign folder. A re-run does only
+    what is missing.
 
     Example: cam2sim campaign plan.yaml --ray auto
     """
@@ -75,6 +76,7 @@ def campaign(
     rate = 60.0 * result.ran / result.seconds if result.seconds > 0 and result.ran else 0.0
     console.print(
         f"{result.ran} of {result.specs} runs done now ({result.failed} failed; "
-        f"{rate:.1f} runs/min on the {executor.name}); results in {result.folder}",
+        f"{rate:.1f} runs/min on the {executor.name}); results in {result.folder}, "
+        f"report: {result.folder / 'report.html'}",
         highlight=False,
     )

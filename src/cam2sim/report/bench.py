@@ -20,7 +20,6 @@ import base64
 import csv
 import datetime as dt
 import io
-from html import escape
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -29,6 +28,7 @@ from cam2sim.core.files import write_text_atomic
 from cam2sim.core.plots import pyplot
 from cam2sim.metrics.behaviour import METHOD_COLOURS
 from cam2sim.metrics.benchmark import aggregate
+from cam2sim.report.pieces import esc, fmt, html_table, png_img
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Mapping, Sequence
@@ -53,33 +53,10 @@ img{max-width:100%}.note{color:#555;font-size:.9em}h3{margin-top:1.6em}
 """
 
 
-def _e(value: object) -> str:
-    return escape(str(value), quote=True)
-
-
-def _f(value: float | None, spec: str = ".2f") -> str:
-    return "-" if value is None else format(value, spec)
-
-
-def _table(headers: Sequence[str], rows: Iterable[Sequence[object]], caption: str = "") -> str:
-    head = "".join(f"<th>{_e(h)}</th>" for h in headers)
-    body = "".join("<tr>" + "".join(f"<td>{_e(c)}</td>" for c in r) + "</tr>" for r in rows)
-    cap = f"<caption>{_e(caption)}</caption>" if caption else ""
-    return f"<table>{cap}<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
-
-
 def _markdown(headers: Sequence[str], rows: Iterable[Sequence[object]]) -> str:
     lines = ["| " + " | ".join(headers) + " |", "|" + " --- |" * len(headers)]
     lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
     return "\n".join(lines) + "\n"
-
-
-def _png(fig: Any) -> str:
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
-    pyplot().close(fig)
-    data = base64.b64encode(buffer.getvalue()).decode("ascii")
-    return f'<img alt="plot" src="data:image/png;base64,{data}">'
 
 
 def _file_img(path: Path, alt: str) -> str:
@@ -93,9 +70,9 @@ def _file_img(path: Path, alt: str) -> str:
         else cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 85])
     )
     if not ok or buf is None:
-        return f'<p class="note">({_e(alt)}: image missing)</p>'
+        return f'<p class="note">({esc(alt)}: image missing)</p>'
     data = base64.b64encode(buf.tobytes()).decode("ascii")
-    return f'<img alt="{_e(alt)}" src="data:image/jpeg;base64,{data}">'
+    return f'<img alt="{esc(alt)}" src="data:image/jpeg;base64,{data}">'
 
 
 # -- the tables (shared by HTML, Markdown and CSV) --------------------------------------------
@@ -109,9 +86,9 @@ def bench_tables(
         ["method", "streets", "runs", "failures", "failure rate", "95% low", "95% high",
          "streets failing", "Min-Fréchet m", "corridor viol. %"],
         [
-            [r.method, r.streets, r.runs, r.failures, _f(r.rate, ".3f"), _f(r.low, ".3f"),
-             _f(r.high, ".3f"), r.streets_failing, _f(r.min_frechet_m),
-             _f(r.corridor_violation_pct, ".1f")]
+            [r.method, r.streets, r.runs, r.failures, fmt(r.rate, ".3f"), fmt(r.low, ".3f"),
+             fmt(r.high, ".3f"), r.streets_failing, fmt(r.min_frechet_m),
+             fmt(r.corridor_violation_pct, ".1f")]
             for r in agg.rates
         ],
     )  # fmt: skip
@@ -120,9 +97,9 @@ def bench_tables(
          "Fréchet splat/Real", "splat ~ Real", "Sim corridor excess %"],
         [
             [p.label, "yes" if p.tuned else "no", p.real_failures, p.splat_failures,
-             p.sim_failures, _f(p.failure_rate_diff, "+.2f"), _f(p.frechet_ratio),
+             p.sim_failures, fmt(p.failure_rate_diff, "+.2f"), fmt(p.frechet_ratio),
              {True: "yes", False: "NO", None: "-"}[p.splat_matches_real],
-             _f(p.sim_corridor_excess_pct, "+.1f")]
+             fmt(p.sim_corridor_excess_pct, "+.1f")]
             for p in agg.pairs
         ],
     )  # fmt: skip
@@ -130,8 +107,8 @@ def bench_tables(
         ["street", "method", "runs", "failures", "completion", "Min-Fréchet m",
          "corridor viol. %", "jitter", "failure types"],
         [
-            [w.label, m.method, m.runs, m.failures, _f(m.completion_mean, ".3f"),
-             _f(m.min_frechet_m), _f(m.corridor_violation_pct, ".1f"), _f(m.jitter, ".3f"),
+            [w.label, m.method, m.runs, m.failures, fmt(m.completion_mean, ".3f"),
+             fmt(m.min_frechet_m), fmt(m.corridor_violation_pct, ".1f"), fmt(m.jitter, ".3f"),
              ", ".join(f"{k} {v}" for k, v in sorted(m.failure_types.items())) or "-"]
             for w in results
             for m in w.methods
@@ -141,8 +118,8 @@ def bench_tables(
         ["street", "method", "run", "failure", "at m", "route share", "splat PSNR dB there",
          "reason"],
         [
-            [w.label, f.method, f.run, f.kind, _f(f.s_m, ".0f"), _f(f.route_share, ".2f"),
-             _f(f.splat_psnr_on_path_db, ".1f"), f.reason or "-"]
+            [w.label, f.method, f.run, f.kind, fmt(f.s_m, ".0f"), fmt(f.route_share, ".2f"),
+             fmt(f.splat_psnr_on_path_db, ".1f"), f.reason or "-"]
             for w in results
             for f in w.failures
         ],
@@ -152,13 +129,13 @@ def bench_tables(
          "held-out SSIM", "truth on path", "truth 1 m right", "truth 1 m left",
          "profile min PSNR", "world s"],
         [
-            [w.label, _f(w.route_m, ".0f"), w.splat_device or "-",
+            [w.label, fmt(w.route_m, ".0f"), w.splat_device or "-",
              "/".join(str(s) for s in w.splat_steps) or "-",
              "/".join(sorted(set(w.splat_stopped))) or "-",
-             _f(w.splat_held_out_psnr_db, ".1f"), _f(w.splat_held_out_ssim, ".3f"),
-             _f(w.splat_truth_psnr_db.get("on path"), ".1f"),
-             _f(_truth_at(w, "+1"), ".1f"), _f(_truth_at(w, "-1"), ".1f"),
-             _f(_profile_min(w), ".1f"), _f(w.seconds, ".0f")]
+             fmt(w.splat_held_out_psnr_db, ".1f"), fmt(w.splat_held_out_ssim, ".3f"),
+             fmt(w.splat_truth_psnr_db.get("on path"), ".1f"),
+             fmt(_truth_at(w, "+1"), ".1f"), fmt(_truth_at(w, "-1"), ".1f"),
+             fmt(_profile_min(w), ".1f"), fmt(w.seconds, ".0f")]
             for w in results
         ],
     )  # fmt: skip
@@ -191,7 +168,7 @@ def _profile_min(world: WorldResult) -> float | None:
 
 
 def _rates_plot(agg: Aggregate) -> str:
-    return _png(rates_figure(agg))
+    return png_img(rates_figure(agg))
 
 
 def rates_figure(agg: Aggregate, *, title: str = "Failures over all streets") -> Any:
@@ -231,7 +208,7 @@ def _profile_plot(world: WorldResult) -> str:
     ax.set_ylabel("splat vs truth PSNR, dB")
     ax.legend(fontsize=7, loc="lower left")
     ax.set_title(f"{world.label}: splat against the ground truth along the route")
-    return _png(fig)
+    return png_img(fig)
 
 
 # -- the page -------------------------------------------------------------------------------
@@ -242,14 +219,14 @@ def _world_section(folder: Path, world: WorldResult, tables: Mapping[str, Any]) 
     tuned = "looked at while tuning" if world.tuned else "not used while tuning"
     steps = ", ".join(f"{k} {v:.0f} s" for k, v in world.step_seconds.items())
     parts = [
-        f'<h3 id="w-{_e(world.label)}">{_e(world.label)}: {_e(world.title)}</h3>',
-        f'<p class="note">{_e(world.source)}; {tuned}; {world.seconds:.0f} s ({_e(steps)})</p>',
-        _table(tables["methods"][0][1:], methods),
+        f'<h3 id="w-{esc(world.label)}">{esc(world.label)}: {esc(world.title)}</h3>',
+        f'<p class="note">{esc(world.source)}; {tuned}; {world.seconds:.0f} s ({esc(steps)})</p>',
+        html_table(tables["methods"][0][1:], methods),
         _profile_plot(world),
     ]
     for f in world.failures:
         psnr = ", ".join(
-            f"{name} {_f(v, '.1f')} dB" for name, v in zip(f.views, f.views_psnr_db, strict=False)
+            f"{name} {fmt(v, '.1f')} dB" for name, v in zip(f.views, f.views_psnr_db, strict=False)
             if v is not None
         )  # fmt: skip
         where = (
@@ -259,8 +236,8 @@ def _world_section(folder: Path, world: WorldResult, tables: Mapping[str, Any]) 
         )
         views = " | ".join(f.views)
         parts.append(
-            f"<p><b>{_e(f.method)} {_e(f.run)}</b>: {_e(f.kind)} {_e(where)}. {_e(f.reason)}"
-            f"<br>views 0.5 s before ({_e(views)}; PSNR against the truth: {_e(psnr or '-')})</p>"
+            f"<p><b>{esc(f.method)} {esc(f.run)}</b>: {esc(f.kind)} {esc(where)}. {esc(f.reason)}"
+            f"<br>views 0.5 s before ({esc(views)}; PSNR against the truth: {esc(psnr or '-')})</p>"
         )
         if f.image:
             parts.append(_file_img(folder / "worlds" / world.label / f.image, f.run))
@@ -309,28 +286,28 @@ def write_bench_report(
         md += ["\n## Worlds without a result\n\n"] + [f"- {k}: {v}\n" for k, v in missing.items()]
     write_text_atomic(folder / "summary.md", "".join(md))
     stamp = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
-    made = f"{len(results)} streets; generated {stamp} by cam2sim {_e(__version__)}"
+    made = f"{len(results)} streets; generated {stamp} by cam2sim {esc(__version__)}"
     body = [
-        f"<h1>cam2sim benchmark: {_e(name)}</h1>",
+        f"<h1>cam2sim benchmark: {esc(name)}</h1>",
         f'<p class="note">{made}. {_GLOSSARY}</p>',
-        f'<p class="verdict">{_e(agg.verdict)}</p>',
-        f"<p>Streets not used while tuning ({len(untuned)}): {_e(agg_untuned.verdict)}</p>",
+        f'<p class="verdict">{esc(agg.verdict)}</p>',
+        f"<p>Streets not used while tuning ({len(untuned)}): {esc(agg_untuned.verdict)}</p>",
         _rates_plot(agg),
-        _table(*tables["rates"], caption=titles["rates"]),
-        _table(*untuned_rates, caption="The same, streets not used while tuning"),
-        _table(*tables["streets"], caption=titles["streets"]),
-        _table(*tables["splat"], caption=titles["splat"]),
-        _table(*tables["failures"], caption=titles["failures"]),
+        html_table(*tables["rates"], caption=titles["rates"]),
+        html_table(*untuned_rates, caption="The same, streets not used while tuning"),
+        html_table(*tables["streets"], caption=titles["streets"]),
+        html_table(*tables["splat"], caption=titles["splat"]),
+        html_table(*tables["failures"], caption=titles["failures"]),
         "<h2>Streets</h2>",
         *(_world_section(folder, w, tables) for w in results),
     ]  # fmt: skip
     if missing:
         body.append("<h2>Worlds without a result</h2><ul>")
-        body += [f"<li>{_e(k)}: {_e(v)} (see logs/{_e(k)}.log)</li>" for k, v in missing.items()]
+        body += [f"<li>{esc(k)}: {esc(v)} (see logs/{esc(k)}.log)</li>" for k, v in missing.items()]
         body.append("</ul>")
     page = (
         '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
-        f"<title>cam2sim benchmark: {_e(name)}</title><style>{_CSS}</style></head><body>"
+        f"<title>cam2sim benchmark: {esc(name)}</title><style>{_CSS}</style></head><body>"
         + "".join(body)
         + "</body></html>\n"
     )

@@ -19,10 +19,8 @@ corrections and the robust weighting's left-out pixels, the gate's verdict), ``f
 
 from __future__ import annotations
 
-import base64
 import datetime as dt
 from dataclasses import dataclass, field
-from html import escape
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -50,6 +48,7 @@ from cam2sim.metrics.drive_quality import DriveMetrics
 from cam2sim.metrics.image_quality import PSNR_CAP_DB, ImageQualityResult
 from cam2sim.metrics.semantic import SemanticResult
 from cam2sim.report.exports import ExportedTable, write_tables
+from cam2sim.report.pieces import data_uri, esc, html_table
 from cam2sim.report.splat_figures import envelope_figure, training_figure
 from cam2sim.scenario.model import Scenario
 from cam2sim.splat.chunk_header import ChunkHeader, outliers_path, pose_correction_sizes
@@ -123,31 +122,16 @@ class _Context:
         """The HTML of a table that is also exported as ``report/tables/<name>.csv|.tex``."""
         table = ExportedTable.of(name, headers, rows, caption)
         self.exported.append(table)
-        return _table(table.headers, table.rows, caption)
+        return html_table(table.headers, table.rows, caption)
 
 
 # -- small HTML helpers ---------------------------------------------------------------------------
-def _e(value: object) -> str:
-    return escape(str(value), quote=True)
-
-
-def _data_uri(data: bytes, mime: str) -> str:
-    return f"data:{mime};base64,{base64.b64encode(data).decode('ascii')}"
-
-
 def _img(data: bytes, alt: str, *, mime: str = "image/png", cls: str = "fig") -> str:
-    return f'<img class="{cls}" alt="{_e(alt)}" src="{_data_uri(data, mime)}">'
+    return f'<img class="{cls}" alt="{esc(alt)}" src="{data_uri(data, mime)}">'
 
 
 def _na(what: str, command: str) -> str:
-    return f'<p class="na">{_e(what)} not available: run <code>{_e(command)}</code></p>'
-
-
-def _table(headers: Sequence[str], rows: Iterable[Sequence[object]], caption: str = "") -> str:
-    head = "".join(f"<th>{_e(h)}</th>" for h in headers)
-    body = "".join("<tr>" + "".join(f"<td>{_e(c)}</td>" for c in row) + "</tr>" for row in rows)
-    cap = f"<caption>{_e(caption)}</caption>" if caption else ""
-    return f"<table>{cap}<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+    return f'<p class="na">{esc(what)} not available: run <code>{esc(command)}</code></p>'
 
 
 def _fmt(value: float | None, spec: str) -> str:
@@ -155,7 +139,7 @@ def _fmt(value: float | None, spec: str) -> str:
 
 
 def _section(sid: str, title: str, body: str) -> str:
-    return f'<section id="{sid}"><h2>{_e(title)}</h2>{body}</section>'
+    return f'<section id="{sid}"><h2>{esc(title)}</h2>{body}</section>'
 
 
 # -- gathering ----------------------------------------------------------------------------------
@@ -267,8 +251,8 @@ def _summary(ctx: _Context) -> str:
     manifest = ctx.ws.read_manifest()
     created = manifest.created.strftime("%Y-%m-%d %H:%M UTC")
     intro = (
-        f"<p>Workspace <code>{_e(ctx.ws.root)}</code>, cam2sim {_e(manifest.tool_version)}, "
-        f"created {_e(created)}.</p>"
+        f"<p>Workspace <code>{esc(ctx.ws.root)}</code>, cam2sim {esc(manifest.tool_version)}, "
+        f"created {esc(created)}.</p>"
     )
     parts = [intro]
     inputs = _inputs(ctx, manifest)
@@ -280,7 +264,7 @@ def _summary(ctx: _Context) -> str:
             ("world frame", sc.world.proj_string or "local (not geo-referenced)"),
         ]
     inputs.append(("runs", str(len(ctx.runs))))
-    parts.append(_table(["input", "value"], inputs, "Inputs"))
+    parts.append(html_table(["input", "value"], inputs, "Inputs"))
     rows = []
     for name, rec in manifest.stages.items():
         seconds = (rec.finished - rec.started).total_seconds()
@@ -290,16 +274,18 @@ def _summary(ctx: _Context) -> str:
             ctx.warnings.insert(0, f"stage {name} failed: {rec.message or 'no message'}")
     steps = _pipeline_steps(ctx, manifest)
     if steps:  # one table: the latest cam2sim run's steps (each stage's own record is in it)
-        parts.append(_table(["step", "state", "finished", "seconds", "message"], steps,
+        parts.append(html_table(["step", "state", "finished", "seconds", "message"], steps,
                             "Pipeline steps (the latest cam2sim run)"))  # fmt: skip
     elif rows:
-        parts.append(_table(["stage", "state", "started", "seconds", "message"], rows, "Stages"))
+        parts.append(
+            html_table(["stage", "state", "started", "seconds", "message"], rows, "Stages")
+        )
     else:
         parts.append(_na("Stage timings", f"cam2sim extract {ctx.ws.root}"))
     if ctx.scenario is not None:
         ctx.warnings += [f"left out {r.id}: {'; '.join(r.reasons)}" for r in ctx.scenario.rejected]
     if ctx.warnings:
-        items = "".join(f"<li>{_e(w)}</li>" for w in ctx.warnings)
+        items = "".join(f"<li>{esc(w)}</li>" for w in ctx.warnings)
         parts.append(f'<h3>Warnings</h3><ul class="warn">{items}</ul>')
     else:
         parts.append("<h3>Warnings</h3><p>none</p>")
@@ -382,7 +368,7 @@ def _behaviour(ctx: _Context, why: str | None) -> str:
             "Behaviour per method (the paper's layout)",
         )
     ]
-    parts += [f'<p class="warn"><b>{_e(note)}</b></p>' for note in paper.notes]
+    parts += [f'<p class="warn"><b>{esc(note)}</b></p>' for note in paper.notes]
     unfit = {g.method: g for g in m.splat_gate if not g.fit}
     ctx.warnings += [
         f"{METHOD_LABELS.get(g.method, g.method)}: its runs fail the splat quality gate "
@@ -397,8 +383,8 @@ def _behaviour(ctx: _Context, why: str | None) -> str:
     }
     glossary = "; ".join(f"{k}: {v}" for k, v in meaning.items() if k in paper.columns)
     note = (
-        f'<p class="note">{_e(glossary)}. Segment {m.segment.length_m:.1f} m '
-        f"(reference {_e(m.segment.reference_run)}), corridor mean width "
+        f'<p class="note">{esc(glossary)}. Segment {m.segment.length_m:.1f} m '
+        f"(reference {esc(m.segment.reference_run)}), corridor mean width "
         f"{m.corridor_mean_width_m:.2f} m. Averages over successful runs; jitter over all "
         "runs. Failure types: OR out of road, CC collision, OS oversteer, US understeer.</p>"
     )
@@ -474,7 +460,7 @@ def _headline_context(ctx: _Context, m: DriveMetrics) -> str:
                     f"out, under the gate's {gate.HELD_OUT_MIN_PSNR_DB:g} dB: the transform, not "
                     "the model, makes up the difference"
                 )
-    return '<p class="note">' + " ".join(_e(line) for line in lines) + "</p>"
+    return '<p class="note">' + " ".join(esc(line) for line in lines) + "</p>"
 
 
 def _runs(ctx: _Context) -> str:
@@ -495,7 +481,7 @@ def _runs(ctx: _Context) -> str:
         ))  # fmt: skip
     headers = ["run", "kind", "method", "policy", "steps", "seconds", "events", "completion",
                "outcome", "splat gate (coverage mean / max)"]  # fmt: skip
-    parts = [_table(headers, rows, "Runs")]
+    parts = [html_table(headers, rows, "Runs")]
     # The evaluate stage's figures (its trajectories figure is the map section's job).
     figures = [ctx.ws.drive_eval_dir / f"{name}.png" for name in ("lateral_offset", "steering")]
     if ctx.metrics is None or not all(f.is_file() for f in figures):
@@ -578,16 +564,16 @@ def _frames(ctx: _Context) -> str:
         else:
             label = CAMERA_LABELS.get(meta.camera or "", meta.camera or "?")
             what = f"closed loop, {label}: what DAVE-2 saw (seed {meta.seed})"
-        parts.append(f"<h3>{_e(run.name)}</h3><p class='note'>{_e(what)}</p>")
+        parts.append(f"<h3>{esc(run.name)}</h3><p class='note'>{esc(what)}</p>")
         try:
             for f in _evenly(files, _CHOSEN_FRAMES):
                 img = _img(_jpeg(f, _FRAME_WIDTH), f"frame {f.stem}", mime="image/jpeg")
-                parts.append(f"<figure>{img}<figcaption>frame {_e(f.stem)}</figcaption></figure>")
+                parts.append(f"<figure>{img}<figcaption>frame {esc(f.stem)}</figcaption></figure>")
             failure = _failure(run)
             if failure is not None and files:
                 img = _img(_jpeg(files[-1], _FRAME_WIDTH), "the last frame", mime="image/jpeg")
                 caption = f"the last frame before it failed: {failure}"
-                parts.append(f"<figure>{img}<figcaption>{_e(caption)}</figcaption></figure>")
+                parts.append(f"<figure>{img}<figcaption>{esc(caption)}</figcaption></figure>")
             strip = "".join(
                 _img(_jpeg(f, _STRIP_WIDTH), f"strip {f.stem}", mime="image/jpeg", cls="strip")
                 for f in _evenly(files, _STRIP_FRAMES)
@@ -600,10 +586,10 @@ def _frames(ctx: _Context) -> str:
             continue  # one clip: the replay's
         clip = _webm(files[:_VIDEO_FRAMES])
         if clip is not None and len(clip) <= VIDEO_CAP_BYTES:
-            src = _data_uri(clip, "video/webm")
+            src = data_uri(clip, "video/webm")
             parts.append(f'<video controls muted loop width="640" src="{src}"></video>')
         elif run_paths(run).video.is_file():
-            parts.append(f'<p class="note">the run\'s video: {_e(str(run_paths(run).video))}</p>')
+            parts.append(f'<p class="note">the run\'s video: {esc(str(run_paths(run).video))}</p>')
     return "".join(parts)
 
 
@@ -692,7 +678,7 @@ def _semantic(ctx: _Context) -> str:
             )
             parts += [
                 f"<figure>{_img(_jpeg(f, _FRAME_WIDTH), f'labels {f.stem}', mime='image/jpeg')}"
-                f"<figcaption>frame {_e(f.stem)}</figcaption></figure>"
+                f"<figcaption>frame {esc(f.stem)}</figcaption></figure>"
                 for f in picked
             ]
         if (path.parent / "real").is_dir() and (path.parent / "sim").is_dir():
@@ -733,12 +719,12 @@ def _images(ctx: _Context) -> str:
         ]
         rows.append([label, *cells])
     rows.append(["image pairs", *(str(len(res.images)) for _, res in results)])
-    parts = [_table(["metric (mean ± std)", *names], rows, "Against the recorded frames")]
+    parts = [html_table(["metric (mean ± std)", *names], rows, "Against the recorded frames")]
     if not any(res.lpips_net for _, res in results):
         parts.append('<p class="note">LPIPS skipped: its weights are not on this machine.</p>')
     where = ", ".join(str(path.relative_to(ctx.ws.root)) for path, _ in results)
     cap = f"PSNR is capped at {PSNR_CAP_DB:g} dB"
-    parts.append(f'<p class="note">From {_e(where)}; {cap}.</p>')
+    parts.append(f'<p class="note">From {esc(where)}; {cap}.</p>')
     return "".join(parts)
 
 
@@ -829,7 +815,7 @@ def _splat(ctx: _Context) -> str:
             '<p class="note">Compare with the held-out PSNR above (the front camera, on the '
             f"path): how much the splat loses where the car was never driven.{beside}</p>"
         )
-    parts += [f'<p class="note">{_e(note)}</p>' for note in ev.notes]
+    parts += [f'<p class="note">{esc(note)}</p>' for note in ev.notes]
     parts.append(_splat_training(ctx))
     rule = (
         f"The splat quality gate: held-out PSNR &ge; {gate.HELD_OUT_MIN_PSNR_DB:g} dB and SSIM "
@@ -848,7 +834,7 @@ def _splat(ctx: _Context) -> str:
             else (f"{name}: fit ({v.runs} runs)")
         )
         cls = "note" if v.fit else "warn"
-        parts.append(f'<p class="{cls}"><b>{_e(text)}</b>. {_e(v.evidence)}.</p>')
+        parts.append(f'<p class="{cls}"><b>{esc(text)}</b>. {esc(v.evidence)}.</p>')
     if not verdicts:
         parts.append('<p class="note">No drive with the splat camera recorded its quality.</p>')
     return "".join(parts)
@@ -884,7 +870,7 @@ def _held_out_pictures(ctx: _Context, ev: SplatEval) -> str:
             continue
         caption = f"{name}: frame {frame.index}, {frame.psnr_db:.1f} dB"
         img = _img(pair, caption, mime="image/jpeg")
-        parts.append(f"<figure>{img}<figcaption>{_e(caption)}</figcaption></figure>")
+        parts.append(f"<figure>{img}<figcaption>{esc(caption)}</figcaption></figure>")
     return "".join(parts)
 
 
@@ -950,7 +936,7 @@ def _splat_training(ctx: _Context) -> str:
         if picture.is_file():
             alt = f"chunk {header.chunk_id}: pixels the robust weighting left out (red)"
             pictures.append(
-                f"<p class='note'>{_e(alt)}</p>"
+                f"<p class='note'>{esc(alt)}</p>"
                 + _img(picture.read_bytes(), alt, mime="image/jpeg")
             )
     if not rows:
@@ -960,7 +946,7 @@ def _splat_training(ctx: _Context) -> str:
         "Training, per chunk model (WS/splat/models/chunk_XX.json); pose corrections: mean / "
         "largest shift and turn of the training views' learned corrections, when refined"
     )
-    table = _table(columns, rows, caption)
+    table = html_table(columns, rows, caption)
     if any(h.val_history for h in headers):
         alt = "held-in PSNR and SSIM over the training steps, per chunk model"
         table += _img(_figure_bytes(training_figure(headers)), alt)
@@ -1015,9 +1001,9 @@ def write_report(
     stamp = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     page = (
         '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
-        f"<title>cam2sim report: {_e(ws.root.name)}</title><style>{_CSS}</style></head><body>"
-        f"<header><h1>cam2sim report: {_e(ws.root.name)}</h1>"
-        f"<div>generated {stamp} by cam2sim {_e(__version__)}</div></header><nav>{nav}</nav>"
+        f"<title>cam2sim report: {esc(ws.root.name)}</title><style>{_CSS}</style></head><body>"
+        f"<header><h1>cam2sim report: {esc(ws.root.name)}</h1>"
+        f"<div>generated {stamp} by cam2sim {esc(__version__)}</div></header><nav>{nav}</nav>"
         + "".join(body[sid] for sid in SECTION_IDS)
         + "</body></html>\n"
     )
