@@ -99,11 +99,14 @@ def _panels(summary: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, An
                 and r["completion"] is not None
             ]
             if values:
-                spread = [
-                    x + 0.25 * (i / max(1, len(values) - 1) - 0.5) for i in range(len(values))
-                ]
+                n = len(values)
+                spread = [x + 0.3 * ((i + 0.5) / n - 0.5) for i in range(n)]
                 ax.plot(spread, values, "o", color="#c44", ms=4)
+            elif not done:
+                ax.text(x, 0.5, "no run finished", rotation=90, ha="center", va="center",
+                        color="#777", fontsize=8)  # fmt: skip
         ax.set_xticks(range(len(groups)), [_label(s) for s in groups], rotation=20, ha="right")
+        ax.set_xlim(-0.6, len(groups) - 0.4)
         ax.set_ylim(0, 1.05)
         ax.set_title(world, fontsize=10)
     axes[0][0].set_ylabel("completion (dots); completed (bars)")
