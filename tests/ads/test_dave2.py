@@ -297,8 +297,6 @@ def test_refit_keeps_a_network_trained_on_every_frame(tmp_path: Path) -> None:
     report = json.loads((ws.ads_dir / "train_report.json").read_text())
     assert report["refit_all_frames"] is True
     assert report["best_epoch"] == 2
-    with pytest.raises(ValueError, match="dropout"):
-        TrainOptions(dropout=1.0)
     assert [e["epoch"] for e in report["epochs"]] == [1, 2]  # the validated run's curve
     validated = report["val_mse"]
     # The kept network is not the validated one: on the validation frames it fits better,
@@ -468,11 +466,5 @@ def test_the_crop_follows_the_camera_and_keeps_its_width() -> None:
     assert float(edge[:, 0].min()) == 255.0
     assert float(edge[:, -1].max()) == 0.0
     assert Dave2Config.for_camera(640, 480).crop_cols is None
-    # The training option's dropout changes the network, not the crop.
-    from cam2sim.ads.train import TrainOptions
-
-    opts = TrainOptions(config=kitti, dropout=0.5)
-    assert opts.dave2.dropout == 0.5
-    assert opts.dave2.crop_rows == kitti.crop_rows
     with pytest.raises(ValueError, match="crop columns"):
         Dave2Config(crop_cols=(700, 900))

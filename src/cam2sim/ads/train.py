@@ -126,8 +126,6 @@ class TrainOptions:
         recovery_share: Share of each batch shown displaced.
         config: Network sizes and preprocessing; None: the published ones, fitted to the
             workspace's camera by the ads stage (:meth:`Dave2Config.for_camera`).
-        dropout: Dropout before the fully connected layers, over :attr:`config`'s; None keeps
-            it (0.2).
         seed: Seeds torch and numpy.
         device: ``cuda``/``cpu``; None takes CUDA when available.
         workers: Threads decoding frames.
@@ -155,7 +153,6 @@ class TrainOptions:
     recovery_lookahead_m: float = 10.0
     recovery_share: float = 0.5
     config: Dave2Config | None = None
-    dropout: float | None = None
     seed: int = 0
     device: str | None = None
     workers: int = 2
@@ -181,11 +178,8 @@ class TrainOptions:
 
     @property
     def dave2(self) -> Dave2Config:
-        """The network's sizes: :attr:`config` (the published ones when None), :attr:`dropout`."""
-        config = self.config or Dave2Config()
-        if self.dropout is None:
-            return config
-        return config.model_copy(update={"dropout": self.dropout})
+        """The network's sizes: :attr:`config`, or the published ones when it is None."""
+        return self.config or Dave2Config()
 
     @property
     def uses_recovery(self) -> bool:
@@ -230,9 +224,6 @@ class TrainOptions:
                 f"recovery_share in [0, 1]; got {self.recovery_m}, {self.recovery_deg}, "
                 f"{self.recovery_lookahead_m}, {self.recovery_share}"
             )
-            raise ValueError(msg)
-        if self.dropout is not None and not 0.0 <= self.dropout < 1.0:
-            msg = f"dropout must lie in [0, 1), got {self.dropout}"
             raise ValueError(msg)
         if not self.learning_rate > 0:
             msg = f"learning_rate must be positive, got {self.learning_rate}"
