@@ -63,3 +63,19 @@ def dying_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOutcom
         marker.write_text("the worker exited here\n", encoding="utf-8")
         os._exit(1)
     return execute(spec, log, timeout_s)
+
+
+def probe_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOutcome:
+    """Instead of a drive: hold the task 1.5 s and log when; the outcome says where it ran."""
+    import time
+    from pathlib import Path
+
+    from cam2sim.campaign.state import RunOutcome
+    from cam2sim.core.cluster import worker_place
+
+    del timeout_s
+    started = time.time()
+    time.sleep(1.5)
+    Path(log).parent.mkdir(parents=True, exist_ok=True)
+    Path(log).write_text(f"{started} {time.time()}\n", encoding="utf-8")
+    return RunOutcome(spec.spec_id, "failed", None, 1.5, "a probe, no drive", log, worker_place())

@@ -1,4 +1,5 @@
-"""A campaign on a two-node Ray cluster (a head and a worker node, both on this machine).
+"""A campaign on a two-node Ray cluster (a head and a worker node, both on this machine), and
+splat runs sharing a GPU.
 
 The same code path as a real cluster (`docs/cluster.md`): `RayCluster(address=...)` connects to
 a running cluster instead of starting one, and its tasks are spread over the nodes.
@@ -9,11 +10,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import campaign_helpers
 import pytest
-from campaign_helpers import PLAN, write_campaign
+from campaign_helpers import PLAN, probe_execute, write_campaign
 
 from cam2sim.campaign.executors import LocalPool, RayCluster
 from cam2sim.campaign.runner import run_campaign
+from cam2sim.core.errors import ConfigError
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
@@ -58,3 +61,62 @@ def test_a_campaign_runs_on_a_two_node_cluster(tmp_path: Path, two_nodes: str) -
     # and it was left running for its owner.
     ray.init(address=two_nodes)
     assert len([n for n in ray.nodes() if n["Alive"]]) == 2
+
+
+@pytest.fixture
+def one_gpu() -> Iterator[None]:
+    """A local Ray instance of 4 CPUs and one GPU (declared: Ray schedules it, none is used)."""
+    ray.init(num_cpus=4, num_gpus=1, include_dashboard=False, log_to_driver=False)
+    try:
+        yield
+    finally:
+        ray.shutdown()
+
+
+def _spans(folder: Path) -> list[tuple[float, float]]:
+    """When each probe ran (its log's two times), in start order."""
+    return sorted(
+        (float(a), float(b))
+        for a, b in (p.read_text().split() for p in sorted((folder / "logs").glob("*.log")))
+    )
+
+
+def test_splat_runs_take_a_gpu_or_a_share_of_one(tmp_path: Path, one_gpu: None) -> None:
+    ray.cloudpickle.register_pickle_by_value(campaign_helpers)  # the probe, sent by value
+    plan_text = PLAN.replace("cameras: [none]", "cameras: [splat]").replace(
+        "seeds: [0]", "seeds: [0, 1]"
+    )
+    plan_text = plan_text.replace("{lateral_m: [0.0, 0.3]}", "{}")
+    progress: list[tuple[str, int]] = []
+    whole = run_campaign(
+        write_campaign(tmp_path, plan_text + "output: whole\n", name="whole"),
+        executor=RayCluster(task=probe_execute),
+        progress=lambda task, done, _total: progress.append((task, done)),
+    )
+    # Each run was given the GPU and said so; one GPU a run: one at a time.
+    assert [r.place for r in whole.rows] == [f"{_host()} GPU 0"] * 2
+    (_a0, a1), (b0, _b1) = _spans(whole.folder)
+    assert b0 >= a1 - 0.05
+    # The progress shows the GPU at work: a bar of the runs it did.
+    assert (f"  runs on {_host()} GPU 0", 2) in progress
+    assert "Where the runs ran" in (whole.folder / "report.html").read_text()
+    # Half a GPU a run: both at once on the one GPU.
+    shared = run_campaign(
+        write_campaign(tmp_path, plan_text + "output: shared\n", name="shared"),
+        executor=RayCluster(task=probe_execute, gpus_per_job=0.5),
+    )
+    assert [r.place for r in shared.rows] == [f"{_host()} GPU 0"] * 2
+    (_a0, a1), (b0, _b1) = _spans(shared.folder)
+    assert b0 < a1 - 0.5
+
+
+def _host() -> str:
+    import socket
+
+    return socket.gethostname()
+
+
+@pytest.mark.parametrize("share", [0.0, 1.5, -1.0])
+def test_a_gpu_share_must_be_part_of_one_or_whole_gpus(share: float) -> None:
+    with pytest.raises(ConfigError, match="a share of one GPU in \\(0, 1\\]"):
+        RayCluster(gpus_per_job=share)

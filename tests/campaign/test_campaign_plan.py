@@ -98,3 +98,19 @@ def test_model_policies_resolve_against_the_plan_folder(tmp_path: Path) -> None:
     specs = expand(plan, tmp_path)
     assert [s.policy_arg for s in specs] == [str(tmp_path / "m" / "dave2.onnx"), "tcp://h:1"]
     assert [s.policy for s in specs] == ["m/dave2.onnx", "tcp://h:1"]
+
+
+def test_each_workspace_drives_with_its_own_model(tmp_path: Path) -> None:
+    for name in ("a", "b"):
+        (tmp_path / name / "ads").mkdir(parents=True)
+        (tmp_path / name / "ads" / "dave2.onnx").write_bytes(b"model " + name.encode())
+    plan = load_plan(_plan(tmp_path, "workspaces: [a, b]\npolicies: [workspace-model]\n"))
+    specs = expand(plan, tmp_path)
+    assert [s.policy_arg for s in specs] == [
+        str(tmp_path / "a" / "ads" / "dave2.onnx"), str(tmp_path / "b" / "ads" / "dave2.onnx"),
+    ]  # fmt: skip
+    # The id hashes the plan's word, not the path: a moved campaign keeps its ids.
+    assert all(s.policy == "workspace-model" for s in specs)
+    (tmp_path / "b" / "ads" / "dave2.onnx").unlink()
+    with pytest.raises(ConfigError, match=r"workspace b has no dave2.onnx .*cam2sim ads train b"):
+        expand(plan, tmp_path)

@@ -7,8 +7,8 @@ callback in the calling process, in the order runs finish.
   ``workers`` runs are in flight, so when a worker process dies (a crash the run's own error
   handling cannot catch) the runs in flight are the only suspects: each is tried again alone, and
   the one that kills its worker again is recorded ``crashed``.
-- :class:`RayCluster`: one Ray task per run, with its resource needs (one GPU for the splat
-  camera, one CPU otherwise). ``ray`` is an optional extra, imported only here.
+- :class:`RayCluster`: one Ray task per run, with its resource needs (a GPU, or a share of one,
+  for the splat camera; one CPU otherwise). ``ray`` is an optional extra, imported only here.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from cam2sim.campaign.state import RunOutcome
 from cam2sim.campaign.worker import execute
 from cam2sim.core.cluster import LOST_WORKER_RETRIES, ray_session
+from cam2sim.core.errors import ConfigError
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -139,8 +140,12 @@ class RayCluster:
 
     ``task`` runs a job (default: a campaign drive); ``cpus_per_job`` CPUs are reserved for
     each (Ray also sets the task's thread count to it: a benchmark world trains DAVE-2 with
-    torch and wants several). A job that needs a GPU gets one when the cluster has GPUs; on a
+    torch and wants several). A job that needs a GPU gets ``gpus_per_job`` of one when the
+    cluster has GPUs (0.5: two runs share a GPU, each holding it about half the time); on a
     cluster without any it runs on CPUs (asking for one there would wait forever).
+
+    Raises:
+        ConfigError: ``gpus_per_job`` is not in (0, 1] and not a whole number of GPUs.
     """
 
     name = "ray"
@@ -152,11 +157,19 @@ class RayCluster:
         num_cpus: int | None = None,
         task: Callable[..., RunOutcome] = execute,
         cpus_per_job: float = 1.0,
+        gpus_per_job: float = 1.0,
     ) -> None:
+        if not (gpus_per_job > 0 and (gpus_per_job <= 1 or float(gpus_per_job).is_integer())):
+            msg = (
+                f"gpus per job {gpus_per_job:g}: give a share of one GPU in (0, 1] "
+                "(0.5: two jobs a GPU) or a whole number of GPUs"
+            )
+            raise ConfigError(msg)
         self.address = address
         self.num_cpus = num_cpus
         self.task = task
         self.cpus_per_job = cpus_per_job
+        self.gpus_per_job = gpus_per_job
 
     def run(self, jobs: Sequence[Job], report: Callable[[RunOutcome], None]) -> None:
         """Submit every job as a task, then report outcomes as tasks finish."""
@@ -173,7 +186,7 @@ class RayCluster:
         for job in jobs:
             needs = {
                 "num_cpus": cpus,
-                "num_gpus": 1 if job.spec.needs_gpu and gpus > 0 else 0,
+                "num_gpus": self.gpus_per_job if job.spec.needs_gpu and gpus > 0 else 0,
                 "max_retries": LOST_WORKER_RETRIES,
             }
             pending[task.options(**needs).remote(job.spec, job.log, job.timeout_s)] = job

@@ -16,17 +16,19 @@ import json
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Final, Literal
 
 import pydantic
 
 from cam2sim.core.config import read_yaml
 from cam2sim.core.errors import ConfigError
+from cam2sim.core.workspace import Workspace
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
 __all__ = [
+    "WORKSPACE_MODEL",
     "DriveSettings",
     "Perturbation",
     "Plan",
@@ -37,6 +39,10 @@ __all__ = [
 ]
 
 CampaignCamera = Literal["raster", "splat", "truth", "none"]
+
+WORKSPACE_MODEL: Final = "workspace-model"
+"""The policy that is each workspace's own DAVE-2 (``WS/ads/dave2.onnx``, what ``cam2sim ads``
+trained on that recording): a campaign over many recordings, each driven by its own model."""
 
 
 class _Model(pydantic.BaseModel):
@@ -116,7 +122,12 @@ class Plan(_Model):
     workspaces: tuple[str, ...] = pydantic.Field(
         min_length=1, description="workspace folders, relative to the plan file or absolute"
     )
-    policies: tuple[str, ...] = pydantic.Field(("pure-pursuit",), min_length=1)
+    policies: tuple[str, ...] = pydantic.Field(
+        ("pure-pursuit",),
+        min_length=1,
+        description="pure-pursuit, constant:VALUE, tcp://HOST:PORT, a model file, or "
+        "workspace-model (each workspace's own ads/dave2.onnx)",
+    )
     cameras: tuple[CampaignCamera, ...] = pydantic.Field(("raster",), min_length=1)
     seeds: tuple[int, ...] = pydantic.Field((0,), min_length=1)
     repetitions: int = pydantic.Field(1, ge=1, description="runs of every combination")
@@ -247,7 +258,8 @@ def expand(plan: Plan, base: Path) -> list[RunSpec]:
     """Every run of ``plan``, in a fixed order; workspaces resolve against ``base``.
 
     Raises:
-        ConfigError: Two combinations are the same run (a value listed twice).
+        ConfigError: Two combinations are the same run (a value listed twice), or a workspace
+            has no model for the ``workspace-model`` policy.
     """
     specs: list[RunSpec] = []
     for ws, policy, camera, pert, seed, rep in itertools.product(
@@ -260,7 +272,16 @@ def expand(plan: Plan, base: Path) -> list[RunSpec]:
     ):
         resolved = _resolve(ws, base)
         policy_arg = policy
-        if not policy.startswith(("pure-pursuit", "constant:", "tcp://")):
+        if policy == WORKSPACE_MODEL:  # each recording's own DAVE-2
+            model = Workspace(Path(resolved)).ads_files.onnx
+            if not model.is_file():
+                msg = (
+                    f"policy {WORKSPACE_MODEL}: workspace {ws} has no {model.name} in "
+                    f"{model.parent}; train it with `cam2sim ads train {ws}` (or name a model file)"
+                )
+                raise ConfigError(msg)
+            policy_arg = str(model)
+        elif not policy.startswith(("pure-pursuit", "constant:", "tcp://")):
             policy_arg = _resolve(policy, base)  # a model file
         for lateral, heading, speed in itertools.product(
             pert.lateral_m, pert.heading_deg, pert.speed_kmh

@@ -11,6 +11,7 @@ campaign ends or is interrupted (Ctrl-C), so an interrupted campaign loses nothi
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import logging
 import time
@@ -142,6 +143,7 @@ def _run(
     by_id = {s.spec_id: s for s in todo}
     jobs = [Job(s, str(folder / "logs" / f"{s.spec_id}.log"), plan.timeout_s) for s in todo]
     finished: list[RunOutcome] = []
+    places: collections.Counter[str] = collections.Counter()
     saved = {"at": 0.0, "cost": 0.0}
 
     def save() -> None:
@@ -161,6 +163,10 @@ def _run(
             logger.warning("run %s %s: %s (log: %s)", outcome.spec_id, outcome.status,
                            outcome.error, outcome.log)  # fmt: skip
         report(TASK, len(finished), len(jobs))
+        if outcome.place is not None:
+            places[outcome.place] += 1
+            if len(places) > 1 or " GPU " in outcome.place:  # a bar a GPU (or node) at work
+                report(f"  runs on {outcome.place}", places[outcome.place], None)
 
     started = time.perf_counter()
     report(TASK, 0, len(jobs))

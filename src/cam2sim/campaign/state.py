@@ -33,6 +33,9 @@ class RunOutcome:
         seconds: Wall time of the attempt.
         error: One line saying what went wrong (None when done).
         log: The attempt's log file.
+        place: Where it ran: the host and the GPU it was given (``host GPU 2``), ``host CPU``
+            when it was given none, the host alone when nothing assigned devices (a local
+            pool); None when the worker died before saying.
     """
 
     spec_id: str
@@ -41,6 +44,7 @@ class RunOutcome:
     seconds: float
     error: str | None
     log: str
+    place: str | None = None
 
 
 class RunRecord(pydantic.BaseModel):
@@ -54,6 +58,7 @@ class RunRecord(pydantic.BaseModel):
     seconds: float = 0.0
     error: str | None = None
     log: str | None = None
+    place: str | None = None
     attempts: int = 1
     finished_at: str = ""
 
@@ -78,6 +83,7 @@ class CampaignState(Artifact):
             seconds=round(outcome.seconds, 3),
             error=outcome.error,
             log=outcome.log,
+            place=outcome.place,
             attempts=1 + (before.attempts if before is not None else 0),
             finished_at=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         )

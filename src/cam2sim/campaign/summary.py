@@ -53,6 +53,7 @@ class RunRow:
     status: str
     run_id: str | None
     seconds: float | None
+    place: str | None
     completion: float | None
     success: bool | None
     min_frechet_m: float | None
@@ -136,7 +137,7 @@ def summarize(
                 seed=s.seed, repetition=s.repetition, lateral_m=s.lateral_m,
                 heading_deg=s.heading_deg, speed_kmh=s.speed_kmh,
                 status=rec.status if rec else "missing", run_id=rec.run_id if rec else None,
-                seconds=rec.seconds if rec else None,
+                seconds=rec.seconds if rec else None, place=rec.place if rec else None,
                 completion=m.completion if m else None, success=m.success if m else None,
                 min_frechet_m=m.min_frechet_m if m else None,
                 corridor_violation_pct=m.corridor_violation_pct if m else None,

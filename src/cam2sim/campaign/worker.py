@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from cam2sim.campaign.state import RunOutcome, RunStatus
+from cam2sim.core.cluster import worker_place
 from cam2sim.core.workspace import Workspace
 from cam2sim.stages.runs import DriveOptions, drive
 
@@ -183,4 +184,5 @@ def run_logged(
         seconds=time.perf_counter() - started,
         error=error,
         log=str(path),
+        place=worker_place(),
     )

@@ -54,6 +54,13 @@ def campaign(
         int | None,
         typer.Option(min=1, help="Local pool processes (default: CPU count); Ray local CPUs."),
     ] = None,
+    gpus_per_run: Annotated[
+        float,
+        typer.Option(
+            min=0.01,
+            help="With --ray: the share of a GPU a splat-camera run holds (0.5: two a GPU).",
+        ),
+    ] = 1.0,
     retry_failed: Annotated[
         bool, typer.Option(help="Run failed, timed-out and crashed runs again.")
     ] = True,
@@ -64,12 +71,16 @@ def campaign(
     (summary.csv, summary.json) and report.html in the campaign folder. A re-run does only
     what is missing.
 
-    Example: cam2sim campaign plan.yaml --ray auto
+    Example: cam2sim campaign plan.yaml --ray auto --gpus-per-run 0.5
     """
     from cam2sim.campaign.executors import LocalPool, RayCluster  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.campaign.runner import run_campaign  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
-    executor = LocalPool(workers) if ray is None else RayCluster(ray, num_cpus=workers)
+    executor = (
+        LocalPool(workers)
+        if ray is None
+        else RayCluster(ray, num_cpus=workers, gpus_per_job=gpus_per_run)
+    )
     with progress_bars() as sink:
         result = run_campaign(plan, executor=executor, retry_failed=retry_failed, progress=sink)
     _print_summary(result.summary)

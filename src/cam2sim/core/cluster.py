@@ -8,6 +8,9 @@ that instance is used and left running.
 from __future__ import annotations
 
 import contextlib
+import os
+import socket
+import sys
 from typing import TYPE_CHECKING, Any, Final
 
 from cam2sim.core.errors import BackendUnavailableError
@@ -15,7 +18,7 @@ from cam2sim.core.errors import BackendUnavailableError
 if TYPE_CHECKING:
     from collections.abc import Iterator
 
-__all__ = ["LOST_WORKER_RETRIES", "import_ray", "ray_session"]
+__all__ = ["LOST_WORKER_RETRIES", "import_ray", "ray_session", "worker_place"]
 
 LOST_WORKER_RETRIES: Final = 1
 """Times Ray runs a task again whose worker process or node died (killed for memory, a node
@@ -65,3 +68,21 @@ def ray_session(address: str = "local", *, num_cpus: int | None = None) -> Itera
     finally:
         if started:
             ray.shutdown()
+
+
+def worker_place() -> str:
+    """Where this process runs: ``host GPU 2`` (the GPUs it was given), ``host CPU`` or ``host``.
+
+    In a Ray task, the GPUs Ray gave it (none: ``host CPU``). Elsewhere a scheduler that
+    assigns GPUs sets ``CUDA_VISIBLE_DEVICES`` (empty: none given); unset, nothing assigned
+    devices (a local pool), and only the host is known.
+    """
+    host = socket.gethostname()
+    ray = sys.modules.get("ray")  # imported: maybe a Ray worker; never imported here
+    if ray is not None and ray.is_initialized():
+        ids = ray.get_gpu_ids()
+        return f"{host} GPU {','.join(str(i) for i in ids)}" if ids else f"{host} CPU"
+    gpus = os.environ.get("CUDA_VISIBLE_DEVICES")
+    if gpus is None:
+        return host
+    return f"{host} GPU {gpus}" if gpus.strip() else f"{host} CPU"

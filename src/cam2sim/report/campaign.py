@@ -3,9 +3,9 @@
 What a campaign writes to ``summary.json`` (:mod:`cam2sim.campaign.summary`), shown as people
 read it: the time and throughput, one table row per recording, policy and camera with the
 route-completion rate and its 95 % interval (Wilson), one plot panel per recording (each run's
-completion and the completion rate of each policy and camera), and every run that did not
-finish with its log. It reads the summary's rows as plain mappings, so it can be rendered again
-from ``summary.json`` alone (:func:`report_from_summary`).
+completion and the completion rate of each policy and camera), the runs each host and GPU did,
+and every run that did not finish with its log. It reads the summary's rows as plain mappings,
+so it can be rendered again from ``summary.json`` alone (:func:`report_from_summary`).
 """
 
 from __future__ import annotations
@@ -114,6 +114,22 @@ def _panels(summary: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, An
     return fig
 
 
+def _places(runs: Sequence[Mapping[str, Any]]) -> str:
+    """Runs per host and GPU (what each did), when more than one place ran them."""
+    by: dict[str, list[float]] = {}
+    for r in runs:
+        if r.get("place") and r["status"] != "missing":
+            by.setdefault(str(r["place"]), []).append(float(r["seconds"] or 0.0))
+    if len(by) < 2 and not any(" GPU " in p for p in by):
+        return ""
+    rows = [
+        [place, len(times), fmt(sum(times), ".0f"), fmt(sum(times) / len(times), ".1f")]
+        for place, times in sorted(by.items())
+    ]
+    headers = ["where (host, GPU)", "runs", "run seconds", "seconds a run"]
+    return html_table(headers, rows, "Where the runs ran (their latest attempts)")
+
+
 def _not_finished(runs: Sequence[Mapping[str, Any]], folder: Path) -> str:
     rows = [
         [r["spec_id"], r["workspace"], _label(r), r["seed"], r["status"],
@@ -164,6 +180,7 @@ def write_campaign_report(
     ]
     if summary:
         parts.append(png_img(_panels(summary, runs), alt="completion per recording"))
+    parts.append(_places(runs))
     parts.append(_not_finished(runs, folder))
     stamp = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     parts.append(f'<p class="note">cam2sim {esc(__version__)}, {stamp}</p>')
