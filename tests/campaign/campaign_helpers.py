@@ -79,3 +79,36 @@ def probe_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOutcom
     Path(log).parent.mkdir(parents=True, exist_ok=True)
     Path(log).write_text(f"{started} {time.time()}\n", encoding="utf-8")
     return RunOutcome(spec.spec_id, "failed", None, 1.5, "a probe, no drive", log, worker_place())
+
+
+def slow_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOutcome:
+    """The worker's task, after leaving ``<log>.started`` and waiting 4 s (time to kill a node)."""
+    import time
+    from pathlib import Path
+
+    marker = Path(log).with_suffix(".started")
+    marker.parent.mkdir(parents=True, exist_ok=True)
+    marker.write_text(f"{os.getpid()}\n", encoding="utf-8")
+    time.sleep(4.0)
+    return execute(spec, log, timeout_s)
+
+
+def full_disk_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOutcome:
+    """The worker's task; for policy ``constant:0.01`` the run folder's disk is full when the
+    run writes its tables (in this worker process, for this run only)."""
+    import errno
+
+    from cam2sim.stages import runs
+
+    if spec.policy != "constant:0.01":
+        return execute(spec, log, timeout_s)
+    real = runs._write_tables
+
+    def full(folder: object, *args: object) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device", str(folder))
+
+    runs._write_tables = full  # type: ignore[assignment]
+    try:
+        return execute(spec, log, timeout_s)
+    finally:
+        runs._write_tables = real

@@ -7,15 +7,18 @@ a running cluster instead of starting one, and its tasks are spread over the nod
 
 from __future__ import annotations
 
+import threading
+import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import campaign_helpers
 import pytest
-from campaign_helpers import PLAN, probe_execute, write_campaign
+from campaign_helpers import PLAN, probe_execute, slow_execute, write_campaign
 
 from cam2sim.campaign.executors import LocalPool, RayCluster
-from cam2sim.campaign.runner import run_campaign
+from cam2sim.campaign.runner import CampaignResult, run_campaign
+from cam2sim.campaign.state import CampaignState
 from cam2sim.core.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -61,6 +64,56 @@ def test_a_campaign_runs_on_a_two_node_cluster(tmp_path: Path, two_nodes: str) -
     # and it was left running for its owner.
     ray.init(address=two_nodes)
     assert len([n for n in ray.nodes() if n["Alive"]]) == 2
+
+
+@pytest.fixture
+def doomed_node() -> Iterator[tuple[Any, Any]]:
+    """A head node and a worker node of one CPU each: the cluster and the worker node."""
+    cluster = cluster_utils.Cluster(
+        initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False}
+    )
+    node = cluster.add_node(num_cpus=1)
+    cluster.wait_for_nodes()
+    try:
+        yield cluster, node
+    finally:
+        if ray.is_initialized():
+            ray.shutdown()
+        cluster.shutdown()
+
+
+def test_the_runs_of_a_lost_node_run_again_on_the_others(
+    tmp_path: Path, doomed_node: tuple[Any, Any]
+) -> None:
+    ray.cloudpickle.register_pickle_by_value(campaign_helpers)  # the slow task, sent by value
+    cluster, node = doomed_node
+    plan = write_campaign(
+        tmp_path,
+        PLAN.replace("seeds: [0]", "seeds: [0, 1]").replace("{lateral_m: [0.0, 0.3]}", "{}"),
+    )
+    done: list[CampaignResult] = []
+    driver = threading.Thread(
+        target=lambda: done.append(
+            run_campaign(plan, executor=RayCluster(cluster.address, task=slow_execute))
+        )
+    )
+    driver.start()
+    logs = tmp_path / "plan-campaign" / "logs"
+    until = time.monotonic() + 60
+    while len(list(logs.glob("*.started"))) < 2 and time.monotonic() < until:
+        time.sleep(0.2)  # both runs under way, one on each node
+    assert len(list(logs.glob("*.started"))) == 2
+    cluster.remove_node(node, allow_graceful=False)  # its raylet and workers killed
+    driver.join(timeout=120)
+    (result,) = done
+    # The lost node's run ran again on the head node; both finished; nothing half-written.
+    assert [r.status for r in result.rows] == ["done", "done"]
+    state = CampaignState.load(result.folder / "state.json")
+    assert sorted(r.attempts for r in state.runs.values()) == [1, 1]
+    runs = tmp_path / "ws" / "runs"
+    finished = [p for p in runs.iterdir() if not p.name.startswith(".")]
+    assert len(finished) == 2
+    assert all((p / "run.json").is_file() and (p / "trajectory.csv").is_file() for p in finished)
 
 
 @pytest.fixture

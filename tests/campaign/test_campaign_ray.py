@@ -92,6 +92,25 @@ def test_splat_chunks_train_as_ray_tasks_into_the_same_models_folder(
     assert [c.model_path for c in result.chunks] == [models / "chunk_00.pt", models / "chunk_01.pt"]
 
 
+def test_a_failing_chunk_on_ray_is_named_after_the_others_are_saved(
+    tmp_path: Path, local_ray: None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    pytest.importorskip("torch")
+    monkeypatch.syspath_prepend(str(Path(__file__).parents[1] / "splat"))
+    from test_train import fast_options, make_prepared_scene
+
+    from cam2sim.core.errors import StageError
+    from cam2sim.splat.distributed import train_scene_on_ray
+
+    prep = make_prepared_scene(tmp_path / "ws", n_frames=6, chunks=((0, 4), (2, 6)), size=(32, 24))
+    (prep / "images" / "000005.png").write_bytes(b"broken")  # a frame of chunk 1 only
+    options = fast_options(max_steps=4, min_steps=4, val_every=2, sky_points=20)
+    with pytest.raises(StageError, match=r"1 of 2 chunks failed on Ray \(chunk 1: .*000005.png"):
+        train_scene_on_ray(prep, options=options)
+    models = tmp_path / "ws" / "splat" / "models"
+    assert sorted(p.name for p in models.iterdir()) == ["chunk_00.json", "chunk_00.pt"]
+
+
 def test_a_killed_worker_is_retried_once_and_then_reported(tmp_path: Path, local_ray: None) -> None:
     # The helpers' module is not importable in Ray's workers: send its functions by value.
     ray.cloudpickle.register_pickle_by_value(campaign_helpers)

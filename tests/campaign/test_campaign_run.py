@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
 import signal
+import subprocess
+import sys
 import threading
-from typing import TYPE_CHECKING
+import time
+from pathlib import Path
 
 import pytest
-from campaign_helpers import PLAN, crashing_execute, needs_egl, write_campaign
+from campaign_helpers import PLAN, crashing_execute, full_disk_execute, needs_egl, write_campaign
 from typer.testing import CliRunner
 
 from cam2sim.campaign import worker
@@ -21,9 +25,6 @@ from cam2sim.cli.main import app
 from cam2sim.core.errors import WorkspaceError
 from cam2sim.core.table import read_table
 from cam2sim.metrics.benchmark import wilson_interval
-
-if TYPE_CHECKING:
-    from pathlib import Path
 
 
 def _runs(ws: Path) -> list[Path]:
@@ -159,6 +160,66 @@ def test_a_crashing_worker_fails_only_its_own_run(tmp_path: Path) -> None:
     crashed = next(r for r in result.rows if r.status == "crashed")
     log = (result.folder / "logs" / f"{crashed.spec_id}.log").read_text()
     assert "the worker process died during the run" in log
+
+
+def test_a_full_disk_fails_its_run_and_a_resume_redoes_only_that_one(tmp_path: Path) -> None:
+    plan = write_campaign(
+        tmp_path,
+        PLAN.replace("[pure-pursuit]", '[pure-pursuit, "constant:0.01"]').replace(
+            "{lateral_m: [0.0, 0.3]}", "{}"
+        ),
+    )
+    result = run_campaign(plan, executor=LocalPool(1, task=full_disk_execute))
+    status = {r.policy: r.status for r in result.rows}
+    assert status == {"pure-pursuit": "done", "constant:0.01": "failed"}
+    state = CampaignState.load(result.folder / "state.json")
+    failed = next(r for r in state.runs.values() if r.status == "failed")
+    assert failed.error is not None
+    assert failed.error.startswith("the disk is full (")
+    assert "run the campaign again" in failed.error
+    # Nothing half-written: the full disk's run left no folder, hidden or not.
+    assert len(_runs(tmp_path / "ws")) == 1
+    assert not [p for p in (tmp_path / "ws" / "runs").iterdir() if p.name.startswith(".")]
+    # Space freed: the same campaign runs only the failed run again.
+    again = run_campaign(plan, executor=LocalPool(1))
+    assert again.ran == 1
+    assert [r.status for r in again.rows] == ["done", "done"]
+    assert len(_runs(tmp_path / "ws")) == 2
+
+
+_INTERRUPTED = """
+import sys
+sys.path[:0] = [{tests!r}, {here!r}]
+from campaign_helpers import slow_execute
+from cam2sim.campaign.executors import LocalPool
+from cam2sim.campaign.runner import run_campaign
+run_campaign({plan!r}, executor=LocalPool(1, task=slow_execute))
+"""
+
+
+def test_ctrl_c_keeps_what_finished_and_a_resume_does_the_rest(tmp_path: Path) -> None:
+    here = Path(__file__).parent
+    plan = write_campaign(tmp_path, PLAN.replace("seeds: [0]", "seeds: [0, 1]"))
+    script = _INTERRUPTED.format(tests=str(here.parent), here=str(here), plan=str(plan))
+    child = subprocess.Popen([sys.executable, "-c", script], start_new_session=True)
+    state_path = tmp_path / "plan-campaign" / "state.json"
+    until = time.monotonic() + 120
+    while time.monotonic() < until and child.poll() is None:
+        if state_path.is_file() and len(CampaignState.load(state_path).done()) >= 1:
+            break
+        time.sleep(0.2)
+    os.killpg(child.pid, signal.SIGINT)  # Ctrl-C reaches the driver and its workers
+    assert child.wait(timeout=60) != 0
+    kept = CampaignState.load(state_path).done()
+    assert 1 <= len(kept) < 4
+    finished = _runs(tmp_path / "ws")
+    assert all((p / "run.json").is_file() for p in finished if not p.name.startswith("."))
+    # The resume runs only what is missing, and keeps what finished.
+    resumed = run_campaign(plan, executor=LocalPool(2))
+    assert resumed.ran == 4 - len(kept)
+    assert [r.status for r in resumed.rows] == ["done"] * 4
+    done = [p for p in _runs(tmp_path / "ws") if not p.name.startswith(".")]
+    assert len(done) == 4
 
 
 def test_the_campaign_command_prints_the_summary(tmp_path: Path) -> None:

@@ -916,3 +916,39 @@ def test_a_nan_gradient_does_not_enter_the_model(
     first, last = result.val_history[0][1], result.val_history[-1][1]
     assert last > first + 2.0, result.val_history
     assert any("NaN or inf gradient values on 2 steps" in n for n in model.header.notes)
+
+
+def test_a_diverged_chunk_stops_with_an_error_and_writes_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Every loss NaN from step 3 on: most steps' gradients are non-finite, so the chunk has
+    # diverged; it stops at the next validation and leaves no model a drive could load.
+    import cam2sim.splat.train as train_module
+
+    real = train_module.photometric_loss
+    calls = {"n": 0}
+
+    def diverging(*args: object, **kwargs: object) -> torch.Tensor:
+        calls["n"] += 1
+        loss = real(*args, **kwargs)  # type: ignore[arg-type]
+        return loss * float("nan") if calls["n"] >= 3 else loss
+
+    monkeypatch.setattr(train_module, "photometric_loss", diverging)
+    prep = make_prepared_scene(tmp_path, n_frames=8, chunks=((0, 8),), size=(48, 32))
+    scene = SceneRecord.load(prep / "scene.json")
+    with pytest.raises(
+        StageError, match=r"splat chunk 0 diverged at step 10: NaN or inf gradients on 8 steps"
+    ):
+        train_chunk(scene, 0, prep, fast_options(), models_dir=tmp_path / "models")
+    assert not (tmp_path / "models").exists() or not any((tmp_path / "models").iterdir())
+
+
+@pytest.mark.parametrize(
+    ("skipped", "steps", "psnr", "expected"),
+    [(0, 100, 20.0, False), (2, 40, 20.0, False), (50, 100, 20.0, False), (51, 100, 20.0, True),
+     (0, 100, float("nan"), True), (1, 0, 20.0, True)],
+)  # fmt: skip
+def test_the_divergence_rule(skipped: int, steps: int, psnr: float, expected: bool) -> None:
+    from cam2sim.splat.stop import diverged
+
+    assert diverged(skipped, steps, psnr) is expected

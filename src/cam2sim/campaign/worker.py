@@ -11,6 +11,7 @@ run stuck in native code past the limit is ended by killing its worker.
 from __future__ import annotations
 
 import contextlib
+import errno
 import faulthandler
 import logging
 import os
@@ -140,6 +141,17 @@ def _drive(spec: RunSpec) -> str:
     return result.run_id
 
 
+def _why(err: Exception) -> str:
+    """One line for a failed run's error; a full disk says what to do."""
+    if isinstance(err, OSError) and err.errno == errno.ENOSPC:
+        where = f" ({err.filename})" if err.filename else ""
+        return (
+            f"the disk is full{where}: free space there and run the campaign again "
+            "(it resumes: finished runs are kept, this one was discarded)"
+        )
+    return f"{type(err).__name__}: {err}"
+
+
 def execute(spec: RunSpec, log_path: str, timeout_s: float | None) -> RunOutcome:
     """Run one spec; record its output in ``log_path``; never raise for a failed run."""
     return run_logged(spec.spec_id, str(spec), lambda: _drive(spec), log_path, timeout_s)
@@ -174,7 +186,7 @@ def run_logged(
                 status, error = "timeout", str(err)
                 traceback.print_exc(file=log)
             except Exception as err:  # noqa: BLE001 - any failure of a run is recorded, not raised
-                status, error = "failed", f"{type(err).__name__}: {err}"
+                status, error = "failed", _why(err)
                 traceback.print_exc(file=log)
         log.write(f"{status} after {time.perf_counter() - started:.2f} s\n")
     return RunOutcome(

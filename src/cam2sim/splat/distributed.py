@@ -117,7 +117,10 @@ def train_scene_on_ray(
                 try:
                     outcomes.succeeded(chunk, *ray.get(ref))
                 except ray.exceptions.RayError as err:
-                    outcomes.failed(chunk, f"{type(err).__name__}: {err}")
+                    # A chunk's own error (RayTaskError wraps it) says what to fix; Ray's
+                    # wrapper only where the worker or node died.
+                    cause = getattr(err, "cause", None) or err
+                    outcomes.failed(chunk, f"{type(cause).__name__}: {cause}")
                 progress("splat chunks", outcomes.finished, len(ids))
     hint = "see the Ray logs and run `cam2sim splat WS --ray ...` again"
     return outcomes.scene_result(start, hint=hint)

@@ -4,14 +4,31 @@ The trainer validates every ``val_every`` steps and stops a chunk once it has tr
 ``min_steps`` and :func:`plateau_reached` says its held-in PSNR and SSIM trends fall below their
 minimum gains, at ``max_steps`` otherwise, or when its share of a time budget
 (:func:`time_share`) is spent: :func:`steps_that_fit` turns that share into a step cap at the
-chunk's recent pace.
+chunk's recent pace. A chunk whose training has diverged (:func:`diverged`) stops with an error
+instead, and nothing is written for it.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["plateau_reached", "steps_that_fit", "time_share"]
+__all__ = ["DIVERGED_SHARE", "diverged", "plateau_reached", "steps_that_fit", "time_share"]
+
+DIVERGED_SHARE = 0.5
+"""A chunk whose gradients were NaN or inf on more than this share of its steps has diverged.
+Such steps are kept out of the model (a stray one is harmless, :mod:`cam2sim.splat.optim`);
+on most of them, the model is no longer learning from its frames."""
+
+
+def diverged(non_finite_steps: int, steps: int, psnr_db: float) -> bool:
+    """Whether training has diverged: mostly non-finite gradients, or a non-finite PSNR.
+
+    Args:
+        non_finite_steps: Steps so far whose gradients had NaN or inf values.
+        steps: Steps so far.
+        psnr_db: The latest held-in PSNR.
+    """
+    return not np.isfinite(psnr_db) or non_finite_steps > DIVERGED_SHARE * max(steps, 1)
 
 
 def plateau_reached(

@@ -62,7 +62,7 @@ from cam2sim.splat.profiling import PhaseTimer, profiling_requested
 from cam2sim.splat.raster import build_gsplat, rasterize, resolve_backend, resolve_device
 from cam2sim.splat.robust import robust_keep
 from cam2sim.splat.scene import ChunkRecord, SceneRecord, load_points
-from cam2sim.splat.stop import plateau_reached, steps_that_fit, time_share
+from cam2sim.splat.stop import diverged, plateau_reached, steps_that_fit, time_share
 from cam2sim.splat.train_options import (
     MCMC_MIN_STEPS,
     DensifyOptions,
@@ -500,6 +500,15 @@ class _ChunkTrainer:
             ssim_mean,
             len(self.street),
         )
+        skipped = int(self.non_finite_steps)
+        if diverged(skipped, self.step_no, psnr):
+            msg = (
+                f"splat chunk {self.chunk.id} diverged at step {self.step_no}: NaN or inf "
+                f"gradients on {skipped} steps, held-in PSNR {psnr:.2f} dB; nothing was written "
+                "for it. Look for broken frames in the chunk's images and masks, or lower the "
+                "learning rates (TrainOptions.lr), then train again"
+            )
+            raise StageError(msg)
         if self.step_no >= opts.min_steps and self._plateaued():
             self.done, self.stopped = True, "plateau"
         elif self.step_no >= opts.max_steps:
