@@ -90,7 +90,8 @@ class _Sampler:
         self._thread.start()
 
     def _read(self) -> None:
-        assert self._proc is not None and self._proc.stdout is not None
+        assert self._proc is not None
+        assert self._proc.stdout is not None
         for line in self._proc.stdout:
             index, _, util = line.partition(",")
             if util.strip().isdigit():
@@ -153,11 +154,13 @@ def main() -> int:
             Path(args.out).write_text(json.dumps(results, indent=2) + "\n")
     finally:
         sampler.stop()
-    per_level = [{r["spec_id"]: [r[k] for k in KEYS] for r in lv["rows"]} for lv in results["levels"]]
+    per_level = [
+        {r["spec_id"]: [r[k] for k in KEYS] for r in level["rows"]} for level in results["levels"]
+    ]
     same = sum(all(p.get(i) == per_level[0][i] for p in per_level) for i in per_level[0])
     results["identical_runs"] = f"{same} of {len(per_level[0])}"
     Path(args.out).write_text(json.dumps(results, indent=2) + "\n")
-    print(f"runs with identical metrics on every level: {same} of {len(per_level[0])} -> {args.out}")
+    print(f"runs with identical metrics on every level: {results['identical_runs']} -> {args.out}")
     return 0
 
 

@@ -137,3 +137,37 @@ def test_the_step_cap_ends_a_run_the_simulator_does_not() -> None:
     assert episode.events == ()
     with pytest.raises(ValueError, match="policy_every"):
         EpisodeOptions(policy_every=0)
+
+
+def test_the_car_is_asked_for_the_recorded_speed_where_it_is() -> None:
+    from cam2sim.sim.speed import SpeedProfile
+
+    # A route along x, 1 m a point; the driver slowed from 10 to 3 m/s between 4 and 7 m.
+    xs = np.arange(0.0, 12.0)
+    speeds = np.where((xs >= 4) & (xs <= 7), 3.0, 10.0)
+    profile = SpeedProfile(np.stack([xs, np.zeros_like(xs)], axis=1), speeds)
+    sim = _Line(end_after=10)
+    options = EpisodeOptions(speed_profile=profile, speed_factor=0.5, target_speed=99.0)
+    run_episode(sim, _Counting(), None, options)
+    # The car moves 1 m a step: it is asked at x = 0, 1, ..., 9 (the profile, not 99), halved.
+    assert [c.target_speed for c in sim.controls] == [5.0] * 4 + [1.5] * 4 + [5.0] * 2
+
+
+def test_a_recorded_profile_is_smoothed_floored_and_keeps_its_place() -> None:
+    from cam2sim.sim.speed import MIN_PROFILE_SPEED, SpeedProfile
+
+    t = np.arange(0.0, 10.0, 0.1)
+    speed = np.full_like(t, 8.0)
+    speed[50] = 80.0  # a pose glitch: averaged over 1 s (11 samples)
+    speed[90:] = 0.0  # the car stopped at the end
+    xy = np.stack([np.cos(t), np.sin(t)], axis=1)  # a circle: the route passes 0 rad again
+    profile = SpeedProfile.recorded(xy, speed, t)
+    assert profile.speed[50] == pytest.approx(8.0 + 72.0 / 11)
+    assert profile.speed[20] == pytest.approx(8.0)
+    assert profile.speed[-1] == MIN_PROFILE_SPEED
+    # At the start point again after a lap (6.3 rad): the search ahead of the last place
+    # (6.0 rad) finds the lap's point, a search from nothing the start.
+    assert profile.nearest(1.0, 0.0, last=60) == 63
+    assert profile.nearest(1.0, 0.0) == 0
+    with pytest.raises(ValueError, match="matching columns"):
+        SpeedProfile.recorded(xy[:5], speed, t)

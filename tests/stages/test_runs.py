@@ -288,3 +288,30 @@ def test_drive_and_replay_in_carla_write_the_same_run_folders(tmp_path: Path) ->
     with pytest.raises(ConfigError, match="needs --sim carla"):
         DriveOptions(camera="carla")
     assert scenario.parked
+
+
+def test_a_drive_at_the_recorded_speed_slows_where_the_driver_slowed(tmp_path: Path) -> None:
+    ws, scenario = _workspace(tmp_path / "ws", StreetSpec(radius_m=None, parked=()))
+    tr = scenario.trajectory
+    start = tr.speed[0]
+    progress = np.asarray(tr.t) / tr.t[-1]
+    slow = tuple(float(v) for v in np.where((progress > 0.4) & (progress < 0.7), 2.0, start))
+    scenario.model_copy(update={"trajectory": tr.model_copy(update={"speed": slow})}).save(
+        ws.scenario_dir / "scenario.json"
+    )
+    (held,) = drive(ws, options=DriveOptions(camera="none"))
+    (recorded,) = drive(ws, options=DriveOptions(camera="none", recorded_speed=True))
+    assert [e["kind"] for e in recorded.events] == ["route_completed"]
+    fast = read_table(held.folder / "trajectory.csv")["speed"]
+    speeds = read_table(recorded.folder / "trajectory.csv")["speed"]
+    assert fast.min() > 0.9 * start  # held: the start speed all the way
+    assert speeds.min() < 2.5  # slowed to the recorded 2 m/s ...
+    assert speeds[: len(speeds) // 5].min() > 0.9 * start  # ... not before the slow part
+    assert recorded.steps > held.steps  # the slow part takes longer
+    meta = json.loads((recorded.folder / "run.json").read_text())
+    assert meta["options"]["recorded_speed"] is True
+    with pytest.raises(ConfigError, match="--speed recorded, not both"):
+        DriveOptions(speed_kmh=20.0, recorded_speed=True)
+    result = CliRunner().invoke(app, ["drive", str(ws.root), "--speed", "fast"])
+    assert result.exit_code == 2
+    assert "give km/h (a number >= 0) or 'recorded'" in result.output

@@ -102,6 +102,10 @@ class DriveSettings(_Model):
     steering_noise_std: float = pydantic.Field(
         0.0, ge=0, description="builtin simulator steering noise (what makes seeds differ)"
     )
+    recorded_speed: bool = pydantic.Field(
+        default=False,
+        description="follow the recorded speed along the route (else hold the start's)",
+    )
 
     @pydantic.field_validator("image_size")
     @classmethod
@@ -185,6 +189,8 @@ class RunSpec:
         for resolved in ("workspace_path", "policy_arg"):  # as the plan writes them: stable
             content.pop(resolved)  # when a campaign moves
         content["drive"] = self.drive.model_dump(mode="json")
+        if not self.drive.recorded_speed:  # added later: the ids of older plans stay
+            content["drive"].pop("recorded_speed")
         digest = hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()[:12]
         return f"{Path(self.workspace).name}-{self.camera}-s{self.seed}-r{self.repetition}-{digest}"
 

@@ -135,6 +135,7 @@ def _drive(spec: RunSpec) -> str:
         save_frames=d.save_frames,
         video=d.video,
         steering_noise_std=d.steering_noise_std,
+        recorded_speed=d.recorded_speed and spec.speed_kmh is None,
         start_offset=(spec.lateral_m, spec.heading_deg),
     )
     (result,) = drive(ws, options=options)

@@ -154,6 +154,20 @@ def replay(
     )
 
 
+def _speed(text: str | None) -> float | None:
+    """``--speed``: km/h, or None for 'recorded' and the default."""
+    if text is None or text == "recorded":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not (value >= 0 and value != float("inf")):
+        msg = f"--speed {text!r}: give km/h (a number >= 0) or 'recorded'"
+        raise typer.BadParameter(msg)
+    return value
+
+
 def drive(
     workspace: Annotated[Path, typer.Argument(help="The workspace folder.")],
     *,
@@ -166,7 +180,11 @@ def drive(
     camera: Annotated[DriveCamera, typer.Option(help="What the policy sees.")] = DriveCamera.RASTER,
     runs: Annotated[int, typer.Option(min=1, help="Number of runs (seeds seed, seed+1, ...).")] = 1,
     speed: Annotated[
-        float | None, typer.Option(min=0.0, help="Target speed km/h (default: recorded start).")
+        str | None,
+        typer.Option(
+            help="Target speed in km/h, or 'recorded': the recorded speed along the route "
+            "(default: the recorded start speed, held).",
+        ),
     ] = None,
     seed: Annotated[int, typer.Option(help="Seed of the first run.")] = 0,
     every: Annotated[int, typer.Option(min=1, help="The policy answers every n-th step.")] = 3,
@@ -204,7 +222,8 @@ def drive(
         policy=policy,
         camera=camera.value,
         runs=runs,
-        speed_kmh=speed,
+        speed_kmh=_speed(speed),
+        recorded_speed=speed == "recorded",
         seed=seed,
         policy_every=every,
         image_size=_size(size),

@@ -120,6 +120,13 @@ def run(
             "speed and steering noise, as the demo's); without it they are identical.",
         ),
     ] = True,
+    recorded_speed: Annotated[
+        bool,
+        typer.Option(
+            help="Drive at the recorded speed along the route (slowing where the driver "
+            "slowed) instead of holding the start speed.",
+        ),
+    ] = False,
     splat_on_cpu: Annotated[
         bool, typer.Option(help="Train splats on the CPU (the CPU preset) when there is no GPU.")
     ] = True,
@@ -149,6 +156,7 @@ def run(
         runs=runs,
         steering_noise_std=DEMO_STEERING_NOISE if vary else 0.0,
         run_variation=DEMO_RUN_VARIATION if vary else None,
+        recorded_speed=recorded_speed,
         splat_on_cpu=splat_on_cpu,
         continue_on_error=continue_on_error,
     )

@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     import numpy.typing as npt
 
     from cam2sim.sim.interface import PlanarPose, SimEvent, Simulator, SteeringPolicy, VehicleState
+    from cam2sim.sim.speed import SpeedProfile
 
 __all__ = ["ROW_KEYS", "Episode", "EpisodeOptions", "PolicyFailure", "run_episode"]
 
@@ -46,6 +47,10 @@ class EpisodeOptions:
         max_steps: Step cap (the simulator's own end usually comes first).
         policy_every: The policy answers every n-th simulator step (3, as the published tool).
         target_speed: Speed the simulator's controller holds, m/s; None: the start speed.
+        speed_profile: The recorded speeds along the route; when given, the controller
+            follows the speed at the route point nearest to the car instead of
+            ``target_speed``.
+        speed_factor: Scales the profile's speeds (a run's seeded speed variation).
         reference_xyz: The point recorded in :attr:`Episode.rows`, body frame, metres from
             the vehicle centre.
         progress_every: Steps between ``progress`` calls.
@@ -54,6 +59,8 @@ class EpisodeOptions:
     max_steps: int = 100_000
     policy_every: int = 3
     target_speed: float | None = None
+    speed_profile: SpeedProfile | None = None
+    speed_factor: float = 1.0
     reference_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
     progress_every: int = 30
 
@@ -132,6 +139,7 @@ def run_episode(
     command = 0.0
     render_s = policy_s = 0.0
     failure = None
+    profile, cursor = options.speed_profile, None
     started = time.perf_counter()
     for step in range(options.max_steps):
         if step % options.policy_every == 0:
@@ -150,7 +158,11 @@ def run_episode(
                 break
             policy_s += time.perf_counter() - t0
             decisions.append((state.t, command))
-        state = sim.step(Control(steering=command, target_speed=options.target_speed))
+        target = options.target_speed
+        if profile is not None:  # the recorded speed where the car is
+            cursor = profile.nearest(state.x, state.y, cursor)
+            target = float(profile.speed[cursor]) * options.speed_factor
+        state = sim.step(Control(steering=command, target_speed=target))
         _record(rows, state, options.reference_xyz)
         if progress is not None and (step + 1) % options.progress_every == 0:
             progress(step + 1)

@@ -102,6 +102,8 @@ class PipelineOptions:
             seeded per run), so that repeated runs of a deterministic policy differ.
         run_variation: Seeded start-pose and speed differences between drive runs
             (:mod:`cam2sim.stages.variation`); None: none.
+        recorded_speed: The drives follow the recorded speed along the route (see
+            :class:`~cam2sim.stages.runs.DriveOptions`) instead of holding the start speed.
         splat: Splat options; None: :meth:`SplatStageOptions.for_run
             <cam2sim.stages.splat.SplatStageOptions.for_run>` (its points triangulated from
             the frames when there is no LiDAR).
@@ -137,6 +139,7 @@ class PipelineOptions:
     replay_every: int = 1
     steering_noise_std: float = 0.0
     run_variation: RunVariation | None = None
+    recorded_speed: bool = False
     splat: SplatStageOptions | None = None
     splat_on_cpu: bool = True
     steering_signal: str | None = None
@@ -477,6 +480,7 @@ class _Pipeline:
                 runs=self.options.runs,
                 steering_noise_std=self.options.steering_noise_std,
                 variation=self.options.run_variation,
+                recorded_speed=self.options.recorded_speed,
                 judge=self._judge(),
                 save_frames=self.options.save_frames,
             )

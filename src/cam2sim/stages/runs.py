@@ -46,6 +46,7 @@ from cam2sim.sim.builtin import BuiltinOptions, BuiltinSimulator
 from cam2sim.sim.carla_backend import CarlaOptions, CarlaSimulator
 from cam2sim.sim.episode import EpisodeOptions, run_episode
 from cam2sim.sim.interface import PlanarPose
+from cam2sim.sim.speed import SpeedProfile
 from cam2sim.splat.evaluate import SplatEval
 from cam2sim.stages.cameras import (
     TRUTH_CAMERA,
@@ -126,6 +127,9 @@ class DriveOptions:
         camera: Camera the policy sees (``none`` for policies that need no image).
         runs: Number of runs (seeds ``seed``, ``seed + 1``, ...).
         speed_kmh: Target speed; None holds the recorded start speed.
+        recorded_speed: Follow the recorded speed along the route instead (where the driver
+            slowed for a turn, the car slows; :mod:`cam2sim.sim.speed`); not with
+            ``speed_kmh``.
         seed: Seed of the first run.
         policy_every: The policy answers every n-th simulator step (3, as the published tool).
         image_size: ``(width, height)`` the camera renders at; None keeps the calibrated size.
@@ -153,6 +157,7 @@ class DriveOptions:
     camera: CameraName = "raster"
     runs: int = 1
     speed_kmh: float | None = None
+    recorded_speed: bool = False
     seed: int = 0
     policy_every: int = 3
     image_size: tuple[int, int] | None = None
@@ -179,6 +184,9 @@ class DriveOptions:
             raise ValueError(msg)
         if self.camera == "carla" and self.simulator != "carla":
             msg = "--camera carla needs --sim carla (CARLA's own camera runs in CARLA)"
+            raise ConfigError(msg)
+        if self.recorded_speed and self.speed_kmh is not None:
+            msg = "give a fixed speed (--speed KMH) or --speed recorded, not both"
             raise ConfigError(msg)
 
 
@@ -593,12 +601,7 @@ def _drive_loop(  # noqa: PLR0913, PLR0917 - one run: its context, options, part
         assert cam_name is not None  # frames come only from a camera
         _keep_frame(image, run_paths(tmp).frames_dir(cam_name), step, opts.save_frames, video)
 
-    options = EpisodeOptions(
-        max_steps=opts.max_steps,
-        policy_every=opts.policy_every,
-        target_speed=target,
-        reference_xyz=sc.vehicle.reference_xyz,
-    )
+    options = _episode_options(sc, opts, target, drawn)
     try:
         episode = run_episode(
             sim, policy, camera, options, _start_pose(sc, offset),
@@ -669,6 +672,24 @@ def _drive_meta(
             if k not in ("sim", "carla", "carla_client_factory")
         },
     }
+
+
+def _episode_options(
+    sc: Scenario, opts: DriveOptions, target: float | None, drawn: DrawnVariation | None
+) -> EpisodeOptions:
+    """The episode's options: the step cap, the decision rate and the speed to drive at."""
+    profile = None
+    if opts.recorded_speed:
+        tr = sc.trajectory
+        profile = SpeedProfile.recorded(tr.center, tr.speed, tr.t)
+    return EpisodeOptions(
+        max_steps=opts.max_steps,
+        policy_every=opts.policy_every,
+        target_speed=target,
+        speed_profile=profile,
+        speed_factor=drawn.speed_factor if drawn is not None else 1.0,
+        reference_xyz=sc.vehicle.reference_xyz,
+    )
 
 
 def _varied(
