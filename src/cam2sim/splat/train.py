@@ -62,6 +62,7 @@ from cam2sim.splat.profiling import PhaseTimer, profiling_requested
 from cam2sim.splat.raster import build_gsplat, rasterize, resolve_backend, resolve_device
 from cam2sim.splat.robust import robust_keep
 from cam2sim.splat.scene import ChunkRecord, SceneRecord, load_points
+from cam2sim.splat.schedule import MeansDecay, tail_factor
 from cam2sim.splat.stop import diverged, plateau_reached, steps_that_fit, time_share
 from cam2sim.splat.train_options import (
     MCMC_MIN_STEPS,
@@ -314,10 +315,8 @@ class _ChunkTrainer:
             self.extra_optimizers.append(
                 torch.optim.Adam([self.pose_delta], lr=lr.poses, weight_decay=1e-6, fused=fused)
             )
-        self.means_gamma = 0.01 ** (1.0 / self.options.max_steps)
-        self.means_lr = rates["means"]
+        self.means = MeansDecay.over(rates["means"], self.options.max_steps)
         self.non_finite_steps = torch.zeros((), dtype=torch.int64, device=self.device)
-        self.means_lr_end = 0.01 * rates["means"]
         # The scene's other rates decay after densification (LearningRates.tail).
         dens = self.options.densify
         self.tail_start = dens.refine_stop_at if dens.enabled else 0
@@ -453,16 +452,17 @@ class _ChunkTrainer:
                 out,
                 len(self.street),
                 self.generator,
-                means_lr=self.means_lr,
+                means_lr=self.means.lr,
             )
             timer.mark("densify")
         self.step_no += 1
-        self.means_lr *= self.means_gamma
+        means_lr = self.means.advance()
         for group in self.optimizers["means"].param_groups:
-            group["lr"] = self.means_lr
-        if self.tail_groups and self.step_no > self.tail_start and self.cap > self.tail_start:
-            done = min(1.0, (self.step_no - self.tail_start) / (self.cap - self.tail_start))
-            factor = (opts.lr.tail or 1.0) ** done
+            group["lr"] = means_lr
+        factor = None
+        if self.tail_groups:
+            factor = tail_factor(self.step_no, self.tail_start, self.cap, opts.lr.tail or 1.0)
+        if factor is not None:
             for group, base in self.tail_groups:
                 group["lr"] = base * factor
         spent = self.seconds + time.perf_counter() - start
@@ -541,7 +541,7 @@ class _ChunkTrainer:
             self.cap = cap
             # The means' learning rate reaches its final value at the new cap, and no opacity
             # reset falls within reset_every steps of it.
-            self.means_gamma = (self.means_lr_end / self.means_lr) ** (1.0 / (cap - self.step_no))
+            self.means.aim(self.step_no, cap)
             if self.densifier is not None:
                 self.densifier.end_at(cap)
 
