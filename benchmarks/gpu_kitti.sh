@@ -10,6 +10,8 @@
 #                                                # with .k03/p: the pycolmap wheel)
 #   PHASE=run bash benchmarks/gpu_kitti.sh       # carry .c21/b .k03/c: the rest, then the run
 #                                                # in the background, watched WATCH_S seconds
+#                                                # (RUN_ARGS: more `cam2sim run` options, e.g.
+#                                                # --recorded-speed)
 #   PHASE=wait bash benchmarks/gpu_kitti.sh      # watch it (repeat as needed)
 #   PHASE=collect bash benchmarks/gpu_kitti.sh   # $OUT: the log, report.html, the workspace's
 #                                                # JSON records (kitti.tgz), the closed
@@ -61,7 +63,7 @@ run)
   echo "frames: $(ls /tmp/kitti03/images | wc -l) (801 wanted)"
   setsid nohup bash -c "time (python3 -m cam2sim import $ws --images /tmp/kitti03/images \
     --poses /tmp/kitti03/poses.txt --calibration /tmp/kitti03/K.txt --fps 10 \
-    --pose-offset 0.8,0,1.65 && python3 -m cam2sim run -o $ws)" > /tmp/kitti.log 2>&1 < /dev/null &
+    --pose-offset 0.8,0,1.65 && python3 -m cam2sim run -o $ws ${RUN_ARGS:-})" > /tmp/kitti.log 2>&1 < /dev/null &
   sleep 5
   watch
   ;;
