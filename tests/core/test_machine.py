@@ -1,13 +1,11 @@
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING
+
+import pytest
 
 from cam2sim.core.machine import available_cpus
 from cam2sim.stages.pipeline import default_drive_workers
-
-if TYPE_CHECKING:
-    import pytest
 
 
 def test_a_ray_tasks_share_caps_the_cpus(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -22,3 +20,36 @@ def test_a_ray_tasks_share_caps_the_cpus(monkeypatch: pytest.MonkeyPatch) -> Non
     assert default_drive_workers(9) == 1
     monkeypatch.setenv("OMP_NUM_THREADS", "junk")
     assert available_cpus() == 64
+
+
+def test_thread_pools_keep_to_the_cpus_a_task_was_given(monkeypatch: pytest.MonkeyPatch) -> None:
+    import cv2
+
+    ort = pytest.importorskip("onnxruntime")
+    pytest.importorskip("onnx")
+    from onnx import TensorProto, helper
+
+    from cam2sim.core.backends import onnx_session
+    from cam2sim.core.machine import keep_to_allotment
+
+    before = cv2.getNumThreads()
+    monkeypatch.setattr(os, "sched_getaffinity", lambda _pid: set(range(64)), raising=False)
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    try:
+        assert keep_to_allotment() is None  # nobody allotted CPUs: left as they are
+        assert cv2.getNumThreads() == before
+        monkeypatch.setenv("OMP_NUM_THREADS", "3")  # a Ray task of 3 CPUs
+        assert keep_to_allotment() == 3
+        assert cv2.getNumThreads() == 3
+    finally:
+        cv2.setNumThreads(before)
+    graph = helper.make_graph(
+        [helper.make_node("Identity", ["x"], ["y"])], "id",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1])],
+    )  # fmt: skip
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
+    model.ir_version = 8
+    session = onnx_session(model.SerializeToString(), "a test")
+    assert isinstance(session, ort.InferenceSession)
+    assert session.get_session_options().intra_op_num_threads == 3

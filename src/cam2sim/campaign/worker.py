@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 from cam2sim.campaign.state import RunOutcome, RunStatus
 from cam2sim.core.cluster import worker_place
+from cam2sim.core.machine import keep_to_allotment
 from cam2sim.core.workspace import Workspace
 from cam2sim.stages.runs import DriveOptions, drive
 
@@ -171,6 +172,7 @@ def run_logged(
     for a failed job; the outcome says ``done``, ``failed`` or ``timeout``.
     """
     started = time.perf_counter()
+    keep_to_allotment()  # a Ray task's thread pools: its CPUs, not the node's
     path = Path(log_path)
     path.parent.mkdir(parents=True, exist_ok=True)
     run_id = error = None

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any, Final
 import numpy as np
 
 from cam2sim.core.errors import BackendUnavailableError, ConfigError
+from cam2sim.core.machine import available_cpus
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -52,6 +53,9 @@ def onnx_session(
 ) -> Any:  # Any: onnxruntime is untyped
     """An onnxruntime session of ``model`` (a file or its bytes), quiet and without spinning.
 
+    Its threads are this process's CPUs (:func:`cam2sim.core.machine.available_cpus`), not
+    every core of the machine.
+
     CUDA is used when ``cuda`` and onnxruntime has it, else the CPU. The intra-op threads do not
     spin-wait after a call: the models here run between renders on the same cores (a steering
     policy at 10 Hz, a detector per frame), and spinning threads took those cores from the
@@ -66,6 +70,9 @@ def onnx_session(
     options.log_severity_level = 3
     options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     options.add_session_config_entry("session.inter_op.allow_spinning", "0")
+    # As many threads as this process has CPUs (a Ray task's share, not the node's cores).
+    options.intra_op_num_threads = available_cpus()
+    options.inter_op_num_threads = 1
     available = set(ort.get_available_providers())
     cpu = ("CPUExecutionProvider",)
     wanted = ("CUDAExecutionProvider", *cpu) if cuda else cpu

@@ -2,14 +2,17 @@
 
 A Ray task sees every core of its node through ``os.cpu_count()`` but was given a share of
 them; Ray says how many through ``OMP_NUM_THREADS`` (the task's ``num_cpus``). Work that
-spreads over processes (the drive step's runs) sizes itself from :func:`available_cpus`.
+spreads over processes (the drive step's runs) sizes itself from :func:`available_cpus`, and
+the thread pools that do not read ``OMP_NUM_THREADS`` themselves (onnxruntime's, OpenCV's) are
+sized from it too (:func:`keep_to_allotment`): sixteen runs on a 64-core node, each with
+pools of 64 threads, would contend for the cores their tasks were not given.
 """
 
 from __future__ import annotations
 
 import os
 
-__all__ = ["available_cpus"]
+__all__ = ["available_cpus", "keep_to_allotment"]
 
 
 def available_cpus() -> int:
@@ -22,3 +25,19 @@ def available_cpus() -> int:
     if threads.isdigit() and int(threads) > 0:
         cpus = min(cpus, int(threads))
     return max(1, cpus)
+
+
+def keep_to_allotment() -> int | None:
+    """Size OpenCV's thread pool to this process's CPUs when a scheduler allotted them.
+
+    Returns the allotment (``OMP_NUM_THREADS``, as Ray sets it for a task), or None when
+    nothing allotted CPUs (the pools are left as they are).
+    """
+    threads = os.environ.get("OMP_NUM_THREADS", "")
+    if not (threads.isdigit() and int(threads) > 0):
+        return None
+    import cv2  # noqa: PLC0415 -- lazy: only the processes that are given CPUs
+
+    cpus = available_cpus()
+    cv2.setNumThreads(cpus)
+    return cpus
