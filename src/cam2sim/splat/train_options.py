@@ -73,15 +73,10 @@ class LearningRates:
             it), the scene's other rates (scales, quats, opacities, SH, the sky's) decay
             exponentially from there to ``tail`` times their value at the cap (the means'
             follow their own decay). 1 = constant, as gsplat's trainer has them. None = 0.1
-            with MCMC densification, else 1 (:func:`resolve_options`; measured with MCMC only:
-            ``docs/benchmarks.md``).
+            with MCMC densification, else 1 (:func:`resolve_options`).
         tail_views: The per-view colour transforms and pose corrections decay with the tail
-            too. Each view's transform gets a gradient only on the steps that draw its view
-            (one in a few hundred), and Adam moves it by about its learning rate times ten
-            after each of them whatever the gradient's size, so at a constant rate the
-            transforms keep wandering about their fit (about 0.007 an entry at 1e-3); the
-            held-in score wanders with them (0.3-0.5 dB from one validation to the next
-            after densification).
+            too (each gets a gradient only on the steps that draw its view, and at a constant
+            rate keeps wandering about its fit).
     """
 
     means: float = 1.6e-4
@@ -109,9 +104,8 @@ class DensifyOptions:
             transparency; no opacity resets, no gradient statistics; gsplat backend only) or
             ``"auto"``: ``"mcmc"`` with gsplat for runs of at least :data:`MCMC_MIN_STEPS`
             steps without a time budget, ``"gsplat"`` for shorter ones, ``"simple"`` on the
-            torch rasterizer (:func:`resolve_options`). MCMC needs its growth phase: on real
-            frames it lost 0.6-1.0 dB at 10,000 steps and won 0.2-0.9 dB at 30,000
-            (``docs/benchmarks.md``).
+            torch rasterizer (:func:`resolve_options`). MCMC needs its growth phase, hence
+            the step floor.
         refine_start: First step that clones/splits/prunes.
         refine_stop: No refinement from this step on; None = :data:`MCMC_REFINE_STOP` with
             MCMC (the MCMC paper's 25,000 of 30,000), else :data:`REFINE_STOP`
@@ -119,7 +113,7 @@ class DensifyOptions:
         refine_every: Steps between refinements.
         reset_every: Steps between opacity resets (to twice ``prune_opacity``); none within
             ``reset_every`` steps of ``max_steps``, as the model needs about that long to
-            recover (a reset at 6,000 of 6,500 steps cost a route 0.006 SSIM).
+            recover.
         grow_grad2d: Mean 2-D gradient (normalised screen units) above which a Gaussian grows.
         absgrad: Accumulate the absolute per-pixel gradients instead (AbsGS: finer detail on
             textured surfaces from fewer Gaussians; gsplat backend only; raise ``grow_grad2d``
@@ -128,9 +122,8 @@ class DensifyOptions:
             screen footprint (Pixel-GS, Zhang et al. 2024) instead of counting every view
             alike. Driving forward, a Gaussian on the road near the camera is seen small from
             far away in most of its views, so its plain mean gradient stays low and it is never
-            split; weighted, the views where it covers many pixels decide. On a route chunk
-            it more than doubled the Gaussians and took held-out LPIPS from 0.175 to 0.148 at
-            8,000 steps, at about twice the cost a step (``docs/benchmarks.md``).
+            split; weighted, the views where it covers many pixels decide (more Gaussians
+            where the road is near, at about twice the cost a step).
         near_damping: With ``pixel_weighted``: a Gaussian's gradient in a view is scaled by
             ``min(1, depth / (near_damping * scene scale)) ** 2`` for these statistics (3 m on
             a metric street), so large Gaussians right in front of the camera do not grow into
@@ -192,6 +185,9 @@ class DensifyOptions:
 class TrainOptions:
     """How to train chunk models (see the module doc for what each part does).
 
+    Each setting's docstring says what it does; the measurements behind the defaults are in
+    ``docs/splat-options.md``.
+
     Attributes:
         max_steps: Step cap per chunk.
         min_steps: No plateau stop before this step.
@@ -217,9 +213,7 @@ class TrainOptions:
             cameras, where SfM leaves the near road and verges bare (:mod:`cam2sim.splat.ground`:
             the plane at the cameras' height, from the points on the road ahead; the pixels'
             colours); 0 = none; None = :data:`MCMC_GROUND_POINTS` with MCMC densification,
-            else 0. With 30,000 MCMC steps they gained 0.14 dB held-out on the winding stretch
-            and 0.33 dB on the easy one; with 2,000 CPU steps of the 3DGS rules they lost
-            0.44 dB (``docs/benchmarks.md``).
+            else 0 (they help a long MCMC run, not a short run of the 3DGS rules).
         clear_path: Radius, as a share of the cameras' height over the road, of the tube
             around the training cameras' path inside which Gaussians are made transparent at
             every refinement step (:mod:`cam2sim.splat.clearance`: the car drove through that
@@ -239,8 +233,7 @@ class TrainOptions:
             twice the size, up to full size (nerfstudio's splatfacto does 2 levels every 3,000
             steps); validation is always at full size. 0 = full size throughout. Coarse steps
             are cheaper on the torch rasterizer and on large images; with gsplat on small ones
-            they can cost more (one thread block per 16x16 tile: 1/4 of 480x300 leaves the GPU
-            idle; ``docs/benchmarks.md``).
+            they can cost more (too few tiles to fill the GPU).
         coarse_every: Steps per coarse level.
         lr: Learning rates.
         densify: Densification settings.
@@ -249,12 +242,9 @@ class TrainOptions:
         device: ``"auto"`` (CUDA when available), ``"cpu"``, ``"cuda"``, ``"cuda:1"``, ...
         backend: Rasterizer, see :mod:`cam2sim.splat.raster`.
         tile_size: gsplat's tile side in pixels while training (the images do not depend on
-            it, only the work; ``docs/benchmarks.md``).
+            it, only the work).
         antialiased: Train (and so render) with Mip-Splatting's 2-D filter
-            (:func:`cam2sim.splat.raster.rasterize`); the chunk header records it. On by
-            default: on real frames at 30,000 steps it gained 0.19 dB held-out on the winding
-            stretch and 0.46 dB on the easy one, and on the CPU demo 0.06-0.14 dB at every
-            truth pose with splat drives closer to Real (``docs/benchmarks.md``).
+            (:func:`cam2sim.splat.raster.rasterize`); the chunk header records it.
         write_ply: Also write ``chunk_XX.ply`` (3DGS layout) beside each model.
         seed: Seeds view order, subsets and splits.
         profile: Time each step's phases (host and CUDA-event device time) into
@@ -357,15 +347,11 @@ def resolve_options(options: TrainOptions, backend: str) -> TrainOptions:
     :data:`MCMC_MIN_STEPS` steps and no time budget (a budget may end it long before),
     ``"gsplat"`` for a shorter gsplat run, ``"simple"`` on the torch rasterizer. With MCMC,
     ``init_opacity`` and ``sky_weight`` default to 0.5 and 0 (else 0.1 and 0.05), and the run
-    has no plateau stop (``min_steps`` becomes ``max_steps``): its held-in score rises late
-    (below the default strategy's at 15,000 of 30,000 steps, above it at the end) and still
-    rises in the last 2,000 steps, where the plateau rule, replayed on recorded runs, stopped
-    it at 22,000-23,000 steps, 0.5 dB held-in short of the full schedule. MCMC also relocates
-    and grows until :data:`MCMC_REFINE_STOP`, then lets the scene's learning rates decay to a
-    tenth (``lr.tail``, the per-view colour transforms with them: ``lr.tail_views``), and
-    starts with :data:`MCMC_GROUND_POINTS` ground seeds: together +0.6 dB held-out on the
-    winding stretch at 30,000 steps, and the transforms' decay another +0.3 (held-in +0.8;
-    ``docs/benchmarks.md``).
+    has no plateau stop (``min_steps`` becomes ``max_steps``: its held-in score rises late and
+    still rises at the end). MCMC also relocates and grows until :data:`MCMC_REFINE_STOP`,
+    then lets the scene's learning rates decay to a tenth (``lr.tail``, the per-view colour
+    transforms with them: ``lr.tail_views``), and starts with :data:`MCMC_GROUND_POINTS`
+    ground seeds. Why each default is what it is: ``docs/splat-options.md``.
     """
     dens = options.densify
     strategy = dens.strategy
