@@ -468,3 +468,22 @@ def test_the_crop_follows_the_camera_and_keeps_its_width() -> None:
     assert Dave2Config.for_camera(640, 480).crop_cols is None
     with pytest.raises(ValueError, match="crop columns"):
         Dave2Config(crop_cols=(700, 900))
+
+
+def test_a_balanced_epoch_draws_the_rare_turn_as_often_as_the_straight() -> None:
+    import numpy as np
+
+    from cam2sim.ads.train import TrainOptions, epoch_order
+
+    steering = np.array([0.0] * 900 + [-5.0] * 100)  # one sharp turn among long straights
+    plain = epoch_order(steering, 0.0, np.random.default_rng(3))
+    assert sorted(plain.tolist()) == list(range(1000))  # every frame once
+    assert plain.tolist() == np.random.default_rng(3).permutation(1000).tolist()
+    even = epoch_order(steering, 1.0, np.random.default_rng(3))
+    assert len(even) == 1000
+    assert 0.45 < float(np.mean(steering[even] == -5.0)) < 0.55  # 10 % of frames, half the draw
+    half = epoch_order(steering, 0.5, np.random.default_rng(3))
+    assert 0.2 < float(np.mean(steering[half] == -5.0)) < 0.3  # sqrt(9) to 1: a quarter
+    assert epoch_order(np.zeros(5), 1.0, np.random.default_rng(0)).tolist() != []
+    with pytest.raises(ValueError, match="balance must lie in"):
+        TrainOptions(balance=1.5)

@@ -126,6 +126,11 @@ class TrainOptions:
         recovery_share: Share of each batch shown displaced.
         config: Network sizes and preprocessing; None: the published ones, fitted to the
             workspace's camera by the ads stage (:meth:`Dave2Config.for_camera`).
+        balance: How much rarer steering values are drawn more often (0: every frame once an
+            epoch, in random order; 1: each of :data:`BALANCE_BINS` bins of the steering range
+            as often as any other, frames drawn with replacement; between: weights
+            ``count(bin) ** -balance``). One drive has one sharp turn among long straights;
+            unbalanced, the loss barely sees it.
         seed: Seeds torch and numpy.
         device: ``cuda``/``cpu``; None takes CUDA when available.
         workers: Threads decoding frames.
@@ -152,6 +157,7 @@ class TrainOptions:
     recovery_deg: float = 4.0
     recovery_lookahead_m: float = 10.0
     recovery_share: float = 0.5
+    balance: float = 0.0
     config: Dave2Config | None = None
     seed: int = 0
     device: str | None = None
@@ -212,6 +218,9 @@ class TrainOptions:
                 f"block_s > 0; got {self.val_fraction}, {self.gap_s}, {self.shift_px}, "
                 f"{self.blur_px}, {self.block_s}"
             )
+            raise ValueError(msg)
+        if not 0.0 <= self.balance <= 1.0:
+            msg = f"balance must lie in [0, 1] (0 off, 1 every bin alike), not {self.balance}"
             raise ValueError(msg)
         if (
             self.recovery_m < 0
@@ -652,7 +661,8 @@ def _fit(
         started = _now()
         model.train()
         total = 0.0
-        for rows in np.array_split(rng.permutation(n_train), max(1, n_train // opts.batch_size)):
+        order = epoch_order(train.steering, opts.balance, rng)
+        for rows in np.array_split(order, max(1, n_train // opts.batch_size)):
             idx = torch.from_numpy(rows).to(device)
             x, y = x_all[idx].to(torch.float32), y_all[idx]
             if recovery is not None:
@@ -702,6 +712,28 @@ def _fit(
     report = report.model_copy(update=update)
     info = Dave2ModelInfo(config=opts.dave2, signal=opts.signal)
     return TrainedModel(model.cpu(), info, report, val.t, val.steering, pred)
+
+
+BALANCE_BINS = 15
+"""Equal-width bins of the training steering's range that :attr:`TrainOptions.balance` evens."""
+
+
+def epoch_order(
+    steering: npt.NDArray[np.floating[Any]], balance: float, rng: np.random.Generator
+) -> npt.NDArray[np.int64]:
+    """The frames of one epoch: a permutation, or with ``balance`` a draw favouring rare steering.
+
+    The draw has as many frames as there are, with replacement, each frame weighted by
+    ``count(its bin) ** -balance`` over :data:`BALANCE_BINS` equal bins of the range.
+    """
+    n = len(steering)
+    if balance <= 0 or n < 2 or not np.ptp(steering) > 0:
+        return rng.permutation(n).astype(np.int64)
+    edges = np.linspace(float(np.min(steering)), float(np.max(steering)), BALANCE_BINS + 1)
+    bins = np.clip(np.searchsorted(edges, steering, side="right") - 1, 0, BALANCE_BINS - 1)
+    counts = np.bincount(bins, minlength=BALANCE_BINS).astype(np.float64)
+    weights = counts[bins] ** -balance
+    return rng.choice(n, size=n, replace=True, p=weights / weights.sum()).astype(np.int64)
 
 
 def _refit(

@@ -62,6 +62,17 @@ def train(
     recovery_deg: Annotated[
         float, typer.Option("--recovery-deg", min=0.0, help="Largest turn of the recovery views.")
     ] = 4.0,
+    balance: Annotated[
+        float,
+        typer.Option(
+            min=0.0,
+            max=1.0,
+            help=(
+                "Draw rare steering values more often: 0 off, 1 every part of the steering "
+                "range alike (a drive's one sharp turn among its straights)."
+            ),
+        ),
+    ] = 0.0,
     seed: Annotated[int, typer.Option()] = 0,
     force: Annotated[bool, typer.Option(help="Train again even if up to date.")] = False,
 ) -> None:
@@ -82,6 +93,7 @@ def train(
         augment=augment,
         recovery_m=recovery_m,
         recovery_deg=recovery_deg,
+        balance=balance,
         seed=seed,
     )
     ws = Workspace.open(workspace)
