@@ -187,7 +187,7 @@ def run_setting(  # noqa: PLR0913, PLR0915, PLR0917 -- one process's whole job
             {
                 "step": trainer.step_no,
                 "cut_at_deadline": cut,
-                "stopped": trainer.stopped,
+                "stopped": trainer.state.stopped,
                 "train_s": train_s,
                 "n_gaussians": len(trainer.street),
                 "non_finite_steps": skipped,
@@ -195,7 +195,7 @@ def run_setting(  # noqa: PLR0913, PLR0915, PLR0917 -- one process's whole job
                 **scores,
             }
         )
-        record["val_history"] = trainer.history
+        record["val_history"] = trainer.state.history
         write_text_atomic(out / f"{name}.json", json.dumps(record, indent=1))
         print(
             f"[{name}] step {trainer.step_no}: {train_s:.0f} s, {len(trainer.street)} Gaussians, "

@@ -831,7 +831,7 @@ def test_scene_rates_decay_to_the_tail_after_densification(tmp_path: Path) -> No
         header.notes
     )
     # Every validation is in the header, for the report's training curve.
-    assert header.val_history == [tuple(v) for v in trainer.history]
+    assert header.val_history == [tuple(v) for v in trainer.state.history]
     assert [step for step, _, _ in header.val_history][-1] == trainer.step_no
 
 

@@ -63,13 +63,13 @@ from cam2sim.splat.raster import build_gsplat, rasterize, resolve_backend, resol
 from cam2sim.splat.robust import robust_keep
 from cam2sim.splat.scene import ChunkRecord, SceneRecord, load_points
 from cam2sim.splat.schedule import MeansDecay, tail_factor
-from cam2sim.splat.stop import diverged, plateau_reached, steps_that_fit, time_share
+from cam2sim.splat.state import TrainState
+from cam2sim.splat.stop import diverged, plateau_reached, time_share
 from cam2sim.splat.train_options import (
     MCMC_MIN_STEPS,
     DensifyOptions,
     LearningRates,
     SceneTrainResult,
-    Stop,
     TrainOptions,
     TrainResult,
     resolve_options,
@@ -196,18 +196,10 @@ class _ChunkTrainer:
         self.background = torch.tensor(
             [[*options.background, 0.0]], dtype=torch.float32, device=device
         )
-        self.step_no = 0
         # Robust weighting: the summed share of used pixels left out, and the steps it ran.
         self.outlier_sum = torch.zeros((), device=device)
         self.outlier_steps = 0
-        self.history: list[tuple[int, float, float]] = []
-        self.done = False
-        self.stopped: Stop = "max_steps"
-        self.seconds = 0.0
-        self.cap = options.max_steps  # the step cap, fitted to the time share when one is set
-        self.time_share = time_share_s
-        self._pace_mark = (0, 0.0)
-        self._val_seconds = 0.0  # how long the last validation took
+        self.state = TrainState(cap=options.max_steps, time_share=time_share_s)
 
     # -- set-up ------------------------------------------------------------------------------
     def _build_models(self, points: tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]) -> None:
@@ -455,24 +447,28 @@ class _ChunkTrainer:
                 means_lr=self.means.lr,
             )
             timer.mark("densify")
-        self.step_no += 1
+        self.state.step += 1
         means_lr = self.means.advance()
         for group in self.optimizers["means"].param_groups:
             group["lr"] = means_lr
         factor = None
         if self.tail_groups:
-            factor = tail_factor(self.step_no, self.tail_start, self.cap, opts.lr.tail or 1.0)
+            factor = tail_factor(self.step_no, self.tail_start, self.state.cap, opts.lr.tail or 1.0)
         if factor is not None:
             for group, base in self.tail_groups:
                 group["lr"] = base * factor
-        spent = self.seconds + time.perf_counter() - start
-        if self.step_no % opts.val_every == 0 or self.step_no >= self.cap or self._out_of(spent):
+        spent = self.state.seconds + time.perf_counter() - start
+        if (
+            self.step_no % opts.val_every == 0
+            or self.step_no >= self.state.cap
+            or self.state.out_of_time(spent)
+        ):
             val_start = time.perf_counter()
             self._validate(spent)
-            self._val_seconds = time.perf_counter() - val_start
+            self.state.val_seconds = time.perf_counter() - val_start
             timer.mark("validate")
         timer.end()
-        self.seconds += time.perf_counter() - start
+        self.state.seconds += time.perf_counter() - start
 
     def _validate(self, spent: float) -> None:
         import torch  # noqa: PLC0415
@@ -491,7 +487,7 @@ class _ChunkTrainer:
                 ssims.append(ssim(shown, target))
             ssim_mean = float(torch.stack(ssims).mean())
         psnr = float(np.mean(psnrs))
-        self.history.append((self.step_no, psnr, ssim_mean))
+        self.state.history.append((self.step_no, psnr, ssim_mean))
         _log.info(
             "chunk %d step %d: held-in PSNR %.2f dB, SSIM %.4f, %d Gaussians",
             self.chunk.id,
@@ -509,45 +505,42 @@ class _ChunkTrainer:
                 "learning rates (TrainOptions.lr), then train again"
             )
             raise StageError(msg)
-        if self.step_no >= opts.min_steps and self._plateaued():
-            self.done, self.stopped = True, "plateau"
-        elif self.step_no >= opts.max_steps:
-            self.done, self.stopped = True, "max_steps"
-        elif self.time_share is not None:
-            if self.step_no >= self.cap or self._out_of(spent):
-                self.done, self.stopped = True, "time"
+        state = self.state
+        if state.step >= opts.min_steps and self._plateaued():
+            state.stop("plateau")
+        elif state.step >= opts.max_steps:
+            state.stop("max_steps")
+        elif state.time_share is not None:
+            if state.step >= state.cap or state.out_of_time(spent):
+                state.stop("time")
             else:
                 self._fit_to_time(spent)
 
-    def _out_of(self, spent: float) -> bool:
-        """Out of time: one more validation, as long as the last, would overrun the share."""
-        return self.time_share is not None and spent + self._val_seconds >= self.time_share
+    @property
+    def step_no(self) -> int:
+        """Steps done (:attr:`TrainState.step`)."""
+        return self.state.step
 
     @property
-    def best(self) -> float | None:
-        """The best held-in PSNR so far, dB."""
-        return max((psnr for _, psnr, _ in self.history), default=None)
+    def done(self) -> bool:
+        """Whether training has stopped (:attr:`TrainState.done`)."""
+        return self.state.done
 
     def _fit_to_time(self, spent: float) -> None:
         """Move the step cap to where the time share runs out, with the schedules that end there."""
-        assert self.time_share is not None
-        # The share less one validation: the last one, at the cap, is scored within it.
-        share = self.time_share - self._val_seconds
-        cap = min(
-            self.options.max_steps, steps_that_fit(self.step_no, spent, share, self._pace_mark)
-        )
-        self._pace_mark = (self.step_no, spent)
-        if cap != self.cap:
-            self.cap = cap
+        cap = self.state.fit_cap(spent, self.options.max_steps)
+        if cap is not None:
             # The means' learning rate reaches its final value at the new cap, and no opacity
             # reset falls within reset_every steps of it.
-            self.means.aim(self.step_no, cap)
+            self.means.aim(self.state.step, cap)
             if self.densifier is not None:
                 self.densifier.end_at(cap)
 
     def _plateaued(self) -> bool:
         opts = self.options
-        return plateau_reached(self.history, opts.patience, opts.min_gain_db, opts.min_gain_ssim)
+        return plateau_reached(
+            self.state.history, opts.patience, opts.min_gain_db, opts.min_gain_ssim
+        )
 
     # -- output ------------------------------------------------------------------------------
     def save(self, models_dir: Path) -> TrainResult:
@@ -592,10 +585,10 @@ class _ChunkTrainer:
             background=list(self.options.background),
             train_views=views,
             steps=self.step_no,
-            best_val_psnr_db=self.best,
-            val_history=list(self.history),
+            best_val_psnr_db=self.state.best,
+            val_history=list(self.state.history),
             backend=self.backend,
-            stopped=self.stopped,
+            stopped=self.state.stopped,
             notes=self._notes(),
             antialiased=self.options.antialiased,
         )
@@ -611,9 +604,9 @@ class _ChunkTrainer:
         _log.info(
             "chunk %d: %s after %d steps, best held-in PSNR %s, %d Gaussians -> %s",
             self.chunk.id,
-            self.stopped,
+            self.state.stopped,
             self.step_no,
-            "n/a" if self.best is None else f"{self.best:.2f} dB",
+            "n/a" if self.state.best is None else f"{self.state.best:.2f} dB",
             len(self.street),
             path,
         )
@@ -621,14 +614,14 @@ class _ChunkTrainer:
             chunk_id=self.chunk.id,
             model_path=path,
             steps=self.step_no,
-            stopped=self.stopped,
+            stopped=self.state.stopped,
             n_gaussians=len(self.street),
             n_initial_gaussians=self.n_initial,
             n_sky=self.options.sky_points,
             n_train_views=len(self.views.frames),
-            best_val_psnr_db=self.best,
-            val_history=tuple(self.history),
-            train_seconds=self.seconds,
+            best_val_psnr_db=self.state.best,
+            val_history=tuple(self.state.history),
+            train_seconds=self.state.seconds,
             backend=self.backend,
             device=self.device,
             phase_ms=self.timer.summary(),
