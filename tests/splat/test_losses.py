@@ -249,3 +249,20 @@ def test_adam_step_skips_a_step_with_non_finite_gradients_and_counts_it() -> Non
     a.grad = torch.full((4, 3), float("nan"))
     adam_step(opts[:1])  # without finite: as Adam does, NaN goes in
     assert torch.isnan(a).all()
+
+
+def test_the_mcmc_regulariser_weighs_mean_opacity_and_mean_scale() -> None:
+    import math
+
+    import torch
+
+    from cam2sim.splat.losses import mcmc_regulariser
+
+    logits = torch.tensor([0.0, 0.0], requires_grad=True)  # opacity 0.5 each
+    log_scales = torch.log(torch.tensor([[1.0, 2.0, 3.0]])).requires_grad_(True)  # mean 2
+    value = mcmc_regulariser(logits, log_scales, 0.01, 0.1)
+    assert float(value.detach()) == pytest.approx(0.01 * 0.5 + 0.1 * 2.0)
+    value.backward()
+    assert logits.grad is not None
+    assert float(logits.grad[0]) == pytest.approx(0.01 * 0.25 / 2)  # sigmoid' = 1/4, mean of 2
+    assert math.isfinite(float(log_scales.grad.sum()))  # type: ignore[union-attr]

@@ -208,6 +208,23 @@ def photometric_loss(
     return loss
 
 
+def mcmc_regulariser(
+    opacity_logits: torch.Tensor,
+    log_scales: torch.Tensor,
+    opacity_weight: float,
+    scale_weight: float,
+) -> torch.Tensor:
+    """MCMC densification's regularisers: the mean opacity and the mean scale, weighted.
+
+    Gaussians that are not needed fade (and are then moved where others are), and none grows
+    larger than the image needs (Kheradmand et al. 2024). Scales in scene units.
+    """
+    import torch  # noqa: PLC0415
+
+    opacity = torch.sigmoid(opacity_logits).mean()
+    return opacity_weight * opacity + scale_weight * torch.exp(log_scales).mean()
+
+
 def masked_psnr(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> float:
     """PSNR (dB) of ``pred`` clamped to ``[0, 1]`` over the pixels where ``mask`` is set."""
     err = ((pred.clamp(0.0, 1.0) - target) ** 2)[mask]

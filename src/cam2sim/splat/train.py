@@ -54,7 +54,13 @@ import numpy as np
 
 from cam2sim.core.errors import StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
-from cam2sim.splat.losses import apply_affine, masked_psnr, photometric_loss, ssim
+from cam2sim.splat.losses import (
+    apply_affine,
+    masked_psnr,
+    mcmc_regulariser,
+    photometric_loss,
+    ssim,
+)
 from cam2sim.splat.optim import adam_step
 from cam2sim.splat.parallel import train_chunks_in_processes
 from cam2sim.splat.pose_refine import corrected_pose, correction_sizes, se3_exp
@@ -366,8 +372,6 @@ class _ChunkTrainer:
     def _loss(
         self, view: int, rgb: torch.Tensor, sky_share: torch.Tensor, level: int
     ) -> torch.Tensor:
-        import torch  # noqa: PLC0415
-
         (v, c), opts = self.levels[level], self.options
         sky = None
         if (
@@ -395,8 +399,9 @@ class _ChunkTrainer:
         loss = photometric_loss(rgb, target, mask, l1_scale, opts.ssim_weight, sky, self.sky_weight)
         if self.mcmc:
             dens, params = opts.densify, self.street.params
-            loss = loss + dens.mcmc_opacity_reg * torch.sigmoid(params["opacities"]).mean()
-            loss = loss + dens.mcmc_scale_reg * torch.exp(params["scales"]).mean()
+            loss = loss + mcmc_regulariser(
+                params["opacities"], params["scales"], dens.mcmc_opacity_reg, dens.mcmc_scale_reg
+            )
         return loss
 
     def _next_view(self) -> int:
