@@ -169,6 +169,38 @@ def street_workspace(root: Path, spec: StreetSpec | None = None) -> Workspace:
     return ws
 
 
+def truth_workspace(
+    root: Path, spec: StreetSpec, *, cars: bool = True, look: str = "photographic"
+) -> Workspace:
+    """A synthetic street workspace whose ground truth is the same street (cars optional)."""
+    from cam2sim.render.truth import TruthCar, TruthLook, TruthWorld, truth_world_path
+    from cam2sim.scenario.model import Scenario
+
+    ws = street_workspace(root, spec)
+    sc = Scenario.load(ws.scenario_dir / "scenario.json")
+    _, xodr = synthetic_street(spec)
+    truth_cars = tuple(
+        TruthCar(
+            x=v.position[0],
+            y=v.position[1],
+            yaw=v.heading,
+            length=v.size[0],
+            width=v.size[1],
+            height=v.size[2],
+        )
+        for v in sc.parked
+    )
+    world = TruthWorld(
+        crs="EPSG:32632",
+        origin=(0.0, 0.0),
+        xodr=xodr,
+        cars=truth_cars if cars else (),
+        look=TruthLook(kind=look),  # type: ignore[arg-type]
+    )
+    world.save(truth_world_path(ws.root))
+    return ws
+
+
 def has_egl() -> bool:
     """Whether a headless OpenGL context (EGL) can be made here (the raster renderer's)."""
     try:

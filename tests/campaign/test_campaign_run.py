@@ -25,6 +25,8 @@ from cam2sim.cli.main import app
 from cam2sim.core.errors import WorkspaceError
 from cam2sim.core.table import read_table
 from cam2sim.metrics.benchmark import wilson_interval
+from cam2sim.scenario.synthetic import StreetSpec
+from conftest import truth_workspace
 
 
 def _runs(ws: Path) -> list[Path]:
@@ -220,6 +222,24 @@ def test_ctrl_c_keeps_what_finished_and_a_resume_does_the_rest(tmp_path: Path) -
     assert [r.status for r in resumed.rows] == ["done"] * 4
     done = [p for p in _runs(tmp_path / "ws") if not p.name.startswith(".")]
     assert len(done) == 4
+
+
+def test_runs_are_judged_in_the_ground_truth_where_there_is_one(tmp_path: Path) -> None:
+    truth_workspace(tmp_path / "ws", StreetSpec(length_m=30.0, radius_m=60.0))
+    plan = PLAN.replace("{lateral_m: [0.0, 0.3]}", "{}")
+    auto = run_campaign(write_campaign(tmp_path, plan, name="auto"), executor=LocalPool(1))
+    on_map = run_campaign(
+        write_campaign(tmp_path, plan.replace("drive: {", "drive: {judge: map, "), name="map"),
+        executor=LocalPool(1),
+    )
+    judged = [
+        json.loads((tmp_path / "ws" / "runs" / str(r.rows[0].run_id) / "run.json").read_text())[
+            "options"
+        ]["judge"]
+        for r in (auto, on_map)
+    ]
+    assert judged == ["truth", "map"]  # auto: as cam2sim run judges
+    assert auto.rows[0].spec_id != on_map.rows[0].spec_id
 
 
 def test_the_campaign_command_prints_the_summary(tmp_path: Path) -> None:

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from cam2sim.core.errors import StageError
-from cam2sim.render.truth import TruthCar, TruthLook, TruthWorld, truth_world_path
+from cam2sim.render.truth import TruthCar, TruthWorld, truth_world_path
 from cam2sim.scenario.model import Scenario
-from cam2sim.scenario.synthetic import StreetSpec, synthetic_street
+from cam2sim.scenario.synthetic import StreetSpec
 from cam2sim.stages.runs import DriveOptions, drive
-from conftest import has_egl, street_workspace
+from conftest import has_egl, street_workspace, truth_workspace
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -28,29 +28,7 @@ needs_gl = pytest.mark.skipif(not has_egl(), reason="no headless OpenGL (EGL) he
 
 def _with_truth(root: Path, *, cars: bool = True, look: str = "photographic") -> Workspace:
     """A synthetic street workspace whose ground truth is the same street (cars optional)."""
-    ws = street_workspace(root, SPEC)
-    sc = Scenario.load(ws.scenario_dir / "scenario.json")
-    _, xodr = synthetic_street(SPEC)
-    truth_cars = tuple(
-        TruthCar(
-            x=v.position[0],
-            y=v.position[1],
-            yaw=v.heading,
-            length=v.size[0],
-            width=v.size[1],
-            height=v.size[2],
-        )
-        for v in sc.parked
-    )
-    world = TruthWorld(
-        crs="EPSG:32632",
-        origin=(0.0, 0.0),
-        xodr=xodr,
-        cars=truth_cars if cars else (),
-        look=TruthLook(kind=look),  # type: ignore[arg-type]
-    )
-    world.save(truth_world_path(ws.root))
-    return ws
+    return truth_workspace(root, SPEC, cars=cars, look=look)
 
 
 def test_the_truth_camera_needs_a_ground_truth_world(tmp_path: Path) -> None:

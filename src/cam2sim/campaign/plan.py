@@ -106,6 +106,11 @@ class DriveSettings(_Model):
         default=False,
         description="follow the recorded speed along the route (else hold the start's)",
     )
+    judge: Literal["auto", "map", "truth"] = pydantic.Field(
+        default="auto",
+        description="where leaving the road and collisions are judged: auto (the workspace's "
+        "ground-truth world when it has one, as cam2sim run does, else the map), map or truth",
+    )
 
     @pydantic.field_validator("image_size")
     @classmethod
@@ -189,8 +194,9 @@ class RunSpec:
         for resolved in ("workspace_path", "policy_arg"):  # as the plan writes them: stable
             content.pop(resolved)  # when a campaign moves
         content["drive"] = self.drive.model_dump(mode="json")
-        if not self.drive.recorded_speed:  # added later: the ids of older plans stay
-            content["drive"].pop("recorded_speed")
+        for key, default in (("recorded_speed", False), ("judge", "auto")):
+            if content["drive"][key] == default:  # added later: the ids of older plans stay
+                content["drive"].pop(key)
         digest = hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()[:12]
         return f"{Path(self.workspace).name}-{self.camera}-s{self.seed}-r{self.repetition}-{digest}"
 

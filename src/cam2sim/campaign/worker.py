@@ -124,6 +124,9 @@ def _drive(spec: RunSpec) -> str:
     """Run the spec with ``cam2sim drive``'s code; return the run id."""
     ws = Workspace.open(Path(spec.workspace_path))
     d = spec.drive
+    judge = d.judge
+    if judge == "auto":  # as cam2sim run judges: in the ground truth where there is one
+        judge = "truth" if ws.truth_world_json.is_file() else "map"
     options = DriveOptions(
         policy=spec.policy_arg,
         camera=spec.camera,
@@ -137,6 +140,7 @@ def _drive(spec: RunSpec) -> str:
         video=d.video,
         steering_noise_std=d.steering_noise_std,
         recorded_speed=d.recorded_speed and spec.speed_kmh is None,
+        judge=judge,
         start_offset=(spec.lateral_m, spec.heading_deg),
     )
     (result,) = drive(ws, options=options)
