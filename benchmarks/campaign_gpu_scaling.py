@@ -12,8 +12,10 @@ its own campaign folder, while ``nvidia-smi`` samples every GPU's utilisation tw
 
 Writes the JSON after each level: the campaign's wall time (Ray's start included) and the
 runs' wall time, runs/min, the speed-up over the first level, each GPU's mean utilisation
-while the runs ran, the runs each GPU did, and per run its status and metrics; at the end how
-many runs' metrics (status, completion, Min-Fréchet, corridor) are identical on every level.
+while the runs ran, the runs each GPU did, and per run its status and metrics and what its
+``run.json`` says of its time (the loop's seconds, a frame's render and a policy call's
+milliseconds: the rest of the run's seconds is its set-up); at the end how many runs' metrics
+(status, completion, Min-Fréchet, corridor) are identical on every level.
 """
 
 from __future__ import annotations
@@ -67,8 +69,20 @@ def _level(args: argparse.Namespace, gpus: int, share: float) -> dict[str, Any]:
         "rows": [
             {"spec_id": r.spec_id, "camera": r.camera, "seconds": r.seconds}
             | {k: getattr(r, k) for k in KEYS}
+            | _profile(r.workspace, r.run_id)
             for r in result.rows
         ],
+    }
+
+
+def _profile(workspace: str, run_id: str | None) -> dict[str, Any]:
+    """What the run's own record says of its time: the loop's seconds and steps, and a
+    frame's render and a policy call's milliseconds (the rest of a run's seconds is set-up)."""
+    if run_id is None:
+        return {}
+    meta = json.loads((Path(workspace) / "runs" / run_id / "run.json").read_text())
+    return {k: meta.get(k) for k in ("steps", "render_ms", "policy_ms")} | {
+        "loop_s": meta.get("seconds")
     }
 
 
@@ -151,6 +165,13 @@ def main() -> int:
                   f"({row['runs_per_min']:.1f} runs/min, {row['speedup']:.2f}x; campaign "
                   f"{row['wall_s']:.1f} s), GPU use % {util}, {row['failed']} not done",
                   flush=True)  # fmt: skip
+            splat = [r for r in row["rows"] if r["camera"] == "splat" and r.get("loop_s")]
+            if splat:
+                n = len(splat)
+                print(f"  splat runs: {sum(r['seconds'] for r in splat) / n:.2f} s a run, of it "
+                      f"the loop {sum(r['loop_s'] for r in splat) / n:.2f} s; a frame "
+                      f"{sum(r['render_ms'] for r in splat) / n:.1f} ms, a policy call "
+                      f"{sum(r['policy_ms'] for r in splat) / n:.2f} ms", flush=True)  # fmt: skip
             Path(args.out).write_text(json.dumps(results, indent=2) + "\n")
     finally:
         sampler.stop()
