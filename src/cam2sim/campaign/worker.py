@@ -27,7 +27,7 @@ from cam2sim.campaign.state import RunOutcome, RunStatus
 from cam2sim.core.cluster import worker_place
 from cam2sim.core.machine import keep_to_allotment
 from cam2sim.core.workspace import Workspace
-from cam2sim.stages.runs import DriveOptions, drive
+from cam2sim.stages.runs import DriveOptions, default_judge, drive
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -124,9 +124,7 @@ def _drive(spec: RunSpec) -> str:
     """Run the spec with ``cam2sim drive``'s code; return the run id."""
     ws = Workspace.open(Path(spec.workspace_path))
     d = spec.drive
-    judge = d.judge
-    if judge == "auto":  # as cam2sim run judges: in the ground truth where there is one
-        judge = "truth" if ws.truth_world_json.is_file() else "map"
+    judge = default_judge(ws) if d.judge == "auto" else d.judge  # "auto": as cam2sim run
     options = DriveOptions(
         policy=spec.policy_arg,
         camera=spec.camera,

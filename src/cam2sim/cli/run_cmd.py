@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from enum import StrEnum
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
 from typing import TYPE_CHECKING, Annotated, Any
@@ -158,12 +159,12 @@ def _speed(text: str | None) -> float | None:
     """``--speed``: km/h, or None for 'recorded' and the default."""
     if text is None or text == "recorded":
         return None
+    msg = f"--speed {text!r}: give km/h (a number >= 0) or 'recorded'"
     try:
         value = float(text)
     except ValueError:
-        value = -1.0
-    if not (value >= 0 and value != float("inf")):
-        msg = f"--speed {text!r}: give km/h (a number >= 0) or 'recorded'"
+        raise typer.BadParameter(msg) from None
+    if not (math.isfinite(value) and value >= 0):
         raise typer.BadParameter(msg)
     return value
 

@@ -21,10 +21,16 @@ def available_cpus() -> int:
         cpus = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         cpus = os.cpu_count() or 1
-    threads = os.environ.get("OMP_NUM_THREADS", "")
-    if threads.isdigit() and int(threads) > 0:
-        cpus = min(cpus, int(threads))
+    allotted = _allotted()
+    if allotted is not None:
+        cpus = min(cpus, allotted)
     return max(1, cpus)
+
+
+def _allotted() -> int | None:
+    """The CPUs a scheduler allotted (``OMP_NUM_THREADS``, as Ray sets it), or None."""
+    threads = os.environ.get("OMP_NUM_THREADS", "")
+    return int(threads) if threads.isdigit() and int(threads) > 0 else None
 
 
 def keep_to_allotment() -> int | None:
@@ -33,8 +39,7 @@ def keep_to_allotment() -> int | None:
     Returns the allotment (``OMP_NUM_THREADS``, as Ray sets it for a task), or None when
     nothing allotted CPUs (the pools are left as they are).
     """
-    threads = os.environ.get("OMP_NUM_THREADS", "")
-    if not (threads.isdigit() and int(threads) > 0):
+    if _allotted() is None:
         return None
     import cv2  # noqa: PLC0415 -- lazy: only the processes that are given CPUs
 

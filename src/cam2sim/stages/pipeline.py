@@ -40,7 +40,14 @@ from cam2sim.stages.evaluate import (
 )
 from cam2sim.stages.extract import extract
 from cam2sim.stages.map import MapOptions, build_map
-from cam2sim.stages.runs import DriveOptions, ReplayOptions, drive, replay, stood_still_m
+from cam2sim.stages.runs import (
+    DriveOptions,
+    ReplayOptions,
+    default_judge,
+    drive,
+    replay,
+    stood_still_m,
+)
 from cam2sim.stages.scenario import run_scenario
 from cam2sim.stages.splat import SplatStageOptions, run_splat
 
@@ -468,7 +475,7 @@ class _Pipeline:
     def _judge(self) -> Literal["map", "truth"]:
         if self.options.judge is not None:
             return self.options.judge
-        return "truth" if truth_world_path(self.ws.root).is_file() else "map"
+        return default_judge(self.ws)
 
     def drive(self, step: _Step) -> None:
         self._require_motion("closed-loop drives follow the recorded route")

@@ -78,6 +78,7 @@ __all__ = [
     "DriveOptions",
     "ReplayOptions",
     "RunResult",
+    "default_judge",
     "drive",
     "replay",
 ]
@@ -442,6 +443,15 @@ def require_route(scenario: Scenario) -> None:
             "(extract, detect, map, scenario and replay work on this one)"
         )
         raise StageError(msg)
+
+
+def default_judge(ws: Workspace) -> Literal["map", "truth"]:
+    """Where ``cam2sim run`` and campaigns judge a workspace's drives unless told otherwise.
+
+    In its ground-truth world when it has one (a real car's road and parked cars), else on
+    the map.
+    """
+    return "truth" if ws.truth_world_json.is_file() else "map"
 
 
 def drive(
