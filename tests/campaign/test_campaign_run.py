@@ -269,3 +269,15 @@ def test_one_campaign_folder_serves_one_process_at_a_time(tmp_path: Path) -> Non
     plan = write_campaign(tmp_path)
     with campaign_lock(tmp_path / "plan-campaign"), pytest.raises(WorkspaceError, match="another"):
         run_campaign(plan, executor=LocalPool(1))
+
+
+def test_the_report_names_recordings_by_what_tells_them_apart() -> None:
+    from cam2sim.report.campaign import short_names
+
+    names = short_names(
+        ["/tmp/bench/worlds/a/ws", "/tmp/bench/worlds/b-r0/ws", "/tmp/bench/worlds/a/ws"]
+    )
+    assert names == {"/tmp/bench/worlds/a/ws": "a/ws", "/tmp/bench/worlds/b-r0/ws": "b-r0/ws"}
+    assert short_names(["ws"]) == {"ws": "ws"}  # one recording keeps its name
+    assert short_names(["/data/ws"]) == {"/data/ws": "/data/ws"}
+    assert short_names(["runs/a", "runs/a2"]) == {"runs/a": "a", "runs/a2": "a2"}

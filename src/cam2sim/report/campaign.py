@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+from pathlib import PurePath
 from typing import TYPE_CHECKING, Any
 
 from cam2sim import __version__
@@ -21,10 +22,10 @@ from cam2sim.metrics.benchmark import wilson_interval
 from cam2sim.report.pieces import esc, fmt, html_table, png_img
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping, Sequence
+    from collections.abc import Iterable, Mapping, Sequence
     from pathlib import Path
 
-__all__ = ["REPORT_FILE", "report_from_summary", "write_campaign_report"]
+__all__ = ["REPORT_FILE", "report_from_summary", "short_names", "write_campaign_report"]
 
 REPORT_FILE = "report.html"
 
@@ -53,13 +54,29 @@ def _rate(row: Mapping[str, Any]) -> tuple[str, str]:
     return f"{ok}/{done}", f"{100 * low:.0f}-{100 * high:.0f} %"
 
 
-def _summary_table(summary: Sequence[Mapping[str, Any]]) -> str:
+def short_names(names: Iterable[str]) -> dict[str, str]:
+    """Each recording's name without the folders all of them share.
+
+    ``/tmp/bench/worlds/a/ws`` and ``/tmp/bench/worlds/b/ws`` become ``a/ws`` and ``b/ws``: the
+    table and the panels show what tells the recordings apart. One recording keeps its name.
+    """
+    unique = list(dict.fromkeys(names))
+    parts = [PurePath(n).parts for n in unique]
+    shared = 0
+    while len(unique) > 1 and all(
+        len(p) > shared + 1 and p[shared] == parts[0][shared] for p in parts
+    ):
+        shared += 1
+    return {n: str(PurePath(*p[shared:])) for n, p in zip(unique, parts, strict=True)}
+
+
+def _summary_table(summary: Sequence[Mapping[str, Any]], names: Mapping[str, str]) -> str:
     rows = []
     for s in summary:
         rate, interval = _rate(s)
         rows.append(
             [
-                s["workspace"], s["policy"], s["camera"], s["runs"], s["done"], s["failed"],
+                names[s["workspace"]], s["policy"], s["camera"], s["runs"], s["done"], s["failed"],
                 rate, interval, fmt(s["completion_mean"]), fmt(s["min_frechet_mean_m"]),
                 fmt(s["corridor_violation_mean_pct"], ".1f"),
             ]
@@ -71,7 +88,11 @@ def _summary_table(summary: Sequence[Mapping[str, Any]]) -> str:
     return html_table(headers, rows, "Per recording, policy and camera")
 
 
-def _panels(summary: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, Any]]) -> Any:
+def _panels(
+    summary: Sequence[Mapping[str, Any]],
+    runs: Sequence[Mapping[str, Any]],
+    names: Mapping[str, str],
+) -> Any:
     """One panel per recording: each run's completion (dots), the completion rate (bars)."""
     plt = pyplot()
     worlds = list(dict.fromkeys(s["workspace"] for s in summary))[:_MAX_PANELS]
@@ -108,7 +129,7 @@ def _panels(summary: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, An
         ax.set_xticks(range(len(groups)), [_label(s) for s in groups], rotation=20, ha="right")
         ax.set_xlim(-0.6, len(groups) - 0.4)
         ax.set_ylim(0, 1.05)
-        ax.set_title(world, fontsize=10)
+        ax.set_title(names[world], fontsize=10)
     axes[0][0].set_ylabel("completion (dots); completed (bars)")
     fig.tight_layout()
     return fig
@@ -130,9 +151,9 @@ def _places(runs: Sequence[Mapping[str, Any]]) -> str:
     return html_table(headers, rows, "Where the runs ran (their latest attempts)")
 
 
-def _not_finished(runs: Sequence[Mapping[str, Any]], folder: Path) -> str:
+def _not_finished(runs: Sequence[Mapping[str, Any]], folder: Path, names: Mapping[str, str]) -> str:
     rows = [
-        [r["spec_id"], r["workspace"], _label(r), r["seed"], r["status"],
+        [r["spec_id"], names[r["workspace"]], _label(r), r["seed"], r["status"],
          str((folder / "logs" / f"{r['spec_id']}.log").relative_to(folder))]
         for r in runs
         if r["status"] != "done"
@@ -163,6 +184,7 @@ def write_campaign_report(
         ran: Runs this invocation ran.
     """
     finished = sum(r["status"] == "done" for r in runs)
+    names = short_names([*(s["workspace"] for s in summary), *(r["workspace"] for r in runs)])
     lines = [f"{len(runs)} runs in the plan, {finished} finished"]
     if seconds and ran:
         lines.append(
@@ -171,7 +193,7 @@ def write_campaign_report(
     parts = [
         f"<h1>Campaign {esc(name)}</h1>",
         f"<p>{esc('; '.join(lines))}.</p>",
-        _summary_table(summary),
+        _summary_table(summary, names),
         (
             '<p class="note">Route completed: finished runs that completed the route, with the '
             "95 % Wilson interval of that rate. Min-Fréchet and corridor: means over the runs "
@@ -179,9 +201,9 @@ def write_campaign_report(
         ),
     ]
     if summary:
-        parts.append(png_img(_panels(summary, runs), alt="completion per recording"))
+        parts.append(png_img(_panels(summary, runs, names), alt="completion per recording"))
     parts.append(_places(runs))
-    parts.append(_not_finished(runs, folder))
+    parts.append(_not_finished(runs, folder, names))
     stamp = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     parts.append(f'<p class="note">cam2sim {esc(__version__)}, {stamp}</p>')
     page = (
