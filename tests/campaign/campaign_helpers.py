@@ -66,7 +66,8 @@ def dying_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOutcom
 
 
 def probe_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOutcome:
-    """Instead of a drive: hold the task 1.5 s and log when; the outcome says where it ran."""
+    """Instead of a drive: hold the task 1.5 s and log when and in which process; the outcome
+    says where it ran. Policy ``constant:13``: the process exits on the first attempt."""
     import time
     from pathlib import Path
 
@@ -74,10 +75,15 @@ def probe_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOutcom
     from cam2sim.core.cluster import worker_place
 
     del timeout_s
+    marker = Path(log).with_suffix(".died")
+    if spec.policy == "constant:13" and not marker.exists():
+        marker.parent.mkdir(parents=True, exist_ok=True)
+        marker.write_text("the worker exited here\n", encoding="utf-8")
+        os._exit(1)
     started = time.time()
     time.sleep(1.5)
     Path(log).parent.mkdir(parents=True, exist_ok=True)
-    Path(log).write_text(f"{started} {time.time()}\n", encoding="utf-8")
+    Path(log).write_text(f"{started} {time.time()} {os.getpid()}\n", encoding="utf-8")
     return RunOutcome(spec.spec_id, "failed", None, 1.5, "a probe, no drive", log, worker_place())
 
 

@@ -126,12 +126,14 @@ def one_gpu() -> Iterator[None]:
         ray.shutdown()
 
 
+def _probes(folder: Path) -> list[list[str]]:
+    """Each probe's log: its start and end time and its process id."""
+    return [p.read_text().split() for p in sorted((folder / "logs").glob("*.log"))]
+
+
 def _spans(folder: Path) -> list[tuple[float, float]]:
     """When each probe ran (its log's two times), in start order."""
-    return sorted(
-        (float(a), float(b))
-        for a, b in (p.read_text().split() for p in sorted((folder / "logs").glob("*.log")))
-    )
+    return sorted((float(a), float(b)) for a, b, _pid in _probes(folder))
 
 
 def test_splat_runs_take_a_gpu_or_a_share_of_one(tmp_path: Path, one_gpu: None) -> None:
@@ -161,6 +163,35 @@ def test_splat_runs_take_a_gpu_or_a_share_of_one(tmp_path: Path, one_gpu: None) 
     assert [r.place for r in shared.rows] == [f"{_host()} GPU 0"] * 2
     (_a0, a1), (b0, _b1) = _spans(shared.folder)
     assert b0 < a1 - 0.5
+
+
+def test_gpu_runs_reuse_their_workers_and_a_killed_one_is_retried(
+    tmp_path: Path, one_gpu: None
+) -> None:
+    ray.cloudpickle.register_pickle_by_value(campaign_helpers)  # the probe, sent by value
+    plan_text = PLAN.replace("cameras: [none]", "cameras: [splat]")
+    plan_text = plan_text.replace("{lateral_m: [0.0, 0.3]}", "{}")
+    many = plan_text.replace("seeds: [0]", "seeds: [0, 1, 2, 3, 4, 5]")
+    result = run_campaign(
+        write_campaign(tmp_path, many + "output: many\n", name="many"),
+        executor=RayCluster(task=probe_execute, gpus_per_job=0.5),
+    )
+    # Six GPU runs on two half-GPU slots: two worker processes ran them, three each.
+    assert len(result.rows) == 6
+    assert [r.status for r in result.rows] == ["failed"] * 6  # a probe's outcome: no drive
+    pids = [pid for _a, _b, pid in _probes(result.folder)]
+    assert sorted(pids.count(p) for p in set(pids)) == [3, 3]
+    # A worker whose process exits mid-run (constant:13, on its first attempt) is restarted and
+    # its run done again; the other runs go on, every run is reported once.
+    killed = plan_text.replace("[pure-pursuit]", '[pure-pursuit, "constant:13", "constant:12"]')
+    result = run_campaign(
+        write_campaign(tmp_path, killed + "output: killed\n", name="killed"),
+        executor=RayCluster(task=probe_execute, gpus_per_job=0.5),
+    )
+    assert [r.status for r in result.rows] == ["failed"] * 3  # each probe ran to its end
+    assert len(list((result.folder / "logs").glob("*.died"))) == 1
+    state = CampaignState.load(result.folder / "state.json")
+    assert sorted(r.attempts for r in state.runs.values()) == [1, 1, 1]
 
 
 def _host() -> str:

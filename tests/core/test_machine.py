@@ -35,12 +35,15 @@ def test_thread_pools_keep_to_the_cpus_a_task_was_given(monkeypatch: pytest.Monk
     before = cv2.getNumThreads()
     monkeypatch.setattr(os, "sched_getaffinity", lambda _pid: set(range(64)), raising=False)
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.delenv("LP_NUM_THREADS", raising=False)
     try:
         assert keep_to_allotment() is None  # nobody allotted CPUs: left as they are
         assert cv2.getNumThreads() == before
+        assert "LP_NUM_THREADS" not in os.environ
         monkeypatch.setenv("OMP_NUM_THREADS", "3")  # a Ray task of 3 CPUs
         assert keep_to_allotment() == 3
         assert cv2.getNumThreads() == 3
+        assert os.environ["LP_NUM_THREADS"] == "3"  # Mesa's rasteriser threads
     finally:
         cv2.setNumThreads(before)
     graph = helper.make_graph(

@@ -7,8 +7,10 @@ callback in the calling process, in the order runs finish.
   ``workers`` runs are in flight, so when a worker process dies (a crash the run's own error
   handling cannot catch) the runs in flight are the only suspects: each is tried again alone, and
   the one that kills its worker again is recorded ``crashed``.
-- :class:`RayCluster`: one Ray task per run, with its resource needs (a GPU, or a share of one,
-  for the splat camera; one CPU otherwise). ``ray`` is an optional extra, imported only here.
+- :class:`RayCluster`: runs on a Ray cluster with their resource needs: a run that wants no
+  GPU is a task with one CPU; the splat camera's runs go to a worker (an actor) per GPU slot
+  (a GPU, or a share of one), which runs one after another in the same process. ``ray`` is an
+  optional extra, imported only here.
 """
 
 from __future__ import annotations
@@ -141,8 +143,9 @@ class RayCluster:
     ``task`` runs a job (default: a campaign drive); ``cpus_per_job`` CPUs are reserved for
     each (Ray also sets the task's thread count to it: a benchmark world trains DAVE-2 with
     torch and wants several). A job that needs a GPU gets ``gpus_per_job`` of one when the
-    cluster has GPUs (0.5: two runs share a GPU, each holding it about half the time); on a
-    cluster without any it runs on CPUs (asking for one there would wait forever).
+    cluster has GPUs (0.5: two runs share a GPU, each holding it about half the time), on a
+    worker that keeps its process and GPU from one such job to the next (:class:`_GpuWorkers`);
+    on a cluster without any it runs on CPUs (asking for one there would wait forever).
 
     Raises:
         ConfigError: ``gpus_per_job`` is not in (0, 1] and not a whole number of GPUs.
@@ -172,32 +175,90 @@ class RayCluster:
         self.gpus_per_job = gpus_per_job
 
     def run(self, jobs: Sequence[Job], report: Callable[[RunOutcome], None]) -> None:
-        """Submit every job as a task, then report outcomes as tasks finish."""
+        """Submit every job (a task, or to a GPU worker), then report outcomes as they finish."""
         with ray_session(self.address, num_cpus=self.num_cpus) as ray:
             self._run(ray, jobs, report)
 
     def _run(self, ray: Any, jobs: Sequence[Job], report: Callable[[RunOutcome], None]) -> None:
-        task = ray.remote(self.task)
         gpus = float(ray.cluster_resources().get("GPU", 0.0))
         if gpus == 0 and any(job.spec.needs_gpu for job in jobs):
             logger.warning("the Ray cluster has no GPU: jobs that want one run on CPUs")
         cpus = min(self.cpus_per_job, float(ray.cluster_resources().get("CPU", 1.0)))
-        pending: dict[Any, Job] = {}
+        on_gpu = [job for job in jobs if job.spec.needs_gpu] if gpus > 0 else []
+        slots = min(len(on_gpu), int(gpus / self.gpus_per_job + 1e-9))
+        if slots == 0:  # no job wants a GPU, or none fits: every job is a task
+            on_gpu = []
+        task = ray.remote(self.task)
+        gpu_jobs = {id(job) for job in on_gpu}
+        pending: dict[Any, tuple[Job, Any]] = {}
         for job in jobs:
-            needs = {
-                "num_cpus": cpus,
-                "num_gpus": self.gpus_per_job if job.spec.needs_gpu and gpus > 0 else 0,
-                "max_retries": LOST_WORKER_RETRIES,
-            }
-            pending[task.options(**needs).remote(job.spec, job.log, job.timeout_s)] = job
+            if id(job) in gpu_jobs:
+                continue
+            ref = task.options(num_cpus=cpus, num_gpus=0, max_retries=LOST_WORKER_RETRIES)
+            pending[ref.remote(job.spec, job.log, job.timeout_s)] = (job, None)
+        gpu_workers = _GpuWorkers(ray, self.task, cpus, self.gpus_per_job, list(on_gpu))
+        for _ in range(slots):
+            gpu_workers.start(pending)
         while pending:
             refs = list(pending)
             first, rest = ray.wait(refs, num_returns=1)  # block for one, then take all ready
             more, _ = ray.wait(rest, num_returns=len(rest), timeout=0) if rest else ([], [])
             for ref in first + more:
-                job = pending.pop(ref)
+                job, worker = pending.pop(ref)
                 try:
                     outcome = ray.get(ref)
                 except ray.exceptions.RayError as err:  # the worker died or the task was lost
                     outcome = _died(job, f"the Ray task failed: {type(err).__name__}: {err}")
                 report(outcome)
+                if worker is not None:
+                    gpu_workers.next(worker, pending)
+
+
+class _Worker:
+    """A process that runs one job after another (a Ray actor holding its share of a GPU)."""
+
+    def __init__(self, task: Callable[..., RunOutcome]) -> None:
+        self.task = task
+
+    def run(self, spec: Spec, log: str, timeout_s: float | None) -> RunOutcome:
+        """Run one job with the task."""
+        return self.task(spec, log, timeout_s)
+
+
+class _GpuWorkers:
+    """The GPU jobs' workers: one Ray actor per GPU slot, each given the next job as it ends one.
+
+    Ray starts a new worker process for every task that asks for a GPU (its ``max_calls`` is 1
+    for them, to give back GPU memory), so every short drive paid for importing torch, a CUDA
+    context and loading its models before its first step, and many at once queued on the
+    host's CPUs for it. An actor keeps its process, its GPU and what it has imported for all the
+    jobs it runs. A worker process that dies is restarted (on another node when its node is
+    lost) and its job run again, once (:data:`~cam2sim.core.cluster.LOST_WORKER_RETRIES`, as
+    for tasks); a job that kills it again is reported, and the restarted worker goes on with
+    the next. A worker with nothing left to run is ended, giving its CPU and GPU back.
+    """
+
+    def __init__(
+        self, ray: Any, task: Callable[..., RunOutcome], cpus: float, gpus: float, queue: list[Job]
+    ) -> None:
+        self.ray = ray
+        self.queue = queue
+        self.actor = ray.remote(_Worker).options(
+            num_cpus=cpus,
+            num_gpus=gpus,
+            max_restarts=-1,  # a process that dies is restarted for the next job
+            max_task_retries=LOST_WORKER_RETRIES,
+        )
+        self.task = task
+
+    def start(self, pending: dict[Any, tuple[Job, Any]]) -> None:
+        """Start a worker and give it the next job."""
+        self.next(self.actor.remote(self.task), pending)
+
+    def next(self, worker: Any, pending: dict[Any, tuple[Job, Any]]) -> None:
+        """Give ``worker`` the next job, or end it when none is left."""
+        if not self.queue:
+            self.ray.kill(worker)
+            return
+        job = self.queue.pop(0)
+        pending[worker.run.remote(job.spec, job.log, job.timeout_s)] = (job, worker)

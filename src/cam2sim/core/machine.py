@@ -34,7 +34,11 @@ def _allotted() -> int | None:
 
 
 def keep_to_allotment() -> int | None:
-    """Size OpenCV's thread pool to this process's CPUs when a scheduler allotted them.
+    """Size OpenCV's and Mesa's thread pools to this process's CPUs when a scheduler allotted them.
+
+    Mesa's software rasteriser (llvmpipe, the raster camera without a GPU) starts a thread per
+    core unless ``LP_NUM_THREADS`` says otherwise; it is set here (when not set already) for the
+    contexts this process creates afterwards.
 
     Returns the allotment (``OMP_NUM_THREADS``, as Ray sets it for a task), or None when
     nothing allotted CPUs (the pools are left as they are).
@@ -45,4 +49,5 @@ def keep_to_allotment() -> int | None:
 
     cpus = available_cpus()
     cv2.setNumThreads(cpus)
+    os.environ.setdefault("LP_NUM_THREADS", str(cpus))
     return cpus
