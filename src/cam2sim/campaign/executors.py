@@ -209,9 +209,9 @@ class RayCluster:
                     outcome = ray.get(ref)
                 except ray.exceptions.RayError as err:  # the worker died or the task was lost
                     outcome = _died(job, f"the Ray task failed: {type(err).__name__}: {err}")
-                report(outcome)
-                if worker is not None:
+                if worker is not None:  # its next job first: scoring this one takes a while
                     gpu_workers.next(worker, pending)
+                report(outcome)
 
 
 class _Worker:
