@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
-from typing import Annotated, get_args
+from typing import TYPE_CHECKING, Annotated, get_args
 
 import typer
 
-from cam2sim.cli.display import console, error_console, error_exit, progress_bars
+from cam2sim.cli.display import console, error_exit, progress_bars
 from cam2sim.core.workspace import Workspace
 from cam2sim.splat.train_options import DEFAULT_MAX_STEPS
+
+if TYPE_CHECKING:
+    from cam2sim.stages.splat import SplatResult
 
 __all__ = ["splat"]
 
@@ -93,12 +96,7 @@ def splat(
 
     strategies = get_args(DensifyStrategy)
     if densify not in strategies:
-        error_console.print(
-            f"[bold red]error:[/] --densify {densify!r} is not one of {', '.join(strategies)}",
-            highlight=False,
-            soft_wrap=True,
-        )
-        raise typer.Exit(1)
+        raise error_exit(ValueError(f"--densify {densify!r} is not one of {', '.join(strategies)}"))
     try:
         options = SplatStageOptions(
             prepare=PrepareOptions(
@@ -127,6 +125,11 @@ def splat(
     ws = Workspace.open(workspace)
     with progress_bars() as sink:
         result = run_splat(ws, options=options, force=force, progress=sink, ray=ray)
+    _print_summary(ws, result)
+
+
+def _print_summary(ws: Workspace, result: SplatResult) -> None:
+    """What the splat step did: each chunk's training, where the models are, their scores."""
     if result.trained is not None:
         for chunk in result.trained.chunks:
             psnr = chunk.val_history[-1][1] if chunk.val_history else None
