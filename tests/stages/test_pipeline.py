@@ -225,7 +225,7 @@ def test_run_command_prints_the_summary_and_exits_1_on_failure(
     import typer
     from typer.testing import CliRunner
 
-    from cam2sim.cli.run_pipeline_cmd import run
+    from cam2sim.cli.run_cmd import run
 
     app = typer.Typer()
     app.command("run")(run)
@@ -349,7 +349,7 @@ def test_run_varies_its_runs_unless_told_not_to(
     import typer
     from typer.testing import CliRunner
 
-    from cam2sim.cli.run_pipeline_cmd import run
+    from cam2sim.cli.run_cmd import run
 
     app = typer.Typer()
     app.command("run")(run)

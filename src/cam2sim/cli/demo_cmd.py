@@ -10,7 +10,7 @@ import typer
 
 from cam2sim.cli.display import console, progress_bars
 from cam2sim.cli.options import SkipOption, StepsOption, comma_list
-from cam2sim.cli.run_pipeline_cmd import _finish
+from cam2sim.cli.run_cmd import _finish
 
 __all__ = ["demo"]
 

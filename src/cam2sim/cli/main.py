@@ -26,11 +26,11 @@ from cam2sim.cli.display import (
     setup_logging,
     show_progress,
 )
+from cam2sim.cli.drive_cmd import drive, replay
 from cam2sim.cli.evaluate import evaluate_app
 from cam2sim.cli.map_cmd import map_
 from cam2sim.cli.report_cmd import report
-from cam2sim.cli.run_cmd import drive, replay
-from cam2sim.cli.run_pipeline_cmd import run
+from cam2sim.cli.run_cmd import run
 from cam2sim.cli.scenario_cmd import scenario
 from cam2sim.cli.splat_cmd import splat
 from cam2sim.core.config import AxisConvention

@@ -1,243 +1,187 @@
-"""``cam2sim replay`` and ``cam2sim drive``: trajectory replay and closed-loop runs."""
+"""``cam2sim run``: the whole pipeline, from bags to report, resuming where it stopped."""
 
 from __future__ import annotations
 
-import math
-from enum import StrEnum
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
+from rich.markup import escape
+from rich.table import Table
 
-from cam2sim.cli.display import console, progress_bars
-from cam2sim.cli.options import (
-    CarlaHostOption,
-    CarlaPortOption,
-    SimChoice,
-    SimOption,
+from cam2sim.cli.display import (
+    console,
+    error_console,
+    print_behaviour,
+    print_table,
+    progress_bars,
 )
-from cam2sim.core.errors import ConfigError
-from cam2sim.core.schema import format_validation_error
+from cam2sim.cli.options import SkipOption, StepsOption, comma_list
+from cam2sim.core.config import load_config, save_config
 from cam2sim.core.workspace import Workspace
 
 if TYPE_CHECKING:
-    from cam2sim.sim.carla_backend import CarlaOptions
+    from cam2sim.stages.pipeline import PipelineResult
 
-__all__ = ["drive", "replay"]
+__all__ = ["run"]
 
-
-class ReplayCamera(StrEnum):
-    """Cameras a replay renders."""
-
-    RASTER = "raster"
-    SPLAT = "splat"
-    BOTH = "both"
-    TRUTH = "truth"
-    CARLA = "carla"
+_STYLE = {
+    "done": "green",
+    "up_to_date": "cyan",
+    "skipped": "dim",
+    "not_applicable": "yellow",
+    "failed": "bold red",
+}
 
 
-class DriveCamera(StrEnum):
-    """The camera a policy sees."""
+def _workspace(out: Path, bags: list[Path], config: Path | None) -> Workspace:
+    """Open the workspace at ``out``, or create it from the bags (and a given config)."""
+    from cam2sim.stages.init import init_workspace  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
-    RASTER = "raster"
-    SPLAT = "splat"
-    TRUTH = "truth"
-    CARLA = "carla"
-    NONE = "none"
-
-
-class Judge(StrEnum):
-    """Where leaving the road and collisions are judged."""
-
-    MAP = "map"
-    TRUTH = "truth"
-
-
-def _carla(ws: Path, sim: SimChoice, host: str | None, port: int | None) -> CarlaOptions | None:
-    """CARLA options: config.yaml's ``carla`` block, with --carla-host/--carla-port on top."""
-    if sim is not SimChoice.CARLA or (host is None and port is None):
-        return None  # the run reads config.yaml's carla block
-    import pydantic  # noqa: PLC0415
-
-    from cam2sim.sim.carla_backend import CarlaOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
-
-    raw = dict(Workspace.open(ws).load_config().carla)
-    raw |= {k: v for k, v in (("host", host), ("port", port)) if v is not None}
-    try:
-        return CarlaOptions.model_validate(raw)
-    except pydantic.ValidationError as err:
-        raise ConfigError(format_validation_error(err, source="carla options")) from None
-
-
-def _span(text: str | None) -> tuple[int | None, int | None]:
-    if not text:
-        return (None, None)
-    first, sep, stop = text.partition(":")
-    if not sep:
-        msg = f"--frames takes A:B (either side may be empty), got {text!r}"
+    cfg = None
+    if config is not None:
+        cfg = load_config(config)
+        if bags:
+            recording = cfg.recording.model_copy(update={"bags": [str(p.absolute()) for p in bags]})
+            cfg = cfg.model_copy(update={"recording": recording})
+    if (out / Workspace.MANIFEST).is_file():
+        ws = Workspace.open(out)
+        if cfg is not None:
+            save_config(cfg, ws.config_path, comment=f"From {config} (cam2sim run --config)")
+        return ws
+    if cfg is not None:
+        return Workspace.create(out, cfg, comment=f"From {config} (cam2sim run --config)")
+    if not bags:
+        msg = f"{out} is not a workspace yet; pass the recording's bags: cam2sim run BAG -o {out}"
         raise typer.BadParameter(msg)
-    try:
-        return (int(first) if first else None, int(stop) if stop else None)
-    except ValueError:
-        msg = f"--frames takes integers A:B, got {text!r}"
-        raise typer.BadParameter(msg) from None
+    return init_workspace(out, bags).workspace
 
 
-def _size(text: str | None) -> tuple[int, int] | None:
-    if not text:
-        return None
-    w, sep, h = text.lower().partition("x")
-    if not sep or not w.isdigit() or not h.isdigit() or int(w) < 1 or int(h) < 1:
-        msg = f"--size takes WIDTHxHEIGHT in pixels, e.g. 200x66, got {text!r}"
-        raise typer.BadParameter(msg)
-    return int(w), int(h)
+def _summary(result: PipelineResult) -> Table:
+    table = Table(title="cam2sim run")
+    table.add_column("step")
+    table.add_column("state")
+    table.add_column("seconds", justify="right")
+    table.add_column("message", overflow="fold")
+    for o in result.outcomes:
+        style = _STYLE.get(o.state, "")
+        state = f"[{style}]{o.state.replace('_', ' ')}[/]" if style else o.state
+        seconds = f"{o.seconds:.1f}" if o.seconds else "-"
+        table.add_row(o.name, state, seconds, escape(o.message))
+    return table
 
 
-def _variation(text: str | None) -> Any:
-    """``--vary LATERAL_M,HEADING_DEG,SPEED`` as a RunVariation (None: no variation)."""
-    if not text:
-        return None
-    from cam2sim.stages.variation import RunVariation  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
-
-    parts = text.split(",")
-    try:
-        lateral, heading, speed = (float(v) for v in parts)
-        return RunVariation(start_lateral_m=lateral, start_heading_deg=heading, speed=speed)
-    except ValueError:
-        msg = (
-            "--vary takes LATERAL_M,HEADING_DEG,SPEED standard deviations (>= 0; speed as a "
-            f"fraction below 0.5), e.g. 0.1,0.5,0.03; got {text!r}"
-        )
-        raise typer.BadParameter(msg) from None
-
-
-def replay(
-    workspace: Annotated[Path, typer.Argument(help="The workspace folder.")],
-    *,
-    camera: Annotated[
-        ReplayCamera, typer.Option(help="Camera(s) to render.")
-    ] = ReplayCamera.RASTER,
-    frames: Annotated[
-        str | None, typer.Option(help="Samples A:B of the recorded trajectory (default: all).")
+def run(
+    bags: Annotated[
+        list[Path] | None,
+        typer.Argument(help="The recording's bag files or folders (not needed to resume)."),
     ] = None,
-    size: Annotated[
-        str | None, typer.Option(help="Render size WIDTHxHEIGHT (default: the calibrated one).")
-    ] = None,
-    video: Annotated[bool, typer.Option("--video/--no-video", help="Write video.mp4.")] = True,
-    sim: SimOption = SimChoice.BUILTIN,
-    carla_host: CarlaHostOption = None,
-    carla_port: CarlaPortOption = None,
-) -> None:
-    """Replay the recorded trajectory exactly: frames per camera, side by side with the real one.
-
-    Example: cam2sim replay ws --camera both --frames 0:300
-    """
-    from cam2sim.stages.runs import ReplayOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
-    from cam2sim.stages.runs import replay as run_replay  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
-
-    cams = ("raster", "splat") if camera is ReplayCamera.BOTH else (camera.value,)
-    if sim is SimChoice.CARLA and "carla" not in cams:
-        cams = (*cams, "carla")
-    opts = ReplayOptions(
-        cameras=cams,  # type: ignore[arg-type]
-        frames=_span(frames),
-        image_size=_size(size),
-        video=video,
-        simulator=sim.value,
-        carla=_carla(workspace, sim, carla_host, carla_port),
-    )
-    ws = Workspace.open(workspace)
-    with progress_bars() as sink:
-        result = run_replay(ws, options=opts, progress=sink)
-    console.print(
-        f"{result.folder}: {result.steps} frames replayed in {result.seconds:.1f} s",
-        highlight=False,
-    )
-
-
-def _speed(text: str | None) -> float | None:
-    """``--speed``: km/h, or None for 'recorded' and the default."""
-    if text is None or text == "recorded":
-        return None
-    msg = f"--speed {text!r}: give km/h (a number >= 0) or 'recorded'"
-    try:
-        value = float(text)
-    except ValueError:
-        raise typer.BadParameter(msg) from None
-    if not (math.isfinite(value) and value >= 0):
-        raise typer.BadParameter(msg)
-    return value
-
-
-def drive(
-    workspace: Annotated[Path, typer.Argument(help="The workspace folder.")],
     *,
+    out: Annotated[Path, typer.Option("--out", "-o", help="The workspace folder.")],
+    config: Annotated[
+        Path | None,
+        typer.Option(help="A config.yaml to use instead of the guessed one."),
+    ] = None,
+    osm: Annotated[
+        Path | None,
+        typer.Option(help="OSM file for the map (default: download from the Overpass API)."),
+    ] = None,
+    steps: StepsOption = None,
+    skip: SkipOption = None,
     policy: Annotated[
-        str,
-        typer.Option(
-            help="pure-pursuit, constant:VALUE, a .onnx/.pt steering model, or tcp://HOST:PORT."
-        ),
-    ] = "pure-pursuit",
-    camera: Annotated[DriveCamera, typer.Option(help="What the policy sees.")] = DriveCamera.RASTER,
-    runs: Annotated[int, typer.Option(min=1, help="Number of runs (seeds seed, seed+1, ...).")] = 1,
-    speed: Annotated[
         str | None,
+        typer.Option(help="Drive policy (default: the trained DAVE-2, else pure-pursuit)."),
+    ] = None,
+    camera: Annotated[
+        list[str] | None,
         typer.Option(
-            help="Target speed in km/h, or 'recorded': the recorded speed along the route "
-            "(default: the recorded start speed, held).",
+            help="Camera for replay and drive, repeatable: raster, splat, truth, none "
+            "(default: raster, plus splat when splat models exist, plus truth for drives when "
+            "the workspace has a ground-truth world)."
         ),
     ] = None,
-    seed: Annotated[int, typer.Option(help="Seed of the first run.")] = 0,
-    every: Annotated[int, typer.Option(min=1, help="The policy answers every n-th step.")] = 3,
-    size: Annotated[
-        str | None, typer.Option(help="Camera size WIDTHxHEIGHT (default: the calibrated one).")
+    detect_model: Annotated[
+        str | None,
+        typer.Option(help="Camera detector for recordings without LiDAR (.onnx, .pt)."),
     ] = None,
-    save_frames: Annotated[bool, typer.Option("--save-frames", help="Write the frames.")] = False,
-    video: Annotated[bool, typer.Option("--video", help="Write video.mp4.")] = False,
+    real: Annotated[
+        list[Path] | None,
+        typer.Option(
+            help="Further recorded drives of the street (trajectory*.csv or folders): they join "
+            "the recorded one as Real; repeatable."
+        ),
+    ] = None,
+    real_crs: Annotated[str, typer.Option(help="CRS of the --real drives' x, y.")] = "EPSG:32632",
+    runs: Annotated[int, typer.Option(min=1, help="Drive runs per camera.")] = 3,
     vary: Annotated[
-        str | None,
+        bool,
         typer.Option(
-            help="Seeded run-to-run variation: standard deviations LATERAL_M,HEADING_DEG,SPEED "
-            "of the start offset and the speed factor, e.g. 0.1,0.5,0.03 (the demo's)."
+            help="Make the runs differ as a driver's repeated drives do (seeded start pose, "
+            "speed and steering noise, as the demo's); without it they are identical.",
         ),
-    ] = None,
-    sim: SimOption = SimChoice.BUILTIN,
-    carla_host: CarlaHostOption = None,
-    carla_port: CarlaPortOption = None,
-    judge: Annotated[
-        Judge,
+    ] = True,
+    recorded_speed: Annotated[
+        bool,
         typer.Option(
-            help="Where leaving the road and collisions are judged: map (the reconstructed "
-            "map and parked vehicles) or truth (the workspace's ground-truth world).",
+            help="Drive at the recorded speed along the route (slowing where the driver "
+            "slowed) instead of holding the start speed.",
         ),
-    ] = Judge.MAP,
+    ] = False,
+    splat_on_cpu: Annotated[
+        bool, typer.Option(help="Train splats on the CPU (the CPU preset) when there is no GPU.")
+    ] = True,
+    continue_on_error: Annotated[
+        bool, typer.Option(help="Go on with the next steps after a step failed.")
+    ] = False,
 ) -> None:
-    """Closed-loop runs in the builtin simulator (or CARLA); each run ends on an event.
+    """Run every stage in order, skipping those up to date; re-run to resume.
 
-    Example: cam2sim drive ws --policy pure-pursuit --camera raster --runs 3 --vary 0.1,0.5,0.03
+    Steps: extract, map, detect, scenario, splat, ads, replay, drive, evaluate, report.
+
+    Example: cam2sim run drive.mcap -o ws --osm area.osm --skip splat
     """
-    from cam2sim.stages.runs import DriveOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
-    from cam2sim.stages.runs import drive as run_drive  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.stages.experiment import DEMO_STEERING_NOISE  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.stages.pipeline import STEPS, PipelineOptions, remember_inputs, run_pipeline  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.stages.variation import DEMO_RUN_VARIATION  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
-    opts = DriveOptions(
+    options = PipelineOptions(
+        osm=osm,
+        steps=comma_list(steps) or STEPS,
+        skip=comma_list(skip),
+        detect_model=detect_model,
+        real=tuple(real or ()),
+        real_crs=real_crs,
         policy=policy,
-        camera=camera.value,
+        cameras=tuple(camera) if camera else None,  # type: ignore[arg-type]
         runs=runs,
-        speed_kmh=_speed(speed),
-        recorded_speed=speed == "recorded",
-        seed=seed,
-        policy_every=every,
-        image_size=_size(size),
-        save_frames=save_frames,
-        video=video,
-        simulator=sim.value,
-        carla=_carla(workspace, sim, carla_host, carla_port),
-        variation=_variation(vary),
-        judge="truth" if judge is Judge.TRUTH else "map",
+        steering_noise_std=DEMO_STEERING_NOISE if vary else 0.0,
+        run_variation=DEMO_RUN_VARIATION if vary else None,
+        recorded_speed=recorded_speed,
+        splat_on_cpu=splat_on_cpu,
+        continue_on_error=continue_on_error,
     )
-    ws = Workspace.open(workspace)
+    ws = _workspace(out, list(bags or []), config)
+    options = remember_inputs(ws, options)  # a resume needs no --osm again
     with progress_bars() as sink:
-        results = run_drive(ws, options=opts, progress=sink)
-    for r in results:
-        ends = ", ".join(f"{e['kind']} at {e['t']:.1f} s" for e in r.events) or "no event"
-        console.print(f"{r.folder}: {r.steps} steps in {r.seconds:.1f} s ({ends})", highlight=False)
+        result = run_pipeline(ws, options=options, progress=sink)
+    _finish(ws, result, sum(o.seconds for o in result.outcomes))
+
+
+def _finish(ws: Workspace, result: PipelineResult, total_s: float) -> None:
+    """Print the summary table, the total and the report; exit 1 when a step failed."""
+    print_table(_summary(result))
+    metrics = ws.report_files.metrics_json
+    if metrics.is_file() and result.outcome("evaluate").state in ("done", "up_to_date"):
+        from cam2sim.metrics.drive_quality import DriveMetrics  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+
+        print_behaviour(DriveMetrics.load(metrics))
+    console.print(f"workspace {ws.root}; {total_s:.0f} s in all", highlight=False)
+    if result.report is not None:
+        console.print(f"report: {result.report}", highlight=False)
+    if result.failed:
+        error_console.print(
+            "[bold red]a step failed[/]; fix what its message says, then run the same command "
+            "again to resume",
+            highlight=False,
+        )
+        raise typer.Exit(1)
