@@ -334,34 +334,12 @@ def evaluate_splat(
         masks = []
         total = len(held) + len(pick) * len(offsets)
         for n, frame in enumerate(held):
-            real = read_rgb(prep_dir / "images" / f"{frame.index:06d}.png")
             exclude = frame_exclusion(prep_dir, frame)
             masks.append((frame, exclude))
-            camera = frame.camera()
-            r = renderer.render(frame.T(), camera)
-            cache[frame.index, 0.0, 0.0] = (r.rgb, r.coverage)
-            if opts.renders_dir is not None:
-                write_rgb(Path(opts.renders_dir) / f"{frame.index:06d}.webp", r.rgb)
-            s = score_pair(real, r.rgb, exclude, lpips)
-            raw = PairScores(None, None, None)
-            if opts.compare_appearance:
-                rr = renderer.render(frame.T(), camera, appearance="none")
-                raw = score_pair(real, rr.rgb, exclude, lpips)
-            rows.append(
-                HeldOutFrame(
-                    index=frame.index,
-                    psnr_db=s.psnr,
-                    ssim=s.ssim,
-                    lpips=s.lpips,
-                    psnr_db_raw=raw.psnr,
-                    ssim_raw=raw.ssim,
-                    lpips_raw=raw.lpips,
-                    coverage=r.coverage,
-                    chunks=r.chunk_weights,
-                )
-            )
+            row, rgb = _score_held_out(renderer, prep_dir, frame, exclude, lpips, opts, cache)
+            rows.append(row)
             if n in pick:
-                kept_for_offsets.append((frame, r.rgb, exclude))
+                kept_for_offsets.append((frame, rgb, exclude))
             progress("splat eval frames", n + 1, total)
         offset_rows = _offset_scores(
             renderer, kept_for_offsets, tuple(offsets), lpips, opts.lower_fraction, cache
@@ -411,6 +389,46 @@ def evaluate_splat(
         out_path,
     )
     return result
+
+
+def _score_held_out(
+    renderer: SplatRenderer,
+    prep_dir: Path,
+    frame: FrameRecord,
+    exclude: npt.NDArray[np.bool_] | None,
+    lpips: Lpips | None,
+    opts: EvalOptions,
+    cache: RenderCache,
+) -> tuple[HeldOutFrame, npt.NDArray[np.uint8]]:
+    """One held-out frame rendered and scored against the recorded one; its row and render.
+
+    The render is kept in ``cache`` (the truth envelope's on-path view) and, with
+    ``opts.renders_dir``, written there; with ``opts.compare_appearance`` the frame is also
+    scored without the colour transforms (the ``_raw`` columns).
+    """
+    real = read_rgb(prep_dir / "images" / f"{frame.index:06d}.png")
+    camera = frame.camera()
+    r = renderer.render(frame.T(), camera)
+    cache[frame.index, 0.0, 0.0] = (r.rgb, r.coverage)
+    if opts.renders_dir is not None:
+        write_rgb(Path(opts.renders_dir) / f"{frame.index:06d}.webp", r.rgb)
+    s = score_pair(real, r.rgb, exclude, lpips)
+    raw = PairScores(None, None, None)
+    if opts.compare_appearance:
+        rr = renderer.render(frame.T(), camera, appearance="none")
+        raw = score_pair(real, rr.rgb, exclude, lpips)
+    row = HeldOutFrame(
+        index=frame.index,
+        psnr_db=s.psnr,
+        ssim=s.ssim,
+        lpips=s.lpips,
+        psnr_db_raw=raw.psnr,
+        ssim_raw=raw.ssim,
+        lpips_raw=raw.lpips,
+        coverage=r.coverage,
+        chunks=r.chunk_weights,
+    )
+    return row, r.rgb
 
 
 def _fmt(value: float | None) -> str:
