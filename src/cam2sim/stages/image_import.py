@@ -549,21 +549,7 @@ def import_images(
         kept_stamps = stamps[keep]
         fmt = config.frames.format
         size = _write_frames(kept, paths, fmt, config.frames.jpeg_quality, progress)
-        base = {
-            "frame": np.arange(len(kept), dtype=np.int64),
-            "stamp_ns": kept_stamps,
-            "t": kept_stamps / 1e9,
-        }
-        if pose_cols is not None:
-            write_table(paths.poses_csv, base | pose_cols, precision=POSE_PRECISION)
-            # The trajectory the map, scenario and derived steering read: the images' poses in
-            # time order (an extracted bag's holds every pose message).
-            order = np.argsort(kept_stamps, kind="stable")
-            trajectory = {"stamp_ns": kept_stamps[order], "t": kept_stamps[order] / 1e9}
-            trajectory |= {k: np.asarray(v)[order] for k, v in pose_cols.items()}
-            write_table(paths.trajectory_csv, trajectory, precision=POSE_PRECISION)
-        else:
-            write_table(paths.frames_csv, base, precision=POSE_PRECISION)
+        _write_frame_tables(paths, kept_stamps, pose_cols)
         _write_signals(paths, signals)
         if intr is not None:  # a grey camera's simulated views are made grey too
             intr = intr.model_copy(update={"grey": frames_are_grey(kept)})
@@ -571,21 +557,7 @@ def import_images(
             paths, rig, keep, intr, source=opts.rig or Path(), fmt=fmt,
             list_images=_list_images, intrinsics_from_file=intrinsics_from_file,
         )  # fmt: skip
-        if intr is not None and (intr.width, intr.height) != size:
-            msg = (
-                f"calibration is for {intr.width}x{intr.height} but images are {size[0]}x{size[1]}"
-            )
-            raise RecordingError(msg + "; pass the calibration of these images")
-        Calibration(
-            camera=intr,
-            camera_mount=mount
-            or MountRecord(
-                translation_m=(0.0, 0.0, 0.0),
-                quat_xyzw=_IDENTITY_OPTICAL,
-                axes="optical",
-                source="default",
-            ),
-        ).save(paths.calibration_json)
+        _save_calibration(paths, intr, mount, size)
         info = DatasetInfo(
             kind="images",
             pose_less=table is None,
@@ -611,6 +583,45 @@ def import_images(
         run.world = world
     logger.info("import: %d frames (%s), pose-less: %s", len(kept), time_source, table is None)
     return ImportResult(ws.dataset_dir, info)
+
+
+def _write_frame_tables(
+    paths: DatasetPaths,
+    stamps: npt.NDArray[np.int64],
+    pose_cols: dict[str, npt.NDArray[Any]] | None,
+) -> None:
+    """The frames' table: with poses, ``poses.csv`` and the trajectory; else ``frames.csv``."""
+    base = {"frame": np.arange(len(stamps), dtype=np.int64), "stamp_ns": stamps, "t": stamps / 1e9}
+    if pose_cols is None:
+        write_table(paths.frames_csv, base, precision=POSE_PRECISION)
+        return
+    write_table(paths.poses_csv, base | pose_cols, precision=POSE_PRECISION)
+    # The trajectory the map, scenario and derived steering read: the images' poses in time
+    # order (an extracted bag's holds every pose message).
+    order = np.argsort(stamps, kind="stable")
+    trajectory = {"stamp_ns": stamps[order], "t": stamps[order] / 1e9}
+    trajectory |= {k: np.asarray(v)[order] for k, v in pose_cols.items()}
+    write_table(paths.trajectory_csv, trajectory, precision=POSE_PRECISION)
+
+
+def _save_calibration(
+    paths: DatasetPaths,
+    intr: CameraIntrinsics | None,
+    mount: MountRecord | None,
+    size: tuple[int, int],
+) -> None:
+    """The camera's calibration (the mount at the pose point when none is given).
+
+    Raises:
+        RecordingError: The calibration is for another image size.
+    """
+    if intr is not None and (intr.width, intr.height) != size:
+        msg = f"calibration is for {intr.width}x{intr.height} but images are {size[0]}x{size[1]}"
+        raise RecordingError(msg + "; pass the calibration of these images")
+    default = MountRecord(
+        translation_m=(0.0, 0.0, 0.0), quat_xyzw=_IDENTITY_OPTICAL, axes="optical", source="default"
+    )
+    Calibration(camera=intr, camera_mount=mount or default).save(paths.calibration_json)
 
 
 def _write_frames(
