@@ -53,6 +53,7 @@ from cam2sim.map.query import DRIVING, RoadMap
 from cam2sim.map.report import (
     AlignmentReport,
     MapReport,
+    RouteFit,
     SourceReport,
     fit_route,
     plot_map,
@@ -408,6 +409,34 @@ def _road_source(
     return road.xodr, _file_source("trajectory", trajectory_csv), None, None, notes
 
 
+def _write_map_folder(
+    map_dir: Path,
+    report: MapReport,
+    xodr: str,
+    osm_xml: str | None,
+    road_map: RoadMap,
+    route_xyz: npt.NDArray[np.float64],
+    fit: RouteFit,
+) -> None:
+    """Replace ``map_dir`` as a whole, keeping its download cache.
+
+    The OSM source (when there is one), the OpenDRIVE map, the report and the picture.
+    """
+    cache = map_dir / MAP_FILES["cache"]
+    with atomic_folder(map_dir) as tmp:
+        if osm_xml is not None:
+            write_text_atomic(tmp / MAP_FILES["source"], osm_xml)
+        write_text_atomic(tmp / MAP_FILES["xodr"], xodr)
+        report.save(tmp / MAP_FILES["report"])
+        covered = fit.report.covered_fraction
+        title = f"{report.roads.roads} roads, {report.roads.junctions} junctions"
+        if covered is not None:
+            title += f"; route on a driving lane: {covered:.1%}"
+        plot_map(road_map, route_xyz[:, :2], fit.on_lane, tmp / MAP_FILES["picture"], title=title)
+        if cache.is_dir():
+            shutil.copytree(cache, tmp / MAP_FILES["cache"])
+
+
 def build_map(
     ws: Workspace,
     *,
@@ -490,28 +519,8 @@ def build_map(
             osm_alignment=alignment,
             warnings=[*notes, *route_warnings(fit.report)],
         )
-        cache = ws.map_dir / MAP_FILES["cache"]
-        with atomic_folder(ws.map_dir) as tmp:
-            if osm_xml is not None:
-                write_text_atomic(tmp / MAP_FILES["source"], osm_xml)
-            write_text_atomic(tmp / MAP_FILES["xodr"], xodr)
-            report.save(tmp / MAP_FILES["report"])
-            covered = fit.report.covered_fraction
-            plot_map(
-                road_map,
-                route.xyz[:, :2],
-                fit.on_lane,
-                tmp / MAP_FILES["picture"],
-                title=(
-                    f"{report.roads.roads} roads, {report.roads.junctions} junctions; "
-                    f"route on a driving lane: {covered:.1%}"
-                    if covered is not None
-                    else f"{report.roads.roads} roads, {report.roads.junctions} junctions"
-                ),
-            )
-            if cache.is_dir():
-                shutil.copytree(cache, tmp / MAP_FILES["cache"])
-            progress("map", 4, 5)
+        _write_map_folder(ws.map_dir, report, xodr, osm_xml, road_map, route.xyz, fit)
+        progress("map", 4, 5)
     progress("map", 5, 5)
     logger.info(
         "map (%s): %d roads, %d junctions; %.1f%% of the route on a driving lane",
