@@ -201,7 +201,7 @@ run_campaign({plan!r}, executor=LocalPool(1, task=slow_execute))
 
 def test_ctrl_c_keeps_what_finished_and_a_resume_does_the_rest(tmp_path: Path) -> None:
     here = Path(__file__).parent
-    plan = write_campaign(tmp_path, PLAN.replace("seeds: [0]", "seeds: [0, 1]"))
+    plan = write_campaign(tmp_path, PLAN.replace("seeds: [0]", "seeds: [0, 1, 2]"))
     script = _INTERRUPTED.format(tests=str(here.parent), here=str(here), plan=str(plan))
     child = subprocess.Popen([sys.executable, "-c", script], start_new_session=True)
     state_path = tmp_path / "plan-campaign" / "state.json"
@@ -210,18 +210,19 @@ def test_ctrl_c_keeps_what_finished_and_a_resume_does_the_rest(tmp_path: Path) -
         if state_path.is_file() and len(CampaignState.load(state_path).done()) >= 1:
             break
         time.sleep(0.2)
+    # Six runs of 4 s or more: a loaded machine still interrupts the campaign under way.
     os.killpg(child.pid, signal.SIGINT)  # Ctrl-C reaches the driver and its workers
     assert child.wait(timeout=60) != 0
     kept = CampaignState.load(state_path).done()
-    assert 1 <= len(kept) < 4
+    assert 1 <= len(kept) < 6
     finished = _runs(tmp_path / "ws")
     assert all((p / "run.json").is_file() for p in finished if not p.name.startswith("."))
     # The resume runs only what is missing, and keeps what finished.
     resumed = run_campaign(plan, executor=LocalPool(2))
-    assert resumed.ran == 4 - len(kept)
-    assert [r.status for r in resumed.rows] == ["done"] * 4
+    assert resumed.ran == 6 - len(kept)
+    assert [r.status for r in resumed.rows] == ["done"] * 6
     done = [p for p in _runs(tmp_path / "ws") if not p.name.startswith(".")]
-    assert len(done) == 4
+    assert len(done) == 6
 
 
 def test_runs_are_judged_in_the_ground_truth_where_there_is_one(tmp_path: Path) -> None:
