@@ -15,6 +15,7 @@ callback in the calling process, in the order runs finish.
 
 from __future__ import annotations
 
+import collections
 import logging
 import multiprocessing
 import os
@@ -188,15 +189,15 @@ class RayCluster:
         slots = min(len(on_gpu), int(gpus / self.gpus_per_job + 1e-9))
         if slots == 0:  # no job wants a GPU, or none fits: every job is a task
             on_gpu = []
-        task = ray.remote(self.task)
-        gpu_jobs = {id(job) for job in on_gpu}
-        pending: dict[Any, tuple[Job, Any]] = {}
-        for job in jobs:
-            if id(job) in gpu_jobs:
-                continue
-            ref = task.options(num_cpus=cpus, num_gpus=0, max_retries=LOST_WORKER_RETRIES)
-            pending[ref.remote(job.spec, job.log, job.timeout_s)] = (job, None)
-        gpu_workers = _GpuWorkers(ray, self.task, cpus, self.gpus_per_job, list(on_gpu))
+        task = ray.remote(self.task).options(
+            num_cpus=cpus, num_gpus=0, max_retries=LOST_WORKER_RETRIES
+        )
+        pending: dict[Any, tuple[Job, Any]] = {
+            task.remote(job.spec, job.log, job.timeout_s): (job, None)
+            for job in jobs
+            if not (on_gpu and job.spec.needs_gpu)
+        }
+        gpu_workers = _GpuWorkers(ray, self.task, cpus, self.gpus_per_job, on_gpu)
         for _ in range(slots):
             gpu_workers.start(pending)
         while pending:
@@ -242,7 +243,7 @@ class _GpuWorkers:
         self, ray: Any, task: Callable[..., RunOutcome], cpus: float, gpus: float, queue: list[Job]
     ) -> None:
         self.ray = ray
-        self.queue = queue
+        self.queue = collections.deque(queue)
         self.actor = ray.remote(_Worker).options(
             num_cpus=cpus,
             num_gpus=gpus,
@@ -260,5 +261,5 @@ class _GpuWorkers:
         if not self.queue:
             self.ray.kill(worker)
             return
-        job = self.queue.pop(0)
+        job = self.queue.popleft()
         pending[worker.run.remote(job.spec, job.log, job.timeout_s)] = (job, worker)
