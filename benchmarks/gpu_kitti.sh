@@ -16,16 +16,21 @@
 #   PHASE=collect bash benchmarks/gpu_kitti.sh   # $OUT: the log, report.html, the workspace's
 #                                                # JSON records (kitti.tgz), the closed
 #                                                # loop's frames and drives (loop.tgz)
+#   PHASE=sweep bash benchmarks/gpu_kitti.sh --config base: --config mcmc:densify.strategy=mcmc
+#                                                # after a run: splat_sweep.py on one chunk of
+#                                                # the run's prepared scene (CHUNK, default 0;
+#                                                # STEPS, EVALS; LIMIT seconds, default 480),
+#                                                # settings side by side, $OUT/sweep.json
 #
 # Build the carried folders here first: `bash benchmarks/carry_kit.sh demo kitti` (kitti needs
 # the sequence: KITTI03=/path/with/images bash benchmarks/carry_kit.sh kitti). KITTI is
 # CC BY-NC-SA 3.0: .k03/ stays out of git (.git/info/exclude).
-case ${PHASE:?set PHASE to setup, frames, run, wait or collect} in
+case ${PHASE:?set PHASE to setup, frames, run, wait, collect or sweep} in
 setup) WHEELS=.c21/a ;;
 run) WHEELS=.c21/b ;;
-frames | wait | collect) WHEELS= ;;
+frames | wait | collect | sweep) WHEELS= ;;
 *)
-  echo "PHASE=$PHASE: use setup, frames, run, wait or collect" >&2
+  echo "PHASE=$PHASE: use setup, frames, run, wait, collect or sweep" >&2
   exit 2
   ;;
 esac
@@ -97,5 +102,11 @@ for run in sorted((ws / "runs").iterdir()):
 PY
   tar czf "$out/loop.tgz" -C "$out" loop && rm -rf "$out/loop"
   ls -la "$out"
+  ;;
+sweep)
+  [ -f $ws/splat/prep/scene.json ] || { echo "no prepared scene in $ws: PHASE=run first" >&2; exit 1; }
+  python3 benchmarks/splat_sweep.py --prep $ws/splat/prep --chunk "${CHUNK:-0}" \
+    --steps "${STEPS:-12000}" --eval-at "${EVALS:-4000,7000,10000,12000}" \
+    --deadline "${LIMIT:-480}" --work /tmp/kitti_sweep --out "$out/sweep.json" "$@"
   ;;
 esac
