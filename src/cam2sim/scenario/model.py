@@ -70,13 +70,24 @@ class ScenarioTrajectory(pydantic.BaseModel):
     reference: tuple[tuple[float, float, float], ...]
     center: tuple[tuple[float, float, float], ...]
     rear_axle: tuple[tuple[float, float, float], ...]
+    roll: tuple[float, ...] | None = pydantic.Field(
+        default=None,
+        description="recorded roll of the vehicle, rad (ROS ZYX); None: not recorded (level)",
+    )
+    pitch: tuple[float, ...] | None = pydantic.Field(
+        default=None,
+        description="recorded pitch of the vehicle, rad (ROS ZYX, positive nose down); None: "
+        "not recorded (level)",
+    )
 
     @pydantic.model_validator(mode="after")
     def _same_length(self) -> ScenarioTrajectory:
         n = len(self.frame)
+        columns = ("stamp_ns", "t", "heading", "speed", "reference", "center", "rear_axle")
         lengths = {
             k: len(getattr(self, k))
-            for k in ("stamp_ns", "t", "heading", "speed", "reference", "center", "rear_axle")
+            for k in (*columns, "roll", "pitch")
+            if getattr(self, k) is not None
         }
         bad = {k: v for k, v in lengths.items() if v != n}
         if bad:

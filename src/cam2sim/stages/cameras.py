@@ -46,15 +46,19 @@ __all__ = [
     "CameraName",
     "CameraRenderer",
     "Cameras",
+    "RecordedGround",
     "RunContext",
     "camera_names",
     "camera_poses",
     "ground_height_at",
     "load_run_context",
     "policy_band",
+    "recorded_ground_at",
+    "recorded_tilt",
     "register_camera",
     "run_camera",
     "scaled_intrinsics",
+    "vehicle_camera_pose",
     "vehicle_view",
     "write_png",
 ]
@@ -121,30 +125,72 @@ def scaled_intrinsics(scenario: Scenario, size: tuple[int, int] | None) -> Pinho
 
 def camera_poses(
     scenario: Scenario, reference_xy: npt.NDArray[np.float64], heading: npt.NDArray[np.float64],
-    reference_z: npt.NDArray[np.float64],
+    reference_z: npt.NDArray[np.float64], *, roll: npt.ArrayLike = 0.0,
+    pitch: npt.ArrayLike = 0.0,
 ) -> npt.NDArray[np.float64]:  # fmt: skip
-    """``(N, 4, 4)`` camera (optical) -> world of planar reference-point poses and the mount.
+    """``(N, 4, 4)`` camera (optical) -> world of reference-point poses and the mount.
 
-    The car is level (no roll or pitch) at each ``(x, y, z)`` with its ``heading``;
+    The car stands at each ``(x, y, z)`` with its ``heading``, level unless ``roll`` and
+    ``pitch`` (radians, ROS ZYX: positive pitch is nose down) tilt it, as the recorded car was
+    on a sloping road (:func:`recorded_ground_at`);
     :func:`cam2sim.core.frames.camera_poses` composes it with the scenario's camera mount.
     """
     mount = scenario.camera_mount
     xy = np.asarray(reference_xy, dtype=np.float64).reshape(-1, 2)
     z = np.broadcast_to(np.asarray(reference_z, dtype=np.float64), (xy.shape[0],))
     position = np.column_stack([xy, z])
-    quat = fr.quat_from_yaw(np.asarray(heading, dtype=np.float64).reshape(-1))
+    quat = fr.quat_from_euler(roll, pitch, np.asarray(heading, dtype=np.float64).reshape(-1))
     return fr.camera_poses(position, quat, mount.translation_m, mount.quat_xyzw)
+
+
+@dataclass(frozen=True)
+class RecordedGround:
+    """The recorded road under a world ``(x, y)``: its height and the car's tilt on it."""
+
+    z: float
+    """Ground height, world z (m): the recorded reference point's z less its height above
+    the ground."""
+    roll: float = 0.0
+    """The recorded car's roll there (rad; 0 when the recording has no orientation)."""
+    pitch: float = 0.0
+    """The recorded car's pitch there (rad, positive nose down; 0 without orientation)."""
+
+
+def recorded_ground_at(scenario: Scenario, xy: npt.NDArray[np.float64]) -> RecordedGround:
+    """The recorded road under the reference point at world ``(x, y)``: the nearest sample's.
+
+    The splat models live in the recorded world, hills included: a camera that renders them
+    must stand at the recorded height and lean with the road, or its horizon moves (a 5 %
+    grade is 3 degrees: 35 px on a 700 px focal length). The raster and truth worlds are flat
+    (their road is z = 0), so their cameras stay level.
+    """
+    traj = scenario.trajectory
+    ref = np.asarray(traj.reference, dtype=np.float64)
+    i = int(np.argmin(np.hypot(ref[:, 0] - xy[0], ref[:, 1] - xy[1])))
+    z = float(ref[i, 2] - scenario.vehicle.reference_xyz[2])
+    if traj.pitch is None or traj.roll is None:
+        return RecordedGround(z)
+    return RecordedGround(z, roll=float(traj.roll[i]), pitch=float(traj.pitch[i]))
+
+
+def recorded_tilt(
+    scenario: Scenario, idx: npt.NDArray[np.int64]
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """The recorded car's roll and pitch (rad) at trajectory samples ``idx`` (0: not recorded)."""
+    traj = scenario.trajectory
+    if traj.roll is None or traj.pitch is None:
+        zero = np.zeros(len(idx))
+        return zero, zero
+    return np.asarray(traj.roll, np.float64)[idx], np.asarray(traj.pitch, np.float64)[idx]
 
 
 def ground_height_at(scenario: Scenario, xy: npt.NDArray[np.float64]) -> float:
     """Recorded ground height (world z, m) under a world ``(x, y)``: at the nearest sample.
 
-    The recorded reference point's z less its height above the ground. The raster and truth
-    worlds have their road at z = 0; the splat models live at the recorded heights.
+    The raster and truth worlds have their road at z = 0; the splat models live at the
+    recorded heights (:func:`recorded_ground_at` adds the car's tilt there).
     """
-    ref = np.asarray(scenario.trajectory.reference, dtype=np.float64)
-    i = int(np.argmin(np.hypot(ref[:, 0] - xy[0], ref[:, 1] - xy[1])))
-    return float(ref[i, 2] - scenario.vehicle.reference_xyz[2])
+    return recorded_ground_at(scenario, xy).z
 
 
 _CAMERAS: dict[str, Callable[[RunContext], CameraRenderer | None]] = {}
@@ -315,6 +361,25 @@ def policy_band(
     return rows
 
 
+def vehicle_camera_pose(
+    sc: Scenario, x: float, y: float, heading: float, *, recorded: bool
+) -> npt.NDArray[np.float64]:
+    """``(4, 4)`` camera (optical) -> world of the vehicle with its centre at ``(x, y)``.
+
+    ``recorded``: in the recorded world (the splat's), at the recorded road's height and tilt
+    under the car (:func:`recorded_ground_at`); else on the flat road at z = 0 of the raster
+    and truth worlds.
+    """
+    ref_xyz = sc.vehicle.reference_xyz
+    ref_now = body_point_positions([[x, y, 0.0]], [heading], (0.0, 0.0, 0.0), ref_xyz)[0]
+    ground = recorded_ground_at(sc, ref_now[:2]) if recorded else RecordedGround(0.0)
+    pose: npt.NDArray[np.float64] = camera_poses(
+        sc, ref_now[None, :2], np.array([heading]), np.array([ref_xyz[2] + ground.z]),
+        roll=ground.roll, pitch=ground.pitch,
+    )[0]  # fmt: skip
+    return pose
+
+
 def vehicle_view(
     sc: Scenario,
     state: Any,
@@ -328,15 +393,7 @@ def vehicle_view(
 
     With ``band = (first, stop)`` only those rows are rendered; the others stay black.
     """
-    ref_xyz = sc.vehicle.reference_xyz
-    ref_now = body_point_positions(
-        [[state.x, state.y, 0.0]], [state.heading], (0.0, 0.0, 0.0), ref_xyz
-    )[0]
-    # The raster and truth worlds' road is z = 0; the splat models live at the recorded heights.
-    ground = ground_height_at(sc, np.array([state.x, state.y])) if cam_name == "splat" else 0.0
-    T = camera_poses(
-        sc, ref_now[None, :2], np.array([state.heading]), np.array([ref_xyz[2] + ground])
-    )[0]
+    T = vehicle_camera_pose(sc, state.x, state.y, state.heading, recorded=cam_name == "splat")
     if cam_name == "splat":
         coverage.append(cameras.coverage(cam_name, T))
     if band is None:

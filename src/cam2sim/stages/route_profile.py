@@ -24,9 +24,10 @@ from cam2sim.metrics.image_quality import psnr
 from cam2sim.stages.cameras import (
     TRUTH_CAMERA,
     Cameras,
+    RecordedGround,
     camera_poses,
-    ground_height_at,
     load_run_context,
+    recorded_ground_at,
     run_camera,
 )
 
@@ -113,10 +114,10 @@ def _pose(
     """The camera pose of the vehicle at reference point ``xy``, moved ``lateral_m`` right."""
     right = np.array([np.sin(heading), -np.cos(heading)])
     at = xy + lateral_m * right
-    ground = ground_height_at(sc, at) if splat else 0.0
-    z = sc.vehicle.reference_xyz[2] + ground
+    ground = recorded_ground_at(sc, at) if splat else RecordedGround(0.0)
+    z = sc.vehicle.reference_xyz[2] + ground.z
     pose: npt.NDArray[np.float64] = camera_poses(
-        sc, at[None, :], np.array([heading]), np.array([z])
+        sc, at[None, :], np.array([heading]), np.array([z]), roll=ground.roll, pitch=ground.pitch
     )[0]
     return pose
 

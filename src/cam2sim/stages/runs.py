@@ -56,6 +56,7 @@ from cam2sim.stages.cameras import (
     camera_poses,
     load_run_context,
     policy_band,
+    recorded_tilt,
     run_camera,
     vehicle_view,
     write_png,
@@ -380,9 +381,17 @@ def _replay_frames(
     camera = run_camera(ctx.scenario, opts.image_size)
     tr = ctx.scenario.trajectory
     ground = ref[:, 2] - ctx.scenario.vehicle.reference_xyz[2]
-    # The raster and truth worlds' road is z = 0; the splat models live at the recorded heights.
-    z_of = {"raster": ref[:, 2] - ground, TRUTH_CAMERA: ref[:, 2] - ground, "splat": ref[:, 2]}
-    poses = {name: camera_poses(ctx.scenario, ref[:, :2], heading, z_of[name]) for name in z_of}
+    # The raster and truth worlds' road is flat at z = 0; the splat models live in the recorded
+    # world, at its heights and slopes: there the camera stands as the recorded one stood.
+    flat = ref[:, 2] - ground
+    roll, pitch = recorded_tilt(ctx.scenario, idx)
+    poses = {
+        name: camera_poses(ctx.scenario, ref[:, :2], heading, flat)
+        for name in ("raster", TRUTH_CAMERA)
+    }
+    poses["splat"] = camera_poses(
+        ctx.scenario, ref[:, :2], heading, ref[:, 2], roll=roll, pitch=pitch
+    )
     t = np.asarray(tr.t, dtype=np.float64)[idx]
     fps = 1.0 / max(float(np.median(np.diff(t))), 1e-3) if len(t) > 1 else 10.0
     video = _Video(run_paths(folder).video, fps) if opts.video else None

@@ -22,7 +22,7 @@ import numpy as np
 from cam2sim.core.dataset import Calibration, DatasetInfo
 from cam2sim.core.errors import ConfigError, StageError
 from cam2sim.core.files import atomic_folder, file_fingerprint
-from cam2sim.core.frames.rotation import yaw_from_quat
+from cam2sim.core.frames.rotation import euler_from_quat
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.table import read_table
 from cam2sim.core.trajectory import heading_from_motion
@@ -190,11 +190,15 @@ def build_scenario(
     table = read_table(paths.poses_csv)
     stamp = table["stamp_ns"].astype(np.int64)
     ref = np.stack([table[c] for c in ("x", "y", "z")], 1).astype(np.float64)
+    tilt: tuple[tuple[float, ...], tuple[float, ...]] | None = None
     if opts.heading == "motion":
         heading = heading_from_motion(stamp, ref, window_s=opts.motion_window_s, min_speed_mps=0.5)
     else:
         q = np.stack([table[c] for c in ("qx", "qy", "qz", "qw")], 1).astype(np.float64)
-        heading = np.asarray(yaw_from_quat(q))
+        euler = euler_from_quat(q)
+        heading = np.asarray(euler.yaw)
+        # The car's tilt on the recorded road: a splat camera leans with it (hills).
+        tilt = (tuple(euler.roll.tolist()), tuple(euler.pitch.tolist()))
     geom = vehicle_geometry(ws.load_config().vehicle)
     centre = body_point_positions(ref, heading, geom.reference_xyz, (0.0, 0.0, 0.0))
     rear = body_point_positions(ref, heading, geom.reference_xyz, geom.rear_axle_xyz)
@@ -208,6 +212,8 @@ def build_scenario(
         reference=tuple(map(tuple, ref.tolist())),
         center=tuple(map(tuple, centre.tolist())),
         rear_axle=tuple(map(tuple, rear.tolist())),
+        roll=tilt[0] if tilt else None,
+        pitch=tilt[1] if tilt else None,
     )
     road_map = load_road_map(ws)
     vehicles = _parked(ws)
