@@ -109,7 +109,7 @@ def test_the_splat_camera_on_the_recorded_path_is_the_recorded_camera(tmp_path: 
     assert abs(flat[2, 2]) < 1e-9  # the optical axis is horizontal
 
 
-def test_a_recording_without_orientation_keeps_the_camera_level(tmp_path: Path) -> None:
+def test_tilt_columns_are_optional_and_must_match_the_samples() -> None:
     from cam2sim.scenario.model import ScenarioTrajectory
 
     traj = ScenarioTrajectory(

@@ -190,15 +190,12 @@ def build_scenario(
     table = read_table(paths.poses_csv)
     stamp = table["stamp_ns"].astype(np.int64)
     ref = np.stack([table[c] for c in ("x", "y", "z")], 1).astype(np.float64)
-    tilt: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+    q = np.stack([table[c] for c in ("qx", "qy", "qz", "qw")], 1).astype(np.float64)
+    euler = euler_from_quat(q)
     if opts.heading == "motion":
         heading = heading_from_motion(stamp, ref, window_s=opts.motion_window_s, min_speed_mps=0.5)
     else:
-        q = np.stack([table[c] for c in ("qx", "qy", "qz", "qw")], 1).astype(np.float64)
-        euler = euler_from_quat(q)
         heading = np.asarray(euler.yaw)
-        # The car's tilt on the recorded road: a splat camera leans with it (hills).
-        tilt = (tuple(euler.roll.tolist()), tuple(euler.pitch.tolist()))
     geom = vehicle_geometry(ws.load_config().vehicle)
     centre = body_point_positions(ref, heading, geom.reference_xyz, (0.0, 0.0, 0.0))
     rear = body_point_positions(ref, heading, geom.reference_xyz, geom.rear_axle_xyz)
@@ -212,8 +209,10 @@ def build_scenario(
         reference=tuple(map(tuple, ref.tolist())),
         center=tuple(map(tuple, centre.tolist())),
         rear_axle=tuple(map(tuple, rear.tolist())),
-        roll=tilt[0] if tilt else None,
-        pitch=tilt[1] if tilt else None,
+        # The recorded car's tilt, as the splat's training cameras had it: a splat camera
+        # leans with the road (hills) whichever way the heading was taken.
+        roll=tuple(euler.roll.tolist()),
+        pitch=tuple(euler.pitch.tolist()),
     )
     road_map = load_road_map(ws)
     vehicles = _parked(ws)
