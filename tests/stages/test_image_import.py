@@ -394,6 +394,12 @@ def test_kitti_03_import_map_from_its_path_and_scenario(tmp_path: Path, shared_d
     assert scenario.scenario is not None
     assert len(scenario.scenario.trajectory.t) == 40
     assert ws.scenario_path.is_file()
+    # The report says where the road came from: the driven path, not OSM.
+    from cam2sim.report.html import write_report
+
+    html = write_report(ws).read_text(encoding="utf-8")
+    assert "<td>map</td><td>the driven path" in html
+    assert "Overpass" not in html
 
 
 def test_a_grey_camera_is_recorded_grey_and_its_simulated_views_too(

@@ -400,7 +400,7 @@ def test_the_demo_splat_stops_each_chunk_on_its_own_quality_not_on_a_clock(cuda:
 
 @pytest.mark.parametrize("cuda", [False, True])
 @pytest.mark.parametrize("lidar", [False, True])
-def test_run_splat_preset_counts_steps_and_triangulates_without_lidar(
+def test_run_splat_preset_caps_steps_and_triangulates_without_lidar(
     cuda: bool, lidar: bool
 ) -> None:
     opts = SplatStageOptions.for_run(cuda=cuda, lidar=lidar)
@@ -408,9 +408,10 @@ def test_run_splat_preset_counts_steps_and_triangulates_without_lidar(
     assert opts.train is not None
     assert opts.prepare.triangulate is not lidar  # points from the frames only without LiDAR
     assert opts.train.budget_per_chunk
-    if cuda:  # far fewer than the 30,000-step default, each chunk to its own plateau
-        assert 1_000 < opts.train.min_steps < opts.train.max_steps <= 10_000
-        assert opts.train.min_gain_db > 0
+    if cuda:  # a third of the 30,000-step default, MCMC: cheap steps to a fixed cap
+        assert opts.train.max_steps <= 10_000
+        assert opts.train.densify.strategy == "mcmc"
+        assert opts.train.time_budget_s is not None
     else:
         assert opts.train == SplatStageOptions.demo().train
 

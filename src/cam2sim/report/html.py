@@ -60,6 +60,7 @@ if TYPE_CHECKING:
     import numpy.typing as npt
 
     from cam2sim.core.workspace import Manifest, Workspace
+    from cam2sim.map.report import SourceReport
     from cam2sim.metrics.drive_io import DriveRun
     from cam2sim.metrics.summary import MetricSummary
     from cam2sim.splat.scores import TruthScore
@@ -242,9 +243,17 @@ def _inputs(ctx: _Context, manifest: Manifest) -> list[tuple[str, str]]:
     report = ctx.ws.map_files.report_json
     if report.is_file():
         source = MapReport.load(report).source
-        where = source.path if source.kind == "file" else f"Overpass ({source.url})"
-        inputs.append(("map from OSM", str(where)))
+        inputs.append(_MAP_SOURCES[source.kind](source))
     return inputs
+
+
+_MAP_SOURCES: dict[str, Callable[[SourceReport], tuple[str, str]]] = {
+    "file": lambda src: ("map from OSM", str(src.path)),
+    "overpass": lambda src: ("map from OSM", f"Overpass ({src.url})"),
+    "trajectory": lambda src: ("map", f"the driven path ({src.path}): no OSM"),
+    "xodr": lambda src: ("map", f"the user's OpenDRIVE ({src.path})"),
+}
+"""The report's line for each map source: where the road came from."""
 
 
 def _summary(ctx: _Context) -> str:

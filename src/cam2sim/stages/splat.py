@@ -62,9 +62,11 @@ take (2,500 steps in 20-40 s on an H100): it ends only a chunk that something el
 and such a chunk is a warning in the report. The preset counts steps, not seconds: a budget of
 25 s a chunk gave chunks of one street 444 and 2,907 steps (issue 37)."""
 
+RUN_GPU_SPLAT_STEPS: Final = 10_000
+"""Training steps of each chunk in ``cam2sim run`` on CUDA (MCMC densification)."""
 RUN_GPU_SPLAT_BUDGET_S: Final = 300.0
-"""A safety cap on each chunk's training seconds in ``cam2sim run`` on CUDA: 7,000 steps take
-60-110 s a chunk on an H100 (docs/benchmarks.md)."""
+"""A safety cap on each chunk's training seconds in ``cam2sim run`` on CUDA: 10,000 MCMC steps
+of a real chunk take about 200 s beside two others on an H200 (docs/benchmarks.md)."""
 
 
 @dataclass(frozen=True)
@@ -135,18 +137,20 @@ class SplatStageOptions:
 
     @classmethod
     def for_run(cls, *, cuda: bool, lidar: bool) -> SplatStageOptions:
-        """``cam2sim run``'s splat: each chunk to its plateau on CUDA, the CPU demo preset else.
+        """``cam2sim run``'s splat: 10,000 MCMC steps a chunk on CUDA, the CPU demo preset else.
 
-        ``cuda``: 2,000-7,000 steps a chunk, stopping when held-in PSNR gains less than 0.3 dB
-        per 1,000 steps, at most :data:`RUN_GPU_SPLAT_BUDGET_S` seconds a chunk (the default
-        30,000 steps would take half an hour on a recording of 5 chunks). CPU: :meth:`demo`'s.
+        ``cuda``: 10,000 steps a chunk with MCMC densification (a cap of one million
+        Gaussians), at most :data:`RUN_GPU_SPLAT_BUDGET_S` seconds a chunk (the default 30,000
+        steps would take half an hour on a recording of 5 chunks). On real frames MCMC beats
+        the default densification at these lengths and its steps are cheaper (a cap of 1M
+        where the default grows to 3-5M): ``docs/splat-options.md``. CPU: :meth:`demo`'s.
         Either way the starting points are triangulated from the frames (pycolmap) when the
         recording has no LiDAR.
         """
         if cuda:
             train = TrainOptions(
-                max_steps=7_000, min_steps=2_000, val_every=500, patience=3,
-                min_gain_db=0.3, min_gain_ssim=0.003,
+                max_steps=RUN_GPU_SPLAT_STEPS, val_every=1_000,
+                densify=DensifyOptions(strategy="mcmc"),
                 time_budget_s=RUN_GPU_SPLAT_BUDGET_S, budget_per_chunk=True,
             )  # fmt: skip
             opts = cls(prepare=PrepareOptions(), train=train)
