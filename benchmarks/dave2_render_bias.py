@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 import torch
 
-from cam2sim.ads import train as tr
 from cam2sim.ads.dave2 import preprocess
+from cam2sim.ads.train_options import TrainOptions
 from cam2sim.core.table import read_table
 from cam2sim.core.workspace import Workspace, dataset_paths
 from cam2sim.stages.ads import train_model
@@ -38,7 +38,7 @@ def main() -> None:
     parser.add_argument("--fps", type=float, default=10.0, help="recorded frames a second")
     args = parser.parse_args()
     ws = Workspace.open(args.workspace)
-    opts = tr.TrainOptions.same_street(args.signal, device="cpu", refit_all=False)
+    opts = TrainOptions.same_street(args.signal, device="cpu", refit_all=False)
     opts = replace(opts, split="tail", val_fraction=0.05, gap_s=0.0, blur_px=args.blur)
     start = time.perf_counter()
     model = train_model(ws, opts)

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from cam2sim.ads.export import export_onnx
-from cam2sim.ads.train import TrainOptions
+from cam2sim.ads.train_options import TrainOptions
 from cam2sim.core.workspace import Workspace
 from cam2sim.scenario.model import Scenario
 from cam2sim.sim.builtin import BuiltinOptions

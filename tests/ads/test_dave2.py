@@ -150,7 +150,7 @@ def test_model_output_shape() -> None:
 
 
 def test_missing_signal_lists_available(tmp_path: Path) -> None:
-    from cam2sim.ads.train import TrainOptions
+    from cam2sim.ads.train_options import TrainOptions
     from cam2sim.stages.ads import train_ads
 
     ws = make_drive(tmp_path / "ws", signal="steering_cmd")
@@ -159,7 +159,7 @@ def test_missing_signal_lists_available(tmp_path: Path) -> None:
 
 
 def test_a_deleted_frame_is_named_with_the_fix(tmp_path: Path) -> None:
-    from cam2sim.ads.train import TrainOptions
+    from cam2sim.ads.train_options import TrainOptions
     from cam2sim.stages.ads import train_ads
 
     ws = make_drive(tmp_path / "ws")
@@ -187,7 +187,7 @@ def test_keras_needs_tensorflow(tmp_path: Path) -> None:
 
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory: pytest.TempPathFactory) -> Workspace:
-    from cam2sim.ads.train import TrainOptions
+    from cam2sim.ads.train_options import TrainOptions
     from cam2sim.stages.ads import train_ads
 
     ws = make_drive(tmp_path_factory.mktemp("dave2") / "ws")
@@ -220,7 +220,7 @@ def test_training_lowers_validation_loss(trained: Workspace) -> None:
 
 
 def test_keep_last_trains_every_epoch_and_keeps_the_last(tmp_path: Path) -> None:
-    from cam2sim.ads.train import TrainOptions
+    from cam2sim.ads.train_options import TrainOptions
     from cam2sim.stages.ads import train_ads
 
     ws = make_drive(tmp_path / "ws")
@@ -286,7 +286,8 @@ def test_block_split_validates_all_over_the_drive_with_gaps() -> None:
 
 
 def test_refit_keeps_a_network_trained_on_every_frame(tmp_path: Path) -> None:
-    from cam2sim.ads.train import TrainOptions, load_model
+    from cam2sim.ads.train import load_model
+    from cam2sim.ads.train_options import TrainOptions
     from cam2sim.stages.ads import train_ads
 
     ws = make_drive(tmp_path / "ws")
@@ -404,7 +405,7 @@ def _check_pose_point_above_the_road(ws: Workspace) -> None:
 def test_recovery_views_from_the_workspace_calibration(tmp_path: Path) -> None:
     import math
 
-    from cam2sim.ads.train import TrainOptions
+    from cam2sim.ads.train_options import TrainOptions
     from cam2sim.core.dataset import Calibration, CameraIntrinsics, MountRecord
     from cam2sim.core.frames.rotation import quat_from_euler, quat_multiply
     from cam2sim.stages.ads import recovery_geometry, train_ads
@@ -473,7 +474,8 @@ def test_the_crop_follows_the_camera_and_keeps_its_width() -> None:
 def test_a_balanced_epoch_draws_the_rare_turn_as_often_as_the_straight() -> None:
     import numpy as np
 
-    from cam2sim.ads.train import TrainOptions, epoch_order
+    from cam2sim.ads.train import epoch_order
+    from cam2sim.ads.train_options import TrainOptions
 
     steering = np.array([0.0] * 900 + [-5.0] * 100)  # one sharp turn among long straights
     plain = epoch_order(steering, 0.0, np.random.default_rng(3))

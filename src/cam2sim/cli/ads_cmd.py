@@ -82,7 +82,7 @@ def train(
     """
     import dataclasses  # noqa: PLC0415
 
-    from cam2sim.ads.train import TrainOptions  # noqa: PLC0415 -- lazy: imports torch, cv2
+    from cam2sim.ads.train_options import TrainOptions  # noqa: PLC0415 -- lazy: imports cv2
     from cam2sim.stages.ads import train_ads  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     base = TrainOptions.same_street(signal) if same_street else TrainOptions(signal=signal)

@@ -30,7 +30,8 @@ if TYPE_CHECKING:
 
     from cam2sim.ads.dave2 import Dave2Config
     from cam2sim.ads.export import ExportReport
-    from cam2sim.ads.train import TrainedModel, TrainOptions, TrainReport
+    from cam2sim.ads.train import TrainedModel, TrainReport
+    from cam2sim.ads.train_options import TrainOptions
 
 __all__ = [
     "DERIVED_STEERING",
@@ -155,8 +156,9 @@ def train_ads(
             frames, or constant steering.
     """
     from cam2sim.ads import train as tr  # noqa: PLC0415 -- lazy: imports cv2, torch
+    from cam2sim.ads.train_options import TrainOptions  # noqa: PLC0415 -- lazy: imports cv2
 
-    opts = options or tr.TrainOptions()
+    opts = options or TrainOptions()
     report = progress or no_progress
     _dataset(ws)  # refuses a workspace without a dataset, before anything else
     ads = ws.ads_dir

@@ -131,7 +131,7 @@ def experiment_pipeline_options(
     osm: Path, options: ExperimentOptions, *, cuda: bool
 ) -> PipelineOptions:
     """The pipeline options of the experiment (the demo's presets)."""
-    from cam2sim.ads.train import TrainOptions  # noqa: PLC0415 -- lazy: imports torch
+    from cam2sim.ads.train_options import TrainOptions  # noqa: PLC0415 -- lazy: imports cv2
 
     return PipelineOptions(
         osm=osm,

@@ -120,7 +120,7 @@ class PipelineOptions:
             signal whose name holds ``steer``.
         continue_on_error: Go on after a failed step (later steps may then fail too).
         ads: DAVE-2 training options (None: :meth:`TrainOptions.same_street
-            <cam2sim.ads.train.TrainOptions.same_street>`, on the steering signal chosen).
+            <cam2sim.ads.train_options.TrainOptions.same_street>`, on the steering signal chosen).
         judge: Where the drives' leaving the road and collisions are judged (see
             :class:`~cam2sim.stages.runs.DriveOptions`); None: in the ground-truth world when
             the workspace has one (every camera's runs alike), else on the map.
@@ -411,7 +411,7 @@ class _Pipeline:
         return next((n for n in names if "steer" in n.lower()), None)
 
     def ads(self, step: _Step) -> None:
-        from cam2sim.ads.train import TrainOptions  # noqa: PLC0415 -- lazy: imports cv2, torch
+        from cam2sim.ads.train_options import TrainOptions  # noqa: PLC0415 -- lazy: imports cv2
 
         if self.options.policy is not None:
             msg = f"a policy was given ({self.options.policy}); no model is trained"
