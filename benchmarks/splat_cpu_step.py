@@ -22,14 +22,14 @@ from typing import Any
 import torch
 
 from cam2sim.splat import raster_cpu, raster_torch
+from cam2sim.splat.chunk_trainer import ChunkTrainer
 from cam2sim.splat.profiling import PhaseTimer
 from cam2sim.splat.scene import SceneRecord, load_points
-from cam2sim.splat.train import _ChunkTrainer
 from cam2sim.stages.splat import SplatStageOptions
 from splat_gpu import _parse_value, options_from
 
 
-def _trainer(ws: Path, chunk: int, settings: dict[str, Any]) -> _ChunkTrainer:
+def _trainer(ws: Path, chunk: int, settings: dict[str, Any]) -> ChunkTrainer:
     prep = ws / "splat" / "prep"
     scene = SceneRecord.load(prep / "scene.json")
     xyz, rgb, _ = load_points(prep / "points.npz")
@@ -44,10 +44,10 @@ def _trainer(ws: Path, chunk: int, settings: dict[str, Any]) -> _ChunkTrainer:
         settings, **base, max_steps=10_000, min_steps=10_000, val_every=10_000, device="cpu"
     )
     known = {c.id: c for c in scene.chunks}
-    return _ChunkTrainer(known[chunk], scene, prep, (xyz, rgb), opts, "cpu", "torch", None)
+    return ChunkTrainer(known[chunk], scene, prep, (xyz, rgb), opts, "cpu", "torch", None)
 
 
-def _composite_ms(trainer: _ChunkTrainer, repeat: int) -> dict[str, tuple[float, float]]:
+def _composite_ms(trainer: ChunkTrainer, repeat: int) -> dict[str, tuple[float, float]]:
     captured: dict[str, Any] = {}
     real = raster_cpu.composite
 
@@ -80,7 +80,7 @@ def _composite_ms(trainer: _ChunkTrainer, repeat: int) -> dict[str, tuple[float,
     return out
 
 
-def _step_ms(trainer: _ChunkTrainer, steps: int) -> dict[str, float]:
+def _step_ms(trainer: ChunkTrainer, steps: int) -> dict[str, float]:
     for _ in range(2):
         trainer.step()
     trainer.timer = PhaseTimer(enabled=True, device="cpu")

@@ -397,7 +397,7 @@ def _ssim_loss(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     try:  # the same SSIM as our trainer's
         from cam2sim.splat.losses import ssim  # noqa: PLC0415
     except ImportError:  # an older tree (profiling the trainer before the split)
-        from cam2sim.splat.train import _ssim as ssim  # noqa: PLC0415
+        from cam2sim.splat.losses import ssim  # noqa: PLC0415
 
     return 1.0 - ssim(x, y)
 

@@ -130,8 +130,8 @@ def run_setting(  # noqa: PLR0913, PLR0915, PLR0917 -- one process's whole job
     """
     import torch  # noqa: PLC0415
 
+    from cam2sim.splat.chunk_trainer import ChunkTrainer  # noqa: PLC0415
     from cam2sim.splat.scene import load_points  # noqa: PLC0415
-    from cam2sim.splat.train import _ChunkTrainer  # noqa: PLC0415
 
     if device.startswith("cuda:"):
         torch.cuda.set_device(device)  # gsplat's kernels run on the current device
@@ -149,7 +149,7 @@ def run_setting(  # noqa: PLR0913, PLR0915, PLR0917 -- one process's whole job
         build_gsplat()
     gsplat_load_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    trainer = _ChunkTrainer(
+    trainer = ChunkTrainer(
         scene.chunks[0], scene, sub_dir, (xyz, rgb), options, device, "gsplat" if cuda else "torch"
     )
     load_s = time.perf_counter() - t0

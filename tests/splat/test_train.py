@@ -674,7 +674,7 @@ def test_mcmc_warns_when_a_chunk_starts_at_its_cap(
 ) -> None:
     # MCMC needs gsplat; on CPU the trainer is stopped at its densifier, after the seeding.
     import cam2sim.splat.densify as densify_module
-    import cam2sim.splat.train as train_module
+    import cam2sim.splat.chunk_trainer as train_module
 
     class StopAtDensifierError(Exception):
         pass
@@ -692,7 +692,7 @@ def test_mcmc_warns_when_a_chunk_starts_at_its_cap(
             ground_points=ground, densify=DensifyOptions(strategy="mcmc", mcmc_cap=3_000)
         )
         with (
-            caplog.at_level("WARNING", logger="cam2sim.splat.train"),
+            caplog.at_level("WARNING", logger="cam2sim.splat.chunk_trainer"),
             pytest.raises(StopAtDensifierError),
         ):
             train_chunk(scene, 0, prep, options, models_dir=tmp_path / "models")
@@ -798,15 +798,15 @@ def test_ground_seeds_join_the_starting_model(tmp_path: Path) -> None:
 
 
 def test_scene_rates_decay_to_the_tail_after_densification(tmp_path: Path) -> None:
+    from cam2sim.splat.chunk_trainer import ChunkTrainer
     from cam2sim.splat.scene import load_points
-    from cam2sim.splat.train import _ChunkTrainer
 
     prep = make_prepared_scene(tmp_path, n_frames=4, chunks=((0, 4),), size=(32, 24))
     scene = SceneRecord.load(prep / "scene.json")
     lr = LearningRates(means=1.6e-3, scales=1e-2, sh0=2e-2, tail=0.1)
     options = fast_options(lr=lr, sky_points=20)  # densification stops at 35 of 40 steps
     xyz, rgb, _ = load_points(prep / "points.npz")
-    trainer = _ChunkTrainer(scene.chunks[0], scene, prep, (xyz, rgb), options, "cpu", "torch")
+    trainer = ChunkTrainer(scene.chunks[0], scene, prep, (xyz, rgb), options, "cpu", "torch")
 
     def rates() -> dict[str, float]:
         got = {n: o.param_groups[0]["lr"] for n, o in trainer.optimizers.items()}
@@ -836,15 +836,15 @@ def test_scene_rates_decay_to_the_tail_after_densification(tmp_path: Path) -> No
 
 
 def test_the_per_view_transforms_keep_their_rate_without_tail_views(tmp_path: Path) -> None:
+    from cam2sim.splat.chunk_trainer import ChunkTrainer
     from cam2sim.splat.scene import load_points
-    from cam2sim.splat.train import _ChunkTrainer
 
     prep = make_prepared_scene(tmp_path, n_frames=4, chunks=((0, 4),), size=(32, 24))
     scene = SceneRecord.load(prep / "scene.json")
     lr = LearningRates(sh0=2e-2, tail=0.1, tail_views=False, poses=1e-4)
     options = fast_options(lr=lr, sky_points=20)
     xyz, rgb, _ = load_points(prep / "points.npz")
-    trainer = _ChunkTrainer(scene.chunks[0], scene, prep, (xyz, rgb), options, "cpu", "torch")
+    trainer = ChunkTrainer(scene.chunks[0], scene, prep, (xyz, rgb), options, "cpu", "torch")
     start = [o.param_groups[0]["lr"] for o in trainer.extra_optimizers]
     while not trainer.done:
         trainer.step()
@@ -894,7 +894,7 @@ def test_a_nan_gradient_does_not_enter_the_model(
 ) -> None:
     # One step whose loss (so every gradient) is NaN: the update treats it as zero gradient,
     # the model and its colour transforms stay finite and go on learning, the step is counted.
-    import cam2sim.splat.train as train_module
+    import cam2sim.splat.chunk_trainer as train_module
 
     real = train_module.photometric_loss
     calls = {"n": 0}
@@ -923,7 +923,7 @@ def test_a_diverged_chunk_stops_with_an_error_and_writes_nothing(
 ) -> None:
     # Every loss NaN from step 3 on: most steps' gradients are non-finite, so the chunk has
     # diverged; it stops at the next validation and leaves no model a drive could load.
-    import cam2sim.splat.train as train_module
+    import cam2sim.splat.chunk_trainer as train_module
 
     real = train_module.photometric_loss
     calls = {"n": 0}
