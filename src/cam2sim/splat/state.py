@@ -2,7 +2,7 @@
 
 :class:`TrainState` holds the progress of one chunk (its step, its validations, its step cap
 and time share, why it stopped), apart from what it trains (the models, the views, the
-optimizers, in :mod:`cam2sim.splat.train`). The stop rules of :mod:`cam2sim.splat.stop` read
+optimizers, in :mod:`cam2sim.splat.chunk_trainer`). The stop rules of :mod:`cam2sim.splat.stop` read
 it; the trainer's step moves it on.
 """
 
