@@ -419,7 +419,7 @@ def test_frame_clips_are_written_without_ffmpegs_codec_warning(
     """OpenCV's FFmpeg backend prints "tag 'VP80' is not supported" on opening a WebM writer."""
     import cv2
 
-    from cam2sim.report.html import _webm
+    from cam2sim.report.frames_section import webm
 
     files = []
     for k in range(4):
@@ -427,7 +427,7 @@ def test_frame_clips_are_written_without_ffmpegs_codec_warning(
         cv2.imwrite(str(path), np.full((48, 64, 3), 40 * k, np.uint8))
         files.append(path)
     print("before", file=sys.stderr, flush=True)  # noqa: T201
-    clip = _webm(files)
+    clip = webm(files)
     print("after", file=sys.stderr, flush=True)  # noqa: T201
     assert clip is not None
     assert clip[:4] == b"\x1a\x45\xdf\xa3"  # a Matroska/WebM file
