@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from enum import StrEnum
 from pathlib import Path  # noqa: TC003 - typer reads annotations at run time
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -13,6 +13,9 @@ from cam2sim.cli.options import comma_list
 from cam2sim.core.workspace import Workspace
 from cam2sim.map.convert import CARLA_ROAD_TYPES, ConvertOptions
 from cam2sim.map.overpass import DEFAULT_URL, OverpassOptions
+
+if TYPE_CHECKING:
+    from cam2sim.stages.map import MapResult
 
 __all__ = ["RoadChoice", "SidewalkChoice", "map_"]
 
@@ -131,6 +134,11 @@ def map_(
     ws = Workspace.open(workspace)
     with progress_bars() as sink:
         result = build_map(ws, options=options, force=force, progress=sink)
+    _print_summary(result)
+
+
+def _print_summary(result: MapResult) -> None:
+    """What the map is: its roads and junctions, and how the recorded route lies on it."""
     report = result.report
     if result.skipped:
         console.print("map is up to date (use --force to rebuild)")

@@ -16,6 +16,38 @@ if TYPE_CHECKING:
 
 __all__ = ["splat"]
 
+# The training settings whose help needs a paragraph.
+DensifyOption = Annotated[
+    str,
+    typer.Option(
+        help="Densification: auto (MCMC for gsplat runs of 20,000+ steps without a time "
+        "budget, else gsplat's default strategy; ours on CPU), mcmc, gsplat or simple."
+    ),
+]
+RobustOption = Annotated[
+    float,
+    typer.Option(
+        help="Leave transient blobs out of the loss: residual quantile above which a pixel "
+        "is an outlier candidate (0 = off; RobustNeRF's 0.8). The left-out pixels are kept "
+        "as WS/splat/models/chunk_XX_outliers.jpg and shown in the report."
+    ),
+]
+PoseLrOption = Annotated[
+    float,
+    typer.Option(
+        help="Refine the camera poses while training at this learning rate (0 = off; "
+        "1e-5 is gsplat's); the corrections are written into the chunk headers."
+    ),
+]
+AntialiasedOption = Annotated[
+    bool,
+    typer.Option(
+        "--antialiased/--classic",
+        help="Train and render with Mip-Splatting's 2-D filter (gsplat's antialiased "
+        "mode; the default), or with the classic 3DGS rasterization.",
+    ),
+]
+
 
 def splat(
     workspace: Annotated[Path, typer.Argument(help="The workspace folder.")],
@@ -36,36 +68,10 @@ def splat(
         ),
     ] = None,
     device: Annotated[str, typer.Option(help="auto, cuda or cpu.")] = "auto",
-    densify: Annotated[
-        str,
-        typer.Option(
-            help="Densification: auto (MCMC for gsplat runs of 20,000+ steps without a time "
-            "budget, else gsplat's default strategy; ours on CPU), mcmc, gsplat or simple."
-        ),
-    ] = "auto",
-    robust_quantile: Annotated[
-        float,
-        typer.Option(
-            help="Leave transient blobs out of the loss: residual quantile above which a pixel "
-            "is an outlier candidate (0 = off; RobustNeRF's 0.8). The left-out pixels are kept "
-            "as WS/splat/models/chunk_XX_outliers.jpg and shown in the report."
-        ),
-    ] = 0.0,
-    pose_lr: Annotated[
-        float,
-        typer.Option(
-            help="Refine the camera poses while training at this learning rate (0 = off; "
-            "1e-5 is gsplat's); the corrections are written into the chunk headers."
-        ),
-    ] = 0.0,
-    antialiased: Annotated[
-        bool,
-        typer.Option(
-            "--antialiased/--classic",
-            help="Train and render with Mip-Splatting's 2-D filter (gsplat's antialiased "
-            "mode; the default), or with the classic 3DGS rasterization.",
-        ),
-    ] = True,
+    densify: DensifyOption = "auto",
+    robust_quantile: RobustOption = 0.0,
+    pose_lr: PoseLrOption = 0.0,
+    antialiased: AntialiasedOption = True,
     downscale: Annotated[int, typer.Option(help="Train on images downscaled by N.")] = 1,
     segformer: Annotated[
         str | None, typer.Option(help="SegFormer sky model: local path or hub id.")

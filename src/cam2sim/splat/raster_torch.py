@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import partial
 from typing import Final, Literal
 
 import torch
@@ -485,6 +486,26 @@ def _check_inputs(
         raise ValueError(msg)
 
 
+def _view_colours(
+    means: torch.Tensor, colors: torch.Tensor, viewmats: torch.Tensor, sh_degree: int | None
+) -> torch.Tensor:
+    """``[C, N, D]``: each Gaussian's colour as each camera sees it (SH evaluated towards it)."""
+    n_cams, n = viewmats.shape[0], means.shape[0]
+    if sh_degree is not None:
+        if colors.ndim != 3 or colors.shape[0] != n or colors.shape[2] != 3:
+            msg = f"SH colours must be [N, K, 3] with N={n}, got {tuple(colors.shape)}"
+            raise ValueError(msg)
+        campos = torch.linalg.inv(viewmats)[:, :3, 3]
+        dirs = means[None, :, :] - campos[:, None, :]
+        return rgb_from_sh(colors[None].expand(n_cams, -1, -1, -1), dirs, sh_degree)
+    if colors.ndim == 2 and colors.shape[0] == n:
+        return colors[None].expand(n_cams, -1, -1)
+    if colors.ndim == 3 and colors.shape[:2] == (n_cams, n):
+        return colors
+    msg = f"colours must be [N, D] or [C, N, D] with C={n_cams}, N={n}, got {colors.shape}"
+    raise ValueError(msg)
+
+
 def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's signature on purpose
     means: torch.Tensor,
     quats: torch.Tensor,
@@ -539,7 +560,7 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
         Images, alphas and screen-space data (``backend="torch"``).
     """
     _check_inputs(means, quats, scales, opacities, viewmats, Ks)
-    n_cams, n = viewmats.shape[0], means.shape[0]
+    n_cams = viewmats.shape[0]
     proj = project_gaussians(
         means,
         quats,
@@ -560,20 +581,7 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
         if proj.compensations is not None
         else opacities[None].expand(n_cams, -1)
     )
-    if sh_degree is not None:
-        if colors.ndim != 3 or colors.shape[0] != n or colors.shape[2] != 3:
-            msg = f"SH colours must be [N, K, 3] with N={n}, got {tuple(colors.shape)}"
-            raise ValueError(msg)
-        campos = torch.linalg.inv(viewmats)[:, :3, 3]
-        dirs = means[None, :, :] - campos[:, None, :]
-        per_cam = rgb_from_sh(colors[None].expand(n_cams, -1, -1, -1), dirs, sh_degree)
-    elif colors.ndim == 2 and colors.shape[0] == n:
-        per_cam = colors[None].expand(n_cams, -1, -1)
-    elif colors.ndim == 3 and colors.shape[:2] == (n_cams, n):
-        per_cam = colors
-    else:
-        msg = f"colours must be [N, D] or [C, N, D] with C={n_cams}, N={n}, got {colors.shape}"
-        raise ValueError(msg)
+    per_cam = _view_colours(means, colors, viewmats, sh_degree)
 
     first, stop = row_window(rows, height)
     band_h = stop - first
@@ -587,23 +595,19 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
         and means.dtype == torch.float32
         and raster_cpu.available()
     )
+    composite = partial(
+        raster_cpu.composite if compiled else partial(_composite, max_elements=max_elements),
+        tiles_x=tiles_x,
+        tiles_y=tiles_y,
+    )
     images, alphas = [], []
     for cam in range(n_cams):
         means2d = proj.means2d[cam] - shift if first else proj.means2d[cam]
         tile_ids, gauss_ids = _tile_intersections(
             means2d, proj.radii[cam], proj.depths[cam], tiles_x, tiles_y
         )
-        kwargs = {"tiles_x": tiles_x, "tiles_y": tiles_y}
-        if not compiled:
-            kwargs["max_elements"] = max_elements
-        rgb, acc = (raster_cpu.composite if compiled else _composite)(
-            means2d,
-            proj.conics[cam],
-            view_opacities[cam],
-            per_cam[cam],
-            tile_ids,
-            gauss_ids,
-            **kwargs,
+        rgb, acc = composite(
+            means2d, proj.conics[cam], view_opacities[cam], per_cam[cam], tile_ids, gauss_ids
         )
         rgb, acc = rgb[:band_h, :width], acc[:band_h, :width]
         if backgrounds is not None:

@@ -163,16 +163,28 @@ def train_scene(
     torch.manual_seed(options.seed)
     if device.startswith("cuda"):
         torch.cuda.reset_peak_memory_stats(device)
-    xyz, rgb, _ = load_points(prep_dir / "points.npz")
-    # Interleaved: one at a time.
+    points = load_points(prep_dir / "points.npz")[:2]
     share = time_share(options.time_budget_s, len(wanted), 1, per_chunk=options.budget_per_chunk)
     trainers = [
-        ChunkTrainer(known[c], scene, prep_dir, (xyz, rgb), options, device, backend, share)
+        ChunkTrainer(known[c], scene, prep_dir, points, options, device, backend, share)
         for c in wanted
     ]
     _log.info("training %d chunk(s) on %s with the %s rasterizer", len(trainers), device, backend)
+    results = _train_in_turn(trainers, options.max_steps, models_dir, progress)
+    peak = int(torch.cuda.max_memory_allocated(device)) if device.startswith("cuda") else None
+    return SceneTrainResult(
+        chunks=tuple(results[c] for c in wanted),
+        seconds=time.perf_counter() - start,
+        peak_memory_bytes=peak,
+    )
+
+
+def _train_in_turn(
+    trainers: list[ChunkTrainer], max_steps: int, models_dir: Path, progress: ProgressCallback
+) -> dict[int, TrainResult]:
+    """One step of each unfinished chunk in turn; a chunk is written as soon as it is done."""
     results: dict[int, TrainResult] = {}
-    cap = len(trainers) * options.max_steps
+    cap = len(trainers) * max_steps
     done_steps = 0
     active = list(trainers)
     while active:
@@ -182,11 +194,6 @@ def train_scene(
             if trainer.done:
                 results[trainer.chunk.id] = trainer.save(models_dir)
                 active.remove(trainer)
-                done_steps += options.max_steps - trainer.step_no
+                done_steps += max_steps - trainer.step_no
         progress("splat steps", done_steps, cap)
-    peak = int(torch.cuda.max_memory_allocated(device)) if device.startswith("cuda") else None
-    return SceneTrainResult(
-        chunks=tuple(results[c] for c in wanted),
-        seconds=time.perf_counter() - start,
-        peak_memory_bytes=peak,
-    )
+    return results
