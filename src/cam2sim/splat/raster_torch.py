@@ -34,13 +34,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import partial
-from typing import Final, Literal
+from typing import TYPE_CHECKING, Any, Final, Literal
 
 import torch
 from torch.nn import functional as tnf
 
 from cam2sim.splat import raster_cpu
 from cam2sim.splat.raster_output import RasterOutput, row_window
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 __all__ = [
     "ALPHA_MAX",
@@ -506,6 +509,84 @@ def _view_colours(
     raise ValueError(msg)
 
 
+def _compositor(
+    compositing: Literal["auto", "compiled", "torch"],
+    means: torch.Tensor,
+    max_elements: int,
+    tiles: tuple[int, int],
+) -> Callable[..., tuple[torch.Tensor, torch.Tensor]]:
+    """Step 5 as asked, its tile grid bound (``auto``: compiled for float32 on a numba CPU)."""
+    compiled = compositing == "compiled" or (
+        compositing == "auto"
+        and means.device.type == "cpu"
+        and means.dtype == torch.float32
+        and raster_cpu.available()
+    )
+    step = raster_cpu.composite if compiled else partial(_composite, max_elements=max_elements)
+    return partial(step, tiles_x=tiles[0], tiles_y=tiles[1])
+
+
+def _composite_views(
+    proj: Projection,
+    view_opacities: torch.Tensor,
+    per_cam: torch.Tensor,
+    composite: Callable[..., tuple[torch.Tensor, torch.Tensor]],
+    band: tuple[int, int],
+    width: int,
+    backgrounds: torch.Tensor | None,
+) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+    """Each camera's image and alpha over the rows ``band`` (steps 4 and 5 of the module doc).
+
+    ``composite`` is step 5 with its tile grid bound (``tiles_x``, ``tiles_y`` keywords).
+    """
+    first, stop = band
+    tiles_x, tiles_y = math.ceil(width / TILE_SIZE), math.ceil((stop - first) / TILE_SIZE)
+    # Pixels of the band are the image's rows shifted by ``first``: so are the centres.
+    shift = torch.tensor([0.0, float(first)], dtype=proj.means2d.dtype, device=per_cam.device)
+    images, alphas = [], []
+    for cam in range(per_cam.shape[0]):
+        means2d = proj.means2d[cam] - shift if first else proj.means2d[cam]
+        tile_ids, gauss_ids = _tile_intersections(
+            means2d, proj.radii[cam], proj.depths[cam], tiles_x, tiles_y
+        )
+        rgb, acc = composite(
+            means2d, proj.conics[cam], view_opacities[cam], per_cam[cam], tile_ids, gauss_ids
+        )
+        rgb, acc = rgb[: stop - first, :width], acc[: stop - first, :width]
+        if backgrounds is not None:
+            rgb = rgb + (1.0 - acc)[..., None] * backgrounds[cam]
+        images.append(rgb)
+        alphas.append(acc[..., None])
+    return images, alphas
+
+
+def _screen_info(
+    proj: Projection,
+    view_opacities: torch.Tensor,
+    width: int,
+    height: int,
+    tiles_x: int,
+    tiles_y: int,
+) -> dict[str, Any]:
+    """The screen-space meta of a rasterization, with gsplat's keys (densification reads it)."""
+    return {
+        "means2d": proj.means2d,
+        "radii": proj.radii,
+        "depths": proj.depths,
+        "conics": proj.conics,
+        "opacities": view_opacities,
+        "width": width,
+        "height": height,
+        "n_cameras": view_opacities.shape[0],
+        "tile_size": TILE_SIZE,
+        "tile_width": tiles_x,
+        "tile_height": tiles_y,
+        "gaussian_ids": None,
+        "camera_ids": None,
+        "batch_ids": None,
+    }
+
+
 def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's signature on purpose
     means: torch.Tensor,
     quats: torch.Tensor,
@@ -584,52 +665,13 @@ def rasterization(  # noqa: PLR0913, PLR0917 -- mirrors gsplat.rasterization's s
     per_cam = _view_colours(means, colors, viewmats, sh_degree)
 
     first, stop = row_window(rows, height)
-    band_h = stop - first
-    # Pixels of the band are the image's rows shifted by ``first``: so are the centres.
-    shift = torch.tensor([0.0, float(first)], dtype=proj.means2d.dtype, device=means.device)
     tiles_x = math.ceil(width / TILE_SIZE)
-    tiles_y = math.ceil(band_h / TILE_SIZE)
-    compiled = compositing == "compiled" or (
-        compositing == "auto"
-        and means.device.type == "cpu"
-        and means.dtype == torch.float32
-        and raster_cpu.available()
+    tiles_y = math.ceil((stop - first) / TILE_SIZE)
+    composite = _compositor(compositing, means, max_elements, (tiles_x, tiles_y))
+    images, alphas = _composite_views(
+        proj, view_opacities, per_cam, composite, (first, stop), width, backgrounds
     )
-    composite = partial(
-        raster_cpu.composite if compiled else partial(_composite, max_elements=max_elements),
-        tiles_x=tiles_x,
-        tiles_y=tiles_y,
-    )
-    images, alphas = [], []
-    for cam in range(n_cams):
-        means2d = proj.means2d[cam] - shift if first else proj.means2d[cam]
-        tile_ids, gauss_ids = _tile_intersections(
-            means2d, proj.radii[cam], proj.depths[cam], tiles_x, tiles_y
-        )
-        rgb, acc = composite(
-            means2d, proj.conics[cam], view_opacities[cam], per_cam[cam], tile_ids, gauss_ids
-        )
-        rgb, acc = rgb[:band_h, :width], acc[:band_h, :width]
-        if backgrounds is not None:
-            rgb = rgb + (1.0 - acc)[..., None] * backgrounds[cam]
-        images.append(rgb)
-        alphas.append(acc[..., None])
-    info = {
-        "means2d": proj.means2d,
-        "radii": proj.radii,
-        "depths": proj.depths,
-        "conics": proj.conics,
-        "opacities": view_opacities,
-        "width": width,
-        "height": height,
-        "n_cameras": n_cams,
-        "tile_size": TILE_SIZE,
-        "tile_width": tiles_x,
-        "tile_height": tiles_y,
-        "gaussian_ids": None,
-        "camera_ids": None,
-        "batch_ids": None,
-    }
+    info = _screen_info(proj, view_opacities, width, height, tiles_x, tiles_y)
     return RasterOutput(
         colors=torch.stack(images),
         alphas=torch.stack(alphas),
