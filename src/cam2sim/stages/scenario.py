@@ -98,6 +98,11 @@ def size_class(size: tuple[float, float, float]) -> SizeClass:
     return "small"
 
 
+_CONTENTS = 2
+"""What a scenario records, by version: 2 added the recorded car's roll and pitch (a splat camera
+leans with them). A workspace whose scenario is older builds it again on its next run."""
+
+
 def _inputs(ws: Workspace, opts: ScenarioOptions) -> str:
     extract = ws.stage_record("extract")
     parked = parked_vehicles_path(ws.detections_dir)
@@ -109,6 +114,7 @@ def _inputs(ws: Workspace, opts: ScenarioOptions) -> str:
             "map": file_fingerprint(xodr) if xodr.is_file() else None,
             "parked": file_fingerprint(parked) if parked.is_file() else None,
             "options": repr(opts),
+            "contents": _CONTENTS,
         }
     )
 
