@@ -403,7 +403,7 @@ def test_the_demo_splat_stops_each_chunk_on_its_own_quality_not_on_a_clock(cuda:
 def test_run_splat_preset_caps_steps_and_triangulates_without_lidar(
     cuda: bool, lidar: bool
 ) -> None:
-    opts = SplatStageOptions.for_run(cuda=cuda, lidar=lidar)
+    opts = SplatStageOptions.for_run(cuda=cuda, lidar=lidar, gsplat=cuda)
     assert opts.prepare is not None
     assert opts.train is not None
     assert opts.prepare.triangulate is not lidar  # points from the frames only without LiDAR
@@ -412,6 +412,10 @@ def test_run_splat_preset_caps_steps_and_triangulates_without_lidar(
         assert opts.train.max_steps <= 10_000
         assert opts.train.densify.strategy == "mcmc"
         assert opts.train.time_budget_s is not None
+        # CUDA without gsplat: the torch rasterizer has no MCMC, its own densification runs.
+        no_gsplat = SplatStageOptions.for_run(cuda=True, lidar=lidar, gsplat=False)
+        assert no_gsplat.train is not None
+        assert no_gsplat.train.densify.strategy == "auto"
     else:
         assert opts.train == SplatStageOptions.demo().train
 

@@ -136,7 +136,7 @@ class SplatStageOptions:
         return cls(prepare=prepare, train=train, offsets_m=(-1.0, 1.0))
 
     @classmethod
-    def for_run(cls, *, cuda: bool, lidar: bool) -> SplatStageOptions:
+    def for_run(cls, *, cuda: bool, lidar: bool, gsplat: bool | None = None) -> SplatStageOptions:
         """``cam2sim run``'s splat: 10,000 MCMC steps a chunk on CUDA, the CPU demo preset else.
 
         ``cuda``: 10,000 steps a chunk with MCMC densification (a cap of one million
@@ -145,12 +145,17 @@ class SplatStageOptions:
         the default densification at these lengths and its steps are cheaper (a cap of 1M
         where the default grows to 3-5M): ``docs/splat-options.md``. CPU: :meth:`demo`'s.
         Either way the starting points are triangulated from the frames (pycolmap) when the
-        recording has no LiDAR.
+        recording has no LiDAR. MCMC needs gsplat (``gsplat``; None: whether it can run here):
+        on CUDA without it the torch rasterizer trains with its own densification.
         """
         if cuda:
+            if gsplat is None:
+                from cam2sim.splat.raster import has_gsplat  # noqa: PLC0415 -- lazy: imports torch
+
+                gsplat = has_gsplat()
             train = TrainOptions(
                 max_steps=RUN_GPU_SPLAT_STEPS, val_every=1_000,
-                densify=DensifyOptions(strategy="mcmc"),
+                densify=DensifyOptions(strategy="mcmc" if gsplat else "auto"),
                 time_budget_s=RUN_GPU_SPLAT_BUDGET_S, budget_per_chunk=True,
             )  # fmt: skip
             opts = cls(prepare=PrepareOptions(), train=train)
