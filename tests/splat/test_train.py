@@ -673,8 +673,8 @@ def test_mcmc_warns_when_a_chunk_starts_at_its_cap(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
     # MCMC needs gsplat; on CPU the trainer is stopped at its densifier, after the seeding.
-    import cam2sim.splat.densify as densify_module
     import cam2sim.splat.chunk_trainer as train_module
+    import cam2sim.splat.densify as densify_module
 
     class StopAtDensifierError(Exception):
         pass
