@@ -189,8 +189,13 @@ def test_a_full_disk_fails_its_run_and_a_resume_redoes_only_that_one(tmp_path: P
     assert len(_runs(tmp_path / "ws")) == 2
 
 
+# The child takes Ctrl-C as a terminal's program does, even where the test runs in the
+# background: a non-interactive shell starts its background jobs with SIGINT ignored, which a
+# Python child inherits (and then never raises KeyboardInterrupt).
 _INTERRUPTED = """
+import signal
 import sys
+signal.signal(signal.SIGINT, signal.default_int_handler)
 sys.path[:0] = [{tests!r}, {here!r}]
 from campaign_helpers import slow_execute
 from cam2sim.campaign.executors import LocalPool
