@@ -60,7 +60,30 @@ def _hill(tmp_path: Path, n: int = 40) -> Path:
     return tmp_path
 
 
-def test_the_splat_camera_on_the_recorded_path_is_the_recorded_camera(tmp_path: Path) -> None:
+def _replay_splat_poses(ws: Workspace, monkeypatch: pytest.MonkeyPatch) -> np.ndarray:
+    """The camera poses a replay renders the splat from (a stand-in renderer records them)."""
+    from cam2sim.stages import cameras
+    from cam2sim.stages.runs import ReplayOptions, replay
+
+    poses: list[np.ndarray] = []
+
+    class _Recorder:
+        def render(self, T_world_cam: np.ndarray, camera: object) -> object:
+            poses.append(np.array(T_world_cam))
+            rgb = np.zeros((12, 16, 3), np.uint8)
+            return type("Frame", (), {"rgb": rgb})()
+
+        def close(self) -> None:
+            pass
+
+    monkeypatch.setitem(cameras._CAMERAS, "splat", lambda _ctx: _Recorder())
+    replay(ws, options=ReplayOptions(cameras=("splat",), video=False))
+    return np.stack(poses)
+
+
+def test_the_splat_camera_on_the_recorded_path_is_the_recorded_camera(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     pytest.importorskip("carla", reason="the scenario's checks need carla (cam2sim[map])")
     from cam2sim.stages.cameras import recorded_ground_at, vehicle_camera_pose
     from cam2sim.stages.map import build_map
@@ -101,6 +124,10 @@ def test_the_splat_camera_on_the_recorded_path_is_the_recorded_camera(tmp_path: 
         np.testing.assert_allclose(run[:3, 3], recorded[i][:3, 3], atol=0.02)
         cos = (np.trace(run[:3, :3].T @ recorded[i][:3, :3]) - 1.0) / 2.0
         assert math.degrees(math.acos(min(cos, 1.0))) < 0.05
+    # A replay poses the splat camera the same way at every recorded sample.
+    seen = _replay_splat_poses(ws, monkeypatch)
+    np.testing.assert_allclose(seen[:, :3, 3], recorded[:, :3, 3], atol=0.02)
+    np.testing.assert_allclose(seen[:, :3, :3], recorded[:, :3, :3], atol=1e-3)
     # The raster world is flat: its camera stays level at the mount height.
     flat = vehicle_camera_pose(
         sc, centre[39, 0], centre[39, 1], sc.trajectory.heading[39], recorded=False
