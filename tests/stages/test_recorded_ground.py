@@ -32,7 +32,8 @@ def _rot(roll: float, pitch: float, yaw: float) -> np.ndarray:
     rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
     ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
     rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
-    return rz @ ry @ rx
+    rot: np.ndarray = rz @ ry @ rx
+    return rot
 
 
 def _hill(tmp_path: Path, n: int = 40) -> Path:
