@@ -15,7 +15,8 @@
 #   PHASE=wait bash benchmarks/gpu_kitti.sh      # watch it (repeat as needed)
 #   PHASE=collect bash benchmarks/gpu_kitti.sh   # $OUT: the log, report.html, the workspace's
 #                                                # JSON records (kitti.tgz), the closed
-#                                                # loop's frames and drives (loop.tgz)
+#                                                # loop's frames and drives (loop.tgz),
+#                                                # the splat tilted vs level (tilt.txt)
 #   PHASE=sweep bash benchmarks/gpu_kitti.sh --config base: --config mcmc:densify.strategy=mcmc
 #                                                # after a run: splat_sweep.py on one chunk of
 #                                                # the run's prepared scene (CHUNK, default 0;
@@ -101,6 +102,9 @@ for run in sorted((ws / "runs").iterdir()):
                         [cv2.IMWRITE_JPEG_QUALITY, 90])
 PY
   tar czf "$out/loop.tgz" -C "$out" loop && rm -rf "$out/loop"
+  # The splat at every 8th recorded sample, its camera tilted as recorded or level (the hill).
+  python3 benchmarks/splat_tilt.py $ws --device cuda > "$out/tilt.txt" 2>&1
+  tail -n 2 "$out/tilt.txt"
   ls -la "$out"
   ;;
 sweep)

@@ -23,6 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
+from cam2sim.core.dataset import DatasetInfo
 from cam2sim.core.workspace import Workspace, dataset_paths
 from cam2sim.splat.render import RenderOptions, SplatRenderer
 from cam2sim.stages.cameras import camera_poses, load_run_context, recorded_tilt, run_camera
@@ -47,11 +48,12 @@ def main() -> int:
     }
     camera = run_camera(sc, None)
     frames = dataset_paths(ws.dataset_dir)
+    fmt = DatasetInfo.load(frames.dataset_json).frame_format
     scores: dict[str, list[float]] = {name: [] for name in poses}
     options = RenderOptions(device=args.device)
     with SplatRenderer(ws.splat_files.models_dir, options=options) as renderer:
         for k, i in enumerate(idx.tolist()):
-            real = cv2.imread(str(frames.frame_file(tr.frame[i], "png")), cv2.IMREAD_GRAYSCALE)
+            real = cv2.imread(str(frames.frame_file(tr.frame[i], fmt)), cv2.IMREAD_GRAYSCALE)
             if real is None:
                 continue
             for name, pose in poses.items():
