@@ -438,3 +438,15 @@ def test_run_remembers_the_osm_and_detector_it_was_given(tmp_path: Path) -> None
     assert remember_inputs(ws, PipelineOptions()).real == drives  # further passes remembered
     fresh = Workspace.create(tmp_path / "fresh", Config())
     assert remember_inputs(fresh, PipelineOptions()).osm is None
+
+
+def test_a_cpu_splat_replay_is_kept_within_its_frame_budget() -> None:
+    from cam2sim.stages.pipeline import CPU_SPLAT_REPLAY_FRAMES, replay_stride
+
+    assert replay_stride(801, ("raster", "splat"), cuda=False) == 2  # KITTI 03: 401 frames
+    assert replay_stride(801, ("raster", "splat"), cuda=True) == 1  # a GPU renders them all
+    assert replay_stride(5_000, ("raster",), cuda=False) == 1  # the raster camera is cheap
+    for n in (1, CPU_SPLAT_REPLAY_FRAMES, CPU_SPLAT_REPLAY_FRAMES + 1, 9_000):
+        every = replay_stride(n, ("splat",), cuda=False)
+        assert len(range(0, n, every)) <= CPU_SPLAT_REPLAY_FRAMES
+        assert every == 1 or len(range(0, n, every - 1)) > CPU_SPLAT_REPLAY_FRAMES

@@ -113,6 +113,14 @@ def run(
     ] = None,
     real_crs: Annotated[str, typer.Option(help="CRS of the --real drives' x, y.")] = "EPSG:32632",
     runs: Annotated[int, typer.Option(min=1, help="Drive runs per camera.")] = 3,
+    replay_every: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            help="Replay every N-th recorded frame (default: every frame; with the splat "
+            "camera on a CPU, at most 500 frames).",
+        ),
+    ] = None,
     vary: Annotated[
         bool,
         typer.Option(
@@ -154,6 +162,7 @@ def run(
         policy=policy,
         cameras=tuple(camera) if camera else None,  # type: ignore[arg-type]
         runs=runs,
+        replay_every=replay_every,
         steering_noise_std=DEMO_STEERING_NOISE if vary else 0.0,
         run_variation=DEMO_RUN_VARIATION if vary else None,
         recorded_speed=recorded_speed,

@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import datetime as dt
 import logging
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -86,6 +87,24 @@ STEPS: Final = (
 )
 
 
+CPU_SPLAT_REPLAY_FRAMES: Final = 500
+"""Most frames ``cam2sim run`` replays with the splat camera on a CPU (by default): about 0.5 s
+a frame for the raster and splat cameras at 1242x375 on 2 cores, so KITTI 03's 801 frames took
+426 s of replay and 354 s of image scoring (docs/benchmarks.md); a recording of several minutes
+would take hours."""
+
+
+def replay_stride(samples: int, cameras: Sequence[str], *, cuda: bool) -> int:
+    """Every how many recorded frames ``cam2sim run`` replays by default.
+
+    1, or on a CPU with the splat camera the stride that keeps at most
+    :data:`CPU_SPLAT_REPLAY_FRAMES` frames.
+    """
+    if cuda or "splat" not in cameras:
+        return 1
+    return max(1, math.ceil(samples / CPU_SPLAT_REPLAY_FRAMES))
+
+
 @dataclass(frozen=True)
 class PipelineOptions:
     """What ``cam2sim run`` does.
@@ -104,7 +123,9 @@ class PipelineOptions:
             nothing (fast; pure-pursuit only).
         runs: Drive runs per camera (seeds 0, 1, ...).
         replay_every: Replay every n-th recorded frame (the report's frames and the image
-            quality are computed on them).
+            quality are computed on them). None: every frame, except with the splat camera
+            and no CUDA, where every n-th keeps the replay within
+            :data:`CPU_SPLAT_REPLAY_FRAMES` frames (:func:`replay_stride`).
         steering_noise_std: Steering noise of the builtin simulator (steering units per step,
             seeded per run), so that repeated runs of a deterministic policy differ.
         run_variation: Seeded start-pose and speed differences between drive runs
@@ -143,7 +164,7 @@ class PipelineOptions:
     policy: str | None = None
     cameras: tuple[CameraName, ...] | None = None
     runs: int = 3
-    replay_every: int = 1
+    replay_every: int | None = None
     steering_noise_std: float = 0.0
     run_variation: RunVariation | None = None
     recorded_speed: bool = False
@@ -168,7 +189,7 @@ class PipelineOptions:
         if cameras:
             msg = f"unknown camera(s) {', '.join(cameras)}; choose from raster, splat, truth, none"
             raise ConfigError(msg)
-        if self.runs < 1 or self.replay_every < 1:
+        if self.runs < 1 or (self.replay_every is not None and self.replay_every < 1):
             msg = f"runs and replay_every must be >= 1, got {self.runs}, {self.replay_every}"
             raise ConfigError(msg)
 
@@ -450,9 +471,21 @@ class _Pipeline:
         return str(onnx) if onnx.is_file() and self.options.wants("ads") else "pure-pursuit"
 
     def replay(self, step: _Step) -> None:
-        opts = ReplayOptions(
-            cameras=self._cameras(), frames=(None, None, self.options.replay_every)
-        )
+        cameras = self._cameras()
+        every = self.options.replay_every
+        note = ""
+        if every is None:
+            from cam2sim.splat.raster import has_cuda  # noqa: PLC0415 -- lazy: imports torch
+
+            samples = len(Scenario.load(self.ws.scenario_path).trajectory.frame)
+            cuda = "splat" not in cameras or has_cuda()
+            every = replay_stride(samples, cameras, cuda=cuda)
+            if every > 1:
+                note = (
+                    f" (every {every}th of {samples} frames: the splat renders on the CPU here; "
+                    "--replay-every 1 for all)"
+                )
+        opts = ReplayOptions(cameras=cameras, frames=(None, None, every))
         inputs = hash_inputs(
             {
                 "scenario": self.ws.done_inputs_hash("scenario"),
@@ -463,14 +496,14 @@ class _Pipeline:
         runs = self._runs_current("replay", inputs)
         if runs is not None:
             step.up_to_date = True
-            step.message = runs[0]
+            step.message = runs[0] + note
             return
         started = dt.datetime.now(dt.UTC)
         result = replay(self.ws, options=opts, progress=self.progress)
         self.ws.record_stage(
             "replay", state="done", started=started, inputs_hash=inputs, runs=(result.run_id,)
         )
-        step.message = result.run_id
+        step.message = result.run_id + note
 
     def _judge(self) -> Literal["map", "truth"]:
         if self.options.judge is not None:
