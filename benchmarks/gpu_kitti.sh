@@ -11,7 +11,7 @@
 #   PHASE=run bash benchmarks/gpu_kitti.sh       # carry .c21/b .k03/c: the rest, then the run
 #                                                # in the background, watched WATCH_S seconds
 #                                                # (RUN_ARGS: more `cam2sim run` options, e.g.
-#                                                # --recorded-speed)
+#                                                # --recorded-speed, the default for KITTI)
 #   PHASE=wait bash benchmarks/gpu_kitti.sh      # watch it (repeat as needed)
 #   PHASE=collect bash benchmarks/gpu_kitti.sh   # $OUT: the log, report.html, the workspace's
 #                                                # JSON records (kitti.tgz), the closed

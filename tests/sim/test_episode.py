@@ -171,3 +171,24 @@ def test_a_recorded_profile_is_smoothed_floored_and_keeps_its_place() -> None:
     assert profile.nearest(1.0, 0.0) == 0
     with pytest.raises(ValueError, match="matching columns"):
         SpeedProfile.recorded(xy[:5], speed, t)
+
+
+def test_a_drive_that_slows_for_a_turn_changes_speed_and_a_steady_one_does_not() -> None:
+    from cam2sim.sim.speed import SpeedProfile
+
+    t = np.arange(0.0, 20.0, 0.1)
+    xy = np.stack([t * 8.0, np.zeros_like(t)], axis=1)
+    rng = np.random.default_rng(0)
+    # A synthetic drive: one speed, with the noise of speeds taken from pose differences.
+    steady = SpeedProfile.recorded(xy, 8.0 + rng.normal(0.0, 0.3, t.size), t)
+    assert not steady.changes_speed(8.0)
+    # KITTI 03's shape: 35 km/h, down to 9 km/h for a sharp turn, back up.
+    real = 9.6 - 7.0 * np.exp(-(((t - 9.0) / 1.5) ** 2))
+    turn = SpeedProfile.recorded(xy, real, t)
+    assert turn.changes_speed(9.6)
+    slow, fast = turn.span_kmh()
+    assert 9.0 < slow < 12.0
+    assert fast == pytest.approx(9.6 * 3.6, rel=0.01)
+    # A drive that ends in a stop changes speed too (the profile asks for its floor there).
+    stop = SpeedProfile.recorded(xy, np.where(t < 18.0, 8.0, 0.0), t)
+    assert stop.changes_speed(8.0)

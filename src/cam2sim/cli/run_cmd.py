@@ -129,12 +129,15 @@ def run(
         ),
     ] = True,
     recorded_speed: Annotated[
-        bool,
+        bool | None,
         typer.Option(
+            "--recorded-speed/--start-speed",
             help="Drive at the recorded speed along the route (slowing where the driver "
-            "slowed) instead of holding the start speed.",
+            "slowed), or hold the recorded start speed. Default: the recorded speed when the "
+            "recording changes speed by more than 25 % (a real drive), else the start speed.",
+            show_default=False,
         ),
-    ] = False,
+    ] = None,
     splat_on_cpu: Annotated[
         bool, typer.Option(help="Train splats on the CPU (the CPU preset) when there is no GPU.")
     ] = True,

@@ -21,11 +21,17 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
 
-__all__ = ["MIN_PROFILE_SPEED", "SpeedProfile"]
+__all__ = ["MIN_PROFILE_SPEED", "SPEED_CHANGE_SHARE", "SpeedProfile"]
 
 MIN_PROFILE_SPEED: Final = 1.5
 """m/s: the profile never asks for less, so that a stop in the recording (a red light, the
 drive's end) does not halt the simulated car, which would end the run as stuck."""
+
+SPEED_CHANGE_SHARE: Final = 0.25
+"""A recording whose smoothed speed departs from its start speed by more than this share
+somewhere along the route changes speed (:meth:`SpeedProfile.changes_speed`): ``cam2sim run``
+then drives at the recorded speed by default. The synthetic drives hold one speed (their
+smoothed speeds stay within a few per cent of it); KITTI 03 goes from 9.6 m/s to 2.4."""
 
 _BEHIND: Final = 5
 """Route points behind the last nearest one that the search looks at."""
@@ -85,3 +91,16 @@ class SpeedProfile:
         window = self.xy[start:stop]
         d2 = (window[:, 0] - x) ** 2 + (window[:, 1] - y) ** 2
         return start + int(np.argmin(d2))
+
+    def changes_speed(self, held: float, share: float = SPEED_CHANGE_SHARE) -> bool:
+        """Whether the recorded speed departs from ``held`` (m/s) by more than ``share`` of it.
+
+        A stop or crawl below :data:`MIN_PROFILE_SPEED` counts at that speed (the profile
+        never asks for less).
+        """
+        reference = max(float(held), MIN_PROFILE_SPEED)
+        return bool(np.any(np.abs(self.speed - reference) > share * reference))
+
+    def span_kmh(self) -> tuple[float, float]:
+        """The slowest and fastest speed of the profile, km/h (for messages)."""
+        return float(self.speed.min() * 3.6), float(self.speed.max() * 3.6)

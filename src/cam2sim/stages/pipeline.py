@@ -132,6 +132,9 @@ class PipelineOptions:
             (:mod:`cam2sim.stages.variation`); None: none.
         recorded_speed: The drives follow the recorded speed along the route (see
             :class:`~cam2sim.stages.runs.DriveOptions`) instead of holding the start speed.
+            None: they do when the recording changes speed (by more than
+            :data:`~cam2sim.sim.speed.SPEED_CHANGE_SHARE` of its start speed somewhere, as a
+            real driver slowing for a turn); a drive at one speed (the synthetic ones) holds it.
         splat: Splat options; None: :meth:`SplatStageOptions.for_run
             <cam2sim.stages.splat.SplatStageOptions.for_run>` (its points triangulated from
             the frames when there is no LiDAR).
@@ -167,7 +170,7 @@ class PipelineOptions:
     replay_every: int | None = None
     steering_noise_std: float = 0.0
     run_variation: RunVariation | None = None
-    recorded_speed: bool = False
+    recorded_speed: bool | None = None
     splat: SplatStageOptions | None = None
     splat_on_cpu: bool = True
     steering_signal: str | None = None
@@ -513,6 +516,7 @@ class _Pipeline:
     def drive(self, step: _Step) -> None:
         self._require_motion("closed-loop drives follow the recorded route")
         policy = self._policy()
+        recorded_speed, speed_note = self._recorded_speed()
         all_opts = [
             DriveOptions(
                 policy=policy,
@@ -520,7 +524,7 @@ class _Pipeline:
                 runs=self.options.runs,
                 steering_noise_std=self.options.steering_noise_std,
                 variation=self.options.run_variation,
-                recorded_speed=self.options.recorded_speed,
+                recorded_speed=recorded_speed,
                 judge=self._judge(),
                 save_frames=self.options.save_frames,
             )
@@ -564,7 +568,25 @@ class _Pipeline:
         else:
             step.up_to_date = True
         cams = ", ".join(self._drive_cameras())
-        step.message = f"{len(runs)} run(s), policy {policy}, camera {cams}"
+        step.message = f"{len(runs)} run(s), policy {policy}, camera {cams}{speed_note}"
+
+    def _recorded_speed(self) -> tuple[bool, str]:
+        """Whether the drives follow the recorded speed, and what the step's message says."""
+        from cam2sim.sim.speed import SpeedProfile  # noqa: PLC0415
+
+        if self.options.recorded_speed is not None:
+            return self.options.recorded_speed, ""
+        sc = Scenario.load(self.ws.scenario_path)
+        tr = sc.trajectory
+        profile = SpeedProfile.recorded(tr.center, tr.speed, tr.t)
+        if not profile.changes_speed(sc.hero_start.speed):
+            return False, ""
+        slow, fast = profile.span_kmh()
+        note = (
+            f"; at the recorded speed, {slow:.0f}-{fast:.0f} km/h along the route "
+            "(the recording changes speed; --start-speed holds its start speed)"
+        )
+        return True, note
 
     def evaluate(self, step: _Step) -> None:
         self._require_motion("there are no drives to score")
