@@ -315,6 +315,30 @@ def test_refit_keeps_a_network_trained_on_every_frame(tmp_path: Path) -> None:
     assert refit_mse < validated
 
 
+def test_the_demo_trains_dave2_on_the_whole_street(tmp_path: Path) -> None:
+    """The benchmark's Real runs failed only in the drive's last 20 %, which never trained."""
+    from dataclasses import replace
+
+    from cam2sim.ads import train as tr
+    from cam2sim.stages.ads import train_ads
+    from cam2sim.stages.experiment import demo_train_options
+
+    options = demo_train_options(epochs=2)
+    assert (options.keep, options.split, options.refit_all, options.device) == (
+        "last", "blocks", True, "cpu",
+    )  # fmt: skip
+    # A 23 s drive (the demo street's): validation blocks lie inside it, the tail trains.
+    t = np.arange(0.0, 23.0, 0.05)
+    train, val = tr.split_by_time(t, options.val_fraction, options.gap_s, split=options.split)
+    assert t[train].max() > 22.0
+    assert t[val].min() > 0.0
+    assert t[val].max() < 20.0
+    ws = make_drive(tmp_path / "ws")
+    train_ads(ws, options=replace(options, batch_size=16, workers=1))
+    report = json.loads((ws.ads_dir / "train_report.json").read_text())
+    assert report["refit_all_frames"] is True
+
+
 def test_export_parity_and_policy_crop(trained: Workspace) -> None:
     import onnx
 
