@@ -14,7 +14,8 @@
 #
 # Build the carried folders here first: `bash benchmarks/carry_kit.sh demo ray osm`.
 # SUITE (default benchmarks/suites/streets-gpu.yaml) names the suite; its OSM files are looked for
-# in /tmp/osm by name. WATCH_S (default 560) is how long start and wait watch before returning.
+# in /tmp/osm by name. WORKERS=N (one-GPU machines) runs N worlds at a time on the local
+# pool, sharing the GPU, instead of Ray's one GPU a world; its start call then carries .c21/b only. WATCH_S (default 560) is how long start and wait watch before returning.
 # Everything the suite reads lives in /tmp on the device: a carried folder that a later call does
 # not carry again is removed there, so .osm/ vanished under the first GPU suite's running worlds.
 # The LPIPS weights do not fit the start call (the splats' LPIPS is then not computed; the
@@ -52,12 +53,17 @@ setup)
   touch "$MARKER" || exit 1
   ;;
 start)
-  tar xJf .ray/ray-slim.tar.xz -C /tmp/site || exit 1
-  python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site .ray/*.whl || exit 1
+  if [ -n "$WORKERS" ]; then
+    pool=(--workers "$WORKERS")
+  else
+    tar xJf .ray/ray-slim.tar.xz -C /tmp/site || exit 1
+    python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site .ray/*.whl || exit 1
+    pool=(--ray local)
+  fi
   suite=${SUITE:-benchmarks/suites/streets-gpu.yaml}
   sed -E 's#osm: .*/([^/]+)$#osm: /tmp/osm/\1#' "$suite" > /tmp/suite.yaml
   grep -n "osm:" /tmp/suite.yaml
-  setsid nohup python3 -m cam2sim bench /tmp/suite.yaml -o $bench --ray local \
+  setsid nohup python3 -m cam2sim bench /tmp/suite.yaml -o $bench "${pool[@]}" \
     > /tmp/bench.log 2>&1 < /dev/null &
   sleep 5
   watch

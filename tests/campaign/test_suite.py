@@ -56,6 +56,18 @@ def test_ids_stay_when_the_suite_and_its_maps_move(tmp_path: Path) -> None:
     assert not {s.spec_id for s in first} & {s.spec_id for s in third}
 
 
+def test_picks_run_some_routes_under_the_names_and_ids_of_the_larger_suite(
+    tmp_path: Path,
+) -> None:
+    whole = expand_suite(load_suite(_suite(tmp_path)), tmp_path)
+    some = SUITE.replace("routes: 3\n    tuned: [0]", "picks: [2, 1]\n    tuned: [0]")
+    part = expand_suite(load_suite(_suite(tmp_path / "p", some)), tmp_path / "p")
+    assert [s.label for s in part] == ["l-street", "a-r2", "a-r1", "a-route"]
+    assert [s.pick for s in part] == [0, 2, 1, 0]
+    by_label = {s.label: s.spec_id for s in whole}
+    assert all(by_label[s.label] == s.spec_id for s in part)
+
+
 @pytest.mark.parametrize(
     ("text", "needle"),
     [
@@ -63,6 +75,10 @@ def test_ids_stay_when_the_suite_and_its_maps_move(tmp_path: Path) -> None:
         ("worlds:\n  - builtin: l-street\n    osm: maps/a.osm\n", "exactly one of `builtin:`"),
         ("worlds:\n  - builtin: moon\n", "worlds.0.builtin"),
         ("worlds:\n  - osm: maps/a.osm\n    routes: 2\n    route: [a, b]\n", "not both"),
+        ("worlds:\n  - osm: maps/a.osm\n    routes: 2\n    picks: [1]\n", "not both"),
+        ("worlds:\n  - osm: maps/a.osm\n    picks: [1, 1]\n", "names a route twice"),
+        ("worlds:\n  - osm: maps/a.osm\n    picks: [-1]\n", "worlds.0.picks"),
+        ("worlds:\n  - builtin: paper\n    picks: [1]\n", "go with `osm:`"),
         ("worlds: []\n", "worlds"),
         ("seeds: 0\nworlds:\n  - builtin: paper\n", "seeds"),
     ],

@@ -2,7 +2,8 @@
 
 A suite lists worlds: the built-in streets (``builtin: l-street`` or ``paper``), streets of real
 OpenStreetMap extracts (``osm: FILE`` with ``routes: N`` distinct routes picked automatically
-from different parts of the extract, or one ``route: [LAT,LON, LAT,LON]``), each run with
+from different parts of the extract, or only some of them, ``picks: [1, 2]``, named as in the
+larger suite, or one ``route: [LAT,LON, LAT,LON]``), each run with
 ``seeds`` closed-loop runs per method. ``tuned: true`` (for picked routes also their indices,
 ``tuned: [0]``) marks the worlds that were looked at while the tool was tuned: the report gives
 the figures with and without them. Example::
@@ -57,6 +58,12 @@ class SuiteWorld(_Model):
     routes: int = pydantic.Field(
         1, ge=1, le=20, description="with osm: this many distinct routes, picked automatically"
     )
+    picks: tuple[pydantic.NonNegativeInt, ...] | None = pydantic.Field(
+        None,
+        min_length=1,
+        description="with osm: only these of the picked routes (0 = the best), e.g. [1, 2] to "
+        "rerun two streets of a larger suite under the same names",
+    )
     route: tuple[str, str] | None = pydantic.Field(
         None, description='with osm: one route between two points, ["LAT,LON", "LAT,LON"]'
     )
@@ -70,13 +77,26 @@ class SuiteWorld(_Model):
         if (self.builtin is None) == (self.osm is None):
             msg = "give exactly one of `builtin:` (l-street, paper) or `osm:` (a file)"
             raise ValueError(msg)
-        if self.osm is None and (self.route is not None or self.routes != 1):
-            msg = "`route:` and `routes:` go with `osm:`"
+        if self.osm is None and (
+            self.route is not None or self.routes != 1 or self.picks is not None
+        ):
+            msg = "`route:`, `routes:` and `picks:` go with `osm:`"
             raise ValueError(msg)
-        if self.route is not None and self.routes != 1:
-            msg = "give `route:` (one route) or `routes: N` (picked), not both"
+        if self.route is not None and (self.routes != 1 or self.picks is not None):
+            msg = "give `route:` (one route) or `routes: N` / `picks: [...]` (picked), not both"
+            raise ValueError(msg)
+        if self.picks is not None and self.routes != 1:
+            msg = "give `routes: N` (the first N picked) or `picks: [...]` (those), not both"
+            raise ValueError(msg)
+        if self.picks is not None and len(set(self.picks)) != len(self.picks):
+            msg = f"`picks: {list(self.picks)}` names a route twice; list each once"
             raise ValueError(msg)
         return self
+
+    @property
+    def pick_indices(self) -> tuple[int, ...]:
+        """Which picked routes this entry runs: ``picks``, or the first ``routes``."""
+        return self.picks if self.picks is not None else tuple(range(self.routes))
 
 
 class SuiteSettings(_Model):
@@ -221,7 +241,7 @@ def expand_suite(suite: Suite, base: Path) -> list[WorldSpec]:
                 seeds=suite.seeds,
                 settings=suite.settings,
             )
-            for pick in range(world.routes)
+            for pick in world.pick_indices
         )
     ids = [s.spec_id.rsplit("-", 1)[1] for s in specs]
     if len(set(ids)) != len(ids):
