@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import pytest
@@ -118,3 +119,27 @@ def full_disk_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOu
         return execute(spec, log, timeout_s)
     finally:
         runs._write_tables = real
+
+
+@dataclass(frozen=True)
+class ThreadSpec:
+    """A job for :func:`threads_execute`: an id and no GPU."""
+
+    spec_id: str
+    needs_gpu: bool = False
+
+
+def threads_execute(spec: ThreadSpec, log: str, timeout_s: float | None) -> RunOutcome:
+    """Instead of a run: log the CPUs the worker process was allotted and its torch threads."""
+    from pathlib import Path
+
+    import torch
+
+    from cam2sim.campaign.state import RunOutcome
+
+    del timeout_s
+    Path(log).parent.mkdir(parents=True, exist_ok=True)
+    Path(log).write_text(
+        f"{os.environ.get('OMP_NUM_THREADS')} {torch.get_num_threads()}\n", encoding="utf-8"
+    )
+    return RunOutcome(spec.spec_id, "done", None, 0.0, None, log)

@@ -3,8 +3,9 @@
 Both run :func:`cam2sim.campaign.worker.execute` once per job and hand every outcome to a
 callback in the calling process, in the order runs finish.
 
-- :class:`LocalPool`: a ``ProcessPoolExecutor`` (``spawn``) with ``workers`` processes. At most
-  ``workers`` runs are in flight, so when a worker process dies (a crash the run's own error
+- :class:`LocalPool`: a ``ProcessPoolExecutor`` (``spawn``) with ``workers`` processes, each
+  allotted its share of the CPUs as Ray allots a task's (:func:`~cam2sim.core.machine.allot_cpus`).
+  At most ``workers`` runs are in flight, so when a worker process dies (a crash the run's own error
   handling cannot catch) the runs in flight are the only suspects: each is tried again alone, and
   the one that kills its worker again is recorded ``crashed``.
 - :class:`RayCluster`: runs on a Ray cluster with their resource needs: a run that wants no
@@ -29,6 +30,7 @@ from cam2sim.campaign.state import RunOutcome
 from cam2sim.campaign.worker import execute
 from cam2sim.core.cluster import LOST_WORKER_RETRIES, ray_session
 from cam2sim.core.errors import ConfigError
+from cam2sim.core.machine import allot_cpus, available_cpus
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -112,7 +114,11 @@ class LocalPool:
         queue = list(reversed(jobs))
         inflight: dict[Future[RunOutcome], Job] = {}
         suspects: list[Job] = []
-        with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context) as pool:
+        processes = min(workers, len(jobs))
+        share = max(1, available_cpus() // processes)  # each its share, not every core
+        with ProcessPoolExecutor(
+            max_workers=processes, mp_context=context, initializer=allot_cpus, initargs=(share,)
+        ) as pool:
             while queue or inflight:
                 while queue and len(inflight) < workers:
                     job = queue.pop()

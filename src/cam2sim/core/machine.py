@@ -5,14 +5,41 @@ them; Ray says how many through ``OMP_NUM_THREADS`` (the task's ``num_cpus``). W
 spreads over processes (the drive step's runs) sizes itself from :func:`available_cpus`, and
 the thread pools that do not read ``OMP_NUM_THREADS`` themselves (onnxruntime's, OpenCV's) are
 sized from it too (:func:`keep_to_allotment`): sixteen runs on a 64-core node, each with
-pools of 64 threads, would contend for the cores their tasks were not given.
+pools of 64 threads, would contend for the cores their tasks were not given. The local process
+pool allots its workers' shares the same way (:func:`allot_cpus`): three benchmark worlds
+sharing 16 cores, each training DAVE-2 with 16 threads, took 50-75 s an epoch where one alone
+takes about 1 s (docs/benchmarks.md).
 """
 
 from __future__ import annotations
 
 import os
+import sys
 
-__all__ = ["available_cpus", "keep_to_allotment"]
+__all__ = ["allot_cpus", "available_cpus", "keep_to_allotment"]
+
+#: The thread-count variables a process's libraries read when they start: OpenMP (torch's
+#: intra-op pool), MKL, OpenBLAS, numba.
+_THREAD_VARIABLES = (
+    "OMP_NUM_THREADS",
+    "MKL_NUM_THREADS",
+    "OPENBLAS_NUM_THREADS",
+    "NUMBA_NUM_THREADS",
+)
+
+
+def allot_cpus(cpus: int) -> None:
+    """Allot this process ``cpus`` CPUs, as Ray does for a task (a pool worker's initializer).
+
+    Sets the thread-count variables before the heavy libraries start; a smaller allotment
+    already set (by a scheduler above) is kept.
+    """
+    cpus = max(1, cpus)
+    allotted = _allotted()
+    if allotted is not None:
+        cpus = min(cpus, allotted)
+    for name in _THREAD_VARIABLES:
+        os.environ[name] = str(cpus)
 
 
 def available_cpus() -> int:
@@ -49,5 +76,8 @@ def keep_to_allotment() -> int | None:
 
     cpus = available_cpus()
     cv2.setNumThreads(cpus)
+    torch = sys.modules.get("torch")  # already started: its pool was sized from every core
+    if torch is not None and torch.get_num_threads() > cpus:
+        torch.set_num_threads(cpus)
     os.environ.setdefault("LP_NUM_THREADS", str(cpus))
     return cpus
