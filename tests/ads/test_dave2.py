@@ -315,6 +315,34 @@ def test_refit_keeps_a_network_trained_on_every_frame(tmp_path: Path) -> None:
     assert refit_mse < validated
 
 
+def test_without_validation_the_same_network_is_trained_alone(tmp_path: Path) -> None:
+    """The benchmark skips the validated run: the network that drives must be the same."""
+    from dataclasses import replace
+
+    from cam2sim.ads.train_options import TrainOptions
+    from cam2sim.stages.ads import train_ads
+    from cam2sim.stages.experiment import demo_train_options
+
+    options = replace(demo_train_options(epochs=2), batch_size=16, workers=1)
+    weights = {}
+    for validate in (True, False):
+        ws = make_drive(tmp_path / f"ws-{validate}")
+        train_ads(ws, options=replace(options, validate=validate))
+        weights[validate] = torch.load(ws.ads_dir / "dave2.pt", weights_only=True)
+        report = json.loads((ws.ads_dir / "train_report.json").read_text())
+        assert report["refit_all_frames"] is True
+        assert report["validated"] is validate
+        assert (ws.ads_dir / "train_report.png").is_file()
+    assert weights[True].keys() == weights[False].keys()
+    for name, tensor in weights[True].items():
+        assert torch.equal(tensor, weights[False][name]), name
+    assert report["val_rmse"] is None and report["baseline_mse"] is None
+    assert report["val_frames"] == 0 and report["train_frames"] == N_FRAMES
+    assert [e["val_loss"] for e in report["epochs"]] == [None, None]
+    with pytest.raises(ValueError, match="needs refit_all=True"):
+        TrainOptions(validate=False)
+
+
 def test_the_demo_trains_dave2_on_the_whole_street(tmp_path: Path) -> None:
     """The benchmark's Real runs failed only in the drive's last 20 %, which never trained."""
     from dataclasses import replace
@@ -408,6 +436,13 @@ def test_cli_train_export_and_serve_errors(tmp_path: Path) -> None:
     assert "trained again on every frame for 2 epochs" in " ".join(out.output.split())
     report = json.loads((ws.ads_dir / "train_report.json").read_text())
     assert report["refit_all_frames"] is True
+    out = runner.invoke(app, ["ads", "train", str(ws.root), "--no-validate", "--force"])
+    assert out.exit_code == 1
+    assert "--no-validate goes with --same-street" in " ".join(out.output.split())
+    args = ["ads", "train", str(ws.root), "--same-street", "--no-validate", "--epochs", "2"]
+    out = runner.invoke(app, [*args, "--force"])
+    assert out.exit_code == 0, out.output
+    assert "not validated" in " ".join(out.output.split())
 
 
 def _check_pose_point_above_the_road(ws: Workspace) -> None:

@@ -106,7 +106,8 @@ class EpochRecord(pydantic.BaseModel):
 
     epoch: int
     train_loss: float
-    val_loss: float
+    val_loss: float | None
+    """None when nothing was held out (:attr:`TrainReport.validated` False)."""
     seconds: float
 
 
@@ -128,7 +129,8 @@ class TrainReport(Artifact):
     """``train_report.json``: what was trained on and how well it fits the held-out frames.
 
     ``baseline_mse`` is the validation variance (the MSE of always predicting the mean), so a
-    useful model has ``val_mse`` well below it.
+    useful model has ``val_mse`` well below it. Without a validated run (``validated`` False)
+    those figures are None.
     """
 
     signal: str
@@ -137,16 +139,19 @@ class TrainReport(Artifact):
     val_frames: int
     best_epoch: int
     epochs: tuple[EpochRecord, ...]
-    val_mse: float
-    val_rmse: float
-    val_mae: float
+    val_mse: float | None
+    val_rmse: float | None
+    val_mae: float | None
     val_correlation: float | None
-    baseline_mse: float
+    baseline_mse: float | None
     shift_steering_per_px: float
     recovery: RecoveryRecord | None = None
     refit_all_frames: bool = False
     """The kept network was trained again on every frame for ``best_epoch`` epochs
     (:attr:`TrainOptions.refit_all`); the validation figures are the validated run's."""
+    validated: bool = True
+    """False: no run was validated (:attr:`TrainOptions.validate`); the ``val_*`` figures and
+    ``baseline_mse`` are None, and so is each epoch's ``val_loss``."""
 
 
 class Dave2ModelInfo(Artifact):
@@ -463,6 +468,9 @@ def train_dave2(
     flush = device.type == "cpu" and torch.set_flush_denormal(True)
     try:
         recovery = geometry if opts.uses_recovery else None
+        if not opts.validate:  # only the network the refit would keep
+            kept = _fit_every_frame(data, opts, opts.epochs, device, progress, recovery)
+            return _not_validated(kept, train_frames=len(data.t))
         trained = _fit(model, train, val, opts, device, progress, recovery)
         if not opts.refit_all:
             return trained
@@ -584,19 +592,7 @@ def _refit(
     recovery: RecoveryGeometry | None,
 ) -> TrainedModel:
     """A fresh network trained on every frame for the validated run's kept epochs."""
-    epochs = trained.report.best_epoch
-    torch.manual_seed(opts.seed)
-    model = build_dave2(opts.dave2).to(device)
-    model.get_buffer("output_scale").fill_(float(np.std(data.steering)))
-    again = replace(opts, epochs=epochs, keep="last")
-
-    # Validation frames are training frames now: the losses it records mean nothing.
-    def report_refit(task: str, completed: int, total: int | None) -> None:
-        del task  # one name for the refit
-        progress("training DAVE-2 on every frame", completed, total)
-
-    some = data.take(np.arange(min(2, len(data.t))))  # no frame is held out: a token set
-    refit = _fit(model, data, some, again, device, report_refit, recovery)
+    refit = _fit_every_frame(data, opts, trained.report.best_epoch, device, progress, recovery)
     report = trained.report.model_copy(update={"refit_all_frames": True})
     return replace(
         refit,
@@ -604,6 +600,58 @@ def _refit(
         val_t=trained.val_t,
         val_true=trained.val_true,
         val_pred=trained.val_pred,
+    )
+
+
+def _fit_every_frame(
+    data: SteeringData,
+    opts: TrainOptions,
+    epochs: int,
+    device: torch.device,
+    progress: ProgressCallback,
+    recovery: RecoveryGeometry | None,
+) -> TrainedModel:
+    """A fresh network (seeded as the first) trained on every frame for ``epochs``, the last kept.
+
+    Its report's validation figures come from a token set of two frames and mean nothing.
+    """
+    torch.manual_seed(opts.seed)
+    model = build_dave2(opts.dave2).to(device)
+    model.get_buffer("output_scale").fill_(float(np.std(data.steering)))
+    again = replace(opts, epochs=epochs, keep="last")
+
+    def report_all(task: str, completed: int, total: int | None) -> None:
+        del task  # one name for the training on every frame
+        progress("training DAVE-2 on every frame", completed, total)
+
+    some = data.take(np.arange(min(2, len(data.t))))  # no frame is held out: a token set
+    return _fit(model, data, some, again, device, report_all, recovery)
+
+
+def _not_validated(kept: TrainedModel, *, train_frames: int) -> TrainedModel:
+    """``kept`` with a report that says nothing was validated (no figures pretend it was)."""
+    epochs = tuple(r.model_copy(update={"val_loss": None}) for r in kept.report.epochs)
+    report = kept.report.model_copy(
+        update={
+            "train_frames": train_frames,
+            "val_frames": 0,
+            "epochs": epochs,
+            "val_mse": None,
+            "val_rmse": None,
+            "val_mae": None,
+            "val_correlation": None,
+            "baseline_mse": None,
+            "refit_all_frames": True,
+            "validated": False,
+        }
+    )
+    empty = np.zeros(0)
+    return replace(
+        kept,
+        report=report,
+        val_t=empty,
+        val_true=empty.astype(np.float32),
+        val_pred=empty.astype(np.float32),
     )
 
 
@@ -708,11 +756,29 @@ def load_model(ads_dir: Path) -> tuple[torch.nn.Module, Dave2ModelInfo]:
 def _figure(trained: TrainedModel, path: Path) -> None:
     plt = pyplot()
     report = trained.report
+    if not report.validated:
+        fig, ax = plt.subplots(figsize=(9, 3.5))
+        epochs = [r.epoch for r in report.epochs]
+        ax.plot(epochs, [r.train_loss for r in report.epochs], "o-", label="training")
+        ax.set(
+            xlabel="epoch",
+            ylabel=f"MSE ({report.signal} unit²)",
+            title="DAVE-2 trained on every frame (not validated: no frame held out)",
+        )
+        ax.set_yscale("log")
+        ax.legend()
+        fig.tight_layout()
+        save_figure(fig, path)
+        return
     fig, (ax_loss, ax_val) = plt.subplots(2, 1, figsize=(9, 7))
     epochs = [r.epoch for r in report.epochs]
     ax_loss.plot(epochs, [r.train_loss for r in report.epochs], "o-", label="training")
-    ax_loss.plot(epochs, [r.val_loss for r in report.epochs], "o-", label="validation")
-    ax_loss.axhline(report.baseline_mse, color="grey", ls="--", label="validation variance")
+    ax_loss.plot(
+        epochs, [math.nan if r.val_loss is None else r.val_loss for r in report.epochs], "o-",
+        label="validation",
+    )  # fmt: skip
+    if report.baseline_mse is not None:
+        ax_loss.axhline(report.baseline_mse, color="grey", ls="--", label="validation variance")
     ax_loss.axvline(report.best_epoch, color="k", lw=0.8, ls=":", label="kept epoch")
     ax_loss.set(xlabel="epoch", ylabel=f"MSE ({report.signal} unit²)", title="DAVE-2 training")
     ax_loss.set_yscale("log")
@@ -722,7 +788,8 @@ def _figure(trained: TrainedModel, path: Path) -> None:
     ax_val.set(
         xlabel="time since the first frame (s)",
         ylabel=report.signal,
-        title=f"validation frames: RMSE {report.val_rmse:.3g}, MAE {report.val_mae:.3g}",
+        title=f"validation frames: RMSE {report.val_rmse or math.nan:.3g}, "
+        f"MAE {report.val_mae or math.nan:.3g}",
     )
     ax_val.legend()
     fig.tight_layout()

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from cam2sim.cli.display import StageErrorGroup, console, error_exit, progress_bars
-from cam2sim.core.errors import Cam2SimError
+from cam2sim.core.errors import Cam2SimError, ConfigError
 from cam2sim.core.workspace import Workspace
 
 if TYPE_CHECKING:
@@ -46,6 +46,16 @@ def train(
             ),
         ),
     ] = False,
+    validate: Annotated[
+        bool,
+        typer.Option(
+            "--validate/--no-validate",
+            help=(
+                "With --same-street: --no-validate trains only the network that is kept, on "
+                "every frame (the same network in half the time, without validation figures)."
+            ),
+        ),
+    ] = True,
     batch_size: Annotated[int, typer.Option("--batch-size", min=1)] = 64,
     augment: Annotated[bool, typer.Option("--augment/--no-augment")] = True,
     recovery_m: Annotated[
@@ -85,6 +95,9 @@ def train(
     from cam2sim.ads.train_options import TrainOptions  # noqa: PLC0415 -- lazy: imports cv2
     from cam2sim.stages.ads import train_ads  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
+    if not validate and not same_street:
+        msg = "--no-validate goes with --same-street (only its network is trained on every frame)"
+        raise ConfigError(msg)
     base = TrainOptions.same_street(signal) if same_street else TrainOptions(signal=signal)
     opts = dataclasses.replace(
         base,
@@ -95,6 +108,7 @@ def train(
         recovery_deg=recovery_deg,
         balance=balance,
         seed=seed,
+        validate=validate,
     )
     ws = Workspace.open(workspace)
     with progress_bars() as sink:
@@ -102,6 +116,14 @@ def train(
     rep = result.report
     if rep is None:
         console.print(f"{result.model} is up to date (use --force to train again)")
+        return
+    if rep.val_rmse is None or rep.baseline_mse is None or rep.val_mae is None:
+        console.print(
+            f"{result.model}: trained on all {rep.train_frames} frames for {rep.best_epoch} "
+            f"epochs, not validated (--no-validate); {_recovery_line(rep.recovery)}; report "
+            f"{result.figure}",
+            highlight=False,
+        )
         return
     corr = "-" if rep.val_correlation is None else f"{rep.val_correlation:.3f}"
     kept = (

@@ -52,7 +52,9 @@ def bench(
     ] = None,
     workers: Annotated[
         int,
-        typer.Option(min=1, help="Worlds at a time on the local pool (each uses every core)."),
+        typer.Option(
+            min=1, help="Worlds at a time on the local pool (each gets CPUs / N threads)."
+        ),
     ] = 1,
     cpus_per_world: Annotated[
         int | None,
