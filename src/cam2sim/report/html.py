@@ -367,7 +367,9 @@ def _dave2_training(ctx: ReportContext) -> str:
         '<p class="note">The system under test, DAVE-2, as trained on the recorded frames: '
         "its training and validation error by epoch against the validation variance (the error "
         "of always predicting the mean steering; a model above that line learned nothing), and "
-        "its predictions on the validation frames.</p>"
+        "its predictions on the validation frames. A network trained without a validated run "
+        "(<code>ads train --same-street --no-validate</code>, as the street benchmark trains "
+        "it) shows its training error only.</p>"
     )
     return "<h3>The system under test</h3>" + note + img(figure.read_bytes(), alt)
 
