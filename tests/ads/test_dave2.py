@@ -336,8 +336,10 @@ def test_without_validation_the_same_network_is_trained_alone(tmp_path: Path) ->
     assert weights[True].keys() == weights[False].keys()
     for name, tensor in weights[True].items():
         assert torch.equal(tensor, weights[False][name]), name
-    assert report["val_rmse"] is None and report["baseline_mse"] is None
-    assert report["val_frames"] == 0 and report["train_frames"] == N_FRAMES
+    assert report["val_rmse"] is None
+    assert report["baseline_mse"] is None
+    assert report["val_frames"] == 0
+    assert report["train_frames"] == N_FRAMES
     assert [e["val_loss"] for e in report["epochs"]] == [None, None]
     with pytest.raises(ValueError, match="needs refit_all=True"):
         TrainOptions(validate=False)
