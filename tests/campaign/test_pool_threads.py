@@ -39,8 +39,10 @@ def test_an_allotment_from_a_scheduler_above_is_not_raised(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    # setenv, not delenv: monkeypatch restores only what it recorded, and a variable left
+    # behind here (NUMBA_NUM_THREADS=1) changes how later tests' worker processes compute.
     for name in ("MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS"):
-        monkeypatch.delenv(name, raising=False)
+        monkeypatch.setenv(name, "99")
     allot_cpus(8)
     assert os.environ["OMP_NUM_THREADS"] == "1"
     assert os.environ["NUMBA_NUM_THREADS"] == "1"
