@@ -15,7 +15,8 @@
 # Build the carried folders here first: `bash benchmarks/carry_kit.sh demo ray osm`.
 # SUITE (default benchmarks/suites/streets-gpu.yaml) names the suite; its OSM files are looked for
 # in /tmp/osm by name. WORKERS=N (one-GPU machines) runs N worlds at a time on the local
-# pool, sharing the GPU, instead of Ray's one GPU a world; its start call then carries .c21/b only. WATCH_S (default 560) is how long start and wait watch before returning.
+# pool, sharing the GPU, instead of Ray's one GPU a world; its start call then carries .c21/b
+# only. WATCH_S (default 560) is how long start and wait watch before returning.
 # Everything the suite reads lives in /tmp on the device: a carried folder that a later call does
 # not carry again is removed there, so .osm/ vanished under the first GPU suite's running worlds.
 # The LPIPS weights do not fit the start call (the splats' LPIPS is then not computed; the

@@ -454,23 +454,25 @@ def train_dave2(
     opts = options or TrainOptions()
     torch.manual_seed(opts.seed)
     device = _device(opts.device)
-    train_rows, val_rows = split_by_time(
-        data.t, opts.val_fraction, opts.gap_s, split=opts.split, block_s=opts.block_s
-    )
-    train, val = data.take(train_rows), data.take(val_rows)
+    train, val = data, None  # without validation: only the network the refit would keep
+    if opts.validate:
+        train_rows, val_rows = split_by_time(
+            data.t, opts.val_fraction, opts.gap_s, split=opts.split, block_s=opts.block_s
+        )
+        train, val = data.take(train_rows), data.take(val_rows)
     spread = float(np.std(train.steering))
     if not spread > 0:
         msg = f"signal {opts.signal!r} is constant over the training frames; nothing to learn"
         raise StageError(msg)
-    model = build_dave2(opts.dave2).to(device)
-    model.get_buffer("output_scale").fill_(spread)
     # Tiny gradients turn subnormal on CPU and slow every step ~10x; flush them while training.
     flush = device.type == "cpu" and torch.set_flush_denormal(True)
     try:
         recovery = geometry if opts.uses_recovery else None
-        if not opts.validate:  # only the network the refit would keep
+        if val is None:
             kept = _fit_every_frame(data, opts, opts.epochs, device, progress, recovery)
             return _not_validated(kept, train_frames=len(data.t))
+        model = build_dave2(opts.dave2).to(device)
+        model.get_buffer("output_scale").fill_(spread)
         trained = _fit(model, train, val, opts, device, progress, recovery)
         if not opts.refit_all:
             return trained
@@ -773,12 +775,13 @@ def _figure(trained: TrainedModel, path: Path) -> None:
     fig, (ax_loss, ax_val) = plt.subplots(2, 1, figsize=(9, 7))
     epochs = [r.epoch for r in report.epochs]
     ax_loss.plot(epochs, [r.train_loss for r in report.epochs], "o-", label="training")
-    ax_loss.plot(
-        epochs, [math.nan if r.val_loss is None else r.val_loss for r in report.epochs], "o-",
-        label="validation",
-    )  # fmt: skip
-    if report.baseline_mse is not None:
-        ax_loss.axhline(report.baseline_mse, color="grey", ls="--", label="validation variance")
+    # A validated report has every validation figure (None only when validated is False).
+    assert report.baseline_mse is not None
+    assert report.val_rmse is not None
+    assert report.val_mae is not None
+    val_loss = [math.nan if r.val_loss is None else r.val_loss for r in report.epochs]
+    ax_loss.plot(epochs, val_loss, "o-", label="validation")
+    ax_loss.axhline(report.baseline_mse, color="grey", ls="--", label="validation variance")
     ax_loss.axvline(report.best_epoch, color="k", lw=0.8, ls=":", label="kept epoch")
     ax_loss.set(xlabel="epoch", ylabel=f"MSE ({report.signal} unit²)", title="DAVE-2 training")
     ax_loss.set_yscale("log")
@@ -788,8 +791,7 @@ def _figure(trained: TrainedModel, path: Path) -> None:
     ax_val.set(
         xlabel="time since the first frame (s)",
         ylabel=report.signal,
-        title=f"validation frames: RMSE {report.val_rmse or math.nan:.3g}, "
-        f"MAE {report.val_mae or math.nan:.3g}",
+        title=f"validation frames: RMSE {report.val_rmse:.3g}, MAE {report.val_mae:.3g}",
     )
     ax_val.legend()
     fig.tight_layout()

@@ -8,7 +8,7 @@ sized from it too (:func:`keep_to_allotment`): sixteen runs on a 64-core node, e
 pools of 64 threads, would contend for the cores their tasks were not given. The local process
 pool allots its workers' shares the same way (:func:`allot_cpus`): three benchmark worlds
 sharing 16 cores, each training DAVE-2 with 16 threads, took 50-75 s an epoch where one alone
-takes about 1 s (docs/benchmarks.md).
+takes about 1-2 s (docs/benchmarks.md).
 """
 
 from __future__ import annotations
