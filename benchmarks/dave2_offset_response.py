@@ -1,0 +1,137 @@
+"""How the driving model answers each camera at and beside the recorded path, open loop.
+
+Why a splat run's closed-loop line can lie further from the recorded one than a Real run's
+(the CPU suite's Min-Fréchet ratio, docs/benchmarks.md): at recorded trajectory samples the
+vehicle is set on the path and moved sideways by each offset (metres, positive to the left),
+every camera renders what the drive would show it there (the same poses, renderers and rows as
+:func:`cam2sim.stages.cameras.vehicle_view`) and the workspace's DAVE-2 steers. Per camera it
+prints the mean steering at each offset, the restoring slope (steering units per metre of
+offset: how strongly the model comes back, from a least-squares line per sample), and against
+the first camera the bias on the path (mean and by fifth of the route) and the offset it is
+worth (bias / slope: where a car held by that slope settles). A plot of the steering along the
+route goes to ``--plot``::
+
+    python benchmarks/dave2_offset_response.py WS --cameras truth,splat --every 6 \
+        --plot /tmp/response.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from cam2sim.ads.policy import load_policy
+from cam2sim.core.vehicle import VehicleState
+from cam2sim.core.workspace import Workspace
+from cam2sim.sim.interface import Observation
+from cam2sim.stages.cameras import (
+    Cameras,
+    load_run_context,
+    policy_band,
+    run_camera,
+    vehicle_camera_pose,
+)
+
+
+def _state(x: float, y: float, heading: float) -> VehicleState:
+    return VehicleState(
+        t=0.0, x=x, y=y, z=0.0, heading=heading, speed=5.0, wheel_angle=0.0, steering=0.0,
+        rear_axle=(x, y), progress_m=0.0,
+    )  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("workspace", type=Path)
+    parser.add_argument("--cameras", default="truth,splat", help="the first is the reference")
+    parser.add_argument("--offsets", default="-0.6,-0.3,0,0.3,0.6", help="metres, + = left")
+    parser.add_argument("--every", type=int, default=6, help="every n-th trajectory sample")
+    parser.add_argument("--policy", default=None, help="default: the workspace's DAVE-2")
+    parser.add_argument("--plot", type=Path, default=None)
+    parser.add_argument("--npz", type=Path, default=None, help="save the raw steering here")
+    args = parser.parse_args()
+    ws = Workspace.open(args.workspace)
+    ctx = load_run_context(ws)
+    sc = ctx.scenario
+    names = tuple(args.cameras.split(","))
+    offsets = np.array([float(o) for o in args.offsets.split(",")])
+    spec = args.policy or str(ws.ads_files.onnx)
+    policy = load_policy(
+        spec,
+        route_xy=np.asarray(sc.trajectory.rear_axle, np.float64)[:, :2],
+        wheelbase_m=sc.vehicle.wheelbase_m,
+        calibration=sc.steering_calibration,
+    )
+    camera = run_camera(sc, None)
+    centre = np.asarray(sc.trajectory.center, np.float64)
+    heading = np.asarray(sc.trajectory.heading, np.float64)
+    # Leave the first and last 2 s: the start and the stop are not where drives differ.
+    samples = np.arange(20, len(heading) - 20, args.every)
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(centre[:, :2], axis=0).T))])[samples]
+    steer = np.zeros((len(names), len(samples), len(offsets)))
+    start = time.perf_counter()
+    with Cameras(ctx, names) as cams:
+        for c, name in enumerate(names):
+            band = policy_band(policy, cams, name, camera.height, keep_frames=False)
+            for j, i in enumerate(samples):
+                h = heading[i]
+                for k, e in enumerate(offsets):
+                    x = centre[i, 0] - math.sin(h) * e
+                    y = centre[i, 1] + math.cos(h) * e
+                    T = vehicle_camera_pose(sc, x, y, h, recorded=name == "splat")
+                    if band is None:
+                        image = cams.render(name, T, camera)
+                    else:
+                        image = np.zeros((camera.height, camera.width, 3), np.uint8)
+                        image[band[0] : band[1]] = cams.render(name, T, camera, rows=band)
+                    steer[c, j, k] = policy.predict(Observation(0.0, image, _state(x, y, h)))
+            print(f"{name}: {len(samples)} samples x {len(offsets)} offsets "
+                  f"({time.perf_counter() - start:.0f} s)", flush=True)  # fmt: skip
+    policy.close()
+    # Least-squares slope per sample (units per metre of offset to the left).
+    dx = offsets - offsets.mean()
+    slope = ((steer - steer.mean(axis=2, keepdims=True)) * dx).sum(axis=2) / (dx**2).sum()
+    on = int(np.argmin(np.abs(offsets)))
+    print(f"\n{ws.root.name}: {len(samples)} samples over {s[-1] - s[0]:.0f} m, policy {spec}")
+    header = " | ".join(f"{e:+.1f} m" for e in offsets)
+    print(f"| camera | {header} | slope units/m (median) |")
+    for c, name in enumerate(names):
+        cells = " | ".join(f"{v:+.3f}" for v in steer[c].mean(axis=0))
+        print(f"| {name} | {cells} | {np.median(slope[c]):+.3f} |")
+    fifths = np.array_split(np.arange(len(samples)), 5)
+    for c in range(1, len(names)):
+        d = steer[c, :, on] - steer[0, :, on]
+        k = np.median(slope[c])
+        parts = ", ".join(f"{d[f].mean():+.3f}" for f in fifths)
+        print(
+            f"{names[c]} - {names[0]} on the path: mean {d.mean():+.3f} units "
+            f"(|d| {np.abs(d).mean():.3f}; by fifth {parts}); worth {-d.mean() / k:+.3f} m "
+            f"at {names[c]}'s slope (+ = left)"
+        )
+    if args.npz is not None:
+        np.savez(args.npz, names=np.array(names), offsets=offsets, s=s, steer=steer)
+    if args.plot is not None:
+        import matplotlib  # noqa: PLC0415
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt  # noqa: PLC0415
+
+        fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+        for c, name in enumerate(names):
+            ax[0].plot(s, steer[c, :, on], label=name)
+            ax[1].plot(s, slope[c], label=name)
+        ax[0].set_ylabel("steering on the path")
+        ax[1].set_ylabel("slope, steering units per m to the left")
+        ax[1].set_xlabel("route, m")
+        ax[0].legend()
+        ax[0].set_title(ws.root.name)
+        fig.tight_layout()
+        fig.savefig(args.plot, dpi=100)
+
+
+if __name__ == "__main__":
+    main()
