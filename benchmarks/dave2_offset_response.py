@@ -39,7 +39,7 @@ from cam2sim.stages.cameras import (
 )
 
 
-def _state(x: float, y: float, heading: float) -> VehicleState:
+def vehicle_at(x: float, y: float, heading: float) -> VehicleState:
     return VehicleState(
         t=0.0, x=x, y=y, z=0.0, heading=heading, speed=5.0, wheel_angle=0.0, steering=0.0,
         rear_axle=(x, y), progress_m=0.0,
@@ -82,7 +82,7 @@ def _answers(
                         image = cams.render(name, T, camera)
                     else:
                         image[band[0] : band[1]] = cams.render(name, T, camera, rows=band)
-                    steer[c, j, k] = policy.predict(Observation(0.0, image, _state(x, y, h)))
+                    steer[c, j, k] = policy.predict(Observation(0.0, image, vehicle_at(x, y, h)))
             print(f"{name}: {len(samples)} samples x {len(offsets)} offsets "
                   f"({time.perf_counter() - start:.0f} s)", flush=True)  # fmt: skip
     return steer
