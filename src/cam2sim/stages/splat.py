@@ -58,8 +58,9 @@ about 140 s on the 2-core machine (docs/benchmarks.md); a slower one stops at th
 warning in the report), so a chunk cannot hold the demo up for long."""
 DEMO_CPU_MAX_GAUSSIANS: Final = 120_000
 """No densification of the demo's CPU splat past this many Gaussians a chunk (it starts from
-40k): on the default street the chunks grew to 97-130k in 1,400 steps, for 40 s more training
-a chunk on 2 cores and closed-loop runs 0.04 m nearer Real's (docs/benchmarks.md)."""
+40k): a safety cap. The 3DGS growth rule itself takes the chunks to 71-131k in 1,400 steps
+(the same with a cap of 250k on munich route 0), for about 20 % more time on the CPU suite
+and closed-loop runs nearer Real's on 3 of its 4 streets (docs/benchmarks.md)."""
 DEMO_GPU_SPLAT_BUDGET_S: Final = 120.0
 """A safety cap on each chunk's training seconds on CUDA, far above what the preset's steps
 take (2,500 steps in 20-40 s on an H100): it ends only a chunk that something else slows badly,
