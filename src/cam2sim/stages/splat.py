@@ -112,8 +112,8 @@ class SplatStageOptions:
         points on a 0.2 m grid, at most :data:`DEMO_GPU_SPLAT_BUDGET_S` seconds a chunk.
         CPU: a frame every 0.5 m, 40k LiDAR points, nearly opaque starting Gaussians,
         700-1,400 steps a chunk at half size, at most :data:`DEMO_CPU_SPLAT_BUDGET_S` seconds a
-        chunk; from step 500 our densification grows each chunk to about
-        :data:`DEMO_CPU_MAX_GAUSSIANS` (the thin lane markings and kerbs 10-30 m ahead, which
+        chunk; from step 500 our densification grows each chunk (to 70-130k Gaussians; at most
+        :data:`DEMO_CPU_MAX_GAUSSIANS`) (the thin lane markings and kerbs 10-30 m ahead, which
         DAVE-2 steers by, are what 40k Gaussians leave out: docs/benchmarks.md, "Where the CPU
         splat's runs leave the recorded line").
         """
