@@ -27,6 +27,7 @@ import numpy as np
 
 from cam2sim.ads.policy import load_policy
 from cam2sim.core.plots import pyplot, save_figure
+from cam2sim.core.polyline import arc_length
 from cam2sim.core.vehicle import VehicleState
 from cam2sim.core.workspace import Workspace
 from cam2sim.sim.interface import Observation
@@ -77,10 +78,10 @@ def _answers(
                     x = centre[i, 0] - math.sin(h) * e
                     y = centre[i, 1] + math.cos(h) * e
                     T = vehicle_camera_pose(sc, x, y, h, recorded=name == "splat")
-                    image = np.zeros((camera.height, camera.width, 3), np.uint8)
                     if band is None:
                         image = cams.render(name, T, camera)
-                    else:
+                    else:  # the rows DAVE-2 reads, as a drive renders them
+                        image = np.zeros((camera.height, camera.width, 3), np.uint8)
                         image[band[0] : band[1]] = cams.render(name, T, camera, rows=band)
                     steer[c, j, k] = policy.predict(Observation(0.0, image, vehicle_at(x, y, h)))
             print(f"{name}: {len(samples)} samples x {len(offsets)} offsets "
@@ -143,7 +144,7 @@ def main() -> None:
     centre = np.asarray(sc.trajectory.center, np.float64)
     # Leave the first and last 2 s: the start and the stop are not where drives differ.
     samples = np.arange(20, len(centre) - 20, args.every)
-    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(centre[:, :2], axis=0).T))])[samples]
+    s = arc_length(centre[:, :2])[samples]
     try:
         steer = _answers(ctx, policy, names, samples, offsets)
     finally:

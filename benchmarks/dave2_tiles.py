@@ -22,6 +22,7 @@ import numpy as np
 
 from cam2sim.ads.policy import load_policy
 from cam2sim.core.images import write_rgb
+from cam2sim.core.polyline import arc_length
 from cam2sim.core.workspace import Workspace
 from cam2sim.sim.interface import Observation
 from cam2sim.stages.cameras import Cameras, load_run_context, run_camera, vehicle_camera_pose
@@ -87,7 +88,7 @@ def main() -> None:
     shape = tuple(int(v) for v in args.grid.split("x"))
     centre = np.asarray(sc.trajectory.center, np.float64)
     heading = np.asarray(sc.trajectory.heading, np.float64)
-    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(centre[:, :2], axis=0).T))])
+    s = arc_length(centre[:, :2])
     panels = []
     with Cameras(ctx, ("truth", args.camera)) as cams:
         for at in (float(v) for v in args.at.split(",")):
