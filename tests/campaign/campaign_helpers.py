@@ -67,13 +67,15 @@ def dying_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOutcom
 
 
 def probe_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOutcome:
-    """Instead of a drive: hold the task 1.5 s and log when and in which process; the outcome
-    says where it ran. Policy ``constant:13``: the process exits on the first attempt."""
+    """Instead of a drive: hold the task 1.5 s and log when, in which process and among how
+    many processes its GPU is shared; the outcome says where it ran. Policy ``constant:13``:
+    the process exits on the first attempt."""
     import time
     from pathlib import Path
 
     from cam2sim.campaign.state import RunOutcome
     from cam2sim.core.cluster import worker_place
+    from cam2sim.core.machine import gpu_sharers
 
     del timeout_s
     marker = Path(log).with_suffix(".died")
@@ -84,7 +86,8 @@ def probe_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOutcom
     started = time.time()
     time.sleep(1.5)
     Path(log).parent.mkdir(parents=True, exist_ok=True)
-    Path(log).write_text(f"{started} {time.time()} {os.getpid()}\n", encoding="utf-8")
+    line = f"{started} {time.time()} {os.getpid()} {gpu_sharers()}\n"
+    Path(log).write_text(line, encoding="utf-8")
     return RunOutcome(spec.spec_id, "failed", None, 1.5, "a probe, no drive", log, worker_place())
 
 
@@ -130,7 +133,8 @@ class ThreadSpec:
 
 
 def threads_execute(spec: ThreadSpec, log: str, timeout_s: float | None) -> RunOutcome:
-    """Instead of a run: log the CPUs the worker process was allotted and its torch threads."""
+    """Instead of a run: log the CPUs the worker process was allotted, its torch threads and
+    the processes its GPU is shared among."""
     from pathlib import Path
 
     import torch
@@ -140,6 +144,8 @@ def threads_execute(spec: ThreadSpec, log: str, timeout_s: float | None) -> RunO
     del timeout_s
     Path(log).parent.mkdir(parents=True, exist_ok=True)
     Path(log).write_text(
-        f"{os.environ.get('OMP_NUM_THREADS')} {torch.get_num_threads()}\n", encoding="utf-8"
+        f"{os.environ.get('OMP_NUM_THREADS')} {torch.get_num_threads()} "
+        f"{os.environ.get('CAM2SIM_GPU_SHARERS')}\n",
+        encoding="utf-8",
     )
     return RunOutcome(spec.spec_id, "done", None, 0.0, None, log)

@@ -127,13 +127,13 @@ def one_gpu() -> Iterator[None]:
 
 
 def _probes(folder: Path) -> list[list[str]]:
-    """Each probe's log: its start and end time and its process id."""
+    """Each probe's log: its start and end time, its process id, its GPU's sharers."""
     return [p.read_text().split() for p in sorted((folder / "logs").glob("*.log"))]
 
 
 def _spans(folder: Path) -> list[tuple[float, float]]:
     """When each probe ran (its log's two times), in start order."""
-    return sorted((float(a), float(b)) for a, b, _pid in _probes(folder))
+    return sorted((float(a), float(b)) for a, b, _pid, _share in _probes(folder))
 
 
 def test_splat_runs_take_a_gpu_or_a_share_of_one(tmp_path: Path, one_gpu: None) -> None:
@@ -150,6 +150,7 @@ def test_splat_runs_take_a_gpu_or_a_share_of_one(tmp_path: Path, one_gpu: None) 
     )
     # Each run was given the GPU and said so; one GPU a run: one at a time.
     assert [r.place for r in whole.rows] == [f"{_host()} GPU 0"] * 2
+    assert {share for *_, share in _probes(whole.folder)} == {"1"}
     (_a0, a1), (b0, _b1) = _spans(whole.folder)
     assert b0 >= a1 - 0.05
     # The progress shows the GPU at work: a bar of the runs it did.
@@ -161,6 +162,8 @@ def test_splat_runs_take_a_gpu_or_a_share_of_one(tmp_path: Path, one_gpu: None) 
         executor=RayCluster(task=probe_execute, gpus_per_job=0.5),
     )
     assert [r.place for r in shared.rows] == [f"{_host()} GPU 0"] * 2
+    # Each run was told it shares its GPU with one other (a splat's time cap doubles).
+    assert {share for *_, share in _probes(shared.folder)} == {"2"}
     (_a0, a1), (b0, _b1) = _spans(shared.folder)
     assert b0 < a1 - 0.5
 
@@ -179,7 +182,7 @@ def test_gpu_runs_reuse_their_workers_and_a_killed_one_is_retried(
     # Six GPU runs on two half-GPU slots: two worker processes ran them, three each.
     assert len(result.rows) == 6
     assert [r.status for r in result.rows] == ["failed"] * 6  # a probe's outcome: no drive
-    pids = [pid for _a, _b, pid in _probes(result.folder)]
+    pids = [pid for _a, _b, pid, _share in _probes(result.folder)]
     assert sorted(pids.count(p) for p in set(pids)) == [3, 3]
     # A worker whose process exits mid-run (constant:13, on its first attempt) is restarted and
     # its run done again; the other runs go on, every run is reported once.

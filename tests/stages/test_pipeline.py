@@ -420,6 +420,28 @@ def test_run_splat_preset_caps_steps_and_triangulates_without_lidar(
         assert opts.train == SplatStageOptions.demo().train
 
 
+def test_a_shared_gpu_stretches_the_splat_safety_cap_and_a_cpu_keeps_its_budget(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from cam2sim.core.machine import GPU_SHARERS_VARIABLE
+
+    def budgets() -> tuple[float | None, ...]:
+        presets = (
+            SplatStageOptions.demo(cuda=True),
+            SplatStageOptions.for_run(cuda=True, lidar=False, gsplat=True),
+            SplatStageOptions.demo(cuda=False),
+        )
+        return tuple(p.train.time_budget_s for p in presets if p.train is not None)
+
+    monkeypatch.setenv(GPU_SHARERS_VARIABLE, "1")
+    own_demo, own_run, cpu = budgets()
+    assert own_demo is not None
+    assert own_run is not None
+    # Four benchmark worlds on one GPU each train at about a quarter of the pace.
+    monkeypatch.setenv(GPU_SHARERS_VARIABLE, "4")
+    assert budgets() == (4 * own_demo, 4 * own_run, cpu)
+
+
 def test_run_remembers_the_osm_and_detector_it_was_given(tmp_path: Path) -> None:
     from cam2sim.stages.pipeline import remember_inputs
 

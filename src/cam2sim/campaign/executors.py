@@ -30,7 +30,7 @@ from cam2sim.campaign.state import RunOutcome
 from cam2sim.campaign.worker import execute
 from cam2sim.core.cluster import LOST_WORKER_RETRIES, ray_session
 from cam2sim.core.errors import ConfigError
-from cam2sim.core.machine import allot_cpus, available_cpus
+from cam2sim.core.machine import allot_cpus, available_cpus, share_gpu
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
@@ -116,8 +116,11 @@ class LocalPool:
         suspects: list[Job] = []
         processes = min(workers, len(jobs))
         share = max(1, available_cpus() // processes)  # each its share, not every core
-        with ProcessPoolExecutor(
-            max_workers=processes, mp_context=context, initializer=allot_cpus, initargs=(share,)
+        with ProcessPoolExecutor(  # and the GPU: the workers' GPU work all lands on the first
+            max_workers=processes,
+            mp_context=context,
+            initializer=allot_cpus,
+            initargs=(share, processes),
         ) as pool:
             while queue or inflight:
                 while queue and len(inflight) < workers:
@@ -222,10 +225,15 @@ class RayCluster:
 
 
 class _Worker:
-    """A process that runs one job after another (a Ray actor holding its share of a GPU)."""
+    """A process that runs one job after another (a Ray actor holding its share of a GPU).
 
-    def __init__(self, task: Callable[..., RunOutcome]) -> None:
+    ``sharers``: the processes its GPU is shared among (2 for half a GPU), said to its jobs
+    through :func:`~cam2sim.core.machine.share_gpu`.
+    """
+
+    def __init__(self, task: Callable[..., RunOutcome], sharers: int = 1) -> None:
         self.task = task
+        share_gpu(sharers)
 
     def run(self, spec: Spec, log: str, timeout_s: float | None) -> RunOutcome:
         """Run one job with the task."""
@@ -257,10 +265,11 @@ class _GpuWorkers:
             max_task_retries=LOST_WORKER_RETRIES,
         )
         self.task = task
+        self.sharers = max(1, round(1 / gpus)) if gpus < 1 else 1  # 0.5: two a GPU
 
     def start(self, pending: dict[Any, tuple[Job, Any]]) -> None:
         """Start a worker and give it the next job."""
-        self.next(self.actor.remote(self.task), pending)
+        self.next(self.actor.remote(self.task, self.sharers), pending)
 
     def next(self, worker: Any, pending: dict[Any, tuple[Job, Any]]) -> None:
         """Give ``worker`` the next job, or end it when none is left."""

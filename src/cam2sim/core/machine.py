@@ -1,4 +1,4 @@
-"""What this process may use of the machine: its CPUs.
+"""What this process may use of the machine: its CPUs, and how many processes share its GPU.
 
 A Ray task sees every core of its node through ``os.cpu_count()`` but was given a share of
 them; Ray says how many through ``OMP_NUM_THREADS`` (the task's ``num_cpus``). Work that
@@ -9,6 +9,13 @@ pools of 64 threads, would contend for the cores their tasks were not given. The
 pool allots its workers' shares the same way (:func:`allot_cpus`): three benchmark worlds
 sharing 16 cores, each training DAVE-2 with 16 threads, took 50-75 s an epoch where one alone
 takes about 1-2 s (docs/benchmarks.md).
+
+The GPU is shared the same way: the local pool's workers all use the machine's first GPU, and
+Ray's fractional GPUs put two or more jobs on one. :func:`gpu_sharers` says how many processes
+share this one (``CAM2SIM_GPU_SHARERS``, set by the pool's initializer and Ray's GPU workers),
+so that a time cap meant for a GPU of one's own stretches with the share (four benchmark worlds
+on one H200 trained their splat chunks at a quarter of the pace, and half the chunks stopped on
+the 120 s safety cap after 570-2,327 of their 2,500 steps: docs/benchmarks.md).
 """
 
 from __future__ import annotations
@@ -16,7 +23,14 @@ from __future__ import annotations
 import os
 import sys
 
-__all__ = ["allot_cpus", "available_cpus", "keep_to_allotment"]
+__all__ = [
+    "GPU_SHARERS_VARIABLE",
+    "allot_cpus",
+    "available_cpus",
+    "gpu_sharers",
+    "keep_to_allotment",
+    "share_gpu",
+]
 
 #: The thread-count variables a process's libraries read when they start: OpenMP (torch's
 #: intra-op pool), MKL, OpenBLAS, numba.
@@ -27,12 +41,16 @@ _THREAD_VARIABLES = (
     "NUMBA_NUM_THREADS",
 )
 
+GPU_SHARERS_VARIABLE = "CAM2SIM_GPU_SHARERS"
+"""The environment variable that says how many processes share this process's GPU."""
 
-def allot_cpus(cpus: int) -> None:
+
+def allot_cpus(cpus: int, gpu_sharers: int = 1) -> None:
     """Allot this process ``cpus`` CPUs, as Ray does for a task (a pool worker's initializer).
 
     Sets the thread-count variables before the heavy libraries start; a smaller allotment
-    already set (by a scheduler above) is kept.
+    already set (by a scheduler above) is kept. ``gpu_sharers``: processes sharing the GPU
+    with this one, itself included (a larger number already set is kept).
     """
     cpus = max(1, cpus)
     allotted = _allotted()
@@ -40,6 +58,21 @@ def allot_cpus(cpus: int) -> None:
         cpus = min(cpus, allotted)
     for name in _THREAD_VARIABLES:
         os.environ[name] = str(cpus)
+    share_gpu(gpu_sharers)
+
+
+def share_gpu(sharers: int) -> None:
+    """Say that ``sharers`` processes (this one included) share this process's GPU.
+
+    Its child processes inherit it; a larger number already set (by a scheduler above) is kept.
+    """
+    os.environ[GPU_SHARERS_VARIABLE] = str(max(1, sharers, gpu_sharers()))
+
+
+def gpu_sharers() -> int:
+    """How many processes share this process's GPU, itself included (1 when nothing said so)."""
+    value = os.environ.get(GPU_SHARERS_VARIABLE, "")
+    return int(value) if value.isdigit() and int(value) > 0 else 1
 
 
 def available_cpus() -> int:
