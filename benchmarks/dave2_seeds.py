@@ -11,14 +11,21 @@ and camera, and writes them as JSON.
 
 Usage:
     python benchmarks/dave2_seeds.py WS [--train-seeds 0,1,2] [--runs 10] [--cameras truth]
-        [--json result.json]
+        [--preset demo|same-street] [--set recovery_m=1.0 --set recovery_share=0.75]
+        [--signal steering_from_poses] [--recorded-speed] [--tag NAME] [--json result.json]
 
-The runs are written into ``WS/runs/`` like any drive; the models go to ``WS/ads/seeds/``.
+``--preset same-street`` trains as ``cam2sim run`` does on a real drive
+(:meth:`TrainOptions.same_street`, without its validated run: the network kept is the same);
+``--set`` changes one training option (repeatable), e.g. a real drive's recovery views.
+``--recorded-speed`` drives at the recorded speed along the route (``cam2sim run``'s default on
+a drive that changes speed). The runs are written into ``WS/runs/`` like any drive; the models
+go to ``WS/ads/seeds/`` (``dave2_<tag>_seed<N>.onnx``).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import tempfile
 import time
@@ -31,14 +38,37 @@ from cam2sim.core.workspace import Workspace
 from cam2sim.scenario.model import Scenario
 from cam2sim.sim.builtin import BuiltinOptions
 from cam2sim.stages.ads import train_model
+from cam2sim.stages.evaluate import evaluate_workspace_drives
 from cam2sim.stages.experiment import DEMO_STEERING_NOISE
-from cam2sim.stages.pipeline import evaluate_workspace_drives
 from cam2sim.stages.runs import DriveOptions, drive
 from cam2sim.stages.variation import DEMO_RUN_VARIATION
 
 
-def _train(ws: Workspace, seed: int, out: Path) -> dict[str, Any]:
-    opts = TrainOptions(epochs=30, batch_size=32, keep="last", device="cpu", seed=seed)
+def _options(preset: str, signal: str | None, changes: dict[str, Any], seed: int) -> TrainOptions:
+    """The training options: the demo's (30 epochs, batch 32, the last kept) or a real drive's."""
+    if preset == "same-street":
+        opts = TrainOptions.same_street(validate=False, device="cpu", seed=seed)
+    else:
+        opts = TrainOptions(epochs=30, batch_size=32, keep="last", device="cpu", seed=seed)
+    if signal is not None:
+        changes = {"signal": signal, **changes}
+    return dataclasses.replace(opts, **changes)
+
+
+def _value(text: str) -> Any:
+    """A ``--set`` value: a number or a bool when it reads as one, else the text."""
+    if text.lower() in {"true", "false"}:
+        return text.lower() == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def _train(ws: Workspace, opts: TrainOptions, out: Path) -> dict[str, Any]:
+    seed = opts.seed
     started = time.perf_counter()
     trained = train_model(ws, opts)
     export_onnx(trained.model, trained.info.config, out)
@@ -53,7 +83,7 @@ def _train(ws: Workspace, seed: int, out: Path) -> dict[str, Any]:
 
 
 def _drive(
-    ws: Workspace, model: Path, cameras: list[str], run_seeds: list[int]
+    ws: Workspace, model: Path, cameras: list[str], run_seeds: list[int], *, recorded: bool
 ) -> list[dict[str, Any]]:
     scenario = Scenario.load(ws.scenario_path)
     sim = BuiltinOptions(
@@ -64,7 +94,7 @@ def _drive(
         for seed in run_seeds:
             opts = DriveOptions(
                 policy=str(model), camera=camera, runs=1, seed=seed, sim=sim,  # type: ignore[arg-type]
-                variation=DEMO_RUN_VARIATION,
+                variation=DEMO_RUN_VARIATION, recorded_speed=recorded,
             )  # fmt: skip
             camera_of |= {r.run_id: camera for r in drive(ws, options=opts)}
     with tempfile.TemporaryDirectory() as tmp:
@@ -81,6 +111,7 @@ def _drive(
                     "completion": run["completion"],
                     "success": run["success"],
                     "min_frechet_m": run["min_frechet_m"],
+                    "failure": run.get("failure"),
                 }
             )
     return out
@@ -93,24 +124,40 @@ def main() -> int:
     parser.add_argument("--train-seeds", default="0,1,2")
     parser.add_argument("--runs", type=int, default=10)
     parser.add_argument("--cameras", default="truth")
+    parser.add_argument("--preset", choices=("demo", "same-street"), default="demo")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--signal", default=None)
+    parser.add_argument("--recorded-speed", action="store_true")
+    parser.add_argument("--tag", default=None, help="name of the models (default: the preset)")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
+    changes: dict[str, Any] = {}
+    for item in args.set:
+        key, sep, text = item.partition("=")
+        if not sep:
+            parser.error(f"--set {item}: give KEY=VALUE, e.g. recovery_m=1.0")
+        changes[key.strip()] = _value(text.strip())
+    tag = args.tag or args.preset
     ws = Workspace.open(args.workspace)
     cameras = args.cameras.split(",")
     run_seeds = list(range(10, 10 + args.runs))
     (ws.ads_dir / "seeds").mkdir(parents=True, exist_ok=True)
-    result: dict[str, Any] = {"workspace": str(ws.root), "models": [], "runs": {}}
+    result: dict[str, Any] = {
+        "workspace": str(ws.root), "preset": args.preset, "changes": changes, "models": [],
+        "runs": {},
+    }  # fmt: skip
     for seed in (int(s) for s in args.train_seeds.split(",")):
-        model = ws.ads_dir / "seeds" / f"dave2_seed{seed}.onnx"
-        info = _train(ws, seed, model)
+        model = ws.ads_dir / "seeds" / f"dave2_{tag}_seed{seed}.onnx"
+        info = _train(ws, _options(args.preset, args.signal, changes, seed), model)
         result["models"].append(info)
         print(f"training seed {seed}: {info['seconds']} s, held-out correlation "
               f"{info['val_correlation']}")  # fmt: skip
-        runs = _drive(ws, model, cameras, run_seeds)
+        runs = _drive(ws, model, cameras, run_seeds, recorded=args.recorded_speed)
         result["runs"][str(seed)] = runs
         for r in runs:
             print(
-                f"  {r['run']}: completion {r['completion']:.3f}, Min-Fréchet {r['min_frechet_m']}"
+                f"  {r['run']}: completion {r['completion']:.3f}, Min-Fréchet "
+                f"{r['min_frechet_m']}, failure {r['failure']}"
             )
         for camera in cameras:
             mine = [r for r in runs if r["camera"] == camera]

@@ -17,6 +17,9 @@
 # in /tmp/osm by name. WORKERS=N (one-GPU machines) runs N worlds at a time on the local
 # pool, sharing the GPU, instead of Ray's one GPU a world; its start call then carries .c21/b
 # only. WATCH_S (default 560) is how long start and wait watch before returning.
+# RESULTS="DIR..." (start): folders of earlier results (DIR/worlds/LABEL/result.json, as
+# docs/results/issue37-gpu-recheck/a) are put in place first, so the suite runs only the
+# worlds still missing and the report covers all (a suite split over one-GPU sessions).
 # Everything the suite reads lives in /tmp on the device: a carried folder that a later call does
 # not carry again is removed there, so .osm/ vanished under the first GPU suite's running worlds.
 # The LPIPS weights do not fit the start call (the splats' LPIPS is then not computed; the
@@ -61,6 +64,13 @@ start)
     python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site .ray/*.whl || exit 1
     pool=(--ray local)
   fi
+  for done in $RESULTS; do
+    for result in "$done"/worlds/*/result.json; do
+      mkdir -p "$bench/worlds/$(basename "$(dirname "$result")")" || exit 1
+      cp "$result" "$bench/worlds/$(basename "$(dirname "$result")")/" || exit 1
+    done
+  done
+  [ -n "$RESULTS" ] && echo "worlds with a result already: $(ls $bench/worlds/*/result.json | wc -l)"
   suite=${SUITE:-benchmarks/suites/streets-gpu.yaml}
   sed -E 's#osm: .*/([^/]+)$#osm: /tmp/osm/\1#' "$suite" > /tmp/suite.yaml
   grep -n "osm:" /tmp/suite.yaml
