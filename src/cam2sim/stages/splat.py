@@ -58,8 +58,9 @@ DEMO_CPU_SPLAT_BUDGET_S: Final = 300.0
 about 140 s on the 2-core machine (docs/benchmarks.md); a slower one stops at the budget (a
 warning in the report), so a chunk cannot hold the demo up for long."""
 DEMO_CPU_MAX_GAUSSIANS: Final = 120_000
-"""No densification of the demo's CPU splat past this many Gaussians a chunk (it starts from
-40k): a safety cap. The 3DGS growth rule itself takes the chunks to 71-131k in 1,400 steps
+"""No more growth of a chunk of the demo's CPU splat once it has this many Gaussians (it starts
+from 40k): a safety cap, which the refinement step that crosses it can overshoot (KITTI 03's
+chunks: 101-145k). The 3DGS growth rule itself takes the chunks to 71-131k in 1,400 steps
 (the same with a cap of 250k on munich route 0), for about 20 % more time on the CPU suite
 and closed-loop runs nearer Real's on 3 of its 4 streets (docs/benchmarks.md)."""
 DEMO_GPU_SPLAT_BUDGET_S: Final = 120.0
@@ -118,10 +119,10 @@ class SplatStageOptions:
         the processes sharing the GPU: :func:`~cam2sim.core.machine.gpu_sharers`).
         CPU: a frame every 0.5 m, 40k LiDAR points, nearly opaque starting Gaussians,
         700-1,400 steps a chunk at half size, at most :data:`DEMO_CPU_SPLAT_BUDGET_S` seconds a
-        chunk; from step 500 our densification grows each chunk (to 70-130k Gaussians; at most
-        :data:`DEMO_CPU_MAX_GAUSSIANS`) (the thin lane markings and kerbs 10-30 m ahead, which
-        DAVE-2 steers by, are what 40k Gaussians leave out: docs/benchmarks.md, "Where the CPU
-        splat's runs leave the recorded line").
+        chunk; from step 500 our densification grows each chunk (to 70-130k Gaussians; no
+        growth past :data:`DEMO_CPU_MAX_GAUSSIANS`) (the thin lane markings and kerbs 10-30 m
+        ahead, which DAVE-2 steers by, are what 40k Gaussians leave out: docs/benchmarks.md,
+        "Where the CPU splat's runs leave the recorded line").
         """
         if cuda:
             train = TrainOptions(
