@@ -154,3 +154,29 @@ def test_a_second_run_redoes_only_the_world_without_a_result(bench: tuple[Path, 
     state = json.loads((root / "out" / "state.json").read_text(encoding="utf-8"))
     attempts = {r["workspace"]: r["attempts"] for r in state["runs"].values()}
     assert attempts == {"l-street": 1, "street-r0": 1, "fields-r0": 2}
+
+
+def test_results_gathered_from_elsewhere_are_reported_without_running_again(
+    bench: tuple[Path, object],
+) -> None:
+    """A suite split over machines: only each world's result.json is copied into one folder."""
+    import shutil
+
+    from cam2sim.campaign.bench import execute_world, run_bench
+    from cam2sim.campaign.executors import LocalPool
+
+    root, first = bench
+    gathered = root / "gathered"
+    for label in ("l-street", "street-r0"):
+        (gathered / "worlds" / label).mkdir(parents=True)
+        shutil.copy(root / "out" / "worlds" / label / "result.json", gathered / "worlds" / label)
+    two = SUITE.replace("  - osm: maps/fields.osm\n", "")
+    (root / "two.yaml").write_text(two, encoding="utf-8")
+    pool = LocalPool(1, task=execute_world)
+    result = run_bench(root / "two.yaml", output=gathered, executor=pool)
+    assert (result.worlds, result.ran, result.failed) == (2, 0, 0)
+    assert result.aggregate.verdict == first.aggregate.verdict  # type: ignore[attr-defined]
+    assert result.aggregate.rates == first.aggregate.rates  # type: ignore[attr-defined]
+    page = (gathered / "report.html").read_text(encoding="utf-8")
+    for label in ("l-street", "street-r0"):
+        assert f'id="w-{label}"' in page
