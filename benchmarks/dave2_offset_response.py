@@ -41,6 +41,7 @@ from cam2sim.stages.cameras import (
 
 
 def vehicle_at(x: float, y: float, heading: float) -> VehicleState:
+    """The car standing at ``(x, y)`` with ``heading``, as a policy's observation carries it."""
     return VehicleState(
         t=0.0, x=x, y=y, z=0.0, heading=heading, speed=5.0, wheel_angle=0.0, steering=0.0,
         rear_axle=(x, y), progress_m=0.0,

@@ -42,6 +42,7 @@ from cam2sim.stages.evaluate import evaluate_workspace_drives
 from cam2sim.stages.experiment import DEMO_STEERING_NOISE
 from cam2sim.stages.runs import DriveOptions, drive
 from cam2sim.stages.variation import DEMO_RUN_VARIATION
+from splat_gpu import _parse_value
 
 
 def _options(preset: str, signal: str | None, changes: dict[str, Any], seed: int) -> TrainOptions:
@@ -53,18 +54,6 @@ def _options(preset: str, signal: str | None, changes: dict[str, Any], seed: int
     if signal is not None:
         changes = {"signal": signal, **changes}
     return dataclasses.replace(opts, **changes)
-
-
-def _value(text: str) -> Any:
-    """A ``--set`` value: a number or a bool when it reads as one, else the text."""
-    if text.lower() in {"true", "false"}:
-        return text.lower() == "true"
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
 
 
 def _train(ws: Workspace, opts: TrainOptions, out: Path) -> dict[str, Any]:
@@ -136,7 +125,7 @@ def main() -> int:
         key, sep, text = item.partition("=")
         if not sep:
             parser.error(f"--set {item}: give KEY=VALUE, e.g. recovery_m=1.0")
-        changes[key.strip()] = _value(text.strip())
+        changes[key.strip()] = _parse_value(text)
     tag = args.tag or args.preset
     ws = Workspace.open(args.workspace)
     cameras = args.cameras.split(",")

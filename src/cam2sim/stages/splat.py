@@ -157,9 +157,9 @@ class SplatStageOptions:
         ``cuda``: 10,000 steps a chunk with MCMC densification (a cap of one million
         Gaussians), at most :data:`RUN_GPU_SPLAT_BUDGET_S` seconds a chunk, times the processes
         sharing the GPU (the default 30,000 steps would take half an hour on a recording of 5
-        chunks). On real frames MCMC beats
-        the default densification at these lengths and its steps are cheaper (a cap of 1M
-        where the default grows to 3-5M): ``docs/splat-options.md``. CPU: :meth:`demo`'s.
+        chunks). On real frames MCMC beats the default densification at these lengths and its
+        steps are cheaper (a cap of 1M where the default grows to 3-5M):
+        ``docs/splat-options.md``. CPU: :meth:`demo`'s.
         Either way the starting points are triangulated from the frames (pycolmap) when the
         recording has no LiDAR. MCMC needs gsplat (``gsplat``; None: whether it can run here):
         on CUDA without it the torch rasterizer trains with its own densification.
