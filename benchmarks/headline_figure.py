@@ -23,7 +23,7 @@ def main() -> None:
     src = (
         Path(sys.argv[1])
         if len(sys.argv) > 1
-        else ROOT / "docs/results/issue37-gpu-suite/aggregate.json"
+        else ROOT / "docs/results/issue37-gpu-suite-3/aggregate.json"
     )
     out = Path(sys.argv[2]) if len(sys.argv) > 2 else ROOT / "docs/results/headline.png"
     agg = Aggregate.model_validate(json.loads(src.read_text(encoding="utf-8")))
