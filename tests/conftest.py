@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import math
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -248,3 +249,32 @@ def playwright_with_chromium():
 def launch_chromium(pw):
     """A headless, offline-quiet Chromium browser from a running ``sync_playwright()``."""
     return pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+
+
+def _bicycle_drive(
+    ahead_m: float, *, speed: float = 5.0, dt: float = 0.1, turns: tuple[float, ...] = (-0.1, 0.07)
+) -> tuple[np.ndarray, ...]:
+    """A kinematic-bicycle drive: straights and the given turns (curvature 1/m, 90 degrees each).
+
+    Returns the times, the positions of a point ``ahead_m`` in front of the rear axle, the
+    headings, the speeds of that point and the rear axle's curvature at each sample.
+    """
+    kappa: list[float] = [0.0] * 40
+    for k in turns:
+        kappa += [k] * round(abs(math.pi / 2 / k) / (speed * dt)) + [0.0] * 40
+    kap = np.array(kappa)
+    ds = speed * dt
+    heading = np.concatenate([[0.0], np.cumsum(kap[:-1] * ds)])
+    mid = heading + kap * ds / 2  # each step an arc: its chord points along the middle heading
+    step = ds * np.stack([np.cos(mid), np.sin(mid)], -1)
+    rear = np.concatenate([[[0.0, 0.0]], np.cumsum(step[:-1], axis=0)])
+    point = rear + ahead_m * np.stack([np.cos(heading), np.sin(heading)], -1)
+    t = np.arange(kap.shape[0]) * dt
+    v = speed * np.hypot(1.0, ahead_m * kap)  # the point ahead travels further in a turn
+    return t, point, heading, v, kap
+
+
+@pytest.fixture
+def bicycle_drive() -> Callable[..., tuple[np.ndarray, ...]]:
+    """A kinematic-bicycle drive with turns, recorded at a point on the car (see its doc)."""
+    return _bicycle_drive

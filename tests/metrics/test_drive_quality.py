@@ -145,6 +145,26 @@ def test_shifted_run_violates_the_corridor_by_the_shift(synthetic_real: list[Dri
     assert run.min_frechet_m == pytest.approx(2.0, abs=0.1)
 
 
+def test_a_run_stopping_within_the_end_tolerance_is_not_metres_from_the_recording() -> None:
+    """A simulated run ends within the route's end tolerance (3 m), a recorded drive at its
+    last pose: two completed runs are compared up to where the first stopped. A failed run is
+    still compared over the whole route."""
+    base = _route()
+    recorded = [_run("real/0", base, real=True)]
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(base, axis=0), axis=1))])
+    short = base[s <= s[-1] - 3.0] + 0.1 * _left_normal(base)[s <= s[-1] - 3.0]
+    failed = base[s <= 0.9 * s[-1]]
+    runs = evaluate_drives(
+        recorded, [_run("sim/short", short, real=False), _run("sim/failed", failed, real=False)]
+    ).metrics.runs
+    done = next(r for r in runs if r.name == "sim/short")
+    assert done.success
+    assert (done.min_frechet_m or 9.0) < 0.25  # 0.1 m to the side; not the 3 m it stopped short
+    cut = next(r for r in runs if r.name == "sim/failed")
+    assert not cut.success
+    assert (cut.min_frechet_m or 0.0) > 30.0  # 10 % of the route never driven
+
+
 def test_wandering_off_near_the_end_earns_no_completion(synthetic_real: list[DriveRun]) -> None:
     base = _route()
     cut = int(0.8 * len(base))

@@ -306,7 +306,8 @@ def import_(
         str | None,
         typer.Option(
             help="X,Y,Z: where the poses sit on the car from its footprint centre (m, x forward, "
-            "z up), e.g. 0.8,0,1.65 for a camera pose."
+            "z up); X 'fit' measures it from the drive's turns, e.g. fit,0,1.65 for a camera "
+            "1.65 m up. Not given: fitted, at ground height."
         ),
     ] = None,
 ) -> None:
@@ -331,6 +332,11 @@ def import_(
     info = result.info
     kind = "pose-less " if info.pose_less else ""
     console.print(f"{result.dataset_dir}: {kind}dataset of {info.counts.frames} frames")
+    if (point := result.pose_point) is not None:
+        console.print(
+            f"the poses sit {point.ahead_m:.2f} +- {point.stderr_m:.2f} m ahead of the rear axle "
+            f"(fitted from {point.turning} samples in turns)"
+        )
 
 
 def _name_path(text: str) -> tuple[str, Path]:
@@ -341,13 +347,14 @@ def _name_path(text: str) -> tuple[str, Path]:
     return name.strip(), Path(path)
 
 
-def _xyz(text: str) -> tuple[float, float, float]:
+def _xyz(text: str) -> tuple[float | None, float, float]:
+    """``X,Y,Z`` in metres; X may be ``fit`` (None: fitted from the drive's turns)."""
     try:
-        x, y, z = (float(v) for v in text.split(","))
+        x, y, z = (v.strip() for v in text.split(","))
+        return (None if x.lower() == "fit" else float(x), float(y), float(z))
     except ValueError:
-        msg = f"--pose-offset takes X,Y,Z in metres, e.g. 0.8,0,1.65; got {text!r}"
+        msg = f"--pose-offset takes X,Y,Z in metres (X may be 'fit'), e.g. fit,0,1.65; got {text!r}"
         raise ConfigError(msg) from None
-    return (x, y, z)
 
 
 def main() -> None:

@@ -317,6 +317,11 @@ def _steering_error(
     return ("oversteer" if np.sign(k) == side else "understeer"), s_exit
 
 
+def _completion(p: _Projected, seg: Segment) -> float:
+    """Share of the scenario segment the run drove (0 to 1)."""
+    return float(np.clip((p.max_progress - seg.start_m) / seg.length_m, 0.0, 1.0))
+
+
 def _run_metrics(
     p: _Projected,
     others: Sequence[_Projected],
@@ -327,18 +332,25 @@ def _run_metrics(
     cache: dict[tuple[str, str], float],
 ) -> RunMetrics:
     run = p.run
-    completion = float(np.clip((p.max_progress - seg.start_m) / seg.length_m, 0.0, 1.0))
+    completion = _completion(p, seg)
     success = completion >= opts.success_threshold
     notes: list[str] = []
     mine = _segment_points(p, seg.start_m, seg.end_m)
     best, best_vs = None, None
     if mine.shape[0] >= 2:
         for o in others:
-            theirs = _segment_points(o, seg.start_m, seg.end_m)
-            if theirs.shape[0] >= 2:
+            # Two runs that both completed are compared up to where the first stopped: a
+            # simulated run ends within the route's end tolerance, a recorded drive at its last
+            # pose, and the metres between are no difference in driving.
+            end = seg.end_m
+            if success and _completion(o, seg) >= opts.success_threshold:
+                end = min(end, p.max_progress, o.max_progress)
+            theirs = _segment_points(o, seg.start_m, end)
+            mine_cut = mine if end >= seg.end_m else _segment_points(p, seg.start_m, end)
+            if theirs.shape[0] >= 2 and mine_cut.shape[0] >= 2:
                 key = (min(run.name, o.run.name), max(run.name, o.run.name))
                 if key not in cache:
-                    cache[key] = _frechet(mine, theirs, opts)
+                    cache[key] = _frechet(mine_cut, theirs, opts)
                 d = cache[key]
                 if best is None or d < best:
                     best, best_vs = d, o.run.name

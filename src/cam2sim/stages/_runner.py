@@ -21,9 +21,14 @@ logger = logging.getLogger(__name__)
 
 @dataclass
 class StageRun:
-    """Mutable outcome of one stage run, filled in by the stage."""
+    """Mutable outcome of one stage run, filled in by the stage.
+
+    ``config``: the config the stage ended with, when it changed it (the import's fitted pose
+    point); the manifest's snapshot records it instead of the one it started with.
+    """
 
     world: WorldFrameRecord | None = None
+    config: Config | None = None
 
 
 @contextlib.contextmanager
@@ -49,7 +54,7 @@ def stage_run(
         state="done",
         started=started,
         inputs_hash=inputs_hash,
-        config=config,
+        config=run.config or config,
         world=run.world,
     )
     logger.info("stage %s done", stage)

@@ -30,6 +30,7 @@ from cam2sim.core.config import (
     Config,
     PoseConfig,
     VehicleConfig,
+    save_config,
 )
 from cam2sim.core.dataset import (
     POSE_PRECISION,
@@ -48,6 +49,7 @@ from cam2sim.core.table import write_table
 from cam2sim.core.trajectory import Trajectory
 from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
 from cam2sim.recording.pose import yaw_offset_quat
+from cam2sim.scenario.calibration import PosePoint, fit_pose_point
 from cam2sim.stages._runner import stage_run
 from cam2sim.stages.rig import read_rig, write_rig
 
@@ -66,6 +68,7 @@ class ImportResult:
 
     dataset_dir: Path
     info: DatasetInfo
+    pose_point: PosePoint | None = None
 
 
 def _natural_key(path: Path) -> list[object]:
@@ -180,16 +183,89 @@ def _read_kitti_poses(path: Path, lines: list[str]) -> _PoseTable:
     return _PoseTable(stamps, xyz, frames.quat_normalize(quat), None, by_index=True)
 
 
-def _open_workspace(root: Path, opts: ImportOptions) -> tuple[Workspace, Config]:
-    """The workspace at ``root`` and its config; a new one gets the import's pose settings."""
+_CREATED_COMMENT = "Created by cam2sim import."
+
+
+def _open_workspace(root: Path, opts: ImportOptions) -> tuple[Workspace, Config, bool]:
+    """The workspace at ``root``, its config and whether this import created it.
+
+    A new one gets the import's pose settings (an offset whose X is to be fitted starts at the
+    rear axle; :func:`_place_poses` sets it).
+    """
     if (root / Workspace.MANIFEST).is_file():
         ws = Workspace.open(root)
-        return ws, ws.load_config()
+        return ws, ws.load_config(), False
     config = Config(pose=PoseConfig(crs=opts.crs, axis_convention=opts.axis_convention))
     if opts.pose_offset_m is not None:  # where on the car the poses are (a camera, say)
-        vehicle = VehicleConfig(reference="offset", reference_offset_m=opts.pose_offset_m)
+        x, y, z = opts.pose_offset_m
+        offset = (config.vehicle.rear_axle_x_m if x is None else x, y, z)
+        vehicle = VehicleConfig(reference="offset", reference_offset_m=offset)
         config = config.model_copy(update={"vehicle": vehicle})
-    return Workspace.create(root, config, comment="Created by cam2sim import."), config
+    return Workspace.create(root, config, comment=_CREATED_COMMENT), config, True
+
+
+_POSE_POINT_TOLERANCE_M = 0.3
+"""A configured pose point this much (or 3 standard errors) off the fitted one is reported."""
+
+
+def _place_poses(
+    ws: Workspace, config: Config, opts: ImportOptions, posed: _PosedImages, created: bool
+) -> tuple[Config, PosePoint | None]:
+    """Fit where the poses sit along the car (:func:`fit_pose_point`) and use or check it.
+
+    A workspace this import created takes the fitted distance ahead of the rear axle when
+    ``--pose-offset`` left X to be fitted (``fit,Y,Z``) or was not given (then only when the
+    poses are clearly not at the rear axle, the default); the config is saved with it. A
+    pose point given in numbers, or in an existing workspace's config, is kept, and a warning
+    names the fitted one when they disagree. Returns the config and the fit (None: the drive
+    turns too little to tell).
+    """
+    cols = posed.columns
+    order = np.argsort(posed.stamps[posed.keep], kind="stable")
+    fit = fit_pose_point(
+        posed.stamps[posed.keep][order] / 1e9,
+        np.stack([cols["x"], cols["y"]], -1)[order],
+        np.asarray(cols["heading"])[order],
+        np.asarray(cols["speed"])[order],
+    )
+    vehicle = config.vehicle
+    ahead = vehicle.reference_xyz()[0] - vehicle.rear_axle_x_m
+    given = opts.pose_offset_m
+    wants_fit = created and (given is None or given[0] is None)
+    if fit is None:
+        if wants_fit and given is not None:
+            logger.warning(
+                "--pose-offset fit: the drive turns too little to tell where the poses sit "
+                "along the car; they are taken to be over the rear axle (give X in metres)"
+            )
+        return config, None
+    told = f"{fit.ahead_m:.2f} +- {fit.stderr_m:.2f} m ahead of the rear axle"
+    off = abs(fit.ahead_m - ahead) > max(_POSE_POINT_TOLERANCE_M, 3.0 * fit.stderr_m)
+    if wants_fit and (given is not None or off):
+        y, z = (0.0, 0.0) if given is None else (given[1], given[2])
+        offset = (round(vehicle.rear_axle_x_m + fit.ahead_m, 3), y, z)
+        config = config.model_copy(
+            update={
+                "vehicle": vehicle.model_copy(
+                    update={"reference": "offset", "reference_offset_m": offset}
+                )
+            }
+        )
+        save_config(config, ws.config_path, comment=_CREATED_COMMENT)
+        logger.info(
+            "the poses turn like a point %s (%d samples in turns): vehicle.reference_offset_m "
+            "set to [%.3f, %.2f, %.2f]", told, fit.turning, *offset,
+        )  # fmt: skip
+    elif off:
+        logger.warning(
+            "the poses turn like a point %s, but the vehicle config puts them %.2f m ahead: the "
+            "simulated car will not turn as the recorded one did. Re-import with --pose-offset "
+            "fit,Y,Z, or set vehicle.reference_offset_m in config.yaml to [%.2f, Y, Z]",
+            told, ahead, vehicle.rear_axle_x_m + fit.ahead_m,
+        )  # fmt: skip
+    else:
+        logger.info("the poses turn like a point %s, as configured", told)
+    return config, fit
 
 
 def _write_signals(
@@ -492,7 +568,7 @@ class ImportOptions:
     fps: float = 30.0
     max_pose_gap_s: float = 0.5
     signals: tuple[tuple[str, Path], ...] = ()
-    pose_offset_m: tuple[float, float, float] | None = None
+    pose_offset_m: tuple[float | None, float, float] | None = None
     rig: Path | None = None
 
 
@@ -515,7 +591,7 @@ def import_images(
     files = _list_images(Path(images))
     signals = {name: _read_signal(name, path) for name, path in opts.signals}
     rig = read_rig(opts.rig) if opts.rig is not None else []
-    ws, config = _open_workspace(Path(root), opts)
+    ws, config, created = _open_workspace(Path(root), opts)
     stamps, time_source = stamps_from_names(files, fps=opts.fps)
     table = _read_pose_table(opts.poses) if opts.poses else None
     intr, mount = (None, None)
@@ -536,8 +612,11 @@ def import_images(
         world = WorldFrameRecord(proj_string=None)
         keep = np.ones(len(files), dtype=bool)
         pose_cols: dict[str, npt.NDArray[Any]] | None = None
+        pose_point: PosePoint | None = None
         if table is not None:
             posed = _poses_for_images(table, files, stamps, opts, ws.world_frame(), time_source)
+            config, pose_point = _place_poses(ws, config, opts, posed, created)
+            run.config = config
             world, keep, stamps, pose_cols, dropped = (
                 posed.world,
                 posed.keep,
@@ -582,7 +661,7 @@ def import_images(
         info.save(paths.dataset_json)
         run.world = world
     logger.info("import: %d frames (%s), pose-less: %s", len(kept), time_source, table is None)
-    return ImportResult(ws.dataset_dir, info)
+    return ImportResult(ws.dataset_dir, info, pose_point)
 
 
 def _write_frame_tables(
