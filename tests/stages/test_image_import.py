@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -372,6 +373,18 @@ def test_import_fits_where_the_poses_sit_from_the_drives_turns(
     assert vehicle.reference_xyz() == (0.8, 0.0, 1.65)
     assert "1.30 +- 0.0" in caplog.text
     assert "--pose-offset fit,Y,Z" in caplog.text
+
+    # The scenario stage checks again, for bags too, and says what to write in config.yaml.
+    from cam2sim.stages.scenario import check_pose_point
+
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="cam2sim.stages.scenario"):
+        assert check_pose_point(Workspace.open(tmp_path / "fit")) is not None
+        assert not caplog.text
+        check_pose_point(Workspace.open(tmp_path / "given"))
+    said = re.search(r"reference_offset_m: \[(-?[0-9.]+), 0.00, 1.65\]", caplog.text)
+    assert said is not None
+    assert float(said.group(1)) == pytest.approx(vehicle.rear_axle_x_m + 1.3, abs=0.05)
 
 
 def test_steering_derived_on_an_import_is_the_rear_axles_turn(

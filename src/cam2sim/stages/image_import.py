@@ -204,10 +204,6 @@ def _open_workspace(root: Path, opts: ImportOptions) -> tuple[Workspace, Config,
     return Workspace.create(root, config, comment=_CREATED_COMMENT), config, True
 
 
-_POSE_POINT_TOLERANCE_M = 0.3
-"""A configured pose point this much (or 3 standard errors) off the fitted one is reported."""
-
-
 def _place_poses(
     ws: Workspace, config: Config, opts: ImportOptions, posed: _PosedImages, created: bool
 ) -> tuple[Config, PosePoint | None]:
@@ -239,8 +235,8 @@ def _place_poses(
                 "along the car; they are taken to be over the rear axle (give X in metres)"
             )
         return config, None
-    told = f"{fit.ahead_m:.2f} +- {fit.stderr_m:.2f} m ahead of the rear axle"
-    off = abs(fit.ahead_m - ahead) > max(_POSE_POINT_TOLERANCE_M, 3.0 * fit.stderr_m)
+    told = str(fit)
+    off = fit.disagrees_with(ahead)
     if wants_fit and (given is not None or off):
         y, z = (0.0, 0.0) if given is None else (given[1], given[2])
         offset = (round(vehicle.rear_axle_x_m + fit.ahead_m, 3), y, z)

@@ -31,7 +31,7 @@ from cam2sim.core.workspace import SCENARIO_FILE, Workspace, dataset_paths, hash
 from cam2sim.detect.vehicles import ParkedVehicles, parked_vehicles_path
 from cam2sim.report.scenario_figures import plot_scenario
 from cam2sim.scenario.body import body_point_positions, vehicle_geometry
-from cam2sim.scenario.calibration import fit_steering_calibration
+from cam2sim.scenario.calibration import PosePoint, fit_pose_point, fit_steering_calibration
 from cam2sim.scenario.carla_export import write_carla_files
 from cam2sim.scenario.checks import check_parked
 from cam2sim.scenario.model import (
@@ -53,7 +53,7 @@ if TYPE_CHECKING:
     from cam2sim.scenario.checks import CheckOptions
     from cam2sim.scenario.model import SizeClass
 
-__all__ = ["ScenarioOptions", "ScenarioResult", "run_scenario", "size_class"]
+__all__ = ["ScenarioOptions", "ScenarioResult", "check_pose_point", "run_scenario", "size_class"]
 
 logger = logging.getLogger(__name__)
 STAGE = "scenario"
@@ -193,6 +193,7 @@ def build_scenario(
     if world is None:
         msg = f"{ws.root} has no world frame; re-run `cam2sim extract {ws.root}`"
         raise StageError(msg)
+    check_pose_point(ws)
     table = read_table(paths.poses_csv)
     stamp = table["stamp_ns"].astype(np.int64)
     ref = np.stack([table[c] for c in ("x", "y", "z")], 1).astype(np.float64)
@@ -276,6 +277,37 @@ def steering_calibration(ws: Workspace) -> SteeringCalibration:
     except ConfigError as err:
         logger.warning("steering calibration not fitted (%s); using the default", err)
         return SteeringCalibration()
+
+
+def check_pose_point(ws: Workspace) -> PosePoint | None:
+    """Fit where the recorded poses sit along the car; warn when config.yaml says otherwise.
+
+    A car posed at the wrong point cannot turn as the recorded one did (KITTI 03 with its
+    camera put 1.3 m too far forward left the road at every junction run). None: no
+    trajectory, or a drive that turns too little to tell.
+    """
+    paths = dataset_paths(ws.dataset_dir)
+    if not paths.trajectory_csv.is_file():
+        return None
+    tr = read_table(paths.trajectory_csv)
+    fit = fit_pose_point(
+        tr["stamp_ns"].astype(np.int64) / 1e9,
+        np.stack([tr["x"], tr["y"]], 1).astype(np.float64),
+        tr["heading"].astype(np.float64),
+        tr["speed"].astype(np.float64),
+    )
+    vehicle = ws.load_config().vehicle
+    ahead = vehicle.reference_xyz()[0] - vehicle.rear_axle_x_m
+    if fit is not None and fit.disagrees_with(ahead):
+        _, y, z = vehicle.reference_xyz()
+        logger.warning(
+            "the recorded poses turn like a point %s (%d samples in turns), but config.yaml's "
+            "vehicle puts them %.2f m ahead: the simulated car will not turn as the recorded one "
+            "did. Set vehicle.reference: offset and vehicle.reference_offset_m: [%.2f, %.2f, "
+            "%.2f] in config.yaml (or re-import with --pose-offset fit,Y,Z) and run again",
+            fit, fit.turning, ahead, vehicle.rear_axle_x_m + fit.ahead_m, y, z,
+        )  # fmt: skip
+    return fit
 
 
 def _parked(ws: Workspace) -> list[ParkedVehicle]:
