@@ -69,7 +69,7 @@ run)
   echo "frames: $(ls /tmp/kitti03/images | wc -l) (801 wanted)"
   setsid nohup bash -c "time (python3 -m cam2sim import $ws --images /tmp/kitti03/images \
     --poses /tmp/kitti03/poses.txt --calibration /tmp/kitti03/K.txt --fps 10 \
-    --pose-offset 0.8,0,1.65 && python3 -m cam2sim run -o $ws ${RUN_ARGS:-})" > /tmp/kitti.log 2>&1 < /dev/null &
+    --pose-offset fit,0,1.65 && python3 -m cam2sim run -o $ws ${RUN_ARGS:-})" > /tmp/kitti.log 2>&1 < /dev/null &
   sleep 5
   watch
   ;;
