@@ -204,6 +204,14 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> Workspace:
     assert result.report is not None
     again = train_ads(ws, options=options)
     assert again.report is None  # up to date
+    # Where config.yaml puts the poses on the car changes the derived steering and the
+    # recovery views' camera height: the model is trained again.
+    from cam2sim.core.config import save_config
+
+    config = ws.load_config()
+    moved = config.vehicle.model_copy(update={"reference": "offset"})
+    save_config(config.model_copy(update={"vehicle": moved}), ws.config_path)
+    assert train_ads(ws, options=options).report is not None
     return ws
 
 

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Final
 from cam2sim.ads.recovery import RecoveryGeometry
 from cam2sim.core.dataset import Calibration, DatasetInfo
 from cam2sim.core.errors import StageError, WorkspaceError
+from cam2sim.core.files import file_fingerprint
 from cam2sim.core.frames.rotation import quat_rotate
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.workspace import Workspace, dataset_paths, hash_inputs
@@ -171,8 +172,16 @@ def train_ads(
     ads = ws.ads_dir
     result = TrainAdsResult(ads / tr.MODEL_FILE, ads / tr.REPORT_FILE, ads / tr.REPORT_FIGURE, None)
     extract = ws.stage_record("extract")
+    signal = dataset_paths(ws.dataset_dir).signal_file(opts.signal)
     inputs = hash_inputs(
-        {"dataset": extract.inputs_hash if extract else None, "options": repr(opts)}
+        {
+            "dataset": extract.inputs_hash if extract else None,
+            "options": repr(opts),
+            # A signal derived from the poses and the recovery views' camera height change with
+            # where config.yaml puts the poses on the car.
+            "signal": file_fingerprint(signal) if signal.is_file() else None,
+            "vehicle": ws.load_config().vehicle.model_dump(mode="json"),
+        }
     )
     done = all(p.is_file() for p in (result.model, result.report_path, result.figure))
     if not force and done and ws.is_up_to_date(TRAIN_STAGE, inputs):
