@@ -248,6 +248,10 @@ class VehicleConfig(_Model):
             return (0.0, 0.0, 0.0)
         return self.reference_offset_m
 
+    def reference_ahead_of_rear_axle_m(self) -> float:
+        """How far ahead of the rear axle the recorded reference point sits, metres."""
+        return self.reference_xyz()[0] - self.rear_axle_x_m
+
 
 class FramesConfig(_Model):
     """How camera frames are written."""

@@ -73,6 +73,7 @@ def derive_steering(ws: Workspace) -> str:
 
     from cam2sim.core.errors import ConfigError  # noqa: PLC0415
     from cam2sim.core.table import read_table, write_table  # noqa: PLC0415
+    from cam2sim.scenario.body import body_point_positions  # noqa: PLC0415
     from cam2sim.scenario.calibration import steering_from_poses  # noqa: PLC0415
 
     _dataset(ws)
@@ -88,9 +89,12 @@ def derive_steering(ws: Workspace) -> str:
     heading = tr["heading"].astype(np.float64)
     # The bicycle model's curvature is the rear axle's: move the pose point back onto it.
     vehicle = ws.load_config().vehicle
-    ahead = vehicle.reference_xyz()[0] - vehicle.rear_axle_x_m
-    xy = np.stack([tr["x"], tr["y"]], 1).astype(np.float64)
-    xy -= ahead * np.stack([np.cos(heading), np.sin(heading)], 1)
+    xy = body_point_positions(
+        np.stack([tr["x"], tr["y"], np.zeros(len(heading))], 1),
+        heading,
+        vehicle.reference_xyz(),
+        (vehicle.rear_axle_x_m, 0.0, 0.0),
+    )[:, :2]
     try:
         t, value = steering_from_poses(
             (stamp - stamp[0]) / 1e9,

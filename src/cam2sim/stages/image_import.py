@@ -225,7 +225,7 @@ def _place_poses(
         np.asarray(cols["speed"])[order],
     )
     vehicle = config.vehicle
-    ahead = vehicle.reference_xyz()[0] - vehicle.rear_axle_x_m
+    ahead = vehicle.reference_ahead_of_rear_axle_m()
     given = opts.pose_offset_m
     wants_fit = created and (given is None or given[0] is None)
     if fit is None:

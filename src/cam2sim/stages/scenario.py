@@ -297,7 +297,7 @@ def check_pose_point(ws: Workspace) -> PosePoint | None:
         tr["speed"].astype(np.float64),
     )
     vehicle = ws.load_config().vehicle
-    ahead = vehicle.reference_xyz()[0] - vehicle.rear_axle_x_m
+    ahead = vehicle.reference_ahead_of_rear_axle_m()
     if fit is not None and fit.disagrees_with(ahead):
         _, y, z = vehicle.reference_xyz()
         logger.warning(
