@@ -145,6 +145,43 @@ def test_shifted_run_violates_the_corridor_by_the_shift(synthetic_real: list[Dri
     assert run.min_frechet_m == pytest.approx(2.0, abs=0.1)
 
 
+def test_one_recorded_drive_gives_a_corridor_of_the_half_width_asked_for(
+    synthetic_real: list[DriveRun],
+) -> None:
+    """One drive's envelope has no width; the lane's margin gives it one. Two drives or more
+    keep the published envelope whatever the option says."""
+    base = _route()
+    recorded = [_run("real/0", base, real=True)]
+    near = _run("sim/near", base + 0.3 * _left_normal(base), real=False)
+    far = _run("sim/far", base - 0.9 * _left_normal(base), real=False)
+
+    def scored(real: list[DriveRun], half: float | None) -> tuple[dict[str, float], str, float]:
+        m = evaluate_drives(
+            real, [near, far], options=DriveOptions(single_drive_half_width_m=half)
+        ).metrics
+        viol = {r.name: r.corridor_violation_pct for r in m.runs if not r.real}
+        return viol, m.corridor_rule, m.corridor_mean_width_m  # type: ignore[return-value]
+
+    viol, rule, width = scored(recorded, None)
+    assert rule == "envelope"
+    assert width == pytest.approx(0.0, abs=1e-9)
+    assert viol["sim/near"] == pytest.approx(100.0, abs=1.0)
+    viol, rule, width = scored(recorded, 0.6)
+    assert rule == "single drive +- 0.60 m"
+    assert width == pytest.approx(1.2, abs=1e-6)
+    assert viol["sim/near"] == pytest.approx(0.0, abs=1e-9)  # 0.3 m off: in the lane
+    assert viol["sim/far"] == pytest.approx(100.0, abs=1.0)  # 0.9 m off: out of it
+    far_run = evaluate_drives(
+        recorded, [far], options=DriveOptions(single_drive_half_width_m=0.6)
+    ).metrics.runs[-1]
+    assert far_run.mean_excess_m == pytest.approx(0.3, abs=0.02)  # 0.9 - 0.6
+    envelope = scored(synthetic_real, None)
+    assert scored(synthetic_real, 0.6) == envelope
+    assert envelope[1] == "envelope"
+    with pytest.raises(ValueError, match="single_drive_half_width_m=-0.1"):
+        DriveOptions(single_drive_half_width_m=-0.1)
+
+
 def test_a_run_stopping_within_the_end_tolerance_is_not_metres_from_the_recording() -> None:
     """A simulated run ends within the route's end tolerance (3 m), a recorded drive at its
     last pose: two completed runs are compared up to where the first stopped. A failed run is

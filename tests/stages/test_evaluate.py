@@ -12,7 +12,12 @@ from cam2sim.cli.evaluate import evaluate_app
 from cam2sim.core.errors import StageError
 from cam2sim.metrics.drive_quality import DriveMetrics
 from cam2sim.scenario.synthetic import StreetSpec
-from cam2sim.stages.evaluate import EVALUATE_STAGE, EvaluateOptions, evaluate_workspace
+from cam2sim.stages.evaluate import (
+    EVALUATE_STAGE,
+    EvaluateOptions,
+    evaluate_workspace,
+    lane_margin,
+)
 from cam2sim.stages.runs import DriveOptions, drive
 from conftest import street_workspace
 
@@ -49,6 +54,18 @@ def test_evaluate_scores_every_drive_writes_the_metrics_and_skips_when_up_to_dat
     assert not evaluate_workspace(ws, options=EvaluateOptions(force=True)).up_to_date
     drive(ws, options=DriveOptions(camera="none", runs=1, seed=7))  # a new run: new inputs
     assert not evaluate_workspace(ws).up_to_date
+
+
+def test_the_recorded_drive_alone_gives_a_corridor_of_the_lanes_margin(tmp_path: Path) -> None:
+    """The street's 3.5 m lanes and the 2.16 m car leave 0.67 m either side."""
+    ws = _workspace(tmp_path / "ws")
+    assert lane_margin(ws) == pytest.approx((3.5 - 2.16) / 2, abs=0.01)
+    drive(ws, options=DriveOptions(camera="none", runs=1))
+    metrics = DriveMetrics.load(evaluate_workspace(ws).metrics)
+    assert metrics.corridor_rule == "single drive +- 0.67 m"
+    assert metrics.corridor_mean_width_m == pytest.approx(1.34, abs=0.01)
+    ws.map_xodr_path.unlink()
+    assert lane_margin(ws) is None  # no map: the published zero-width envelope
 
 
 def test_evaluate_without_drives_says_what_to_run(tmp_path: Path) -> None:

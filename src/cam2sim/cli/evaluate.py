@@ -22,7 +22,7 @@ from cam2sim.core.workspace import Workspace
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from cam2sim.metrics.drive_quality import DriveMetrics
+    from cam2sim.metrics.drive_quality import DriveMetrics, DriveOptions
     from cam2sim.metrics.summary import MetricSummary
 
 __all__ = ["evaluate_app"]
@@ -223,6 +223,13 @@ def drive(
         int | None,
         typer.Option(help="Downsample to N points by index like the published tool (else 0.5 m)."),
     ] = None,
+    single_drive_half_width: Annotated[
+        float | None,
+        typer.Option(
+            help="With one real drive: its corridor is its line +- M metres (e.g. the lane's "
+            "margin, (lane width - car width) / 2); else the published zero-width envelope."
+        ),
+    ] = None,
 ) -> None:
     """Score simulated drives against real ones: completion, Min-Frechet, corridor, jitter.
 
@@ -231,7 +238,7 @@ def drive(
     Example: cam2sim evaluate drive --real ../shared/data/reference-drives --sim ws/runs -o eval/
     """
     from cam2sim.metrics.drive_io import load_runs  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
-    from cam2sim.metrics.drive_quality import DriveOptions, Segment  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.metrics.drive_quality import Segment  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
     from cam2sim.stages.evaluate import write_drive_evaluation  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
     real_runs = load_runs(real, real=True, crs=real_crs)
@@ -242,17 +249,27 @@ def drive(
         sim_runs,
         out,
         segment=seg,
-        options=DriveOptions(frechet_points=frechet_points),
+        options=_drive_options(frechet_points, single_drive_half_width),
     )
     _print_drive_metrics(ev.metrics)
     console.print(f"wrote {out / 'metrics.json'} and 3 figures", highlight=False)
+
+
+def _drive_options(frechet_points: int | None, half_width: float | None) -> DriveOptions:
+    """The metric options, a bad value a usage error naming the option."""
+    from cam2sim.metrics.drive_quality import DriveOptions  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+
+    try:
+        return DriveOptions(frechet_points=frechet_points, single_drive_half_width_m=half_width)
+    except ValueError as err:
+        raise typer.BadParameter(str(err), param_hint="--single-drive-half-width") from None
 
 
 def _print_drive_metrics(m: DriveMetrics) -> None:
     """The segment, the per-method table, the paper's table and the failed runs."""
     console.print(
         f"segment {m.segment.length_m:.1f} m (from {m.segment.reference_run}); corridor mean "
-        f"width {m.corridor_mean_width_m:.2f} m",
+        f"width {m.corridor_mean_width_m:.2f} m ({m.corridor_rule})",
         highlight=False,
     )
     table = Table(title="Drive quality (averages over successful runs)")

@@ -3,7 +3,8 @@
 Definitions are in ``docs/metrics.md``. In short: the longest real run, resampled every 0.5 m,
 is the reference path; every run is projected onto it with a monotone alignment; the scenario
 segment is where all real runs overlap; the corridor is the envelope of the real runs' signed
-lateral offsets; each simulated run gets completion, Min-Frechet against the real runs, corridor
+lateral offsets (a single drive's envelope has no width: ``DriveOptions.single_drive_half_width_m``
+gives it one); each simulated run gets completion, Min-Frechet against the real runs, corridor
 violation and excess, steering jitter and a computed failure type.
 """
 
@@ -64,6 +65,20 @@ class DriveOptions:
     jitter_max_dt_s: float = 0.25
     straight_curvature_per_m: float = 0.005
     min_samples: int = 10
+    single_drive_half_width_m: float | None = None
+    """Half-width of a corridor that one real drive gives (its envelope has no width): that
+    drive's line +- this, metres. None keeps the published envelope (zero width). The evaluate
+    stage sets it to the lane's margin, (lane width - car width) / 2: inside it the car's
+    footprint stays in the recorded lane."""
+
+    def __post_init__(self) -> None:
+        h = self.single_drive_half_width_m
+        if h is not None and not (np.isfinite(h) and 0.0 <= h <= self.max_lateral_m):
+            msg = (
+                f"single_drive_half_width_m={h!r}; give 0 to {self.max_lateral_m} metres "
+                "(or None for the published zero-width corridor of one drive)"
+            )
+            raise ValueError(msg)
 
 
 class Segment(Artifact):
@@ -146,6 +161,13 @@ class DriveMetrics(Artifact):
     corridor_mean_width_m: float
     corridor_max_width_m: float
     corridor_samples: int
+    corridor_rule: str = pydantic.Field(
+        "envelope",
+        description=(
+            "How the corridor was made: 'envelope' of the real runs' lateral offsets, or "
+            "'single drive +- H m' where one real drive gave it"
+        ),
+    )
     runs: list[RunMetrics]
     methods: list[MethodSummary]
     options: dict[str, float | int | None]
@@ -283,13 +305,21 @@ class _Corridor:
     cmax: npt.NDArray[np.float64]
 
 
-def _corridor(lateral: list[npt.NDArray[np.float64]], c: npt.NDArray[np.float64]) -> _Corridor:
+def _corridor(
+    lateral: list[npt.NDArray[np.float64]],
+    c: npt.NDArray[np.float64],
+    single_half_width_m: float | None = None,
+) -> _Corridor:
+    """The envelope of the real runs' lateral offsets; one run's line +- the given half-width."""
     stack = np.vstack(lateral)
     valid = np.isfinite(stack).any(axis=0)
     cmin = np.full(c.shape, np.nan)
     cmax = np.full(c.shape, np.nan)
     cmin[valid] = np.nanmin(stack[:, valid], axis=0)
     cmax[valid] = np.nanmax(stack[:, valid], axis=0)
+    if single_half_width_m is not None and stack.shape[0] == 1:
+        cmin -= single_half_width_m
+        cmax += single_half_width_m
     return _Corridor(c, cmin, cmax)
 
 
@@ -530,12 +560,13 @@ def evaluate_drives(
     c = np.arange(segment.start_m, segment.end_m, opts.corridor_spacing_m)
     real_p = [_project(r, ref, c, opts) for r in real]
     sim_p = [_project(r, ref, c, opts) for r in good_sim]
-    corridor = _corridor([p.lateral_c for p in real_p], c)
+    half = opts.single_drive_half_width_m
+    corridor = _corridor([p.lateral_c for p in real_p], c, half)
     results: list[RunMetrics] = []
     cache: dict[tuple[str, str], float] = {}
     for i, p in enumerate(real_p):
         others = [o for j, o in enumerate(real_p) if j != i]
-        loo = _corridor([o.lateral_c for o in others], c) if others else corridor
+        loo = _corridor([o.lateral_c for o in others], c, half) if others else corridor
         results.append(_run_metrics(p, others, loo, segment, ref, opts, cache))
     results += [_run_metrics(p, real_p, corridor, segment, ref, opts, cache) for p in sim_p]
     results += [
@@ -558,6 +589,9 @@ def evaluate_drives(
         corridor_mean_width_m=float(np.nanmean(width)) if np.isfinite(width).any() else 0.0,
         corridor_max_width_m=float(np.nanmax(width)) if np.isfinite(width).any() else 0.0,
         corridor_samples=int(np.isfinite(width).sum()),
+        corridor_rule=(
+            f"single drive +- {half:.2f} m" if half is not None and len(real_p) == 1 else "envelope"
+        ),
         runs=results,
         methods=_summaries(results),
         options=dict(vars(opts)),

@@ -158,9 +158,14 @@ def _read_metrics(ctx: ReportContext) -> str | None:
             f"{missing[-1]}): run `{_evaluate_command(ctx)}` to score them all"
         )
     if [r.name for r in m.runs if r.real] == [f"{REAL_METHOD}/recorded"]:
+        width = (
+            f"so the corridor is that line +- the lane's margin ({m.corridor_rule})"
+            if m.corridor_rule != "envelope"
+            else "so the corridor has zero width"
+        )
         ctx.warnings.append(
             "no real drives given (--real or WS/real/) and no run in the ground-truth world: the "
-            "scenario's recorded trajectory is the only reference, so the corridor has zero width"
+            f"scenario's recorded trajectory is the only reference, {width}"
         )
     return None
 
@@ -348,7 +353,9 @@ def _behaviour(ctx: ReportContext, why: str | None) -> str:
     note = (
         f'<p class="note">{esc(glossary)}. Segment {m.segment.length_m:.1f} m '
         f"(reference {esc(m.segment.reference_run)}), corridor mean width "
-        f"{m.corridor_mean_width_m:.2f} m. Averages over successful runs; jitter over all "
+        f"{m.corridor_mean_width_m:.2f} m"
+        + (f" ({esc(m.corridor_rule)}: the lane's margin)" if m.corridor_rule != "envelope" else "")
+        + ". Averages over successful runs; jitter over all "
         "runs. Failure types: OR out of road, CC collision, OS oversteer, US understeer.</p>"
     )
     parts.append(note)

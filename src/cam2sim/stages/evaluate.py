@@ -9,7 +9,8 @@ the campaign (its runs per workspace). The report reads what it writes and compu
   write ``metrics.json``, ``segment.json``, ``behaviour.md`` (the paper's table) and the figures
   (``trajectories.png``, ``lateral_offset.png``, ``steering.png``).
 - :func:`evaluate_workspace_drives`: a workspace's runs against its recorded drive (the
-  scenario's reference trajectory) or given real drives.
+  scenario's reference trajectory) or given real drives. Where one real drive is the only
+  reference, its corridor is its line +- the lane's margin (:func:`lane_margin`).
 - :func:`evaluate_workspace`: the stage. The drive metrics in ``WS/report/drive/``, the image
   quality of a replay's cameras in ``WS/report/images/`` and the semantic IoU of the world in
   ``WS/report/semantic/`` (:mod:`cam2sim.stages.reconstruction`), where possible. It records
@@ -49,6 +50,7 @@ __all__ = [
     "EvaluateResult",
     "evaluate_workspace",
     "evaluate_workspace_drives",
+    "lane_margin",
     "write_drive_evaluation",
 ]
 
@@ -130,6 +132,33 @@ def _real_drives(ws: Workspace, real: Sequence[Path], real_crs: str) -> list[Dri
     return [recorded_drive(Scenario.load(path), source=str(path))]
 
 
+def lane_margin(ws: Workspace) -> float | None:
+    """How far the car may sit off the recorded line and stay in its lane, metres.
+
+    ``(lane width - car width) / 2``, the lane width being the median width of the driving lane
+    nearest to each pose of the recorded drive (``WS/map/map.xodr``), the car's width from
+    config.yaml. A corridor of one recorded drive is that drive's line +- this: the published
+    corridor (the envelope of the real drives) has no width with one drive.
+
+    Returns:
+        The margin (0 where the lane is narrower than the car); None without a map or a
+        scenario, or when no driving lane lies within 4 m of the recorded drive.
+    """
+    import numpy as np  # noqa: PLC0415 -- lazy: the module is imported by the CLI
+
+    from cam2sim.stages.map import load_road_map  # noqa: PLC0415 -- lazy: shapely
+
+    if not (ws.map_xodr_path.is_file() and ws.scenario_path.is_file()):
+        return None
+    xy = np.asarray(Scenario.load(ws.scenario_path).trajectory.reference, dtype=np.float64)
+    near = load_road_map(ws).nearest_lane(xy[:, :2], max_distance=4.0)
+    widths = near.width[near.lane >= 0]
+    if widths.size == 0:
+        return None
+    car = ws.load_config().vehicle.width_m
+    return max(0.0, (float(np.median(widths)) - car) / 2.0)
+
+
 def evaluate_workspace_drives(
     ws: Workspace,
     run_ids: Sequence[str],
@@ -146,9 +175,12 @@ def evaluate_workspace_drives(
     Returns:
         The ``metrics.json`` path.
     """
+    from cam2sim.metrics.drive_quality import DriveOptions  # noqa: PLC0415 -- lazy: numpy
+
     references = _real_drives(ws, real, real_crs)
     runs = [load_run_dir(ws.runs_dir / r) for r in run_ids]
-    write_drive_evaluation(references, runs, out)
+    options = DriveOptions(single_drive_half_width_m=lane_margin(ws))
+    write_drive_evaluation(references, runs, out, options=options)
     return out / "metrics.json"
 
 
@@ -192,7 +224,12 @@ def evaluate_workspace(
     if opts.replay_runs is None:
         replay = [r for r in reversed(replay) if (ws.runs_dir / r / "frames").is_dir()][:1]
     out = ws.drive_eval_dir
-    inputs = {"scenario": ws.done_inputs_hash("scenario"), "runs": runs, "replay": replay}
+    inputs = {
+        "scenario": ws.done_inputs_hash("scenario"),
+        "runs": runs,
+        "replay": replay,
+        "corridor": "one drive: lane margin",  # the rule changed: evaluate again
+    }
     if opts.real:
         inputs["real"] = [str(p) for p in opts.real]
     inputs_hash = hash_inputs(inputs)
