@@ -275,14 +275,18 @@ def import_(
     images: Annotated[Path, typer.Option(help="Folder of .png/.jpg frames.")],
     poses: Annotated[
         Path | None,
-        typer.Option(help="CSV: timestamp,x,y[,z] and qx,qy,qz,qw or yaw[, image]."),
+        typer.Option(
+            help="CSV: timestamp,x,y[,z] or timestamp,lat,lon[,alt] (GPS), qx,qy,qz,qw or yaw "
+            "(else the heading of travel)[, image]; KITTI's poses.txt; KITTI raw's oxts/ folder."
+        ),
     ] = None,
     calibration: Annotated[
         Path | None,
         typer.Option(help="JSON with K, distortion, width, height (or a Cam2Sim camera.json)."),
     ] = None,
     crs: Annotated[
-        str | None, typer.Option(help="CRS of the pose positions, e.g. EPSG:32632.")
+        str | None,
+        typer.Option(help="CRS of x,y pose positions, e.g. EPSG:32632 (GPS lat,lon need none)."),
     ] = None,
     axis_convention: Annotated[
         AxisConvention, typer.Option(help="Where the pose frame's x axis points on the car.")

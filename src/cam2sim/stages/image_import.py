@@ -1,10 +1,11 @@
 """``cam2sim import``: images (plus an optional pose table and calibration) into a dataset.
 
 The minimum input without a bag. Images are taken in natural name order; their times come from
-numeric file names (ns, us, ms or s by magnitude) or from the frame rate. A pose CSV gives
-``timestamp|t|stamp_ns, x, y[, z]`` and an orientation (``qx, qy, qz, qw`` or ``yaw``/``heading``
-in radians); optionally an ``image`` column naming the file each row belongs to. Without poses
-the dataset is marked pose-less (the splat stage estimates poses itself).
+numeric file names (ns, us, ms or s by magnitude) or from the frame rate. The poses are any
+file :mod:`cam2sim.recording.pose_file` reads (a CSV of x, y or of GPS fixes, KITTI's
+poses.txt, KITTI raw's OXTS folder); GPS fixes put the world frame at the first fix, and poses
+without an orientation head where they travel. Without poses the dataset is marked pose-less
+(the splat stage estimates poses itself).
 """
 
 from __future__ import annotations
@@ -46,9 +47,10 @@ from cam2sim.core.files import atomic_folder, file_fingerprint, write_bytes_atom
 from cam2sim.core.images import frames_are_grey
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.table import write_table
-from cam2sim.core.trajectory import Trajectory
+from cam2sim.core.trajectory import Trajectory, heading_from_motion
 from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
 from cam2sim.recording.pose import yaw_offset_quat
+from cam2sim.recording.pose_file import PoseTable, first_column, read_pose_file, table_stamps
 from cam2sim.scenario.calibration import PosePoint, fit_pose_point
 from cam2sim.stages._runner import stage_run
 from cam2sim.stages.rig import read_rig, write_rig
@@ -115,72 +117,6 @@ def _image_size(path: Path) -> tuple[int, int] | None:
 
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     return None if image is None else (int(image.shape[1]), int(image.shape[0]))
-
-
-def _column(rows: list[dict[str, str]], *names: str) -> str | None:
-    for name in names:
-        if name in rows[0]:
-            return name
-    return None
-
-
-def _stamp_ns(text: str) -> int:
-    sec, _, frac = text.strip().partition(".")
-    if not frac and abs(int(sec)) > 10**15:
-        return int(sec)
-    return int(sec) * 1_000_000_000 + int((frac + "000000000")[:9]) * (
-        -1 if sec.startswith("-") else 1
-    )
-
-
-@dataclass(frozen=True)
-class _PoseTable:
-    stamp_ns: npt.NDArray[np.int64]
-    xyz: npt.NDArray[np.float64]
-    quat: npt.NDArray[np.float64]
-    images: list[str] | None
-    by_index: bool = False  # row k is the k-th image (KITTI's poses.txt)
-
-
-# KITTI's camera-to-world poses: camera axes x right, y down, z forward, in the first camera's
-# frame. The vehicle frame is x forward, y left, z up; its columns in camera axes:
-_VEHICLE_IN_OPTICAL = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
-# The world: the first camera's frame turned z up (x forward, y left at the start).
-_WORLD_FROM_FIRST_CAMERA = _VEHICLE_IN_OPTICAL.T
-
-
-def _is_kitti(line: str) -> bool:
-    """Whether a line is a KITTI pose: 12 numbers, whitespace-separated, no header."""
-    parts = line.split()
-    if len(parts) != 12 or "," in line:
-        return False
-    try:
-        [float(p) for p in parts]
-    except ValueError:
-        return False
-    return True
-
-
-def _read_kitti_poses(path: Path, lines: list[str]) -> _PoseTable:
-    """KITTI odometry poses (one 3x4 camera-to-world matrix a line, row k = image k).
-
-    The vehicle pose is the camera's position with the vehicle's axes (x forward, y left,
-    z up), in the first camera's frame turned z up; the camera's mount is then the identity
-    optical mount at the pose point (the pose point is the camera, above the road).
-    """
-    try:
-        m = np.array([[float(v) for v in ln.split()] for ln in lines]).reshape(-1, 3, 4)
-    except ValueError as err:
-        msg = f"{path}: a KITTI pose line is not 12 numbers ({err}); fix that line"
-        raise RecordingError(msg) from None
-    rot = _WORLD_FROM_FIRST_CAMERA @ m[:, :, :3] @ _VEHICLE_IN_OPTICAL
-    xyz = (_WORLD_FROM_FIRST_CAMERA @ m[:, :, 3:]).reshape(-1, 3)
-    if not (np.isfinite(xyz).all() and np.isfinite(rot).all()):
-        msg = f"{path}: NaN/inf in the poses; remove those lines"
-        raise RecordingError(msg)
-    quat = frames.quat_from_matrix(rot)
-    stamps = np.arange(len(m), dtype=np.int64)  # placeholders: the images give the times
-    return _PoseTable(stamps, xyz, frames.quat_normalize(quat), None, by_index=True)
 
 
 _CREATED_COMMENT = "Created by cam2sim import."
@@ -296,9 +232,9 @@ def _read_signal(name: str, path: Path) -> tuple[npt.NDArray[np.int64], npt.NDAr
     if not rows:
         msg = f"{path}: no rows; expected a header line (t,value) and one row per sample"
         raise RecordingError(msg)
-    tcol = _column(rows, "stamp_ns", "timestamp", "t", "time")
+    tcol = first_column(rows, "stamp_ns", "timestamp", "t", "time")
     others = [c for c in rows[0] if c != tcol]
-    vcol = _column(rows, "value", name) or (others[0] if len(others) == 1 else None)
+    vcol = first_column(rows, "value", name) or (others[0] if len(others) == 1 else None)
     if tcol is None or vcol is None:
         msg = (
             f"{path}: needs a time column (stamp_ns, timestamp, t or time) and a value column "
@@ -306,76 +242,13 @@ def _read_signal(name: str, path: Path) -> tuple[npt.NDArray[np.int64], npt.NDAr
         )
         raise RecordingError(msg)
     try:
-        stamps = _stamps(rows, tcol)
+        stamps = table_stamps(rows, tcol)
         values = np.array([float(r[vcol]) for r in rows], dtype=np.float64)
     except ValueError as err:
         msg = f"{path}: a row is not a number ({err})"
         raise RecordingError(msg) from None
     order = np.argsort(stamps, kind="stable")
     return stamps[order], values[order]
-
-
-def _stamps(rows: list[dict[str, str]], column: str) -> npt.NDArray[np.int64]:
-    """Nanosecond stamps of a table's time column (``stamp_ns`` as is, else seconds).
-
-    Raises:
-        ValueError: A cell is not a number.
-    """
-    parse = int if column == "stamp_ns" else _stamp_ns
-    return np.array([parse(r[column]) for r in rows], dtype=np.int64)
-
-
-def _read_pose_table(path: Path) -> _PoseTable:
-    try:
-        with path.open(newline="", encoding="utf-8") as handle:
-            lines = [ln for ln in handle if ln.strip()]
-    except FileNotFoundError:
-        msg = f"--poses {path} does not exist"
-        raise RecordingError(msg) from None
-    if lines and _is_kitti(lines[0]):
-        return _read_kitti_poses(path, lines)
-    if lines and lines[0].startswith("#"):
-        lines[0] = lines[0].lstrip("#")
-    rows = [{k.strip(): (v or "").strip() for k, v in r.items()} for r in csv.DictReader(lines)]
-    if not rows:
-        msg = f"{path}: no pose rows; expected a header line and one row per pose"
-        raise RecordingError(msg)
-    tcol = _column(rows, "stamp_ns", "timestamp", "t", "time", "Timestamp_Sec")
-    missing = [c for c in ("x", "y") if c not in rows[0]]
-    if tcol is None or missing:
-        msg = (
-            f"{path}: needs columns timestamp (or t/stamp_ns), x, y[, z] and qx,qy,qz,qw or yaw; "
-            f"found {', '.join(rows[0])}"
-        )
-        raise RecordingError(msg)
-    try:
-        stamps = _stamps(rows, tcol)
-        z = [float(r.get("z") or 0.0) for r in rows]
-        xyz = np.array([[float(r["x"]), float(r["y"]), zz] for r, zz in zip(rows, z, strict=True)])
-        if all(c in rows[0] for c in ("qx", "qy", "qz", "qw")):
-            quat = np.array([[float(r[c]) for c in ("qx", "qy", "qz", "qw")] for r in rows])
-        else:
-            ycol = _column(rows, "yaw", "heading")
-            yaw = np.array([float(r[ycol]) for r in rows]) if ycol else None
-            if yaw is None:
-                msg = f"{path}: no orientation; add qx,qy,qz,qw or yaw columns"
-                raise RecordingError(msg)
-            quat = frames.quat_from_yaw(yaw)
-    except ValueError as err:
-        msg = f"{path}: a value is not a number ({err}); fix that row"
-        raise RecordingError(msg) from None
-    if not (np.isfinite(xyz).all() and np.isfinite(quat).all()):
-        msg = f"{path}: NaN/inf in the poses; remove those rows"
-        raise RecordingError(msg)
-    icol = _column(rows, "image", "file", "ImageFile")
-    images = [Path(r[icol]).name for r in rows] if icol else None
-    if images is None:
-        order = np.argsort(stamps, kind="stable")
-        if (np.diff(stamps[order]) == 0).any():
-            msg = f"{path}: two poses share a timestamp; remove duplicates"
-            raise RecordingError(msg)
-        stamps, xyz, quat = stamps[order], xyz[order], quat[order]
-    return _PoseTable(stamps, xyz, frames.quat_normalize(quat), images)
 
 
 def _text_K(path: Path, text: str, size: tuple[int, int] | None) -> CameraIntrinsics | None:
@@ -461,14 +334,30 @@ def intrinsics_from_file(
 
 
 def _world(
-    table: _PoseTable, crs: str | None, existing: WorldFrameRecord | None
-) -> tuple[WorldFrameRecord, npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    table: PoseTable, crs: str | None, existing: WorldFrameRecord | None
+) -> tuple[WorldFrameRecord, npt.NDArray[np.float64], npt.NDArray[np.float64] | None]:
+    """The world frame of the poses, and the poses in it (orientation None where not given).
+
+    GPS poses (latitude, longitude) fix the frame at their first fix, metric ones at their first
+    position in ``crs``; without either the frame is local (not geo-referenced).
+    """
+    if table.geographic:
+        if crs is not None and crs.upper() not in {"EPSG:4326", "WGS84"}:
+            msg = (
+                f"the poses are GPS fixes (latitude, longitude: WGS84), not {crs}; drop --crs "
+                "(or give EPSG:4326)"
+            )
+            raise RecordingError(msg)
+        crs = "EPSG:4326"
     if crs is None:
         return WorldFrameRecord(proj_string=None), table.xyz, table.quat
     if existing is not None and existing.source_crs == crs and existing.origin_lat_deg is not None:
         wf = frames.WorldFrame(
             existing.origin_lat_deg, existing.origin_lon_deg or 0.0, existing.origin_alt_m
         )
+    elif table.geographic:
+        lat, lon, alt = table.xyz[0]
+        wf = frames.WorldFrame(float(lat), float(lon), float(alt))
     else:
         x, y, z = table.xyz[0]
         wf = frames.WorldFrame.at_crs_point(crs, float(x), float(y), float(z))
@@ -479,9 +368,30 @@ def _world(
         origin_alt_m=wf.origin_alt_m,
         source_crs=crs,
     )
+    if table.geographic:  # east-north-up orientation: the world frame's axes at its origin
+        xyz = wf.from_wgs84(table.xyz[:, 0], table.xyz[:, 1], table.xyz[:, 2])
+        return record, xyz, table.quat
     xyz = wf.from_crs(crs, table.xyz)
-    quat = wf.quats_from_crs(crs, table.xyz[:, :2], table.quat)
+    quat = None if table.quat is None else wf.quats_from_crs(crs, table.xyz[:, :2], table.quat)
     return record, xyz, quat
+
+
+def _heading_quats(table: PoseTable, xyz: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Orientation from the direction of travel, for poses that give none (GPS fixes)."""
+    if table.by_index:
+        msg = "the pose file gives no orientation and no times; add yaw or qx,qy,qz,qw"
+        raise RecordingError(msg)
+    defaults = Config().sync
+    order = np.argsort(table.stamp_ns, kind="stable")
+    heading = np.empty(len(order))
+    heading[order] = heading_from_motion(
+        table.stamp_ns[order],
+        xyz[order],
+        window_s=defaults.speed_window_s,
+        min_speed_mps=defaults.min_motion_speed_mps,
+    )
+    logger.info("import: the poses give no orientation; heading from the direction of travel")
+    return frames.quat_from_yaw(heading)
 
 
 @dataclass(frozen=True)
@@ -494,7 +404,7 @@ class _PosedImages:
 
 
 def _poses_for_images(
-    table: _PoseTable,
+    table: PoseTable,
     files: list[Path],
     stamps: npt.NDArray[np.int64],
     opts: ImportOptions,
@@ -503,7 +413,8 @@ def _poses_for_images(
 ) -> _PosedImages:
     """Give every image its pose: by the table's image column, else by time."""
     dropped: dict[str, int] = {}
-    world, xyz, quat = _world(table, opts.crs, existing)
+    world, xyz, given = _world(table, opts.crs, existing)
+    quat = given if given is not None else _heading_quats(table, xyz)
     offset = AXIS_CONVENTION_YAW_OFFSET[opts.axis_convention]
     quat = frames.quat_normalize(frames.quat_multiply(quat, yaw_offset_quat(offset)))
     if table.images is not None or table.by_index:
@@ -568,6 +479,14 @@ class ImportOptions:
     rig: Path | None = None
 
 
+def _fingerprint(path: Path) -> str:
+    """A file's fingerprint; a folder's (KITTI's OXTS) from its files' names and fingerprints."""
+    if not path.is_dir():
+        return file_fingerprint(path)
+    files = sorted(f for f in path.rglob("*") if f.is_file())
+    return hash_inputs([(str(f.relative_to(path)), file_fingerprint(f)) for f in files])
+
+
 def import_images(
     root: Path,
     images: Path,
@@ -589,7 +508,7 @@ def import_images(
     rig = read_rig(opts.rig) if opts.rig is not None else []
     ws, config, created = _open_workspace(Path(root), opts)
     stamps, time_source = stamps_from_names(files, fps=opts.fps)
-    table = _read_pose_table(opts.poses) if opts.poses else None
+    table = read_pose_file(opts.poses) if opts.poses else None
     intr, mount = (None, None)
     if opts.calibration:
         intr, mount = intrinsics_from_file(opts.calibration, _image_size(files[0]))
@@ -597,7 +516,7 @@ def import_images(
         *(p for p in (opts.poses, opts.calibration, opts.rig) if p is not None),
         *(path for _, path in opts.signals),
     ]
-    sources = [SourceRecord(path=str(p), fingerprint=file_fingerprint(p)) for p in extra_inputs]
+    sources = [SourceRecord(path=str(p), fingerprint=_fingerprint(p)) for p in extra_inputs]
     inputs_hash = hash_inputs({"files": [f.name for f in files], "opts": repr(opts)})
     with (
         stage_run(ws, STAGE, inputs_hash=inputs_hash, config=config) as run,

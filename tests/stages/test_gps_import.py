@@ -1,0 +1,193 @@
+"""Import with GPS poses: a CSV of fixes, KITTI raw's OXTS folder, and a real GPS drive."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+import pyproj
+import pytest
+
+from cam2sim.core import frames
+from cam2sim.core.errors import RecordingError
+from cam2sim.core.table import read_table
+from cam2sim.core.workspace import DatasetPaths, Workspace
+from cam2sim.recording.pose_file import read_pose_file
+from cam2sim.stages.image_import import ImportOptions, import_images
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+UTM10N = "EPSG:32610"
+T0 = 1_500_000_000_000_000_000
+
+
+def _images(folder: Path, names: list[str]) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    blank = np.zeros((12, 16, 3), np.uint8)
+    for name in names:
+        assert cv2.imwrite(str(folder / name), blank)
+
+
+def _to_wgs84(crs: str, e: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    lon, lat = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(e, n)
+    return np.asarray(lat), np.asarray(lon)
+
+
+def _arc(n: int, speed: float = 8.0, turn: float = 0.15, dt: float = 0.1) -> tuple[np.ndarray, ...]:
+    """A drive in UTM 10N (San Francisco): straight for 2 s, then a steady left turn."""
+    t = np.arange(n) * dt
+    heading = 0.4 + turn * np.clip(t - 2.0, 0.0, None)
+    step = speed * dt * np.stack([np.cos(heading), np.sin(heading)], -1)
+    xy = np.cumsum(step, axis=0) - step[0] + [551_000.0, 4_175_000.0]
+    return t, xy, heading
+
+
+def test_a_gps_csv_is_geo_referenced_and_heads_where_it_drives(tmp_path: Path) -> None:
+    """Latitude, longitude and altitude, no orientation and no --crs: the world frame starts at
+    the first fix and the heading is the direction of travel."""
+    t, xy, heading = _arc(60)
+    lat, lon = _to_wgs84(UTM10N, xy[:, 0], xy[:, 1])
+    stamps = T0 + np.round(t * 1e9).astype(np.int64)
+    rows = ["timestamp,latitude,longitude,altitude"] + [
+        f"{s // 10**9}.{s % 10**9:09d},{a:.10f},{b:.10f},12.5"
+        for s, a, b in zip(stamps, lat, lon, strict=True)
+    ]
+    (tmp_path / "gps.csv").write_text("\n".join(rows) + "\n")
+    _images(tmp_path / "images", [f"{s}.png" for s in stamps])
+    info = import_images(
+        tmp_path / "ws", tmp_path / "images", options=ImportOptions(poses=tmp_path / "gps.csv")
+    ).info
+    world = info.world
+    assert world.georeferenced
+    assert world.source_crs == "EPSG:4326"
+    assert world.origin_lat_deg == pytest.approx(lat[0], abs=1e-9)
+    assert world.origin_alt_m == pytest.approx(12.5)
+    table = read_table(DatasetPaths(tmp_path / "ws" / "dataset").poses_csv)
+    wf = frames.WorldFrame(world.origin_lat_deg, world.origin_lon_deg, world.origin_alt_m)  # type: ignore[arg-type]
+    xyz = np.stack([table["x"], table["y"], table["z"]], -1)
+    assert np.abs(wf.to_crs(UTM10N, xyz)[:, :2] - xy).max() < 1e-3
+    np.testing.assert_allclose(table["z"], 0.0, atol=1e-9)  # altitude relative to the origin
+    grid = wf.heading_to_crs(UTM10N, xyz[:, :2], table["heading"])
+    inside = slice(5, -5)  # the motion window is one-sided at the ends
+    err = np.degrees(np.abs(frames.angle_difference(grid[inside], heading[inside])))
+    assert err.max() < 1.0
+    assert float(np.median(table["speed"])) == pytest.approx(8.0, rel=0.01)
+
+
+def _oxts_folder(root: Path, lat: np.ndarray, lon: np.ndarray, rpy: np.ndarray) -> Path:
+    """KITTI raw's layout: oxts/data/0000000000.txt ... and oxts/timestamps.txt."""
+    data = root / "oxts" / "data"
+    data.mkdir(parents=True)
+    for k, (a, b, (r, p, y)) in enumerate(zip(lat, lon, rpy, strict=True)):
+        rest = " ".join(["0.1"] * 24)  # velocities, accelerations, accuracies, modes
+        (data / f"{k:010d}.txt").write_text(f"{a:.12f} {b:.12f} 110.5 {r} {p} {y} {rest}\n")
+    times = [f"2011-09-26 13:02:{25 + k * 0.1:012.9f}" for k in range(len(lat))]
+    (root / "oxts" / "timestamps.txt").write_text("\n".join(times) + "\n")
+    return root / "oxts"
+
+
+def test_kitti_raw_oxts_gives_position_heading_pitch_and_roll(tmp_path: Path) -> None:
+    t, xy, heading = _arc(30, speed=6.0)
+    lat, lon = _to_wgs84(UTM10N, xy[:, 0], xy[:, 1])
+    pitch, roll = 0.03, -0.02  # front down, left side down
+    rpy = np.stack([np.full(len(t), roll), np.full(len(t), pitch), heading], -1)
+    oxts = _oxts_folder(tmp_path, lat, lon, rpy)
+    table = read_pose_file(oxts)
+    assert table.kind == "kitti oxts"
+    assert table.geographic
+    assert table.by_index
+    np.testing.assert_array_equal(table.stamp_ns, np.arange(30) * 100_000_000)
+    assert table.quat is not None
+    forward = frames.quat_rotate(table.quat, [1.0, 0.0, 0.0])
+    left = frames.quat_rotate(table.quat, [0.0, 1.0, 0.0])
+    np.testing.assert_allclose(np.arctan2(forward[:, 1], forward[:, 0]), heading, atol=1e-9)
+    np.testing.assert_allclose(forward[:, 2], -math.sin(pitch), atol=1e-9)  # front down
+    np.testing.assert_allclose(left[:, 2], math.sin(roll) * math.cos(pitch), atol=1e-9)
+
+    _images(tmp_path / "image_00" / "data", [f"{k:010d}.png" for k in range(30)])
+    opts = ImportOptions(poses=oxts, fps=10.0)
+    info = import_images(tmp_path / "ws", tmp_path / "image_00" / "data", options=opts).info
+    assert info.world.georeferenced
+    assert info.counts.frames == 30
+    poses = read_table(DatasetPaths(tmp_path / "ws" / "dataset").poses_csv)
+    wf = frames.WorldFrame(info.world.origin_lat_deg, info.world.origin_lon_deg)  # type: ignore[arg-type]
+    xyz = np.stack([poses["x"], poses["y"], poses["z"]], -1)
+    assert np.abs(wf.to_crs(UTM10N, xyz)[:, :2] - xy).max() < 1e-3
+    # OXTS yaw is east-north-up: the world frame's axes (its origin is the first fix), not
+    # UTM's grid (0.35 degrees of meridian convergence away here).
+    assert np.abs(frames.angle_difference(poses["heading"], heading)).max() < 1e-6
+
+
+def test_bad_gps_inputs_say_what_to_fix(tmp_path: Path) -> None:
+    _images(tmp_path / "images", ["0.png", "1.png"])
+    gps = tmp_path / "gps.csv"
+    gps.write_text("t,lat,lon\n0.0,37.7,-122.4\n0.1,37.70001,-122.4\n")
+    with pytest.raises(RecordingError, match=r"GPS fixes .* not EPSG:32610; drop --crs"):
+        import_images(
+            tmp_path / "ws", tmp_path / "images", options=ImportOptions(poses=gps, crs=UTM10N)
+        )
+    gps.write_text("t,lat,lon\n0.0,122.4,37.7\n0.1,122.4,37.70001\n")  # swapped
+    with pytest.raises(RecordingError, match=r"latitudes must lie within \+-90"):
+        read_pose_file(gps)
+    empty = tmp_path / "oxts"
+    empty.mkdir()
+    with pytest.raises(RecordingError, match=r"folder without OXTS files.*oxts/ folder"):
+        read_pose_file(empty)
+    (empty / "0000000000.txt").write_text("37.7 -122.4 10\n")
+    with pytest.raises(RecordingError, match=r"0000000000.txt: 3 numbers; an OXTS record"):
+        read_pose_file(empty)
+
+
+def test_a_real_gps_drive_without_osm_gets_a_geo_referenced_road_and_a_scenario(
+    tmp_path: Path, shared_data: Path
+) -> None:
+    """comma2k19's minute in San Francisco as GPS fixes (no orientation, no OSM offline): the
+    import places it on the Earth, the map is the driven road, geo-referenced, and the steering
+    derived from the fixes follows the car's measured steering."""
+    pytest.importorskip("carla", reason="the scenario's checks need carla (cam2sim[map])")
+    from cam2sim.stages.ads import derive_steering
+    from cam2sim.stages.map import MapOptions, build_map
+    from cam2sim.stages.scenario import run_scenario
+
+    comma = shared_data / "poses" / "comma2k19"
+    ecef = np.load(comma / "global_pose_frame_positions")[::4]  # 5 Hz
+    times = np.load(comma / "global_pose_frame_times")[::4]
+    to_geo = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
+    lon, lat, alt = to_geo.transform(ecef[:, 0], ecef[:, 1], ecef[:, 2])
+    stamps = T0 + np.round((times - times[0]) * 1e9).astype(np.int64)
+    rows = ["timestamp,lat,lon,alt"] + [
+        f"{s // 10**9}.{s % 10**9:09d},{a:.10f},{b:.10f},{c:.3f}"
+        for s, a, b, c in zip(stamps, lat, lon, alt, strict=True)
+    ]
+    (tmp_path / "gps.csv").write_text("\n".join(rows) + "\n")
+    _images(tmp_path / "images", [f"{s}.png" for s in stamps])
+    opts = ImportOptions(poses=tmp_path / "gps.csv")
+    info = import_images(tmp_path / "ws", tmp_path / "images", options=opts).info
+    assert info.world.georeferenced
+    assert info.counts.frames == 300
+    ws = Workspace.open(tmp_path / "ws")
+    trajectory = read_table(DatasetPaths(ws.dataset_dir).trajectory_csv)
+    length = np.hypot(np.diff(trajectory["x"]), np.diff(trajectory["y"])).sum()
+    assert length == pytest.approx(1_011.0, rel=0.01)  # as the ECEF track measures it
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "the road follows the driven path"
+        report = build_map(ws, options=MapOptions(road="trajectory")).report
+    assert report.source.kind == "trajectory"
+    assert report.georeferenced
+    assert report.route.covered_fraction == pytest.approx(1.0)
+    scenario = run_scenario(ws).scenario
+    assert scenario is not None
+    assert scenario.world.proj_string == info.world.proj_string
+
+    signal = read_table(DatasetPaths(ws.dataset_dir).signal_file(derive_steering(ws)))
+    can_t = np.load(comma / "processed_log_CAN_steering_angle_t")
+    can = np.load(comma / "processed_log_CAN_steering_angle_value")
+    at = (signal["stamp_ns"] - T0) / 1e9 + times[0]
+    measured = np.interp(at, can_t, can)
+    # A drive that never turns the wheel more than 5 degrees: GPS noise is a large part of the
+    # derived curvature (0.64 here, against 0.996 on the reference drives' turns).
+    assert np.corrcoef(measured, signal["value"])[0, 1] > 0.6
