@@ -75,6 +75,25 @@ def test_unreachable_server_says_to_pass_osm() -> None:
     assert urllib.parse.urlsplit(url).netloc in str(info.value)
 
 
+def test_a_name_that_does_not_resolve_is_not_retried(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Offline, DNS fails at once; four attempts would only add the backoff's waits."""
+    import socket
+    import urllib.error
+
+    from cam2sim.map import overpass
+
+    calls: list[str] = []
+
+    def no_dns(url: str, query: str, timeout_s: float) -> bytes:
+        calls.append(url)
+        raise urllib.error.URLError(socket.gaierror(-2, "Name or service not known"))
+
+    monkeypatch.setattr(overpass, "_request", no_dns)
+    with pytest.raises(StageError, match=r"after 1 attempt \(.*no name resolution.*--osm FILE"):
+        fetch_overpass(BOX, options=fast("https://overpass.invalid/api/interpreter", retries=3))
+    assert len(calls) == 1
+
+
 def test_options_are_validated() -> None:
     with pytest.raises(ConfigError, match="not http"):
         OverpassOptions(url="ftp://example.invalid/api")

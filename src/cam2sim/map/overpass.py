@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import socket
 import time
 import urllib.error
 import urllib.parse
@@ -127,6 +128,10 @@ class _RetryableError(Exception):
     """A failure worth another attempt."""
 
 
+class _NoNameError(Exception):
+    """The server's name cannot be resolved: offline (or a typo); no attempt would fare better."""
+
+
 def _attempt(options: OverpassOptions, query: str) -> bytes:
     try:
         data = _request(options.url, query, options.timeout_s)
@@ -139,6 +144,8 @@ def _attempt(options: OverpassOptions, query: str) -> bytes:
         raise StageError(msg) from None
     except (urllib.error.URLError, TimeoutError, ConnectionError, OSError) as err:
         reason = getattr(err, "reason", err)
+        if isinstance(reason, socket.gaierror):
+            raise _NoNameError(str(reason)) from None
         raise _RetryableError(str(reason)) from None
     if _ERROR_REMARK in data[-2000:]:
         msg = "the server answered with a runtime error (query timeout or too much data)"
@@ -172,23 +179,28 @@ def fetch_overpass(
             cache_file.read_bytes(), query, options.url, cache_file, from_cache=True
         )
     last = ""
+    attempts = 0
     for attempt in range(options.retries + 1):
         if attempt:
             wait = options.backoff_s * 2 ** (attempt - 1)
             logger.info("Overpass attempt %d failed (%s); retrying in %.1f s", attempt, last, wait)
             time.sleep(wait)
+        attempts += 1
         try:
             data = _attempt(options, query)
         except _RetryableError as err:
             last = str(err)
             continue
+        except _NoNameError as err:  # no DNS: retrying only waits
+            last = f"{err}: no name resolution, offline?"
+            break
         logger.info("fetched %d bytes of OSM data from %s", len(data), options.url)
         if cache_file is not None:
             write_bytes_atomic(cache_file, data)
         return OverpassResult(data, query, options.url, cache_file, from_cache=False)
     msg = (
         f"cannot get OSM data from the Overpass API at {options.url} after "
-        f"{options.retries + 1} attempts ({last}); when offline, pass --osm FILE with an OSM "
-        f"extract covering {box} (export it from openstreetmap.org or JOSM)"
+        f"{attempts} attempt{'s' if attempts > 1 else ''} ({last}); when offline, pass --osm "
+        f"FILE with an OSM extract covering {box} (export it from openstreetmap.org or JOSM)"
     )
     raise OverpassUnreachableError(msg)
