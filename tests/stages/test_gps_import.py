@@ -191,3 +191,70 @@ def test_a_real_gps_drive_without_osm_gets_a_geo_referenced_road_and_a_scenario(
     # A drive that never turns the wheel more than 5 degrees: GPS noise is a large part of the
     # derived curvature (0.64 here, against 0.996 on the reference drives' turns).
     assert np.corrcoef(measured, signal["value"])[0, 1] > 0.6
+
+
+def _kitti_raw_calibration(folder: Path) -> Path:
+    """KITTI raw's three files: the Velodyne 0.81 m ahead of, 0.32 m right of and 0.80 m above
+    the GPS/IMU; camera 00 0.27 m ahead of and 0.08 m below the Velodyne; camera 01 0.54 m to
+    the right of camera 00 (rectified; tiny 16x12 images)."""
+    folder.mkdir(parents=True)
+
+    def line(key: str, values: list[float]) -> str:
+        return f"{key}: " + " ".join(f"{v:.6e}" for v in values)
+
+    p0 = [20.0, 0.0, 8.0, 0.0, 0.0, 20.0, 6.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    p1 = [*p0[:3], -20.0 * 0.54, *p0[4:]]
+    cams = [
+        "calib_time: 09-Jan-2012 13:57:47",
+        line("S_rect_00", [16, 12]),
+        line("R_rect_00", [1, 0, 0, 0, 1, 0, 0, 0, 1]),
+        line("P_rect_00", p0),
+        line("S_rect_01", [16, 12]),
+        line("P_rect_01", p1),
+    ]
+    (folder / "calib_cam_to_cam.txt").write_text("\n".join(cams) + "\n")
+    velo = ["calib_time: 15-Mar-2012 11:37:16", line("R", [0, -1, 0, 0, 0, -1, 1, 0, 0])]
+    velo.append(line("T", [0.0, -0.08, -0.27]))
+    (folder / "calib_velo_to_cam.txt").write_text("\n".join(velo) + "\n")
+    imu = [line("R", [1, 0, 0, 0, 1, 0, 0, 0, 1]), line("T", [-0.81, 0.32, -0.80])]
+    (folder / "calib_imu_to_velo.txt").write_text("\n".join(imu) + "\n")
+    return folder
+
+
+def test_kitti_raw_calibration_places_each_camera_on_the_gps_imu(tmp_path: Path) -> None:
+    from cam2sim.core.dataset import Calibration
+    from cam2sim.recording.kitti_calibration import read_kitti_raw_calibration
+
+    calib = _kitti_raw_calibration(tmp_path / "2011_09_26")
+    left = read_kitti_raw_calibration(calib, "00")
+    np.testing.assert_allclose(left.T_imu_cam[:3, 3], [1.08, -0.32, 0.72], atol=1e-9)
+    np.testing.assert_allclose(left.T_imu_cam[:3, 2], [1.0, 0.0, 0.0], atol=1e-9)  # looks ahead
+    np.testing.assert_allclose(left.T_imu_cam[:3, 0], [0.0, -1.0, 0.0], atol=1e-9)  # x right
+    right = read_kitti_raw_calibration(calib, "01")
+    np.testing.assert_allclose(right.T_imu_cam[:3, 3], [1.08, -0.86, 0.72], atol=1e-9)
+    assert (right.width, right.height) == (16, 12)
+    assert right.K[0, 0] == 20.0
+
+    _, xy, heading = _arc(10)
+    lat, lon = _to_wgs84(UTM10N, xy[:, 0], xy[:, 1])
+    rpy = np.stack([np.zeros(10), np.zeros(10), heading], -1)
+    drive = tmp_path / "2011_09_26" / "2011_09_26_drive_0001_sync"
+    oxts = _oxts_folder(drive, lat, lon, rpy)
+    images = drive / "image_01" / "data"
+    _images(images, [f"{k:010d}.png" for k in range(10)])
+    opts = ImportOptions(poses=oxts, calibration=calib, fps=10.0, pose_offset_m=(0.0, 0.0, 0.93))
+    import_images(tmp_path / "ws", images, options=opts)
+    saved = Calibration.load(DatasetPaths(tmp_path / "ws" / "dataset").calibration_json)
+    assert saved.camera is not None
+    assert "rectified camera 01" in saved.camera.source
+    np.testing.assert_allclose(saved.camera_mount.translation_m, [1.08, -0.86, 0.72], atol=1e-9)
+    assert saved.camera_mount.axes == "optical"
+
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(RecordingError, match=r"folder without KITTI raw's calib_cam_to_cam.txt"):
+        import_images(
+            tmp_path / "ws2", images, options=ImportOptions(calibration=tmp_path / "empty")
+        )
+    (calib / "calib_cam_to_cam.txt").write_text("P_rect_00: 1 2 3\n")
+    with pytest.raises(RecordingError, match=r"calib_cam_to_cam.txt: P_rect_00 must be 12"):
+        read_kitti_raw_calibration(calib, "00")

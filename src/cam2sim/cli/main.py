@@ -282,7 +282,10 @@ def import_(
     ] = None,
     calibration: Annotated[
         Path | None,
-        typer.Option(help="JSON with K, distortion, width, height (or a Cam2Sim camera.json)."),
+        typer.Option(
+            help="JSON with K, distortion, width, height (or a Cam2Sim camera.json), a K.txt, "
+            "or KITTI raw's calibration folder."
+        ),
     ] = None,
     crs: Annotated[
         str | None,

@@ -49,6 +49,11 @@ from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.table import write_table
 from cam2sim.core.trajectory import Trajectory, heading_from_motion
 from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
+from cam2sim.recording.kitti_calibration import (
+    KITTI_RAW_FILES,
+    is_kitti_raw_calibration,
+    read_kitti_raw_calibration,
+)
 from cam2sim.recording.pose import yaw_offset_quat
 from cam2sim.recording.pose_file import PoseTable, first_column, read_pose_file, table_stamps
 from cam2sim.scenario.calibration import PosePoint, fit_pose_point
@@ -270,15 +275,43 @@ def _text_K(path: Path, text: str, size: tuple[int, int] | None) -> CameraIntrin
     return CameraIntrinsics.from_camera(camera, f"file {path} (K; size from the images)")
 
 
+def _kitti_raw(folder: Path, images: Path | None) -> tuple[CameraIntrinsics, MountRecord]:
+    """KITTI raw's calibration folder: the camera of ``images`` (``image_0N``; else 00)."""
+    found = re.findall(r"image_0([0-3])", str(images)) if images is not None else []
+    cam = read_kitti_raw_calibration(folder, f"0{found[-1]}" if found else "00")
+    camera = PinholeCamera.from_K(cam.K, cam.width, cam.height, [])
+    source = f"file {folder} (KITTI raw, rectified camera {cam.camera})"
+    intr = CameraIntrinsics.from_camera(camera, source)
+    rot = cam.T_imu_cam[:3, :3]
+    u, _, vt = np.linalg.svd(rot)  # R_rect is orthonormal to 1e-6 only
+    mount = MountRecord(
+        translation_m=tuple(float(v) for v in cam.T_imu_cam[:3, 3]),
+        quat_xyzw=tuple(float(v) for v in frames.quat_from_matrix(u @ vt)),
+        axes="optical",
+        source=source,
+    )
+    return intr, mount
+
+
 def intrinsics_from_file(
-    path: Path, size: tuple[int, int] | None = None
+    path: Path, size: tuple[int, int] | None = None, images: Path | None = None
 ) -> tuple[CameraIntrinsics, MountRecord | None]:
     """Read camera intrinsics (and a mount, when the file has one).
 
     Accepts our ``calibration.json``, a Cam2Sim ``camera.json``, plain JSON
-    ``{K, distortion, width, height}``, or a plain-text K (3x3: KITTI's ``K.txt``, or the
-    ``P0:`` line of its ``calib.txt``), whose image ``size`` (width, height) the images give.
+    ``{K, distortion, width, height}``, a plain-text K (3x3: KITTI's ``K.txt``, or the
+    ``P0:`` line of its ``calib.txt``), whose image ``size`` (width, height) the images give,
+    or KITTI raw's calibration folder (K, size and the camera's mount on the GPS/IMU unit, the
+    camera named by ``images``' ``image_0N`` folder).
     """
+    if is_kitti_raw_calibration(Path(path)):
+        return _kitti_raw(Path(path), images)
+    if Path(path).is_dir():
+        msg = (
+            f"--calibration {path} is a folder without KITTI raw's "
+            f"{', '.join(KITTI_RAW_FILES)}; give a calibration file or that folder"
+        )
+        raise RecordingError(msg)
     try:
         text = Path(path).read_text(encoding="utf-8")
     except OSError as err:
@@ -511,7 +544,7 @@ def import_images(
     table = read_pose_file(opts.poses) if opts.poses else None
     intr, mount = (None, None)
     if opts.calibration:
-        intr, mount = intrinsics_from_file(opts.calibration, _image_size(files[0]))
+        intr, mount = intrinsics_from_file(opts.calibration, _image_size(files[0]), images)
     extra_inputs = [
         *(p for p in (opts.poses, opts.calibration, opts.rig) if p is not None),
         *(path for _, path in opts.signals),

@@ -43,7 +43,7 @@ if TYPE_CHECKING:
 
     #: Reads a calibration file for images of a size: (intrinsics, mount or None).
     IntrinsicsReader = Callable[
-        [Path, tuple[int, int] | None], tuple[CameraIntrinsics, MountRecord | None]
+        [Path, tuple[int, int] | None, Path | None], tuple[CameraIntrinsics, MountRecord | None]
     ]
 
 __all__ = ["RigSpec", "read_rig", "rig_offset", "write_rig"]
@@ -172,7 +172,7 @@ def write_rig(
             raise RecordingError(msg)
         size = _size(files[0])
         if spec.calibration is not None:
-            intr, _ = intrinsics_from_file(spec.calibration, size)
+            intr, _ = intrinsics_from_file(spec.calibration, size, spec.images)
         elif front is not None:
             intr = front
         else:
