@@ -74,8 +74,34 @@ def test_a_gps_csv_is_geo_referenced_and_heads_where_it_drives(tmp_path: Path) -
     grid = wf.heading_to_crs(UTM10N, xyz[:, :2], table["heading"])
     inside = slice(5, -5)  # the motion window is one-sided at the ends
     err = np.degrees(np.abs(frames.angle_difference(grid[inside], heading[inside])))
-    assert err.max() < 1.0
+    assert err.mean() < 0.5
+    assert err.max() < 1.5  # where the turn begins: the 1 s chord straddles the change
     assert float(np.median(table["speed"])) == pytest.approx(8.0, rel=0.01)
+
+
+def test_heading_from_noisy_gps_fixes_is_averaged_over_a_second(tmp_path: Path) -> None:
+    """10 cm of GPS noise at 10 Hz and 8 m/s: a 0.2 s chord (1.6 m) turns the heading by
+    several degrees at every fix; the 1 s chord keeps it within about one degree."""
+    t, xy, heading = _arc(120)
+    noisy = xy + np.random.default_rng(3).normal(0.0, 0.1, xy.shape)
+    lat, lon = _to_wgs84(UTM10N, noisy[:, 0], noisy[:, 1])
+    stamps = T0 + np.round(t * 1e9).astype(np.int64)
+    rows = ["timestamp,lat,lon"] + [
+        f"{s // 10**9}.{s % 10**9:09d},{a:.10f},{b:.10f}"
+        for s, a, b in zip(stamps, lat, lon, strict=True)
+    ]
+    (tmp_path / "gps.csv").write_text("\n".join(rows) + "\n")
+    _images(tmp_path / "images", [f"{s}.png" for s in stamps])
+    info = import_images(
+        tmp_path / "ws", tmp_path / "images", options=ImportOptions(poses=tmp_path / "gps.csv")
+    ).info
+    table = read_table(DatasetPaths(tmp_path / "ws" / "dataset").poses_csv)
+    wf = frames.WorldFrame(info.world.origin_lat_deg, info.world.origin_lon_deg)  # type: ignore[arg-type]
+    xyz = np.stack([table["x"], table["y"], table["z"]], -1)
+    grid = wf.heading_to_crs(UTM10N, xyz[:, :2], table["heading"])
+    err = np.degrees(np.abs(frames.angle_difference(grid[10:-10], heading[10:-10])))
+    assert err.mean() < 1.5
+    assert err.max() < 5.0
 
 
 def _oxts_folder(root: Path, lat: np.ndarray, lon: np.ndarray, rpy: np.ndarray) -> Path:
@@ -189,8 +215,9 @@ def test_a_real_gps_drive_without_osm_gets_a_geo_referenced_road_and_a_scenario(
     at = (signal["stamp_ns"] - T0) / 1e9 + times[0]
     measured = np.interp(at, can_t, can)
     # A drive that never turns the wheel more than 5 degrees: GPS noise is a large part of the
-    # derived curvature (0.64 here, against 0.996 on the reference drives' turns).
-    assert np.corrcoef(measured, signal["value"])[0, 1] > 0.6
+    # derived curvature (0.80 here, 0.64 with a 0.2 s heading window; 0.996 on the reference
+    # drives' turns).
+    assert np.corrcoef(measured, signal["value"])[0, 1] > 0.75
 
 
 def _kitti_raw_calibration(folder: Path) -> Path:

@@ -256,7 +256,7 @@ def world_trajectory_from_track(
         heading = heading_from_motion(
             track.stamp_ns,
             position,
-            window_s=config.sync.speed_window_s,
+            window_s=config.sync.heading_window_s,
             min_speed_mps=config.sync.min_motion_speed_mps,
         )
         quat = frames.quat_from_yaw(heading)

@@ -30,6 +30,7 @@ from cam2sim.core.config import (
     AxisConvention,
     Config,
     PoseConfig,
+    SyncConfig,
     VehicleConfig,
     save_config,
 )
@@ -409,19 +410,20 @@ def _world(
     return record, xyz, quat
 
 
-def _heading_quats(table: PoseTable, xyz: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+def _heading_quats(
+    table: PoseTable, xyz: npt.NDArray[np.float64], sync: SyncConfig
+) -> npt.NDArray[np.float64]:
     """Orientation from the direction of travel, for poses that give none (GPS fixes)."""
     if table.by_index:
         msg = "the pose file gives no orientation and no times; add yaw or qx,qy,qz,qw"
         raise RecordingError(msg)
-    defaults = Config().sync
     order = np.argsort(table.stamp_ns, kind="stable")
     heading = np.empty(len(order))
     heading[order] = heading_from_motion(
         table.stamp_ns[order],
         xyz[order],
-        window_s=defaults.speed_window_s,
-        min_speed_mps=defaults.min_motion_speed_mps,
+        window_s=sync.heading_window_s,
+        min_speed_mps=sync.min_motion_speed_mps,
     )
     logger.info("import: the poses give no orientation; heading from the direction of travel")
     return frames.quat_from_yaw(heading)
@@ -443,11 +445,12 @@ def _poses_for_images(
     opts: ImportOptions,
     existing: WorldFrameRecord | None,
     time_source: str,
+    sync: SyncConfig,
 ) -> _PosedImages:
     """Give every image its pose: by the table's image column, else by time."""
     dropped: dict[str, int] = {}
     world, xyz, given = _world(table, opts.crs, existing)
-    quat = given if given is not None else _heading_quats(table, xyz)
+    quat = given if given is not None else _heading_quats(table, xyz, sync)
     offset = AXIS_CONVENTION_YAW_OFFSET[opts.axis_convention]
     quat = frames.quat_normalize(frames.quat_multiply(quat, yaw_offset_quat(offset)))
     if table.images is not None or table.by_index:
@@ -562,7 +565,9 @@ def import_images(
         pose_cols: dict[str, npt.NDArray[Any]] | None = None
         pose_point: PosePoint | None = None
         if table is not None:
-            posed = _poses_for_images(table, files, stamps, opts, ws.world_frame(), time_source)
+            posed = _poses_for_images(
+                table, files, stamps, opts, ws.world_frame(), time_source, config.sync
+            )
             config, pose_point = _place_poses(ws, config, opts, posed, created)
             run.config = config
             world, keep, stamps, pose_cols, dropped = (
