@@ -285,3 +285,18 @@ def test_kitti_raw_calibration_places_each_camera_on_the_gps_imu(tmp_path: Path)
     (calib / "calib_cam_to_cam.txt").write_text("P_rect_00: 1 2 3\n")
     with pytest.raises(RecordingError, match=r"calib_cam_to_cam.txt: P_rect_00 must be 12"):
         read_kitti_raw_calibration(calib, "00")
+
+
+def test_pose_times_may_be_iso_dates(tmp_path: Path) -> None:
+    """GPS logs often write times as dates: without a zone they are UTC, every digit kept."""
+    csv = tmp_path / "gps.csv"
+    csv.write_text(
+        "time,lat,lon\n"
+        "2011-09-26 13:02:25.964389445,49.0,8.4\n"
+        "2011-09-26T13:02:26.064389445Z,49.00001,8.4\n"
+        "2011-09-26T15:02:26.164389445+02:00,49.00002,8.4\n"
+    )
+    table = read_pose_file(csv)
+    start = 1_317_042_145_964_389_445  # 2011-09-26 13:02:25.964389445 UTC
+    np.testing.assert_array_equal(table.stamp_ns, start + np.arange(3) * 100_000_000)
+    assert table.quat is None
