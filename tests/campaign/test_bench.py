@@ -73,6 +73,7 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
 
 def test_every_world_runs_the_whole_experiment(bench: tuple[Path, object]) -> None:
     from cam2sim.metrics.benchmark import WorldResult
+    from cam2sim.report.bench import steering_gap_peak
 
     root, result = bench
     assert (result.worlds, result.ran, result.failed) == (3, 3, 1)  # type: ignore[attr-defined]
@@ -91,6 +92,13 @@ def test_every_world_runs_the_whole_experiment(bench: tuple[Path, object]) -> No
         assert world.profile is not None
         assert world.profile["offsets_m"] == [-1.0, 0.0, 1.0]
         assert len(world.profile["s_m"]) >= 5  # type: ignore[arg-type]
+        # The drives' DAVE-2 asked for its steering on both views at every station.
+        assert str(world.profile["policy"]).endswith("dave2.onnx")
+        for key in ("steering_truth", "steering_splat"):
+            rows = world.profile[key]
+            assert len(rows) == 3  # type: ignore[arg-type]
+            assert all(v is not None for v in rows[1])  # type: ignore[index]
+        assert steering_gap_peak(world) is not None
         for failure in world.failures:
             assert failure.kind
             assert failure.reason  # the events say what happened

@@ -218,12 +218,18 @@ def world_result(spec: WorldSpec, done: Experiment, seconds: float) -> WorldResu
         StageError: The world's evaluation is missing (a step failed).
     """
     from cam2sim.metrics.behaviour import METHOD_LABELS  # noqa: PLC0415 -- lazy: numpy
+    from cam2sim.stages.ads import ONNX_FILE  # noqa: PLC0415
     from cam2sim.stages.route_profile import route_profile  # noqa: PLC0415 -- lazy: torch
 
     ws = done.ws
     methods, metrics = _method_rows(ws)
     failures = _failures(ws, metrics, METHOD_LABELS)
-    prof = route_profile(ws, every_m=spec.settings.profile_every_m).to_json()
+    model = ws.ads_dir / ONNX_FILE  # the drives' DAVE-2: its steering on splat and truth views
+    prof = route_profile(
+        ws,
+        every_m=spec.settings.profile_every_m,
+        policy=str(model) if model.is_file() else None,
+    ).to_json()
     steps = {o.name: round(o.seconds, 1) for o in done.result.outcomes if o.seconds}
     if done.built_s is not None:
         steps = {"recording": round(done.built_s, 1), **steps}

@@ -127,7 +127,7 @@ def bench_tables(
     splat: tuple[list[str], list[list[object]]] = (
         ["street", "route m", "device", "steps a chunk", "stopped", "held-out PSNR",
          "held-out SSIM", "truth on path", "truth 1 m right", "truth 1 m left",
-         "profile min PSNR", "world s"],
+         "profile min PSNR", "largest steering gap (at m)", "world s"],
         [
             [w.label, fmt(w.route_m, ".0f"), w.splat_device or "-",
              "/".join(str(s) for s in w.splat_steps) or "-",
@@ -135,7 +135,7 @@ def bench_tables(
              fmt(w.splat_held_out_psnr_db, ".1f"), fmt(w.splat_held_out_ssim, ".3f"),
              fmt(w.splat_truth_psnr_db.get("on path"), ".1f"),
              fmt(_truth_at(w, "+1"), ".1f"), fmt(_truth_at(w, "-1"), ".1f"),
-             fmt(_profile_min(w), ".1f"), fmt(w.seconds, ".0f")]
+             fmt(_profile_min(w), ".1f"), _gap_text(w), fmt(w.seconds, ".0f")]
             for w in results
         ],
     )  # fmt: skip
@@ -162,6 +162,36 @@ def _profile_min(world: WorldResult) -> float | None:
         return None
     values = [v for v in rows[offsets.index(0.0)] if v is not None]  # type: ignore[index]
     return min(values) if values else None
+
+
+def _on_path(world: WorldResult, key: str) -> list[float | None] | None:
+    """Row ``key`` of the profile on the path (offset 0), or None."""
+    if not world.profile or key not in world.profile:
+        return None
+    offsets = list(world.profile.get("offsets_m", []))  # type: ignore[call-overload]
+    if 0.0 not in offsets:
+        return None
+    row: list[float | None] = world.profile[key][offsets.index(0.0)]  # type: ignore[index]
+    return row
+
+
+def steering_gap_peak(world: WorldResult) -> tuple[float, float] | None:
+    """The largest |splat - truth| steering of the drives' policy on the path, and where (m)."""
+    truth, splat = _on_path(world, "steering_truth"), _on_path(world, "steering_splat")
+    if truth is None or splat is None or not world.profile:
+        return None
+    stations: list[float] = world.profile["s_m"]  # type: ignore[assignment]
+    gaps = [
+        (abs(b - a), s)
+        for a, b, s in zip(truth, splat, stations, strict=True)
+        if a is not None and b is not None
+    ]
+    return max(gaps) if gaps else None
+
+
+def _gap_text(world: WorldResult) -> str:
+    peak = steering_gap_peak(world)
+    return "-" if peak is None else f"{peak[0]:.2f} ({peak[1]:.0f})"
 
 
 # -- plots ----------------------------------------------------------------------------------
@@ -207,6 +237,17 @@ def _profile_plot(world: WorldResult) -> str:
     ax.set_xlabel("station along the recorded path, m")
     ax.set_ylabel("splat vs truth PSNR, dB")
     ax.legend(fontsize=7, loc="lower left")
+    truth, splat = _on_path(world, "steering_truth"), _on_path(world, "steering_splat")
+    if truth is not None and splat is not None:
+        gap = [
+            float("nan") if a is None or b is None else b - a
+            for a, b in zip(truth, splat, strict=True)
+        ]
+        twin = ax.twinx()
+        twin.plot(s, gap, color="#b35806", lw=1.0, label="steering gap, splat - truth")
+        twin.axhline(0.0, color="#b35806", lw=0.5, alpha=0.5)
+        twin.set_ylabel("policy steering gap (units)", color="#b35806")
+        twin.legend(fontsize=7, loc="lower right")
     ax.set_title(f"{world.label}: splat against the ground truth along the route")
     return png_img(fig)
 

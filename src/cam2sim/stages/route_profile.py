@@ -5,8 +5,14 @@ held-out frames; a closed-loop run goes wrong at one place. :func:`route_profile
 splat and the ground-truth world (the ``truth`` camera, as the Real runs see it, sensor noise
 included) every ``every_m`` metres along the recorded path, on it and at lateral offsets, and
 scores each pair with PSNR: where along the route the splat is poor, and how fast it degrades
-off the path there. :func:`failure_views` renders the splat, the truth and the simulator
-camera at a run's pose just before it failed, side by side with their PSNR against the truth.
+off the path there. Given the policy the drives use, it also asks it for its steering on both
+views: the **steering gap** (splat minus truth) says where the splat makes the system under
+test act differently, which PSNR alone does not (on an unseen Piedmont street the splat runs
+swung 0.6 m off at 205 m where PSNR was 26-27 dB all along, and the gap peaked there: 1.2
+units, the route's largest; ``docs/benchmarks.md``).
+
+:func:`failure_views` renders the splat, the truth and the simulator camera at a run's pose
+just before it failed, side by side with their PSNR against the truth.
 
 Both need a workspace with a scenario, splat models and a ground-truth world
 (``WS/truth/world.json``: the demo's and the benchmark's worlds).
@@ -38,6 +44,7 @@ if TYPE_CHECKING:
 
     from cam2sim.core.workspace import Workspace
     from cam2sim.scenario.model import Scenario
+    from cam2sim.sim.interface import SteeringPolicy
 
 __all__ = ["FailureViews", "RouteProfile", "failure_views", "route_profile"]
 
@@ -53,11 +60,25 @@ class RouteProfile:
         s_m: ``(K,)`` stations along the recorded path (metres from its start).
         offsets_m: Lateral offsets of the camera (positive: right).
         psnr_db: ``(len(offsets_m), K)`` PSNR at each offset and station (NaN: not scored).
+        steering_truth: ``(len(offsets_m), K)`` the policy's steering on the truth view (the
+            recording's steering units), or None without a policy.
+        steering_splat: The same on the splat view.
+        policy: The policy asked, or None.
     """
 
     s_m: npt.NDArray[np.float64]
     offsets_m: tuple[float, ...]
     psnr_db: npt.NDArray[np.float64]
+    steering_truth: npt.NDArray[np.float64] | None = None
+    steering_splat: npt.NDArray[np.float64] | None = None
+    policy: str | None = None
+
+    def steering_gap(self) -> npt.NDArray[np.float64] | None:
+        """``(len(offsets_m), K)`` splat minus truth steering, or None without a policy."""
+        if self.steering_truth is None or self.steering_splat is None:
+            return None
+        gap: npt.NDArray[np.float64] = self.steering_splat - self.steering_truth
+        return gap
 
     def at(self, s_m: float, offset_m: float = 0.0) -> float | None:
         """The PSNR at the station nearest ``s_m`` and the offset nearest ``offset_m``."""
@@ -69,13 +90,20 @@ class RouteProfile:
 
     def to_json(self) -> dict[str, object]:
         """Plain data (NaN as null)."""
-        return {
+
+        def rows(values: npt.NDArray[np.float64], digits: int) -> list[list[float | None]]:
+            return [[None if np.isnan(v) else round(float(v), digits) for v in r] for r in values]
+
+        out: dict[str, object] = {
             "s_m": [round(float(v), 2) for v in self.s_m],
             "offsets_m": list(self.offsets_m),
-            "psnr_db": [
-                [None if np.isnan(v) else round(float(v), 2) for v in row] for row in self.psnr_db
-            ],
+            "psnr_db": rows(self.psnr_db, 2),
         }
+        if self.steering_truth is not None and self.steering_splat is not None:
+            out["policy"] = self.policy
+            out["steering_truth"] = rows(self.steering_truth, 3)
+            out["steering_splat"] = rows(self.steering_splat, 3)
+        return out
 
 
 @dataclass(frozen=True)
@@ -122,14 +150,39 @@ def _pose(
     return pose
 
 
+def _steering(
+    policy: SteeringPolicy,
+    image: npt.NDArray[np.uint8],
+    xy: npt.NDArray[np.float64],
+    heading: float,
+) -> float:
+    """The policy's answer to one view, as the first decision of a run (the car at ``xy``)."""
+    from cam2sim.core.vehicle import VehicleState  # noqa: PLC0415
+    from cam2sim.sim.interface import Observation  # noqa: PLC0415
+
+    x, y = float(xy[0]), float(xy[1])
+    state = VehicleState(0.0, x, y, 0.0, heading, 0.0, 0.0, 0.0, (x, y))
+    policy.reset()
+    return float(policy.predict(Observation(0.0, image, state)))
+
+
 def route_profile(
     ws: Workspace,
     *,
     every_m: float = 10.0,
     offsets_m: Sequence[float] = (-1.0, 0.0, 1.0),
+    policy: str | None = None,
     progress: ProgressCallback = no_progress,
 ) -> RouteProfile:
     """Score the splat against the truth every ``every_m`` along the recorded path.
+
+    Args:
+        ws: The workspace.
+        every_m: Station spacing, metres.
+        offsets_m: Lateral offsets of the camera (positive: right).
+        policy: A policy spec (:func:`cam2sim.ads.policy.load_policy`, e.g. the workspace's
+            ``ads/dave2.onnx``) to ask for its steering on both views; None: PSNR only.
+        progress: Receives the renders' task.
 
     Raises:
         StageError: No scenario, no splat models or no ground-truth world in ``ws``.
@@ -143,20 +196,46 @@ def route_profile(
     heading = np.asarray(sc.trajectory.heading, dtype=np.float64)
     camera = run_camera(sc, _small(sc))
     out = np.full((len(offsets_m), len(idx)), np.nan)
+    steer = np.full((2, *out.shape), np.nan) if policy is not None else None
+    asked = None
+    if policy is not None:
+        from cam2sim.ads.policy import load_policy  # noqa: PLC0415 -- lazy: cv2, onnxruntime
+
+        asked = load_policy(
+            policy, route_xy=None, wheelbase_m=sc.vehicle.wheelbase_m,
+            calibration=sc.steering_calibration,
+        )  # fmt: skip
     total = out.size
-    with Cameras(ctx, ("splat", TRUTH_CAMERA)) as cams:
-        for r, lateral in enumerate(offsets_m):
-            for k, i in enumerate(idx.tolist()):
-                truth = cams.render(
-                    TRUTH_CAMERA, _pose(sc, ref[i], heading[i], lateral, splat=False), camera
-                )
-                splat = cams.render(
-                    "splat", _pose(sc, ref[i], heading[i], lateral, splat=True), camera
-                )
-                value = psnr(truth, splat)
-                out[r, k] = np.nan if value is None else value
-                progress("splat vs truth along the route", r * len(idx) + k + 1, total)
-    return RouteProfile(s_m=s_all[idx], offsets_m=tuple(float(v) for v in offsets_m), psnr_db=out)
+    try:
+        with Cameras(ctx, ("splat", TRUTH_CAMERA)) as cams:
+            for r, lateral in enumerate(offsets_m):
+                for k, i in enumerate(idx.tolist()):
+                    truth = cams.render(
+                        TRUTH_CAMERA, _pose(sc, ref[i], heading[i], lateral, splat=False), camera
+                    )
+                    splat = cams.render(
+                        "splat", _pose(sc, ref[i], heading[i], lateral, splat=True), camera
+                    )
+                    value = psnr(truth, splat)
+                    out[r, k] = np.nan if value is None else value
+                    if asked is not None and steer is not None:
+                        at, h = ref[i], float(heading[i])
+                        steer[:, r, k] = (
+                            _steering(asked, truth, at, h),
+                            _steering(asked, splat, at, h),
+                        )
+                    progress("splat vs truth along the route", r * len(idx) + k + 1, total)
+    finally:
+        if asked is not None:
+            asked.close()
+    return RouteProfile(
+        s_m=s_all[idx],
+        offsets_m=tuple(float(v) for v in offsets_m),
+        psnr_db=out,
+        steering_truth=None if steer is None else steer[0],
+        steering_splat=None if steer is None else steer[1],
+        policy=policy,
+    )
 
 
 def failure_views(
