@@ -47,6 +47,13 @@ def _image_metrics(ws: Workspace, frames: Path) -> None:
     semantic = ws.report_dir / "semantic"
     result = evaluate_semantic_folders(frames, frames, comparison_dir=semantic / "comparison")
     result.save(semantic / "semantic.json")
+    from cam2sim.metrics.steering_agreement import steering_agreement
+
+    names = ["000000", "000001", "000002"]
+    agreement = steering_agreement(
+        "images", "dave2.onnx", names, [0.0, 1.0, -1.0], [0.1, 0.7, -1.0]
+    )
+    agreement.save(ws.report_dir / "images" / "steering.json")
 
 
 @pytest.fixture(scope="module")
@@ -92,6 +99,9 @@ def test_report_embeds_every_section_and_no_external_resource(
         semantic = html.split('<section id="semantic">')[1].split("</section>")[0]
         assert semantic.count('alt="labels ') == 3  # the comparison pictures already written
         assert "PSNR dB" in html
+        # DAVE-2 on the rendered frames against the recorded ones: the gap and where it peaks.
+        assert "DAVE-2 steering gap |rendered - recorded|, mean (units)</td><td>0.133" in html
+        assert "0.300 (000001)" in html
         assert "not available" not in html.split('id="frames"')[1]
     else:
         assert "cam2sim replay" in html

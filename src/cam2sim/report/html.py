@@ -44,6 +44,7 @@ from cam2sim.metrics.drive_io import load_run_dir
 from cam2sim.metrics.drive_quality import DriveMetrics
 from cam2sim.metrics.image_quality import PSNR_CAP_DB, ImageQualityResult
 from cam2sim.metrics.semantic import SemanticResult
+from cam2sim.metrics.steering_agreement import SteeringAgreement
 from cam2sim.report.context import ReportContext
 from cam2sim.report.exports import write_tables
 from cam2sim.report.frames_section import frames_section
@@ -539,6 +540,7 @@ def _images(ctx: ReportContext) -> str:
         ]
         rows.append([label, *cells])
     rows.append(["image pairs", *(str(len(res.images)) for _, res in results)])
+    rows += _steering_rows(ctx, [path.parent / "steering.json" for path, _ in results])
     parts = [html_table(["metric (mean ± std)", *names], rows, "Against the recorded frames")]
     if not any(res.lpips_net for _, res in results):
         parts.append('<p class="note">LPIPS skipped: its weights are not on this machine.</p>')
@@ -546,6 +548,31 @@ def _images(ctx: ReportContext) -> str:
     cap = f"PSNR is capped at {PSNR_CAP_DB:g} dB"
     parts.append(f'<p class="note">From {esc(where)}; {cap}.</p>')
     return "".join(parts)
+
+
+def _steering_rows(ctx: ReportContext, paths: list[Path]) -> list[list[str]]:
+    """DAVE-2 on each camera's frames against the recorded ones (``steering.json``), if any."""
+    found: list[SteeringAgreement | None] = []
+    for path in paths:
+        try:
+            found.append(SteeringAgreement.load(path) if path.is_file() else None)
+        except Cam2SimError as err:
+            ctx.warnings.append(f"{path}: {err}")
+            found.append(None)
+    if not any(found):
+        return []
+
+    def cells(text: Callable[[SteeringAgreement], str]) -> list[str]:
+        return [text(a) if a is not None else "-" for a in found]
+
+    return [
+        ["DAVE-2 steering gap |rendered - recorded|, mean (units)",
+         *cells(lambda a: f"{a.mean_abs_gap:.3f}")],
+        ["steering gap: 95th percentile / largest (frame)",
+         *cells(lambda a: f"{a.p95_abs_gap:.3f} / {a.max_abs_gap:.3f} ({a.max_gap_frame})")],
+        ["steering correlation with the recorded frames' (their spread)",
+         *cells(lambda a: f"{fmt(a.correlation, '.3f')} ({a.recorded_std:.3f})")],
+    ]  # fmt: skip
 
 
 #: Column names of the image-quality table, by the folder name of the compared images.

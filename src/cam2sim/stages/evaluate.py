@@ -34,7 +34,11 @@ from cam2sim.render.truth import truth_world_path
 from cam2sim.report.drive_figures import write_drive_figures
 from cam2sim.scenario.model import Scenario
 from cam2sim.stages._runner import stage_run
-from cam2sim.stages.reconstruction import evaluate_replay_images, evaluate_world_semantics
+from cam2sim.stages.reconstruction import (
+    evaluate_replay_images,
+    evaluate_replay_steering,
+    evaluate_world_semantics,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -229,6 +233,7 @@ def evaluate_workspace(
         "runs": runs,
         "replay": replay,
         "corridor": "one drive: lane margin",  # the rule changed: evaluate again
+        "policy": _policy_fingerprint(ws),  # the steering agreement's DAVE-2
     }
     if opts.real:
         inputs["real"] = [str(p) for p in opts.real]
@@ -242,6 +247,28 @@ def evaluate_workspace(
         notes = _evaluate_reconstruction(ws, replay, progress or no_progress)
     logger.info("stage evaluate: %d drive run(s) scored", len(runs))
     return EvaluateResult(metrics, tuple(notes))
+
+
+def _policy_fingerprint(ws: Workspace) -> str | None:
+    from cam2sim.core.files import file_fingerprint  # noqa: PLC0415
+    from cam2sim.stages.ads import ONNX_FILE  # noqa: PLC0415
+
+    model = ws.ads_dir / ONNX_FILE
+    return file_fingerprint(model) if model.is_file() else None
+
+
+def _replay_steering(ws: Workspace, folder: Path, progress: ProgressCallback) -> list[str]:
+    """DAVE-2 on the replay's frames against the recorded ones; notes on what was not done."""
+    from cam2sim.stages.ads import ONNX_FILE  # noqa: PLC0415
+
+    model = ws.ads_dir / ONNX_FILE
+    if not model.is_file():
+        return ["no DAVE-2 model (ads/dave2.onnx): steering agreement not computed"]
+    try:
+        evaluate_replay_steering(ws, folder, ws.report_files.images_dir, model, progress=progress)
+    except Cam2SimError as err:
+        return [f"steering agreement not computed: {err}"]
+    return []
 
 
 def _evaluate_reconstruction(
@@ -260,6 +287,7 @@ def _evaluate_reconstruction(
             notes += [note] if note else []
         except Cam2SimError as err:  # the drive metrics stand without it
             notes.append(f"image quality not computed: {err}")
+        notes += _replay_steering(ws, folder, progress)
     if not truth_world_path(ws.root).is_file():
         notes.append("no ground-truth world: semantic IoU not computed")
         return notes

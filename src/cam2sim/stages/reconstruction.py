@@ -6,6 +6,10 @@ Two comparisons at recorded poses, written under ``WS/report/`` where the report
   ``raster`` = the simulator's images) against the recorded frames, paired by frame number, with
   PSNR, SSIM and, when its weights are on the machine, LPIPS (skipped with a note otherwise);
   ``images/<camera>/images.json`` and ``images.csv``;
+- **steering agreement** (:func:`evaluate_replay_steering`): the policy the drives use
+  (DAVE-2) on each camera's replay frames and on the recorded frames of the same poses, the gap
+  frame by frame: does the rendered image change what the system under test does, on real
+  data; ``images/<camera>/steering.json``;
 - **semantic IoU** (:func:`evaluate_world_semantics`): at every ``every``-th recorded pose, the
   labels of the ground-truth world (``truth`` camera, ``WS/truth/world.json``) against the labels
   of the simulated world the pipeline built (map, detected parked cars, OSM buildings; the
@@ -46,7 +50,7 @@ if TYPE_CHECKING:
     from cam2sim.core.workspace import Workspace
     from cam2sim.metrics.lpips import Lpips
 
-__all__ = ["evaluate_replay_images", "evaluate_world_semantics"]
+__all__ = ["evaluate_replay_images", "evaluate_replay_steering", "evaluate_world_semantics"]
 
 logger = logging.getLogger(__name__)
 
@@ -83,6 +87,75 @@ def evaluate_replay_images(
     if note:
         logger.info("%s", note)
     return written, note
+
+
+def evaluate_replay_steering(
+    ws: Workspace,
+    replay_run: Path,
+    out: Path,
+    policy: Path,
+    *,
+    progress: ProgressCallback | None = None,
+) -> list[Path]:
+    """The policy's steering on every camera's replay frames against the recorded frames.
+
+    Each frame pair (same frame number) is shown to the policy as the first decision of a run;
+    ``out/<camera>/steering.json`` holds both series and their gaps
+    (:mod:`cam2sim.metrics.steering_agreement`).
+
+    Returns:
+        The ``steering.json`` paths written (one per camera with frame pairs).
+
+    Raises:
+        StageError: The replay saved no frames, or the policy cannot be loaded.
+    """
+    from cam2sim.ads.policy import load_policy  # noqa: PLC0415 -- lazy: cv2, onnxruntime
+    from cam2sim.core.images import read_rgb  # noqa: PLC0415 -- lazy: cv2
+    from cam2sim.core.vehicle import VehicleState  # noqa: PLC0415
+    from cam2sim.metrics.steering_agreement import steering_agreement  # noqa: PLC0415
+    from cam2sim.sim.interface import Observation  # noqa: PLC0415
+
+    real_dir = dataset_paths(ws.dataset_dir).frames_dir
+    cameras = sorted(p for p in (replay_run / "frames").glob("*") if p.is_dir())
+    if not cameras:
+        msg = f"replay run {replay_run.name} saved no frames; replay with save_frames"
+        raise StageError(msg)
+    sc = load_run_context(ws).scenario
+    model = load_policy(
+        str(policy), route_xy=None, wheelbase_m=sc.vehicle.wheelbase_m,
+        calibration=sc.steering_calibration,
+    )  # fmt: skip
+    at_rest = VehicleState(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, (0.0, 0.0))
+
+    def steer(path: Path) -> float:
+        model.reset()
+        return float(model.predict(Observation(0.0, read_rgb(path), at_rest)))
+
+    if not real_dir.is_dir():
+        msg = f"{real_dir} does not exist: no recorded frames to compare the replay's with"
+        raise StageError(msg)
+    real = {f.stem: f for f in real_dir.iterdir() if f.is_file()}
+    written = []
+    try:
+        for cam in cameras:
+            pairs = sorted((f.stem, real[f.stem], f) for f in cam.iterdir() if f.stem in real)
+            if not pairs:
+                continue
+            recorded, rendered = [], []
+            for k, (_, a, b) in enumerate(pairs):
+                recorded.append(steer(a))
+                rendered.append(steer(b))
+                (progress or no_progress)(f"DAVE-2 on {cam.name} and recorded", k + 1, len(pairs))
+            result = steering_agreement(
+                cam.name, str(policy), [n for n, _, _ in pairs], recorded, rendered
+            )
+            path = out / cam.name / "steering.json"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            result.save(path)
+            written.append(path)
+    finally:
+        model.close()
+    return written
 
 
 def evaluate_world_semantics(
