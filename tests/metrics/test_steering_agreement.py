@@ -26,6 +26,17 @@ def test_the_gaps_are_summarised_with_the_worst_frame_and_the_scale() -> None:
     assert a.p95_abs_gap == pytest.approx(np.percentile([0.1, 0.1, 0.0, 1.2, 0.05], 95))
     assert a.correlation == pytest.approx(np.corrcoef(recorded, rendered)[0, 1])
     assert a.recorded_std == pytest.approx(np.std(recorded))
+    assert a.held_out_frames == 0
+    assert a.held_out_mean_abs_gap is None
+    # The frames the renderer never trained on, summarised on their own.
+    b = steering_agreement(
+        "splat", "p", frames, recorded, rendered, held_out={"000000", "000002", "000003", "x"}
+    )
+    assert b.held_out_frames == 3
+    assert b.held_out_mean_abs_gap == pytest.approx((0.1 + 0.0 + 1.2) / 3)
+    assert b.held_out_correlation == pytest.approx(
+        np.corrcoef(recorded[[0, 2, 3]], rendered[[0, 2, 3]])[0, 1]
+    )
 
 
 def test_a_constant_series_has_no_correlation_and_bad_lengths_are_refused() -> None:

@@ -19,7 +19,7 @@ import pydantic
 from cam2sim.core.schema import Artifact
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Collection, Sequence
 
     import numpy.typing as npt
 
@@ -48,6 +48,17 @@ class SteeringAgreement(Artifact):
     recorded_std: float = pydantic.Field(
         description="Spread of the steering on the recorded frames: the scale of the gaps"
     )
+    held_out_frames: int = pydantic.Field(
+        0, description="Frames among these that the renderer never trained on (the splat's)"
+    )
+    held_out_mean_abs_gap: float | None = None
+    held_out_correlation: float | None = None
+
+
+def _correlation(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> float | None:
+    if a.size >= 3 and np.ptp(a) > 0 and np.ptp(b) > 0:
+        return float(np.corrcoef(a, b)[0, 1])
+    return None
 
 
 def steering_agreement(
@@ -56,8 +67,13 @@ def steering_agreement(
     frames: Sequence[str],
     recorded: npt.ArrayLike,
     rendered: npt.ArrayLike,
+    *,
+    held_out: Collection[str] = (),
 ) -> SteeringAgreement:
     """Summarise a policy's steering on ``rendered`` frames against the ``recorded`` ones.
+
+    ``held_out`` names the frames the renderer did not train on (a splat's held-out views):
+    their gaps are summarised again on their own, the fair test of a trained renderer.
 
     Raises:
         ValueError: No frame, or the three sequences differ in length.
@@ -72,9 +88,7 @@ def steering_agreement(
         raise ValueError(msg)
     gap = np.abs(sim - real)
     worst = int(np.argmax(gap))
-    corr = None
-    if real.size >= 3 and np.ptp(real) > 0 and np.ptp(sim) > 0:
-        corr = float(np.corrcoef(real, sim)[0, 1])
+    held = np.array([f in set(held_out) for f in frames], dtype=bool)
     return SteeringAgreement(
         camera=camera,
         policy=policy,
@@ -85,6 +99,9 @@ def steering_agreement(
         p95_abs_gap=float(np.percentile(gap, 95)),
         max_abs_gap=float(gap[worst]),
         max_gap_frame=str(frames[worst]),
-        correlation=corr,
+        correlation=_correlation(real, sim),
         recorded_std=float(np.std(real)),
+        held_out_frames=int(held.sum()),
+        held_out_mean_abs_gap=float(gap[held].mean()) if held.any() else None,
+        held_out_correlation=_correlation(real[held], sim[held]),
     )

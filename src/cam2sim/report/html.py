@@ -572,6 +572,10 @@ def _steering_rows(ctx: ReportContext, paths: list[Path]) -> list[list[str]]:
          *cells(lambda a: f"{a.p95_abs_gap:.3f} / {a.max_abs_gap:.3f} ({a.max_gap_frame})")],
         ["steering correlation with the recorded frames' (their spread)",
          *cells(lambda a: f"{fmt(a.correlation, '.3f')} ({a.recorded_std:.3f})")],
+        ["frames never trained on: mean gap, correlation (frames)",
+         *cells(lambda a: f"{fmt(a.held_out_mean_abs_gap, '.3f')}, "
+                          f"{fmt(a.held_out_correlation, '.3f')} ({a.held_out_frames})"
+                if a.held_out_frames else "-")],
     ]  # fmt: skip
 
 

@@ -147,8 +147,9 @@ def evaluate_replay_steering(
                 rendered.append(steer(b))
                 (progress or no_progress)(f"DAVE-2 on {cam.name} and recorded", k + 1, len(pairs))
             result = steering_agreement(
-                cam.name, str(policy), [n for n, _, _ in pairs], recorded, rendered
-            )
+                cam.name, str(policy), [n for n, _, _ in pairs], recorded, rendered,
+                held_out=_held_out_stems(ws) if cam.name == "splat" else (),
+            )  # fmt: skip
             path = out / cam.name / "steering.json"
             path.parent.mkdir(parents=True, exist_ok=True)
             result.save(path)
@@ -156,6 +157,20 @@ def evaluate_replay_steering(
     finally:
         model.close()
     return written
+
+
+def _held_out_stems(ws: Workspace) -> set[str]:
+    """The dataset frames the splat never trained on (its ``scene.json``), or none."""
+    from cam2sim.splat.scene import SceneRecord  # noqa: PLC0415
+
+    path = ws.splat_files.prep_dir / "scene.json"
+    if not path.is_file():
+        return set()
+    try:
+        scene = SceneRecord.load(path)
+    except Cam2SimError:
+        return set()
+    return {f"{f.dataset_frame:06d}" for f in scene.frames if f.held_out}
 
 
 def evaluate_world_semantics(
