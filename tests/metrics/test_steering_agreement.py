@@ -29,14 +29,13 @@ def test_the_gaps_are_summarised_with_the_worst_frame_and_the_scale() -> None:
     assert a.held_out_frames == 0
     assert a.held_out_mean_abs_gap is None
     # The frames the renderer never trained on, summarised on their own.
-    b = steering_agreement(
-        "splat", "p", frames, recorded, rendered, held_out={"000000", "000002", "000003", "x"}
-    )
-    assert b.held_out_frames == 3
-    assert b.held_out_mean_abs_gap == pytest.approx((0.1 + 0.0 + 1.2) / 3)
-    assert b.held_out_correlation == pytest.approx(
-        np.corrcoef(recorded[[0, 2, 3]], rendered[[0, 2, 3]])[0, 1]
-    )
+    held_real, held_sim = [0.0, 0.5, -0.5, 1.0], [0.1, 0.4, -0.2, 1.0]
+    b = steering_agreement("splat", "p", frames, recorded, rendered, held_out=(held_real, held_sim))
+    assert b.held_out_frames == 4
+    assert b.held_out_mean_abs_gap == pytest.approx((0.1 + 0.1 + 0.3 + 0.0) / 4)
+    assert b.held_out_correlation == pytest.approx(np.corrcoef(held_real, held_sim)[0, 1])
+    with pytest.raises(ValueError, match="held-out series of different lengths"):
+        steering_agreement("splat", "p", frames, recorded, rendered, held_out=([0.1], []))
 
 
 def test_a_constant_series_has_no_correlation_and_bad_lengths_are_refused() -> None:
@@ -65,8 +64,22 @@ def test_the_replay_frames_are_shown_to_the_policy_beside_the_recorded_ones(
     recorded.mkdir(parents=True, exist_ok=True)
     for p in rendered:
         shutil.copyfile(p, recorded / p.name)
+    # A splat's held-out view: its render beside the prepared image it is scored against.
+    import cv2
+
+    image = cv2.imread(str(rendered[0]))
+    renders, prepared = ws.splat_files.renders_dir, ws.splat_files.prep_images_dir
+    renders.mkdir(parents=True)
+    prepared.mkdir(parents=True)
+    assert cv2.imwrite(str(renders / "000007.webp"), image)
+    assert cv2.imwrite(str(prepared / "000007.png"), image)
+    shutil.copytree(run.folder / "frames" / "raster", run.folder / "frames" / "splat")
     written = evaluate_replay_steering(ws, run.folder, tmp_path / "out", "constant:0.25")  # type: ignore[arg-type]
-    assert written == [tmp_path / "out" / "raster" / "steering.json"]
+    assert written == [tmp_path / "out" / name / "steering.json" for name in ("raster", "splat")]
+    assert SteeringAgreement.load(written[0]).held_out_frames == 0
+    splat = SteeringAgreement.load(written[1])
+    assert splat.held_out_frames == 1
+    assert splat.held_out_mean_abs_gap == 0.0
     saved = SteeringAgreement.load(written[0])
     assert saved.frames == frames
     assert saved.recorded == saved.rendered == [0.25] * len(frames)

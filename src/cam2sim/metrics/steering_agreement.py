@@ -19,7 +19,7 @@ import pydantic
 from cam2sim.core.schema import Artifact
 
 if TYPE_CHECKING:
-    from collections.abc import Collection, Sequence
+    from collections.abc import Sequence
 
     import numpy.typing as npt
 
@@ -49,7 +49,7 @@ class SteeringAgreement(Artifact):
         description="Spread of the steering on the recorded frames: the scale of the gaps"
     )
     held_out_frames: int = pydantic.Field(
-        0, description="Frames among these that the renderer never trained on (the splat's)"
+        0, description="Frames the renderer never trained on (the splat's held-out views)"
     )
     held_out_mean_abs_gap: float | None = None
     held_out_correlation: float | None = None
@@ -68,12 +68,13 @@ def steering_agreement(
     recorded: npt.ArrayLike,
     rendered: npt.ArrayLike,
     *,
-    held_out: Collection[str] = (),
+    held_out: tuple[npt.ArrayLike, npt.ArrayLike] | None = None,
 ) -> SteeringAgreement:
     """Summarise a policy's steering on ``rendered`` frames against the ``recorded`` ones.
 
-    ``held_out`` names the frames the renderer did not train on (a splat's held-out views):
-    their gaps are summarised again on their own, the fair test of a trained renderer.
+    ``held_out`` is the steering on the recorded and the rendered image of every frame the
+    renderer did not train on (a splat's held-out views): summarised on its own, the fair test
+    of a trained renderer.
 
     Raises:
         ValueError: No frame, or the three sequences differ in length.
@@ -88,7 +89,11 @@ def steering_agreement(
         raise ValueError(msg)
     gap = np.abs(sim - real)
     worst = int(np.argmax(gap))
-    held = np.array([f in set(held_out) for f in frames], dtype=bool)
+    held_real = np.asarray(held_out[0] if held_out else [], dtype=np.float64)
+    held_sim = np.asarray(held_out[1] if held_out else [], dtype=np.float64)
+    if held_real.shape != held_sim.shape:
+        msg = f"steering agreement of {camera}: held-out series of different lengths"
+        raise ValueError(msg)
     return SteeringAgreement(
         camera=camera,
         policy=policy,
@@ -101,7 +106,9 @@ def steering_agreement(
         max_gap_frame=str(frames[worst]),
         correlation=_correlation(real, sim),
         recorded_std=float(np.std(real)),
-        held_out_frames=int(held.sum()),
-        held_out_mean_abs_gap=float(gap[held].mean()) if held.any() else None,
-        held_out_correlation=_correlation(real[held], sim[held]),
+        held_out_frames=int(held_real.size),
+        held_out_mean_abs_gap=float(np.abs(held_sim - held_real).mean())
+        if held_real.size
+        else None,
+        held_out_correlation=_correlation(held_real, held_sim),
     )

@@ -146,9 +146,10 @@ def evaluate_replay_steering(
                 recorded.append(steer(a))
                 rendered.append(steer(b))
                 (progress or no_progress)(f"DAVE-2 on {cam.name} and recorded", k + 1, len(pairs))
+            held = _held_out_pairs(ws) if cam.name == "splat" else []
             result = steering_agreement(
                 cam.name, str(policy), [n for n, _, _ in pairs], recorded, rendered,
-                held_out=_held_out_stems(ws) if cam.name == "splat" else (),
+                held_out=([steer(a) for a, _ in held], [steer(b) for _, b in held]),
             )  # fmt: skip
             path = out / cam.name / "steering.json"
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -159,18 +160,19 @@ def evaluate_replay_steering(
     return written
 
 
-def _held_out_stems(ws: Workspace) -> set[str]:
-    """The dataset frames the splat never trained on (its ``scene.json``), or none."""
-    from cam2sim.splat.scene import SceneRecord  # noqa: PLC0415
+def _held_out_pairs(ws: Workspace) -> list[tuple[Path, Path]]:
+    """The splat's held-out views: (its prepared recorded image, its render), when kept.
 
-    path = ws.splat_files.prep_dir / "scene.json"
-    if not path.is_file():
-        return set()
-    try:
-        scene = SceneRecord.load(path)
-    except Cam2SimError:
-        return set()
-    return {f"{f.dataset_frame:06d}" for f in scene.frames if f.held_out}
+    The splat stage renders every held-out frame (``splat/renders/NNNNNN.webp``, by the
+    prepared frame's number) beside the prepared image it is scored against
+    (``splat/prep/images/NNNNNN.png``): same pose, same lens, never trained on.
+    """
+    renders = ws.splat_files.renders_dir
+    images = ws.splat_files.prep_images_dir
+    if not renders.is_dir():
+        return []
+    pairs = [(images / f"{r.stem}.png", r) for r in sorted(renders.glob("*.webp"))]
+    return [(a, b) for a, b in pairs if a.is_file()]
 
 
 def evaluate_world_semantics(
