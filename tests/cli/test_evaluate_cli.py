@@ -210,3 +210,25 @@ def test_evaluate_drive_reports_missing_inputs_as_an_error(tmp_path: Path) -> No
     )
     assert result.exit_code == 1
     assert "error:" in result.stderr
+
+
+def test_the_steering_agreement_is_printed_splat_first(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from cam2sim.cli.display import print_steering_agreement
+    from cam2sim.metrics.steering_agreement import steering_agreement
+
+    names = ["000000", "000001", "000002"]
+    for camera, rendered in (("raster", [1.0, -1.0, 0.0]), ("splat", [0.1, 1.0, -1.0])):
+        agreement = steering_agreement(
+            camera, "dave2.onnx", names, [0.0, 1.0, -1.0], rendered,
+            held_out=([0.0, 1.0, 0.5], [0.1, 0.9, 0.5]) if camera == "splat" else None,
+        )  # fmt: skip
+        (tmp_path / camera).mkdir()
+        agreement.save(tmp_path / camera / "steering.json")
+    print_steering_agreement(tmp_path)
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("DAVE-2")]
+    assert len(lines) == 2
+    assert lines[0].startswith("DAVE-2 on the splat frames against the recorded ones: correlation")
+    assert "never-trained views" in lines[0]
+    assert lines[1].startswith("DAVE-2 on the Sim frames")

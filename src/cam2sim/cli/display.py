@@ -27,6 +27,7 @@ from rich.progress import (
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
+    from pathlib import Path
 
     from rich.table import Table
 
@@ -41,6 +42,7 @@ __all__ = [
     "error_console",
     "error_exit",
     "print_behaviour",
+    "print_steering_agreement",
     "print_table",
     "progress_bars",
     "setup_logging",
@@ -206,6 +208,36 @@ class ProgressSink:
             tid = self._bars.add_task(task, total=total)
             self._tasks[task] = tid
         self._bars.update(tid, completed=completed, total=total)
+
+
+def print_steering_agreement(images_dir: Path) -> None:
+    """One line per replayed camera: DAVE-2 on its frames against the recorded ones."""
+    from cam2sim.metrics.behaviour import CAMERA_LABELS  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+    from cam2sim.metrics.steering_agreement import SteeringAgreement  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
+
+    rank = list(CAMERA_LABELS)  # splat before the simulator, as the paper's columns
+    found = sorted(
+        images_dir.glob("*/steering.json"),
+        key=lambda p: (rank.index(p.parent.name) if p.parent.name in rank else len(rank), p),
+    )
+    for path in found:
+        try:
+            a = SteeringAgreement.load(path)
+        except Cam2SimError:
+            continue
+        corr = "-" if a.correlation is None else f"{a.correlation:.3f}"
+        held = (
+            f"; on its {a.held_out_frames} never-trained views {a.held_out_correlation:.3f}"
+            if a.held_out_frames and a.held_out_correlation is not None
+            else ""
+        )
+        console.print(
+            f"DAVE-2 on the {CAMERA_LABELS.get(a.camera, a.camera)} frames against the recorded "
+            f"ones: correlation {corr}, mean gap {a.mean_abs_gap:.3f} units (recorded spread "
+            f"{a.recorded_std:.3f}){held}",
+            highlight=False,
+            soft_wrap=True,
+        )
 
 
 def print_behaviour(metrics: DriveMetrics) -> None:

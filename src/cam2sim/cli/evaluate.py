@@ -13,6 +13,7 @@ from cam2sim.cli.display import (
     StageErrorGroup,
     console,
     print_behaviour,
+    print_steering_agreement,
     print_table,
     progress_bars,
 )
@@ -348,6 +349,7 @@ def workspace(
         result = evaluate_workspace(ws, options=options, progress=sink)
     metrics = DriveMetrics.load(result.metrics)
     _print_drive_metrics(metrics)
+    print_steering_agreement(ws.report_files.images_dir)
     for note in result.notes:
         console.print(note, highlight=False)
     done = "up to date" if result.up_to_date else "wrote"

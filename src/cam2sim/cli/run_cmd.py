@@ -13,6 +13,7 @@ from cam2sim.cli.display import (
     console,
     error_console,
     print_behaviour,
+    print_steering_agreement,
     print_table,
     progress_bars,
 )
@@ -187,6 +188,7 @@ def _finish(ws: Workspace, result: PipelineResult, total_s: float) -> None:
         from cam2sim.metrics.drive_quality import DriveMetrics  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
         print_behaviour(DriveMetrics.load(metrics))
+        print_steering_agreement(ws.report_files.images_dir)
     console.print(f"workspace {ws.root}; {total_s:.0f} s in all", highlight=False)
     if result.report is not None:
         console.print(f"report: {result.report}", highlight=False)
