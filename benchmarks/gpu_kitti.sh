@@ -80,7 +80,8 @@ collect)
   cp $ws/report/report.html "$out/report.html" 2>/dev/null
   tar czf "$out/kitti.tgz" -C $ws workspace.json map/map_report.json splat/eval.json \
     ads/train_report.json report/drive/metrics.json report/drive/behaviour.md \
-    $(cd $ws && ls splat/models/*.json report/tables/* 2>/dev/null)
+    $(cd $ws && ls splat/models/*.json report/tables/* report/images/*/steering.json \
+      report/images/*/images.json 2>/dev/null)
   # What the closed loop saw and did: every 8th replay frame of each camera (JPEG), each
   # drive's steering, trajectory and events, and the network, to study DAVE-2 here.
   mkdir -p "$out/loop" && cp $ws/ads/dave2.onnx $ws/ads/dave2.json "$out/loop/"
