@@ -207,24 +207,11 @@ def _read_oxts(path: Path) -> PoseTable:
         bad = files[int(np.flatnonzero(~np.isfinite(table).all(axis=1))[0])]
         msg = f"{bad}: NaN/inf in an OXTS record; remove that frame"
         raise RecordingError(msg)
-    roll, pitch, yaw = table[:, 3], table[:, 4], table[:, 5]
-    quat = frames.quat_normalize(
-        frames.quat_multiply(
-            frames.quat_multiply(_axis_quat(yaw, 2), _axis_quat(pitch, 1)), _axis_quat(roll, 0)
-        )
-    )
+    quat = frames.quat_from_euler(table[:, 3], table[:, 4], table[:, 5])  # R = Rz Ry Rx
     stamps = _oxts_stamps(data.parent if data.name == "data" else data, len(files))
     return PoseTable(
         stamps, table[:, :3], quat, None, by_index=True, geographic=True, kind="kitti oxts"
     )
-
-
-def _axis_quat(angle: npt.NDArray[np.float64], axis: int) -> npt.NDArray[np.float64]:
-    """``(N, 4)`` quaternions (x, y, z, w) of rotations by ``angle`` about one axis."""
-    q = np.zeros((angle.shape[0], 4))
-    q[:, axis] = np.sin(angle / 2.0)
-    q[:, 3] = np.cos(angle / 2.0)
-    return q
 
 
 def _read_csv(path: Path, lines: list[str]) -> PoseTable:
