@@ -21,6 +21,8 @@ from cam2sim.stages.image_import import ImportOptions, import_images
 if TYPE_CHECKING:
     from pathlib import Path
 
+    from cam2sim.core.dataset import DatasetInfo
+
 UTM10N = "EPSG:32610"
 T0 = 1_500_000_000_000_000_000
 
@@ -46,21 +48,34 @@ def _arc(n: int, speed: float = 8.0, turn: float = 0.15, dt: float = 0.1) -> tup
     return t, xy, heading
 
 
+def _import_gps(
+    root: Path,
+    stamps: np.ndarray,
+    lat: np.ndarray,
+    lon: np.ndarray,
+    alt: np.ndarray | None = None,
+    names: tuple[str, str, str] = ("lat", "lon", "alt"),
+) -> DatasetInfo:
+    """Write ``root/gps.csv`` (timestamp, lat, lon[, alt]) and a frame per fix; import them."""
+    header = ["timestamp", *names[: 2 if alt is None else 3]]
+    rows = [",".join(header)]
+    for k, s in enumerate(stamps.tolist()):
+        cells = [f"{s // 10**9}.{s % 10**9:09d}", f"{lat[k]:.10f}", f"{lon[k]:.10f}"]
+        rows.append(",".join(cells if alt is None else [*cells, f"{alt[k]:.3f}"]))
+    (root / "gps.csv").write_text("\n".join(rows) + "\n")
+    _images(root / "images", [f"{s}.png" for s in stamps])
+    opts = ImportOptions(poses=root / "gps.csv")
+    return import_images(root / "ws", root / "images", options=opts).info
+
+
 def test_a_gps_csv_is_geo_referenced_and_heads_where_it_drives(tmp_path: Path) -> None:
     """Latitude, longitude and altitude, no orientation and no --crs: the world frame starts at
     the first fix and the heading is the direction of travel."""
     t, xy, heading = _arc(60)
     lat, lon = _to_wgs84(UTM10N, xy[:, 0], xy[:, 1])
     stamps = T0 + np.round(t * 1e9).astype(np.int64)
-    rows = ["timestamp,latitude,longitude,altitude"] + [
-        f"{s // 10**9}.{s % 10**9:09d},{a:.10f},{b:.10f},12.5"
-        for s, a, b in zip(stamps, lat, lon, strict=True)
-    ]
-    (tmp_path / "gps.csv").write_text("\n".join(rows) + "\n")
-    _images(tmp_path / "images", [f"{s}.png" for s in stamps])
-    info = import_images(
-        tmp_path / "ws", tmp_path / "images", options=ImportOptions(poses=tmp_path / "gps.csv")
-    ).info
+    alt = np.full(len(stamps), 12.5)
+    info = _import_gps(tmp_path, stamps, lat, lon, alt, ("latitude", "longitude", "altitude"))
     world = info.world
     assert world.georeferenced
     assert world.source_crs == "EPSG:4326"
@@ -86,15 +101,7 @@ def test_heading_from_noisy_gps_fixes_is_averaged_over_a_second(tmp_path: Path) 
     noisy = xy + np.random.default_rng(3).normal(0.0, 0.1, xy.shape)
     lat, lon = _to_wgs84(UTM10N, noisy[:, 0], noisy[:, 1])
     stamps = T0 + np.round(t * 1e9).astype(np.int64)
-    rows = ["timestamp,lat,lon"] + [
-        f"{s // 10**9}.{s % 10**9:09d},{a:.10f},{b:.10f}"
-        for s, a, b in zip(stamps, lat, lon, strict=True)
-    ]
-    (tmp_path / "gps.csv").write_text("\n".join(rows) + "\n")
-    _images(tmp_path / "images", [f"{s}.png" for s in stamps])
-    info = import_images(
-        tmp_path / "ws", tmp_path / "images", options=ImportOptions(poses=tmp_path / "gps.csv")
-    ).info
+    info = _import_gps(tmp_path, stamps, lat, lon)
     table = read_table(DatasetPaths(tmp_path / "ws" / "dataset").poses_csv)
     wf = frames.WorldFrame(info.world.origin_lat_deg, info.world.origin_lon_deg)  # type: ignore[arg-type]
     xyz = np.stack([table["x"], table["y"], table["z"]], -1)
@@ -185,14 +192,7 @@ def test_a_real_gps_drive_without_osm_gets_a_geo_referenced_road_and_a_scenario(
     to_geo = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
     lon, lat, alt = to_geo.transform(ecef[:, 0], ecef[:, 1], ecef[:, 2])
     stamps = T0 + np.round((times - times[0]) * 1e9).astype(np.int64)
-    rows = ["timestamp,lat,lon,alt"] + [
-        f"{s // 10**9}.{s % 10**9:09d},{a:.10f},{b:.10f},{c:.3f}"
-        for s, a, b, c in zip(stamps, lat, lon, alt, strict=True)
-    ]
-    (tmp_path / "gps.csv").write_text("\n".join(rows) + "\n")
-    _images(tmp_path / "images", [f"{s}.png" for s in stamps])
-    opts = ImportOptions(poses=tmp_path / "gps.csv")
-    info = import_images(tmp_path / "ws", tmp_path / "images", options=opts).info
+    info = _import_gps(tmp_path, stamps, np.asarray(lat), np.asarray(lon), np.asarray(alt))
     assert info.world.georeferenced
     assert info.counts.frames == 300
     ws = Workspace.open(tmp_path / "ws")
