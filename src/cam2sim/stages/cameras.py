@@ -40,6 +40,7 @@ if TYPE_CHECKING:
     from cam2sim.core.camera import PinholeCamera
     from cam2sim.core.workspace import Workspace
     from cam2sim.map.query import RoadMap
+    from cam2sim.sim.interface import SteeringPolicy
 
 __all__ = [
     "TRUTH_CAMERA",
@@ -50,6 +51,7 @@ __all__ = [
     "RunContext",
     "camera_names",
     "camera_poses",
+    "first_decision",
     "ground_height_at",
     "load_run_context",
     "policy_band",
@@ -336,6 +338,25 @@ class Cameras:
             r.close()
         if self.carla is not None:
             self.carla.close()
+
+
+def first_decision(
+    policy: SteeringPolicy,
+    image: npt.NDArray[np.uint8],
+    xy: tuple[float, float] = (0.0, 0.0),
+    heading: float = 0.0,
+) -> float:
+    """The policy's steering for one view, as the first decision of a run (the car at ``xy``).
+
+    How the route profile and the steering agreement ask a policy about a single image.
+    """
+    from cam2sim.core.vehicle import VehicleState  # noqa: PLC0415
+    from cam2sim.sim.interface import Observation  # noqa: PLC0415
+
+    x, y = float(xy[0]), float(xy[1])
+    state = VehicleState(0.0, x, y, 0.0, float(heading), 0.0, 0.0, 0.0, (x, y))
+    policy.reset()
+    return float(policy.predict(Observation(0.0, image, state)))
 
 
 def policy_band(

@@ -249,20 +249,25 @@ def evaluate_workspace(
     return EvaluateResult(metrics, tuple(notes))
 
 
-def _policy_fingerprint(ws: Workspace) -> str | None:
-    from cam2sim.core.files import file_fingerprint  # noqa: PLC0415
+def _dave2(ws: Workspace) -> Path | None:
+    """The drives' DAVE-2 (``ads/dave2.onnx``), the steering agreement's policy, if exported."""
     from cam2sim.stages.ads import ONNX_FILE  # noqa: PLC0415
 
     model = ws.ads_dir / ONNX_FILE
-    return file_fingerprint(model) if model.is_file() else None
+    return model if model.is_file() else None
+
+
+def _policy_fingerprint(ws: Workspace) -> str | None:
+    from cam2sim.core.files import file_fingerprint  # noqa: PLC0415
+
+    model = _dave2(ws)
+    return file_fingerprint(model) if model is not None else None
 
 
 def _replay_steering(ws: Workspace, folder: Path, progress: ProgressCallback) -> list[str]:
     """DAVE-2 on the replay's frames against the recorded ones; notes on what was not done."""
-    from cam2sim.stages.ads import ONNX_FILE  # noqa: PLC0415
-
-    model = ws.ads_dir / ONNX_FILE
-    if not model.is_file():
+    model = _dave2(ws)
+    if model is None:
         return ["no DAVE-2 model (ads/dave2.onnx): steering agreement not computed"]
     try:
         evaluate_replay_steering(ws, folder, ws.report_files.images_dir, model, progress=progress)

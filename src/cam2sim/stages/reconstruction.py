@@ -39,6 +39,7 @@ from cam2sim.stages.cameras import (
     TRUTH_CAMERA,
     Cameras,
     camera_poses,
+    first_decision,
     load_run_context,
     scaled_intrinsics,
     write_png,
@@ -111,45 +112,47 @@ def evaluate_replay_steering(
     """
     from cam2sim.ads.policy import load_policy  # noqa: PLC0415 -- lazy: cv2, onnxruntime
     from cam2sim.core.images import read_rgb  # noqa: PLC0415 -- lazy: cv2
-    from cam2sim.core.vehicle import VehicleState  # noqa: PLC0415
     from cam2sim.metrics.steering_agreement import steering_agreement  # noqa: PLC0415
-    from cam2sim.sim.interface import Observation  # noqa: PLC0415
 
     real_dir = dataset_paths(ws.dataset_dir).frames_dir
     cameras = sorted(p for p in (replay_run / "frames").glob("*") if p.is_dir())
     if not cameras:
         msg = f"replay run {replay_run.name} saved no frames; replay with save_frames"
         raise StageError(msg)
+    if not real_dir.is_dir():
+        msg = f"{real_dir} does not exist: no recorded frames to compare the replay's with"
+        raise StageError(msg)
+    real = {f.stem: f for f in real_dir.iterdir() if f.is_file()}
     sc = load_run_context(ws).scenario
     model = load_policy(
         str(policy), route_xy=None, wheelbase_m=sc.vehicle.wheelbase_m,
         calibration=sc.steering_calibration,
     )  # fmt: skip
-    at_rest = VehicleState(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, (0.0, 0.0))
+    on_recorded: dict[str, float] = {}  # every camera is compared with the same frames
 
-    def steer(path: Path) -> float:
-        model.reset()
-        return float(model.predict(Observation(0.0, read_rgb(path), at_rest)))
+    def recorded(stem: str) -> float:
+        if stem not in on_recorded:
+            on_recorded[stem] = first_decision(model, read_rgb(real[stem]))
+        return on_recorded[stem]
 
-    if not real_dir.is_dir():
-        msg = f"{real_dir} does not exist: no recorded frames to compare the replay's with"
-        raise StageError(msg)
-    real = {f.stem: f for f in real_dir.iterdir() if f.is_file()}
     written = []
     try:
         for cam in cameras:
-            pairs = sorted((f.stem, real[f.stem], f) for f in cam.iterdir() if f.stem in real)
+            pairs = sorted((f.stem, f) for f in cam.iterdir() if f.stem in real)
             if not pairs:
                 continue
-            recorded, rendered = [], []
-            for k, (_, a, b) in enumerate(pairs):
-                recorded.append(steer(a))
-                rendered.append(steer(b))
+            steer_real, steer_sim = [], []
+            for k, (stem, frame) in enumerate(pairs):
+                steer_real.append(recorded(stem))
+                steer_sim.append(first_decision(model, read_rgb(frame)))
                 (progress or no_progress)(f"DAVE-2 on {cam.name} and recorded", k + 1, len(pairs))
             held = _held_out_pairs(ws) if cam.name == "splat" else []
             result = steering_agreement(
-                cam.name, str(policy), [n for n, _, _ in pairs], recorded, rendered,
-                held_out=([steer(a) for a, _ in held], [steer(b) for _, b in held]),
+                cam.name, str(policy), [stem for stem, _ in pairs], steer_real, steer_sim,
+                held_out=(
+                    [first_decision(model, read_rgb(a)) for a, _ in held],
+                    [first_decision(model, read_rgb(b)) for _, b in held],
+                ),
             )  # fmt: skip
             path = out / cam.name / "steering.json"
             path.parent.mkdir(parents=True, exist_ok=True)

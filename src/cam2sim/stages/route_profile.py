@@ -32,6 +32,7 @@ from cam2sim.stages.cameras import (
     Cameras,
     RecordedGround,
     camera_poses,
+    first_decision,
     load_run_context,
     recorded_ground_at,
     run_camera,
@@ -44,7 +45,6 @@ if TYPE_CHECKING:
 
     from cam2sim.core.workspace import Workspace
     from cam2sim.scenario.model import Scenario
-    from cam2sim.sim.interface import SteeringPolicy
 
 __all__ = ["FailureViews", "RouteProfile", "failure_views", "route_profile"]
 
@@ -150,22 +150,6 @@ def _pose(
     return pose
 
 
-def _steering(
-    policy: SteeringPolicy,
-    image: npt.NDArray[np.uint8],
-    xy: npt.NDArray[np.float64],
-    heading: float,
-) -> float:
-    """The policy's answer to one view, as the first decision of a run (the car at ``xy``)."""
-    from cam2sim.core.vehicle import VehicleState  # noqa: PLC0415
-    from cam2sim.sim.interface import Observation  # noqa: PLC0415
-
-    x, y = float(xy[0]), float(xy[1])
-    state = VehicleState(0.0, x, y, 0.0, heading, 0.0, 0.0, 0.0, (x, y))
-    policy.reset()
-    return float(policy.predict(Observation(0.0, image, state)))
-
-
 def route_profile(
     ws: Workspace,
     *,
@@ -219,10 +203,10 @@ def route_profile(
                     value = psnr(truth, splat)
                     out[r, k] = np.nan if value is None else value
                     if asked is not None and steer is not None:
-                        at, h = ref[i], float(heading[i])
+                        at = (float(ref[i, 0]), float(ref[i, 1]))
                         steer[:, r, k] = (
-                            _steering(asked, truth, at, h),
-                            _steering(asked, splat, at, h),
+                            first_decision(asked, truth, at, float(heading[i])),
+                            first_decision(asked, splat, at, float(heading[i])),
                         )
                     progress("splat vs truth along the route", r * len(idx) + k + 1, total)
     finally:
