@@ -154,13 +154,7 @@ def _truth_at(world: WorldResult, offset: str) -> float | None:
 
 
 def _profile_min(world: WorldResult) -> float | None:
-    if not world.profile:
-        return None
-    offsets = list(world.profile.get("offsets_m", []))  # type: ignore[call-overload]
-    rows = world.profile.get("psnr_db", [])
-    if 0.0 not in offsets:
-        return None
-    values = [v for v in rows[offsets.index(0.0)] if v is not None]  # type: ignore[index]
+    values = [v for v in _on_path(world, "psnr_db") or [] if v is not None]
     return min(values) if values else None
 
 
