@@ -179,13 +179,11 @@ def fetch_overpass(
             cache_file.read_bytes(), query, options.url, cache_file, from_cache=True
         )
     last = ""
-    attempts = 0
     for attempt in range(options.retries + 1):
         if attempt:
             wait = options.backoff_s * 2 ** (attempt - 1)
             logger.info("Overpass attempt %d failed (%s); retrying in %.1f s", attempt, last, wait)
             time.sleep(wait)
-        attempts += 1
         try:
             data = _attempt(options, query)
         except _RetryableError as err:
@@ -200,7 +198,7 @@ def fetch_overpass(
         return OverpassResult(data, query, options.url, cache_file, from_cache=False)
     msg = (
         f"cannot get OSM data from the Overpass API at {options.url} after "
-        f"{attempts} attempt{'s' if attempts > 1 else ''} ({last}); when offline, pass --osm "
+        f"{attempt + 1} attempt{'s' if attempt else ''} ({last}); when offline, pass --osm "
         f"FILE with an OSM extract covering {box} (export it from openstreetmap.org or JOSM)"
     )
     raise OverpassUnreachableError(msg)
