@@ -540,8 +540,19 @@ def _images(ctx: ReportContext) -> str:
         ]
         rows.append([label, *cells])
     rows.append(["image pairs", *(str(len(res.images)) for _, res in results)])
-    rows += _steering_rows(ctx, [path.parent / "steering.json" for path, _ in results])
-    parts = [html_table(["metric (mean ± std)", *names], rows, "Against the recorded frames")]
+    steering = _steering_rows(ctx, [path.parent / "steering.json" for path, _ in results])
+    parts = [
+        html_table(["metric (mean ± std)", *names], rows + steering, "Against the recorded frames")
+    ]
+    if steering:
+        parts.append(
+            '<p class="note">DAVE-2 rows: the driving model is shown each rendered frame and the '
+            "recorded frame of the same pose; the gap is its steering on the first minus on the "
+            "second (open loop, no ground truth needed). A renderer that makes it act as reality "
+            "does has small gaps and a correlation near 1; the spread of its steering on the "
+            "recorded frames is the scale. Never-trained frames: the splat's held-out views."
+            "</p>"
+        )
     if not any(res.lpips_net for _, res in results):
         parts.append('<p class="note">LPIPS skipped: its weights are not on this machine.</p>')
     where = ", ".join(str(path.relative_to(ctx.ws.root)) for path, _ in results)
