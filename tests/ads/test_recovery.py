@@ -84,6 +84,28 @@ def test_no_displacement_is_the_identity(crop: str) -> None:
     np.testing.assert_allclose(src[..., 1], v, atol=1e-6)
 
 
+@pytest.mark.parametrize("crop", list(CROPS))
+def test_the_batch_warp_samples_where_source_pixels_says(crop: str) -> None:
+    """recovery_views computes the warp in torch on the batch's device; source_pixels is the
+    NumPy reference: a ramp image shows which source pixel each output pixel sampled."""
+    from cam2sim.ads.recovery import recovery_views
+
+    cfg = CROPS[crop]
+    geometry = RecoveryGeometry(K, W, H, CAM_HEIGHT, 0.05, 0.022)
+    w, h = cfg.input_size
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    ramp = torch.from_numpy(np.stack([u, v, u + v])[None].repeat(3, 0))  # (3, 3, h, w) float64
+    lateral, yaw = [0.6, -0.4, 0.0], [0.0, math.radians(3.0), math.radians(-4.0)]
+    warped = recovery_views(ramp, geometry, cfg, lateral, yaw).numpy()
+    src = source_pixels(geometry, cfg, lateral, yaw)
+    inside = (
+        (src[..., 0] >= 0) & (src[..., 0] <= w - 1) & (src[..., 1] >= 0) & (src[..., 1] <= h - 1)
+    )
+    assert inside.mean() > 0.5
+    np.testing.assert_allclose(warped[:, 0][inside], src[..., 0][inside], atol=1e-6)
+    np.testing.assert_allclose(warped[:, 1][inside], src[..., 1][inside], atol=1e-6)
+
+
 def test_labels_steer_back_and_are_damped() -> None:
     k, look = 0.022, 10.0
     # Left of the path or turned left: steer right (negative); the recorded turn is kept.

@@ -46,6 +46,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 import pydantic
 
+from cam2sim.core.background import BackgroundJobs
 from cam2sim.core.errors import Cam2SimError, StageError
 from cam2sim.core.images import read_mask, read_rgb, write_rgb
 from cam2sim.core.progress import ProgressCallback, no_progress
@@ -53,7 +54,7 @@ from cam2sim.core.schema import Artifact
 from cam2sim.metrics.lpips import load_lpips
 from cam2sim.splat.envelope import perturbed_pose, truth_envelope
 from cam2sim.splat.pose_refine import corrected_pose, interpolated_correction
-from cam2sim.splat.render import RenderOptions, SplatRenderer
+from cam2sim.splat.render import RenderOptions, RenderResult, SplatRenderer
 from cam2sim.splat.scene import FrameRecord, SceneRecord
 from cam2sim.splat.scores import (
     MetricSummary,
@@ -329,18 +330,23 @@ def evaluate_splat(
         held = _aligned(held, renderer)
         n_offset = len(held) if opts.max_offset_frames is None else opts.max_offset_frames
         pick = set(even_picks(len(held), n_offset))
-        rows: list[HeldOutFrame] = []
         kept_for_offsets = []
         masks = []
         total = len(held) + len(pick) * len(offsets)
-        for n, frame in enumerate(held):
-            exclude = frame_exclusion(prep_dir, frame)
-            masks.append((frame, exclude))
-            row, rgb = _score_held_out(renderer, prep_dir, frame, exclude, lpips, opts, cache)
-            rows.append(row)
-            if n in pick:
-                kept_for_offsets.append((frame, rgb, exclude))
-            progress("splat eval frames", n + 1, total)
+        # This thread renders (the GPU); reading, scoring and writing run on worker threads
+        # (LPIPS, a torch model on the renderer's device, keeps them in this one).
+        with BackgroundJobs[HeldOutFrame](
+            1 if lpips is not None else None, name="cam2sim-splat-eval"
+        ) as jobs:
+            for n, frame in enumerate(held):
+                exclude = frame_exclusion(prep_dir, frame)
+                masks.append((frame, exclude))
+                rgb = _render_held_out(renderer, frame, opts, cache, jobs, prep_dir, exclude, lpips)
+                if n in pick:
+                    kept_for_offsets.append((frame, rgb, exclude))
+                progress("splat eval frames", jobs.collected, total)
+            rows = jobs.results()
+        progress("splat eval frames", len(held), total)
         offset_rows = _offset_scores(
             renderer, kept_for_offsets, tuple(offsets), lpips, opts.lower_fraction, cache
         )
@@ -404,33 +410,58 @@ def _truth_scores(
         )
 
 
-def _score_held_out(
+def _render_held_out(
     renderer: SplatRenderer,
-    prep_dir: Path,
     frame: FrameRecord,
-    exclude: npt.NDArray[np.bool_] | None,
-    lpips: Lpips | None,
     opts: EvalOptions,
     cache: RenderCache,
-) -> tuple[HeldOutFrame, npt.NDArray[np.uint8]]:
-    """One held-out frame rendered and scored against the recorded one; its row and render.
+    jobs: BackgroundJobs[HeldOutFrame],
+    prep_dir: Path,
+    exclude: npt.NDArray[np.bool_] | None,
+    lpips: Lpips | None,
+) -> npt.NDArray[np.uint8]:
+    """Render one held-out frame, submit its scoring to ``jobs``, return the render.
 
-    The render is kept in ``cache`` (the truth envelope's on-path view) and, with
-    ``opts.renders_dir``, written there; with ``opts.compare_appearance`` the frame is also
-    scored without the colour transforms (the ``_raw`` columns).
+    With ``opts.compare_appearance`` it is also rendered without the colour transforms. The
+    render is kept in ``cache`` (the truth envelope's on-path view) and, with
+    ``opts.renders_dir``, written there.
     """
-    real = read_rgb(prep_dir / "images" / f"{frame.index:06d}.png")
     camera = frame.camera()
     r = renderer.render(frame.T(), camera)
     cache[frame.index, 0.0, 0.0] = (r.rgb, r.coverage)
-    if opts.renders_dir is not None:
-        write_rgb(Path(opts.renders_dir) / f"{frame.index:06d}.webp", r.rgb)
+    raw = (
+        renderer.render(frame.T(), camera, appearance="none").rgb
+        if opts.compare_appearance
+        else None
+    )
+    jobs.submit(_score_held_out, prep_dir, frame, r, raw, exclude, lpips, opts.renders_dir)
+    return r.rgb
+
+
+def _score_held_out(
+    prep_dir: Path,
+    frame: FrameRecord,
+    r: RenderResult,
+    raw_rgb: npt.NDArray[np.uint8] | None,
+    exclude: npt.NDArray[np.bool_] | None,
+    lpips: Lpips | None,
+    renders_dir: Path | None,
+) -> HeldOutFrame:
+    """One held-out frame's row: its renders scored against the recorded frame.
+
+    ``r`` is the render, ``raw_rgb`` the render without the colour transforms (or None); ``r``
+    is written to ``renders_dir`` when given.
+    """
+    real = read_rgb(prep_dir / "images" / f"{frame.index:06d}.png")
+    if renders_dir is not None:
+        write_rgb(Path(renders_dir) / f"{frame.index:06d}.webp", r.rgb)
     s = score_pair(real, r.rgb, exclude, lpips)
-    raw = PairScores(None, None, None)
-    if opts.compare_appearance:
-        rr = renderer.render(frame.T(), camera, appearance="none")
-        raw = score_pair(real, rr.rgb, exclude, lpips)
-    row = HeldOutFrame(
+    raw = (
+        score_pair(real, raw_rgb, exclude, lpips)
+        if raw_rgb is not None
+        else PairScores(None, None, None)
+    )
+    return HeldOutFrame(
         index=frame.index,
         psnr_db=s.psnr,
         ssim=s.ssim,
@@ -441,7 +472,6 @@ def _score_held_out(
         coverage=r.coverage,
         chunks=r.chunk_weights,
     )
-    return row, r.rgb
 
 
 def _fmt(value: float | None) -> str:

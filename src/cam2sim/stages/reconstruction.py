@@ -20,10 +20,12 @@ Two comparisons at recorded poses, written under ``WS/report/`` where the report
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING
+from functools import partial
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from cam2sim.core.background import BackgroundJobs
 from cam2sim.core.errors import Cam2SimError, StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.workspace import dataset_paths
@@ -46,6 +48,7 @@ from cam2sim.stages.cameras import (
 )
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
     from pathlib import Path
 
     from cam2sim.core.workspace import Workspace
@@ -111,7 +114,6 @@ def evaluate_replay_steering(
         StageError: The replay saved no frames, or the policy cannot be loaded.
     """
     from cam2sim.ads.policy import load_policy  # noqa: PLC0415 -- lazy: cv2, onnxruntime
-    from cam2sim.core.images import read_rgb  # noqa: PLC0415 -- lazy: cv2
     from cam2sim.metrics.steering_agreement import steering_agreement  # noqa: PLC0415
 
     real_dir = dataset_paths(ws.dataset_dir).frames_dir
@@ -129,38 +131,65 @@ def evaluate_replay_steering(
         calibration=sc.steering_calibration,
     )  # fmt: skip
     on_recorded: dict[str, float] = {}  # every camera is compared with the same frames
-
-    def recorded(stem: str) -> float:
-        if stem not in on_recorded:
-            on_recorded[stem] = first_decision(model, read_rgb(real[stem]))
-        return on_recorded[stem]
-
     written = []
     try:
-        for cam in cameras:
-            pairs = sorted((f.stem, f) for f in cam.iterdir() if f.stem in real)
-            if not pairs:
-                continue
-            steer_real, steer_sim = [], []
-            for k, (stem, frame) in enumerate(pairs):
-                steer_real.append(recorded(stem))
-                steer_sim.append(first_decision(model, read_rgb(frame)))
-                (progress or no_progress)(f"DAVE-2 on {cam.name} and recorded", k + 1, len(pairs))
-            held = _held_out_pairs(ws) if cam.name == "splat" else []
-            result = steering_agreement(
-                cam.name, str(policy), [stem for stem, _ in pairs], steer_real, steer_sim,
-                held_out=(
-                    [first_decision(model, read_rgb(a)) for a, _ in held],
-                    [first_decision(model, read_rgb(b)) for _, b in held],
-                ),
-            )  # fmt: skip
-            path = out / cam.name / "steering.json"
-            path.parent.mkdir(parents=True, exist_ok=True)
-            result.save(path)
-            written.append(path)
+        with BackgroundJobs[Any](name="cam2sim-steering") as reader:
+            for cam in cameras:
+                pairs = sorted((f.stem, f) for f in cam.iterdir() if f.stem in real)
+                if not pairs:
+                    continue
+                report = partial(progress or no_progress, f"DAVE-2 on {cam.name} and recorded")
+                steer_real, steer_sim = _pair_steering(
+                    model, [(real[stem], f) for stem, f in pairs], on_recorded, reader, report
+                )
+                held = _held_out_pairs(ws) if cam.name == "splat" else []
+                result = steering_agreement(
+                    cam.name, str(policy), [stem for stem, _ in pairs], steer_real, steer_sim,
+                    held_out=_pair_steering(model, held, {}, reader, _no_report),
+                )  # fmt: skip
+                path = out / cam.name / "steering.json"
+                path.parent.mkdir(parents=True, exist_ok=True)
+                result.save(path)
+                written.append(path)
     finally:
         model.close()
     return written
+
+
+def _no_report(done: int, total: int) -> None:
+    del done, total
+
+
+def _pair_steering(
+    model: Any,
+    pairs: list[tuple[Path, Path]],
+    on_recorded: dict[str, float],
+    reader: BackgroundJobs[Any],
+    report: Callable[[int, int], None],
+) -> tuple[list[float], list[float]]:
+    """The policy's first decision on each (recorded, replayed) frame pair.
+
+    The frames are read ahead on ``reader``'s worker threads while the policy answers on this
+    one; a recorded frame's answer is kept in ``on_recorded`` (by its stem) and not asked
+    again.
+    """
+    from cam2sim.core.images import read_rgb  # noqa: PLC0415 -- lazy: cv2
+
+    def read(pair: tuple[Path, Path]) -> tuple[Any, Any]:
+        recorded, replayed = pair  # the recorded frame only where its answer is not known yet
+        known = recorded.stem in on_recorded
+        return (None if known else read_rgb(recorded)), read_rgb(replayed)
+
+    steer_real, steer_sim = [], []
+    for k, ((recorded, _), (real_rgb, sim_rgb)) in enumerate(
+        zip(pairs, reader.imap(read, pairs), strict=True)
+    ):
+        if real_rgb is not None:
+            on_recorded[recorded.stem] = first_decision(model, real_rgb)
+        steer_real.append(on_recorded[recorded.stem])
+        steer_sim.append(first_decision(model, sim_rgb))
+        report(k + 1, len(pairs))
+    return steer_real, steer_sim
 
 
 def _held_out_pairs(ws: Workspace) -> list[tuple[Path, Path]]:

@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
+from cam2sim.core.background import BackgroundJobs
 from cam2sim.core.dataset import DatasetInfo
 from cam2sim.core.errors import Cam2SimError, ConfigError, StageError
 from cam2sim.core.polyline import arc_length
@@ -396,22 +397,27 @@ def _replay_frames(
     fps = 1.0 / max(float(np.median(np.diff(t))), 1e-3) if len(t) > 1 else 10.0
     video = _Video(run_paths(folder).video, fps) if opts.video else None
     real_frame = _real_frames(ctx.ws)
+    # The recorded frames are read ahead, and the PNGs encoded and written, on worker threads
+    # while this one renders: for a KITTI frame (1242x375) the reading and the three files
+    # take about 65 ms of one laptop core; the whole replay took 130 ms a frame on an H100.
     try:
-        for k, i in enumerate(idx.tolist()):
-            names = list(cameras.renderers)
-            views = [cameras.render(n, poses[n][k], camera) for n in names]
-            if cameras.carla is not None:
-                views.append(_carla_view(cameras.carla, tr, i))
-                names.append("carla")
-            real = real_frame(tr.frame[i])
-            sbs = side_by_side(([real] if real is not None else []) + views)
-            if opts.save_frames:
-                for name, im in zip(names, views, strict=True):
-                    write_png(run_paths(folder).frames_dir(name) / f"{tr.frame[i]:06d}.png", im)
-                write_png(run_paths(folder).side_by_side_dir / f"{tr.frame[i]:06d}.png", sbs)
-            if video is not None:
-                video.add(sbs)
-            report("replay frames", k + 1, int(idx.size))
+        with BackgroundJobs[Any](name="cam2sim-replay") as writes:
+            reals = writes.imap(real_frame, [tr.frame[i] for i in idx.tolist()])
+            for k, (i, real) in enumerate(zip(idx.tolist(), reals, strict=True)):
+                names = list(cameras.renderers)
+                views = [cameras.render(n, poses[n][k], camera) for n in names]
+                if cameras.carla is not None:
+                    views.append(_carla_view(cameras.carla, tr, i))
+                    names.append("carla")
+                sbs = side_by_side(([real] if real is not None else []) + views)
+                if opts.save_frames:
+                    stem = f"{tr.frame[i]:06d}.png"
+                    for name, im in zip(names, views, strict=True):
+                        writes.submit(write_png, run_paths(folder).frames_dir(name) / stem, im)
+                    writes.submit(write_png, run_paths(folder).side_by_side_dir / stem, sbs)
+                if video is not None:
+                    video.add(sbs)
+                report("replay frames", k + 1, int(idx.size))
     finally:
         if video is not None:
             video.close()
