@@ -7,7 +7,9 @@
 #
 #   PHASE=setup bash benchmarks/gpu_kitti.sh     # carry .c21/a .gl: wheels, gsplat build
 #   PHASE=frames bash benchmarks/gpu_kitti.sh    # carry .k03/a (then again with .k03/b, and
-#                                                # with .k03/p: the pycolmap wheel)
+#                                                # with .k03/p: the pycolmap wheel); .c19
+#                                                # beside .k03/a brings the LPIPS weights
+#                                                # (without them the report has no LPIPS)
 #   PHASE=run bash benchmarks/gpu_kitti.sh       # carry .c21/b .k03/c: the rest, then the run
 #                                                # in the background, watched WATCH_S seconds
 #                                                # (RUN_ARGS: more `cam2sim run` options, e.g.
@@ -57,6 +59,9 @@ setup)
   ;;
 frames)
   for part in .k03/*/; do cp "$part"images/* /tmp/kitti03/images/ 2>/dev/null; done
+  if [ -f .c19/alexnet.ckpt ]; then
+    mkdir -p "$CAM2SIM_CACHE/lpips" && cp .c19/alexnet.ckpt "$CAM2SIM_CACHE/lpips/"
+  fi
   for wheel in .k03/*/*.whl; do
     [ -f "$wheel" ] && python3 -m pip install -q --no-index --no-deps --no-compile \
       --no-cache-dir --upgrade --target /tmp/site "$wheel"

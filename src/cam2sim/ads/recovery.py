@@ -186,8 +186,9 @@ def recovery_views(
     """The batch ``x`` (``(B, 3, h, w)`` network inputs) seen from the displaced cameras.
 
     The warp of :func:`source_pixels`, computed on ``x``'s device in its precision: on a GPU a
-    training batch costs no host work (the per-pixel NumPy version took 30 ms a batch of 32 on
-    one CPU core, 40 % of DAVE-2's training time on an H100).
+    training batch costs no host work (the per-pixel NumPy version takes 22 ms a batch of 32
+    on one laptop core, ``benchmarks/host_work.py``, where a whole training batch on an H100
+    took about 80 ms).
     """
     import torch  # noqa: PLC0415
 
