@@ -14,6 +14,7 @@ Usage:
         [--preset demo|same-street] [--set recovery_m=1.0 --set recovery_share=0.75]
         [--signal steering_from_poses] [--recorded-speed] [--tag NAME] [--json result.json]
 
+``--preset demo`` trains as the demo and the street benchmark do (:func:`demo_train_options`);
 ``--preset same-street`` trains as ``cam2sim run`` does on a real drive
 (:meth:`TrainOptions.same_street`, without its validated run: the network kept is the same);
 ``--set`` changes one training option (repeatable), e.g. a real drive's recovery views.
@@ -39,18 +40,21 @@ from cam2sim.scenario.model import Scenario
 from cam2sim.sim.builtin import BuiltinOptions
 from cam2sim.stages.ads import train_model
 from cam2sim.stages.evaluate import evaluate_workspace_drives
-from cam2sim.stages.experiment import DEMO_STEERING_NOISE
+from cam2sim.stages.experiment import DEMO_STEERING_NOISE, demo_train_options
 from cam2sim.stages.runs import DriveOptions, drive
 from cam2sim.stages.variation import DEMO_RUN_VARIATION
 from splat_gpu import _parse_value
 
 
 def _options(preset: str, signal: str | None, changes: dict[str, Any], seed: int) -> TrainOptions:
-    """The training options: the demo's (30 epochs, batch 32, the last kept) or a real drive's."""
+    """The training options: the demo's and the bench's, or a real drive's (``cam2sim run``).
+
+    Both without the validated run: the network kept is the same.
+    """
     if preset == "same-street":
         opts = TrainOptions.same_street(validate=False, device="cpu", seed=seed)
     else:
-        opts = TrainOptions(epochs=30, batch_size=32, keep="last", device="cpu", seed=seed)
+        opts = dataclasses.replace(demo_train_options(validate=False), seed=seed)
     if signal is not None:
         changes = {"signal": signal, **changes}
     return dataclasses.replace(opts, **changes)
