@@ -28,9 +28,13 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Iterator
     from types import TracebackType
 
-__all__ = ["BackgroundJobs"]
+__all__ = ["MAX_WORKERS", "BackgroundJobs"]
 
 T = TypeVar("T")
+
+MAX_WORKERS = 8
+"""Default thread cap: each job in flight holds its images (a 4K frame is 25 MB), and eight
+threads already hide PNG encoding behind a GPU's renders."""
 
 
 class BackgroundJobs(Generic[T]):
@@ -38,7 +42,7 @@ class BackgroundJobs(Generic[T]):
 
     Args:
         workers: Threads; None: the CPUs this process may use
-            (:func:`~cam2sim.core.machine.available_cpus`).
+            (:func:`~cam2sim.core.machine.available_cpus`), at most :data:`MAX_WORKERS`.
         in_flight: Jobs submitted and not yet collected before :meth:`submit` waits for the
             oldest; None: twice ``workers``.
         name: Thread-name prefix (seen in profilers and tracebacks).
@@ -47,7 +51,9 @@ class BackgroundJobs(Generic[T]):
     def __init__(
         self, workers: int | None = None, *, in_flight: int | None = None, name: str = "cam2sim"
     ) -> None:
-        self.workers = max(1, workers if workers is not None else available_cpus())
+        self.workers = max(
+            1, workers if workers is not None else min(available_cpus(), MAX_WORKERS)
+        )
         self.in_flight = max(1, in_flight if in_flight is not None else 2 * self.workers)
         self._pool = ThreadPoolExecutor(max_workers=self.workers, thread_name_prefix=name)
         self._pending: list[Future[T]] = []
