@@ -41,7 +41,7 @@ from cam2sim.sim.builtin import BuiltinOptions
 from cam2sim.stages.ads import train_model
 from cam2sim.stages.evaluate import evaluate_workspace_drives
 from cam2sim.stages.experiment import DEMO_STEERING_NOISE, demo_train_options
-from cam2sim.stages.runs import DriveOptions, drive
+from cam2sim.stages.runs import DriveOptions, default_judge, drive
 from cam2sim.stages.variation import DEMO_RUN_VARIATION
 from splat_gpu import _parse_value
 
@@ -82,12 +82,15 @@ def _drive(
     sim = BuiltinOptions(
         calibration=scenario.steering_calibration, steering_noise_std=DEMO_STEERING_NOISE
     )
+    # Judged as the pipeline judges: in the ground-truth world where the workspace has one (the
+    # demo's and the bench's worlds), else on the map (whose junctions may round the route).
+    judge = default_judge(ws)
     camera_of: dict[str, str] = {}
     for camera in cameras:
         for seed in run_seeds:
             opts = DriveOptions(
                 policy=str(model), camera=camera, runs=1, seed=seed, sim=sim,  # type: ignore[arg-type]
-                variation=DEMO_RUN_VARIATION, recorded_speed=recorded,
+                variation=DEMO_RUN_VARIATION, recorded_speed=recorded, judge=judge,
             )  # fmt: skip
             camera_of |= {r.run_id: camera for r in drive(ws, options=opts)}
     with tempfile.TemporaryDirectory() as tmp:
