@@ -12,6 +12,8 @@
 #                                                # (without them the report has no LPIPS)
 #   PHASE=run bash benchmarks/gpu_kitti.sh       # carry .c21/b .k03/c: the rest, then the run
 #                                                # in the background, watched WATCH_S seconds
+#                                                # (`cam2sim -v`: the log also has each chunk
+#                                                # worker's set-up times and DAVE-2's epochs)
 #                                                # (RUN_ARGS: more `cam2sim run` options, e.g.
 #                                                # --recorded-speed, the default for KITTI)
 #   PHASE=wait bash benchmarks/gpu_kitti.sh      # watch it (repeat as needed)
@@ -74,7 +76,7 @@ run)
   echo "frames: $(ls /tmp/kitti03/images | wc -l) (801 wanted)"
   setsid nohup bash -c "time (python3 -m cam2sim import $ws --images /tmp/kitti03/images \
     --poses /tmp/kitti03/poses.txt --calibration /tmp/kitti03/K.txt --fps 10 \
-    --pose-offset fit,0,1.65 && python3 -m cam2sim run -o $ws ${RUN_ARGS:-})" > /tmp/kitti.log 2>&1 < /dev/null &
+    --pose-offset fit,0,1.65 && python3 -m cam2sim -v run -o $ws ${RUN_ARGS:-})" > /tmp/kitti.log 2>&1 < /dev/null &
   sleep 5
   watch
   ;;

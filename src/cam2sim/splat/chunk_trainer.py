@@ -150,7 +150,9 @@ class ChunkTrainer:
             raise StageError(msg)
         from cam2sim.splat.densify import Densifier  # noqa: PLC0415 -- lazy: imports torch
 
+        started = time.perf_counter()
         self.views = load_views(prep_dir, frames, options.downscale, device)
+        self.setup_s = {"views": time.perf_counter() - started}
         # Level k: the views at 1/2**k size with their loss constants (level 0 = full size).
         self.levels = [(self.views, loss_constants(self.views))]
         for k in range(1, options.coarse_levels + 1):
@@ -165,7 +167,9 @@ class ChunkTrainer:
         self.val_views = sorted({round(i * spread) for i in range(n_val)})
         self._order: list[int] = []
         self.scale_ambiguous = scene.scale_ambiguous
+        started = time.perf_counter()
         self._build_models(points)
+        self.setup_s["seeding"] = time.perf_counter() - started
         self._build_optimizers()
         self.densifier = (
             Densifier(
@@ -184,6 +188,10 @@ class ChunkTrainer:
         self.outlier_sum = torch.zeros((), device=device)
         self.outlier_steps = 0
         self.state = TrainState(cap=options.max_steps, time_share=time_share_s)
+        _log.info(
+            "chunk %d: views loaded in %.1f s, Gaussians seeded in %.1f s",
+            chunk.id, self.setup_s["views"], self.setup_s["seeding"],
+        )  # fmt: skip
 
     # -- set-up ------------------------------------------------------------------------------
     def _build_models(self, points: tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]) -> None:

@@ -146,6 +146,7 @@ def _worker(  # noqa: PLR0913, PLR0917 -- a spawned process's whole job, positio
     event ``go`` (a training slot). Sends ``("progress", chunk, steps)`` while training and
     ``("failed", chunk, text)`` on an error (``Type: message``, then the traceback).
     """
+    entered = time.perf_counter()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which ends us
     level, threads = settings
     root = logging.getLogger()
@@ -154,6 +155,7 @@ def _worker(  # noqa: PLR0913, PLR0917 -- a spawned process's whole job, positio
     try:
         import torch  # noqa: PLC0415
 
+        imported = time.perf_counter() - entered
         if threads > 0:
             torch.set_num_threads(threads)
         last = 0.0
@@ -163,6 +165,10 @@ def _worker(  # noqa: PLR0913, PLR0917 -- a spawned process's whole job, positio
             nonlocal last, waited
             del task
             if not waited:
+                logger.info(
+                    "chunk %d: ready %.1f s after its worker started (torch imported in %.1f s)",
+                    chunk, time.perf_counter() - entered, imported,
+                )  # fmt: skip
                 messages.put(("ready", chunk, None))
                 go.wait()
                 waited = True
