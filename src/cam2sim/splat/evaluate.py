@@ -210,33 +210,52 @@ def _offset_scores(
     lower_fraction: float,
     cache: RenderCache,
 ) -> list[OffsetScore]:
+    """Each frame rendered at each lateral offset and scored against its centre render.
+
+    The scores are taken on the upper ``1 - lower_fraction`` of the image (and outside the
+    frame's exclusion), where a sideways step changes little; they run on worker threads while
+    this one renders (LPIPS keeps them to one).
+    """
+
+    def score(
+        frame: FrameRecord,
+        centre: npt.NDArray[np.uint8],
+        r: RenderResult,
+        exclude: npt.NDArray[np.bool_] | None,
+    ) -> tuple[float | None, float | None, float | None]:
+        lower = np.ones((frame.height, frame.width), dtype=bool)
+        lower[round(frame.height * (1.0 - lower_fraction)) :] = False
+        if exclude is not None:
+            lower |= exclude
+        scores = score_pair(centre, r.rgb, lower, lpips)
+        kept = ~lower
+        street = r.street_alpha
+        hole = float((street[kept] < 0.5).mean()) if street is not None and kept.any() else None
+        return scores.lpips, scores.psnr, hole
+
+    coverage: list[float] = []
+    with BackgroundJobs[tuple[float | None, float | None, float | None]](
+        1 if lpips is not None else None, name="cam2sim-splat-offsets"
+    ) as jobs:
+        for offset in offsets:
+            for frame, centre, exclude in frames:
+                pose = perturbed_pose(frame.T(), lateral_m=offset)
+                r = renderer.render(pose, frame.camera())
+                cache[frame.index, float(offset), 0.0] = (r.rgb, r.coverage)
+                coverage.append(r.coverage)
+                jobs.submit(score, frame, centre, r, exclude)
+        scored = jobs.results()
     out = []
-    for offset in offsets:
-        lp, ps, holes, cov = [], [], [], []
-        for frame, centre, exclude in frames:
-            pose = perturbed_pose(frame.T(), lateral_m=offset)
-            r = renderer.render(pose, frame.camera())
-            cache[frame.index, float(offset), 0.0] = (r.rgb, r.coverage)
-            lower = np.ones((frame.height, frame.width), dtype=bool)
-            lower[round(frame.height * (1.0 - lower_fraction)) :] = False
-            if exclude is not None:
-                lower |= exclude
-            scores = score_pair(centre, r.rgb, lower, lpips)
-            kept = ~lower
-            lp.append(scores.lpips)
-            ps.append(scores.psnr)
-            street = r.street_alpha
-            holes.append(
-                float((street[kept] < 0.5).mean()) if street is not None and kept.any() else None
-            )
-            cov.append(r.coverage)
+    n = len(frames)
+    for k, offset in enumerate(offsets):
+        lp, ps, holes = zip(*scored[k * n : (k + 1) * n], strict=True) if n else ((), (), ())
         out.append(
             OffsetScore(
                 offset_m=offset,
-                lpips_vs_centre=summarise(lp),
-                psnr_vs_centre_db=summarise(ps),
-                street_hole_fraction=summarise(holes),
-                coverage=summarise(list(cov)),
+                lpips_vs_centre=summarise(list(lp)),
+                psnr_vs_centre_db=summarise(list(ps)),
+                street_hole_fraction=summarise(list(holes)),
+                coverage=summarise(coverage[k * n : (k + 1) * n]),
             )
         )
     return out
