@@ -62,6 +62,7 @@ __all__ = [
     "scaled_intrinsics",
     "vehicle_camera_pose",
     "vehicle_view",
+    "view_policy",
     "write_png",
 ]
 
@@ -338,6 +339,20 @@ class Cameras:
             r.close()
         if self.carla is not None:
             self.carla.close()
+
+
+def view_policy(spec: str, scenario: Scenario) -> SteeringPolicy:
+    """The policy ``spec`` loaded to answer single views (:func:`first_decision`): no route.
+
+    Raises:
+        StageError: The policy cannot be loaded (see :func:`cam2sim.ads.policy.load_policy`).
+    """
+    from cam2sim.ads.policy import load_policy  # noqa: PLC0415 -- lazy: cv2, onnxruntime
+
+    return load_policy(
+        spec, route_xy=None, wheelbase_m=scenario.vehicle.wheelbase_m,
+        calibration=scenario.steering_calibration,
+    )  # fmt: skip
 
 
 def first_decision(

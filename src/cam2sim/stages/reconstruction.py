@@ -44,6 +44,7 @@ from cam2sim.stages.cameras import (
     first_decision,
     load_run_context,
     scaled_intrinsics,
+    view_policy,
     write_png,
 )
 
@@ -53,6 +54,7 @@ if TYPE_CHECKING:
 
     from cam2sim.core.workspace import Workspace
     from cam2sim.metrics.lpips import Lpips
+    from cam2sim.sim.interface import SteeringPolicy
 
 __all__ = ["evaluate_replay_images", "evaluate_replay_steering", "evaluate_world_semantics"]
 
@@ -113,7 +115,6 @@ def evaluate_replay_steering(
     Raises:
         StageError: The replay saved no frames, or the policy cannot be loaded.
     """
-    from cam2sim.ads.policy import load_policy  # noqa: PLC0415 -- lazy: cv2, onnxruntime
     from cam2sim.metrics.steering_agreement import steering_agreement  # noqa: PLC0415
 
     real_dir = dataset_paths(ws.dataset_dir).frames_dir
@@ -125,11 +126,7 @@ def evaluate_replay_steering(
         msg = f"{real_dir} does not exist: no recorded frames to compare the replay's with"
         raise StageError(msg)
     real = {f.stem: f for f in real_dir.iterdir() if f.is_file()}
-    sc = load_run_context(ws).scenario
-    model = load_policy(
-        str(policy), route_xy=None, wheelbase_m=sc.vehicle.wheelbase_m,
-        calibration=sc.steering_calibration,
-    )  # fmt: skip
+    model = view_policy(str(policy), load_run_context(ws).scenario)
     on_recorded: dict[str, float] = {}  # every camera is compared with the same frames
     written = []
     try:
@@ -145,7 +142,9 @@ def evaluate_replay_steering(
                 held = _held_out_pairs(ws) if cam.name == "splat" else []
                 result = steering_agreement(
                     cam.name, str(policy), [stem for stem, _ in pairs], steer_real, steer_sim,
-                    held_out=_pair_steering(model, held, {}, reader, _no_report),
+                    held_out=_pair_steering(
+                        model, held, {}, reader, partial(no_progress, "held out")
+                    ),
                 )  # fmt: skip
                 path = out / cam.name / "steering.json"
                 path.parent.mkdir(parents=True, exist_ok=True)
@@ -156,16 +155,12 @@ def evaluate_replay_steering(
     return written
 
 
-def _no_report(done: int, total: int) -> None:
-    del done, total
-
-
 def _pair_steering(
-    model: Any,
+    model: SteeringPolicy,
     pairs: list[tuple[Path, Path]],
     on_recorded: dict[str, float],
     reader: BackgroundJobs[Any],
-    report: Callable[[int, int], None],
+    report: Callable[[int, int | None], None],
 ) -> tuple[list[float], list[float]]:
     """The policy's first decision on each (recorded, replayed) frame pair.
 

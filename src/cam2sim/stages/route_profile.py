@@ -36,6 +36,7 @@ from cam2sim.stages.cameras import (
     load_run_context,
     recorded_ground_at,
     run_camera,
+    view_policy,
 )
 
 if TYPE_CHECKING:
@@ -183,12 +184,7 @@ def route_profile(
     steer = np.full((2, *out.shape), np.nan) if policy is not None else None
     asked = None
     if policy is not None:
-        from cam2sim.ads.policy import load_policy  # noqa: PLC0415 -- lazy: cv2, onnxruntime
-
-        asked = load_policy(
-            policy, route_xy=None, wheelbase_m=sc.vehicle.wheelbase_m,
-            calibration=sc.steering_calibration,
-        )  # fmt: skip
+        asked = view_policy(policy, sc)
     total = out.size
     try:
         with Cameras(ctx, ("splat", TRUTH_CAMERA)) as cams:
