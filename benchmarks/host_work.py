@@ -2,22 +2,21 @@
 
 On a GPU machine the KITTI run (docs/benchmarks.md, "fifth run") spent minutes on work the
 GPU waits for: reading, undistorting and writing the splat's views, encoding three PNGs a
-replay frame, scoring and writing the splat's held-out renders, and DAVE-2's recovery warp in
-NumPy. This script times each of them on real frames the way the pipeline does it now
-(:class:`cam2sim.core.background.BackgroundJobs`, the warp on the batch's device) and the way
-it did before (one thread; the warp from :func:`cam2sim.ads.recovery.source_pixels`):
+replay frame, scoring and writing the splat's held-out renders. This script times each of them
+on real frames the way the pipeline does it now (:class:`cam2sim.core.background.BackgroundJobs`)
+and the way it did before (one thread). (DAVE-2's recovery warp, NumPy per pixel before, now
+one torch implementation on the batch's device, was timed by this script at commit 9a896ab.)
 
     PYTHONPATH=src python benchmarks/host_work.py FRAMES_DIR [--frames 200] [--workers N]
 
 FRAMES_DIR holds the frames (PNG or JPEG; KITTI 03's 1242x375 grey frames for the figures in
-docs/benchmarks.md). Prints milliseconds per frame (per batch for the warp) and the speed-up; the
+docs/benchmarks.md). Prints milliseconds per frame and the speed-up; the
 work stands in for the GPU's renders with the frames themselves.
 """
 
 from __future__ import annotations
 
 import argparse
-import math
 import tempfile
 import time
 from pathlib import Path
@@ -116,41 +115,6 @@ def _views(files: list[Path], out: Path, workers: int) -> tuple[float, float]:
     return serial, time.perf_counter() - start
 
 
-def _warp(size: tuple[int, int], batches: int) -> tuple[float, float]:
-    """DAVE-2's recovery warp on a batch of 32: NumPy per pixel, then torch on the batch."""
-    import torch  # noqa: PLC0415
-
-    from cam2sim.ads.dave2 import Dave2Config  # noqa: PLC0415
-    from cam2sim.ads.recovery import RecoveryGeometry, recovery_views, source_pixels  # noqa: PLC0415
-
-    w, h = size
-    geometry = RecoveryGeometry(
-        ((718.856, 0.0, w / 2), (0.0, 718.856, h / 2), (0.0, 0.0, 1.0)), w, h, 1.65, 0.0, 0.022
-    )
-    config = Dave2Config.for_camera(w, h)
-    nw, nh = config.input_size
-    rng = np.random.default_rng(0)
-    x = torch.rand(32, 3, nh, nw) * 255
-    lateral, yaw = rng.uniform(-0.6, 0.6, 32), np.radians(rng.uniform(-4, 4, 32))
-
-    def numpy_warp() -> torch.Tensor:
-        src = torch.from_numpy(source_pixels(geometry, config, lateral, yaw)).to(x)
-        grid = torch.stack([(2 * src[..., 0] + 1) / nw - 1, (2 * src[..., 1] + 1) / nh - 1], -1)
-        return torch.nn.functional.grid_sample(
-            x, grid, mode="bilinear", padding_mode="border", align_corners=False
-        )
-
-    recovery_views(x, geometry, config, lateral, yaw)  # the rays, once
-    start = time.perf_counter()
-    for _ in range(batches):
-        numpy_warp()
-    before = time.perf_counter() - start
-    start = time.perf_counter()
-    for _ in range(batches):
-        recovery_views(x, geometry, config, lateral, yaw)
-    return before, time.perf_counter() - start
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("frames", type=Path)
@@ -170,8 +134,6 @@ def main() -> None:
         _timed("splat views (read..write)", *_views(files, out, workers), len(files))
         _timed("replay writes (3 PNGs)", *_replay_writes(images, out, workers), len(files))
         _timed("splat eval (2 scores, WebP)", *_eval_scores(images, out, workers), len(files))
-    batches = max(10, math.ceil(len(files) / 4))
-    _timed("recovery warp, batch of 32", *_warp((w, h), batches), batches, ("NumPy", "torch"))
 
 
 if __name__ == "__main__":

@@ -86,8 +86,8 @@ def test_no_displacement_is_the_identity(crop: str) -> None:
 
 @pytest.mark.parametrize("crop", list(CROPS))
 def test_the_batch_warp_samples_where_source_pixels_says(crop: str) -> None:
-    """recovery_views computes the warp in torch on the batch's device; source_pixels is the
-    NumPy reference: a ramp image shows which source pixel each output pixel sampled."""
+    """recovery_views samples each output pixel at source_pixels' float64 position (its grid
+    conversion and its precision on the batch): a ramp image shows where it sampled."""
     from cam2sim.ads.recovery import recovery_views
 
     cfg = CROPS[crop]

@@ -143,6 +143,31 @@ def _rays(
     return rays, ground, down
 
 
+def _sources(
+    geometry: RecoveryGeometry,
+    config: Dave2Config,
+    lateral_m: npt.ArrayLike,
+    yaw_rad: npt.ArrayLike,
+    like: torch.Tensor,
+) -> torch.Tensor:
+    """``(B, P, 2)`` source ``(x, y)`` network-input pixels, on ``like``'s device and dtype."""
+    import torch  # noqa: PLC0415
+
+    e = torch.as_tensor(np.atleast_1d(np.asarray(lateral_m, dtype=np.float64))).to(like)
+    psi = np.atleast_1d(np.asarray(yaw_rad, dtype=np.float64))
+    sx, ox, sy, oy = _net_to_frame(config, geometry.width, geometry.height)
+    k = np.asarray(geometry.K, dtype=np.float64)
+    rays_np, ground_np, down = _rays(geometry, config)
+    rays, ground = torch.from_numpy(rays_np).to(like), torch.from_numpy(ground_np).to(like)
+    rot = torch.from_numpy(_rotations_about(-down, psi)).to(like)  # turns left, about the vertical
+    src = torch.einsum("bij,pj->bpi", rot, rays)
+    moved = src[..., 0] - e[:, None] * ground[None, :]  # the camera moved left: -x, by 1/depth
+    z = src[..., 2].clamp(min=1e-6)
+    fx = (float(k[0, 0]) * moved + float(k[0, 1]) * src[..., 1]) / z + float(k[0, 2])
+    fy = float(k[1, 1]) * src[..., 1] / z + float(k[1, 2])
+    return torch.stack([(fx - ox) / sx, (fy - oy) / sy], -1)
+
+
 def source_pixels(
     geometry: RecoveryGeometry,
     config: Dave2Config,
@@ -160,20 +185,12 @@ def source_pixels(
     Returns:
         ``(B, h, w, 2)`` source ``(x, y)`` in network-input pixels (may lie outside the input).
     """
-    e = np.atleast_1d(np.asarray(lateral_m, dtype=np.float64))
-    psi = np.atleast_1d(np.asarray(yaw_rad, dtype=np.float64))
+    import torch  # noqa: PLC0415
+
     nw, nh = config.input_size
-    sx, ox, sy, oy = _net_to_frame(config, geometry.width, geometry.height)
-    k = np.asarray(geometry.K, dtype=np.float64)
-    rays, ground, down = _rays(geometry, config)
-    rot = _rotations_about(-down, psi)  # turns to the left about the vertical
-    src = np.einsum("bij,pj->bpi", rot, rays)
-    src[..., 0] -= e[:, None] * ground[None, :]  # the camera moved left: -x, scaled by 1/depth
-    z = np.clip(src[..., 2], 1e-6, None)
-    fx = (k[0, 0] * src[..., 0] + k[0, 1] * src[..., 1]) / z + k[0, 2]
-    fy = k[1, 1] * src[..., 1] / z + k[1, 2]
-    out = np.stack([(fx - ox) / sx, (fy - oy) / sy], -1)
-    return out.reshape(len(e), nh, nw, 2)
+    src = _sources(geometry, config, lateral_m, yaw_rad, torch.zeros((), dtype=torch.float64))
+    out: npt.NDArray[np.float64] = src.numpy().reshape(-1, nh, nw, 2)
+    return out
 
 
 def recovery_views(
@@ -186,29 +203,16 @@ def recovery_views(
     """The batch ``x`` (``(B, 3, h, w)`` network inputs) seen from the displaced cameras.
 
     The warp of :func:`source_pixels`, computed on ``x``'s device in its precision: on a GPU a
-    training batch costs no host work (the per-pixel NumPy version takes 22 ms a batch of 32
-    on one laptop core, ``benchmarks/host_work.py``, where a whole training batch on an H100
-    took about 80 ms).
+    training batch costs no host work (the per-pixel NumPy version this replaced took 22 ms a
+    batch of 32 on one laptop core, where a whole training batch on an H100 took about 80 ms;
+    ``docs/benchmarks.md``, "Host work beside the GPU").
     """
     import torch  # noqa: PLC0415
 
-    h, w = x.shape[2:]
-    e = torch.as_tensor(np.atleast_1d(np.asarray(lateral_m, dtype=np.float64))).to(x)
-    psi = np.atleast_1d(np.asarray(yaw_rad, dtype=np.float64))
-    sx, ox, sy, oy = _net_to_frame(config, geometry.width, geometry.height)
-    k = np.asarray(geometry.K, dtype=np.float64)
-    rays_np, ground_np, down = _rays(geometry, config)
-    rays, ground = torch.from_numpy(rays_np).to(x), torch.from_numpy(ground_np).to(x)
-    rot = torch.from_numpy(_rotations_about(-down, psi)).to(x)
-    src = torch.einsum("bij,pj->bpi", rot, rays)
-    sx_ = src[..., 0] - e[:, None] * ground[None, :]
-    z = src[..., 2].clamp(min=1e-6)
-    fx = (float(k[0, 0]) * sx_ + float(k[0, 1]) * src[..., 1]) / z + float(k[0, 2])
-    fy = float(k[1, 1]) * src[..., 1] / z + float(k[1, 2])
+    b, h, w = x.shape[0], *x.shape[2:]
+    src = _sources(geometry, config, lateral_m, yaw_rad, x)
     # Source pixel (network input) -> grid_sample's [-1, 1] (align_corners=False).
-    gx = (2 * ((fx - ox) / sx) + 1) / w - 1
-    gy = (2 * ((fy - oy) / sy) + 1) / h - 1
-    grid = torch.stack([gx, gy], -1).view(len(e), h, w, 2)
+    grid = torch.stack([(2 * src[..., 0] + 1) / w - 1, (2 * src[..., 1] + 1) / h - 1], -1)
     return torch.nn.functional.grid_sample(
-        x, grid, mode="bilinear", padding_mode="border", align_corners=False
+        x, grid.view(b, h, w, 2), mode="bilinear", padding_mode="border", align_corners=False
     )
