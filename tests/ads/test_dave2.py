@@ -558,3 +558,36 @@ def test_a_balanced_epoch_draws_the_rare_turn_as_often_as_the_straight() -> None
     assert epoch_order(np.zeros(5), 1.0, np.random.default_rng(0)).tolist() != []
     with pytest.raises(ValueError, match="balance must lie in"):
         TrainOptions(balance=1.5)
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="the splat step would train on the GPU")
+def test_the_pipeline_trains_dave2_beside_the_splat_to_the_same_model(tmp_path: Path) -> None:
+    """``cam2sim run`` on a GPU trains DAVE-2 in its own process while the splat trains."""
+    from cam2sim.ads.train_options import TrainOptions
+    from cam2sim.stages.ads import TRAIN_STAGE
+    from cam2sim.stages.pipeline import PipelineOptions, run_pipeline
+
+    ads = TrainOptions(epochs=2, batch_size=16, shift_px=6, device="cpu", workers=1)
+    seen: dict[str, list[tuple[int, int | None]]] = {}
+
+    def report(task: str, completed: int, total: int | None) -> None:
+        seen.setdefault(task, []).append((completed, total))
+
+    weights = {}
+    for beside in (True, False):
+        ws = make_drive(tmp_path / f"ws-{beside}")
+        options = PipelineOptions(
+            steps=("splat", "ads"), splat_on_cpu=False, ads=ads, ads_beside_splat=beside
+        )
+        result = run_pipeline(ws, options=options, progress=report if beside else None)
+        assert result.outcome("splat").state == "not_applicable"  # no GPU: it only waits
+        assert result.outcome("ads").state == "done", result.outcome("ads").message
+        assert ("trained beside the splat" in result.outcome("ads").message) is beside
+        manifest = ws.read_manifest()  # both processes' records, none lost
+        assert {"extract", TRAIN_STAGE, "ads_export"} <= set(manifest.stages)
+        assert {"splat", "ads"} <= set(manifest.steps)
+        weights[beside] = torch.load(ws.ads_dir / "dave2.pt", map_location="cpu")
+    assert seen["training DAVE-2"][-1] == (2, 2)  # the process's progress reached this one
+    state = {k: v for k, v in weights[True].items() if isinstance(v, torch.Tensor)}
+    for name, tensor in state.items():  # seeded: the same network either way
+        torch.testing.assert_close(tensor, weights[False][name], rtol=0, atol=0)

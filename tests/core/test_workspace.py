@@ -130,3 +130,26 @@ def test_a_broken_older_pipeline_json_is_dropped(tmp_path: Path) -> None:
     (ws.runs_dir / LEGACY_PIPELINE_FILE).write_text("{")
     assert ws.read_manifest().stages == {}
     assert not (ws.runs_dir / LEGACY_PIPELINE_FILE).exists()
+
+
+def test_records_from_many_threads_at_once_are_all_kept(tmp_path: Path) -> None:
+    """The manifest's lock: no read-change-write drops another writer's record."""
+    import datetime as dt
+    import threading
+
+    ws = Workspace.create(tmp_path / "ws", Config())
+    now = dt.datetime.now(dt.UTC)
+
+    def write(k: int) -> None:
+        for i in range(5):
+            ws.record_stage(f"stage{k}-{i}", state="done", started=now, inputs_hash=f"h{k}")
+            ws.record_step(f"step{k}-{i}", state="done", seconds=1.0, message="")
+
+    threads = [threading.Thread(target=write, args=(k,)) for k in range(6)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    manifest = ws.read_manifest()
+    assert len(manifest.stages) == 30
+    assert len(manifest.steps) == 30

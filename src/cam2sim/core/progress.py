@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Protocol
 
-__all__ = ["ProgressCallback", "no_progress"]
+__all__ = ["ProgressCallback", "no_progress", "serialized"]
 
 
 class ProgressCallback(Protocol):
@@ -21,3 +21,20 @@ class ProgressCallback(Protocol):
 def no_progress(task: str, completed: int, total: int | None) -> None:
     """Report nothing."""
     del task, completed, total
+
+
+def serialized(progress: ProgressCallback) -> ProgressCallback:
+    """``progress`` behind a lock: for work that reports from more than one thread at a time.
+
+    The CLI's bars and lines keep per-task state that two threads could tear (a task added
+    twice); each call through the returned callback runs alone.
+    """
+    import threading  # noqa: PLC0415
+
+    lock = threading.Lock()
+
+    def report(task: str, completed: int, total: int | None) -> None:
+        with lock:
+            progress(task, completed, total)
+
+    return report

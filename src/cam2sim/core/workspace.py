@@ -8,6 +8,7 @@ Layout::
     WS/
       workspace.json     manifest: tool version, config snapshot, world frame, stage states,
                          the latest `cam2sim run`'s step outcomes (the one state store)
+      .workspace.lock    held while one process updates the manifest (read, change, write)
       config.yaml        the user's recording config
       dataset/           stage extract / import
       detections/ map/ scenario/ splat/ ads/ runs/ report/
@@ -207,6 +208,7 @@ class Workspace:
 
     MANIFEST = "workspace.json"
     CONFIG = "config.yaml"
+    LOCK = ".workspace.lock"
 
     def __init__(self, root: Path) -> None:
         self.root = Path(root).absolute()
@@ -272,6 +274,20 @@ class Workspace:
     def config_path(self) -> Path:
         """``config.yaml``."""
         return self.root / self.CONFIG
+
+    @contextlib.contextmanager
+    def _updating(self) -> Iterator[None]:
+        """Hold the manifest's lock while reading, changing and writing it.
+
+        Steps of one ``cam2sim run`` record themselves from more than one process at a time
+        (DAVE-2 trains in its own process beside the splat on a GPU): without the lock one
+        process's read-change-write could drop the other's record (a lost splat record trains
+        the splat again). ``filelock`` locks the file between processes and threads alike.
+        """
+        from filelock import FileLock  # noqa: PLC0415 -- lazy: only writers need it
+
+        with FileLock(self.root / self.LOCK, timeout=-1):
+            yield
 
     def read_manifest(self) -> Manifest:
         """Load and validate ``workspace.json``.
@@ -344,30 +360,32 @@ class Workspace:
         world: WorldFrameRecord | None = None,
         runs: tuple[str, ...] = (),
     ) -> None:
-        """Record a stage outcome in the manifest (atomically)."""
-        manifest = self.read_manifest()
-        stages = dict(manifest.stages)
-        stages[stage] = StageRecord(
-            state=state,
-            inputs_hash=inputs_hash,
-            started=started,
-            finished=_now(),
-            message=message,
-            runs=runs,
-        )
-        update: dict[str, object] = {"stages": stages, "tool_version": __version__}
-        if config is not None:
-            update["config"] = config.model_dump(mode="json")
-        if world is not None:
-            update["world"] = world
-        self.write_manifest(manifest.model_copy(update=update))
+        """Record a stage outcome in the manifest (atomically, under the manifest's lock)."""
+        with self._updating():
+            manifest = self.read_manifest()
+            stages = dict(manifest.stages)
+            stages[stage] = StageRecord(
+                state=state,
+                inputs_hash=inputs_hash,
+                started=started,
+                finished=_now(),
+                message=message,
+                runs=runs,
+            )
+            update: dict[str, object] = {"stages": stages, "tool_version": __version__}
+            if config is not None:
+                update["config"] = config.model_dump(mode="json")
+            if world is not None:
+                update["world"] = world
+            self.write_manifest(manifest.model_copy(update=update))
 
     def record_step(self, step: str, *, state: StepState, seconds: float, message: str) -> None:
-        """Record the outcome of a ``cam2sim run`` step in the manifest (atomically)."""
-        manifest = self.read_manifest()
+        """Record the outcome of a ``cam2sim run`` step (atomically, under the manifest's lock)."""
         record = StepRecord(state=state, seconds=round(seconds, 3), message=message)
-        steps = {**manifest.steps, step: record}
-        self.write_manifest(manifest.model_copy(update={"steps": steps}))
+        with self._updating():
+            manifest = self.read_manifest()
+            steps = {**manifest.steps, step: record}
+            self.write_manifest(manifest.model_copy(update={"steps": steps}))
 
     def world_frame(self) -> WorldFrameRecord | None:
         """The workspace's world frame, once a stage has fixed it."""

@@ -10,6 +10,11 @@ changed (or a run folder disappeared). The manifest also keeps the latest outcom
 that ran (``Manifest.steps``: state, seconds, message), which the report's summary lists. The
 manifest is the workspace's one state store; an older ``WS/runs/pipeline.json`` is merged into
 it when read (:meth:`~cam2sim.core.workspace.Workspace.read_manifest`).
+
+On a GPU machine the ads step (DAVE-2) trains in its own process while the splat step runs
+(:class:`~cam2sim.core.sidecar.Sidecar`; ``PipelineOptions.ads_beside_splat``): neither reads
+what the other writes, and the splat's preparation leaves the GPU idle for minutes. Its outcome
+is taken where the ads step stands in the order, so the summary reads the same.
 """
 
 from __future__ import annotations
@@ -27,7 +32,8 @@ from cam2sim.core.dataset import DatasetInfo
 from cam2sim.core.errors import ConfigError, StageError
 from cam2sim.core.files import file_fingerprint, write_text_atomic
 from cam2sim.core.machine import available_cpus
-from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.progress import ProgressCallback, no_progress, serialized
+from cam2sim.core.sidecar import Sidecar
 from cam2sim.core.workspace import StepState, dataset_paths, hash_inputs, run_paths
 from cam2sim.render.truth import truth_world_path
 from cam2sim.scenario.model import Scenario
@@ -94,6 +100,12 @@ a frame for the raster and splat cameras at 1242x375 on 2 cores, so KITTI 03's 8
 would take hours."""
 
 
+BESIDE_MIN_CPUS: Final = 8
+"""Fewest CPUs on which ``cam2sim run`` trains DAVE-2 beside the splat by default (the splat's
+preparation, SIFT and triangulation, takes every core it has; DAVE-2 needs a few for its
+frames)."""
+
+
 def replay_stride(samples: int, cameras: Sequence[str], *, cuda: bool) -> int:
     """Every how many recorded frames ``cam2sim run`` replays by default.
 
@@ -158,6 +170,11 @@ class PipelineOptions:
         drive_workers: Processes the drive step runs its cameras' runs in (one camera each);
             None: :func:`default_drive_workers`. The runs are seeded, so their results do not
             depend on it.
+        ads_beside_splat: Train DAVE-2 in its own process while the splat trains (neither
+            reads what the other writes; the ads step's time then hides behind the splat's);
+            None: on a CUDA machine with at least :data:`BESIDE_MIN_CPUS` CPUs. On a laptop's
+            few cores the two would only slow each other. Seeded either way: the model is the
+            same.
     """
 
     osm: Path | None = None
@@ -182,6 +199,7 @@ class PipelineOptions:
     real: tuple[Path, ...] = ()
     real_crs: str = "EPSG:32632"
     drive_workers: int | None = None
+    ads_beside_splat: bool | None = None
 
     def __post_init__(self) -> None:
         unknown = sorted((set(self.steps) | set(self.skip)) - set(STEPS))
@@ -635,9 +653,43 @@ def run_pipeline(
         progress: Receives a ``pipeline`` task (steps done of all) and each stage's tasks.
     """
     opts = options or PipelineOptions()
-    report = progress or no_progress
+    report = serialized(progress or no_progress)  # DAVE-2 may report from beside the splat
     pipe = _Pipeline(ws, opts, report)
-    handlers: dict[str, Callable[[_Step], None]] = {
+    handlers = _handlers(pipe)
+    outcomes: list[StepOutcome] = []
+    stopped: str | None = None
+    beside: Sidecar | None = None
+    try:
+        for i, name in enumerate(STEPS):
+            report("pipeline", i, len(STEPS))
+            if beside is not None and name == "ads":
+                outcomes.append(_joined(beside))
+                beside = None
+            elif not opts.wants(name):
+                outcomes.append(StepOutcome(name, "skipped", 0.0, "not selected"))
+                continue
+            elif stopped is not None:
+                outcomes.append(StepOutcome(name, "skipped", 0.0, f"{stopped} failed"))
+                continue
+            else:
+                if name == "splat" and _ads_beside_splat(opts):
+                    beside = Sidecar(
+                        _step_in_process, (str(ws.root), opts, "ads"), progress=report, name="ads"
+                    )
+                outcomes.append(_run_step(name, handlers[name]))
+            logger.info("step %s: %s", name, outcomes[-1].state)
+            pipe.record(outcomes[-1])
+            if outcomes[-1].state == "failed" and not opts.continue_on_error:
+                stopped = stopped or name
+    finally:
+        if beside is not None:  # interrupted (or failed) before the ads step joined it
+            beside.stop()
+    report("pipeline", len(STEPS), len(STEPS))
+    return PipelineResult(tuple(outcomes), pipe.report)
+
+
+def _handlers(pipe: _Pipeline) -> dict[str, Callable[[_Step], None]]:
+    return {
         "extract": pipe.extract,
         "map": pipe.map,
         "detect": pipe.detect,
@@ -649,23 +701,39 @@ def run_pipeline(
         "evaluate": pipe.evaluate,
         "report": pipe.report_step,
     }
-    outcomes: list[StepOutcome] = []
-    stopped: str | None = None
-    for i, name in enumerate(STEPS):
-        report("pipeline", i, len(STEPS))
-        if not opts.wants(name):
-            outcomes.append(StepOutcome(name, "skipped", 0.0, "not selected"))
-            continue
-        if stopped is not None:
-            outcomes.append(StepOutcome(name, "skipped", 0.0, f"{stopped} failed"))
-            continue
-        outcomes.append(_run_step(name, handlers[name]))
-        logger.info("step %s: %s", name, outcomes[-1].state)
-        pipe.record(outcomes[-1])
-        if outcomes[-1].state == "failed" and not opts.continue_on_error:
-            stopped = name
-    report("pipeline", len(STEPS), len(STEPS))
-    return PipelineResult(tuple(outcomes), pipe.report)
+
+
+def _ads_beside_splat(opts: PipelineOptions) -> bool:
+    """Whether the ads step runs in its own process while the splat step runs."""
+    if not (opts.wants("splat") and opts.wants("ads")) or opts.policy is not None:
+        return False
+    if opts.ads_beside_splat is not None:
+        return opts.ads_beside_splat
+    from cam2sim.splat.raster import has_cuda  # noqa: PLC0415 -- lazy: imports torch
+
+    return available_cpus() >= BESIDE_MIN_CPUS and has_cuda()
+
+
+def _step_in_process(
+    root: str, options: PipelineOptions, name: str, *, progress: ProgressCallback
+) -> StepOutcome:
+    """Step ``name`` of the workspace at ``root``, in a :class:`Sidecar` process: its outcome."""
+    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
+
+    pipe = _Pipeline(Workspace.open(Path(root)), options, progress)
+    return _run_step(name, _handlers(pipe)[name])
+
+
+def _joined(beside: Sidecar) -> StepOutcome:
+    """The outcome of the step that ran beside the splat (its seconds: its own wall time)."""
+    try:
+        outcome: StepOutcome = beside.result()
+    except StageError as err:
+        return StepOutcome(beside.name, "failed", 0.0, str(err))
+    if outcome.state != "done":
+        return outcome
+    note = "trained beside the splat"
+    return dataclasses.replace(outcome, message="; ".join(m for m in (outcome.message, note) if m))
 
 
 RUN_INPUTS: Final = "run_inputs.json"

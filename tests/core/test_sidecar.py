@@ -1,0 +1,80 @@
+"""A function in its own process beside the caller: value, progress, logs, errors, stopping."""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from typing import TYPE_CHECKING
+
+import pytest
+
+from cam2sim.core.errors import StageError
+from cam2sim.core.sidecar import Sidecar
+
+if TYPE_CHECKING:
+    from cam2sim.core.progress import ProgressCallback
+
+
+def _count(n: int, *, progress: ProgressCallback) -> dict[str, int]:
+    logging.getLogger("cam2sim.sidecar-test").warning("counting to %d in %d", n, os.getpid())
+    for k in range(n + 1):
+        progress("counting", k, n)
+    return {"n": n, "pid": os.getpid()}
+
+
+def _fail(why: str, *, progress: ProgressCallback) -> None:
+    del progress
+    raise ValueError(why)
+
+
+def _die(*, progress: ProgressCallback) -> None:
+    del progress
+    os._exit(3)
+
+
+def _sleep(seconds: float, *, progress: ProgressCallback) -> None:
+    progress("sleeping", 0, 1)
+    time.sleep(seconds)
+
+
+def test_the_value_progress_and_logs_come_back(caplog: pytest.LogCaptureFixture) -> None:
+    seen: list[tuple[str, int, int | None]] = []
+    threads: set[str] = set()
+
+    def report(task: str, completed: int, total: int | None) -> None:
+        seen.append((task, completed, total))
+        threads.add(threading.current_thread().name)
+
+    with caplog.at_level(logging.WARNING, logger="cam2sim"):
+        side = Sidecar(_count, (50,), progress=report, name="counter")
+        value = side.result()
+    assert value["n"] == 50
+    assert value["pid"] != os.getpid()  # it ran in its own process
+    assert seen[0] == ("counting", 0, 50)
+    assert seen[-1] == ("counting", 50, 50)  # a task's end always comes through
+    assert [c for _, c, _ in seen] == sorted(c for _, c, _ in seen)
+    assert threads == {"counter-reader"}
+    assert f"counting to 50 in {value['pid']}" in caplog.text
+
+
+def test_an_error_in_the_process_is_raised_here_with_its_message() -> None:
+    side = Sidecar(_fail, ("no frames in WS/dataset",), name="trainer")
+    with pytest.raises(StageError, match=r"trainer .*failed: ValueError: no frames in WS/dataset"):
+        side.result()
+
+
+def test_a_process_that_dies_without_a_word_is_a_failure() -> None:
+    with pytest.raises(StageError, match="exited with code 3 without a result"):
+        Sidecar(_die, (), name="dier").result()
+
+
+def test_stop_ends_the_process_at_once() -> None:
+    started = time.perf_counter()
+    side = Sidecar(_sleep, (60.0,), name="sleeper")
+    side.stop()
+    side.stop()  # idempotent
+    assert time.perf_counter() - started < 30.0
+    with pytest.raises(StageError, match="stopped"):
+        side.result()
