@@ -78,7 +78,7 @@ from cam2sim.splat.prepare import prepare_scene; prepare_scene(Workspace.open('$
     dl .c21/a carla==0.9.16 pyproj gsplat==1.5.3
     dl .c21/b pydantic==2.14.4 pydantic_core==2.50.5 annotated_types typing_inspection \
       typing_extensions==4.16.0 shapely rosbags backports.zstd apsw lz4 zstandard ruamel.yaml \
-      moderngl glcontext scenariogeneration pyclothoids xmlschema elementpath osmium filelock
+      moderngl glcontext scenariogeneration pyclothoids xmlschema elementpath osmium
     apt=(-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 -oDir::State::Lists=/tmp/amd64)
     mkdir -p /tmp/amd64/partial
     apt-get "${apt[@]}" update > /dev/null

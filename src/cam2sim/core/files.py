@@ -28,6 +28,7 @@ __all__ = [
     "file_fingerprint",
     "process_lock",
     "read_json",
+    "waiting_lock",
     "write_bytes_atomic",
     "write_text_atomic",
 ]
@@ -180,4 +181,20 @@ def process_lock(path: Path, *, busy: str) -> Iterator[None]:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             raise WorkspaceError(busy) from None
+        yield
+
+
+@contextlib.contextmanager
+def waiting_lock(path: Path) -> Iterator[None]:
+    """Hold the lock file ``path``, waiting while another process or thread holds it.
+
+    For short read-change-write sections (the workspace manifest). Each call opens the file
+    anew, so threads of one process exclude each other as processes do (``flock`` locks an
+    open file, not a process); the lock goes with the process, even by a crash.
+    """
+    import fcntl  # noqa: PLC0415 - POSIX only, like process_lock
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
         yield

@@ -29,6 +29,7 @@ import pydantic
 from cam2sim import __version__
 from cam2sim.core.config import Config, load_config, save_config
 from cam2sim.core.errors import WorkspaceError
+from cam2sim.core.files import waiting_lock
 from cam2sim.core.schema import Artifact
 
 if TYPE_CHECKING:
@@ -282,11 +283,9 @@ class Workspace:
         Steps of one ``cam2sim run`` record themselves from more than one process at a time
         (DAVE-2 trains in its own process beside the splat on a GPU): without the lock one
         process's read-change-write could drop the other's record (a lost splat record trains
-        the splat again). ``filelock`` locks the file between processes and threads alike.
+        the splat again). It holds between processes and threads alike.
         """
-        from filelock import FileLock  # noqa: PLC0415 -- lazy: only writers need it
-
-        with FileLock(self.root / self.LOCK, timeout=-1):
+        with waiting_lock(self.root / self.LOCK):
             yield
 
     def read_manifest(self) -> Manifest:
