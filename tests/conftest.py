@@ -278,3 +278,13 @@ def _bicycle_drive(
 def bicycle_drive() -> Callable[..., tuple[np.ndarray, ...]]:
     """A kinematic-bicycle drive with turns, recorded at a point on the car (see its doc)."""
     return _bicycle_drive
+
+
+def temporary_leftovers(folder: Path) -> list[str]:
+    """Hidden files a failed or interrupted write left in ``folder`` (none should be).
+
+    The workspace manifest's lock file (``Workspace.LOCK``) is meant to stay and is not one.
+    """
+    return sorted(
+        p.name for p in folder.iterdir() if p.name.startswith(".") and p.name != Workspace.LOCK
+    )

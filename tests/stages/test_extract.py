@@ -30,7 +30,7 @@ from cam2sim.core.workspace import DatasetPaths, Workspace
 from cam2sim.recording.bagwriter import BagWriter
 from cam2sim.stages import extract as extract_module
 from cam2sim.stages.extract import extract
-from conftest import ReferenceDrive, write_drive_bag
+from conftest import ReferenceDrive, temporary_leftovers, write_drive_bag
 
 UTM32N = "EPSG:32632"
 
@@ -379,7 +379,7 @@ def test_extract_unknown_encoding_fails_and_keeps_the_previous_dataset(
     after = sorted(p.relative_to(ws.root) for p in ws.dataset_dir.rglob("*"))
     assert before == after
     assert ws.stage_record("extract").state == "failed"  # type: ignore[union-attr]
-    assert [p.name for p in ws.root.iterdir() if p.name.startswith(".")] == []
+    assert temporary_leftovers(ws.root) == []
 
 
 def test_interrupted_extract_leaves_the_workspace_as_it_was(
@@ -406,7 +406,7 @@ def test_interrupted_extract_leaves_the_workspace_as_it_was(
         extract(ws, force=True)
     assert ws.manifest_path.read_text() == manifest_before
     assert DatasetInfo.load(DatasetPaths(ws.dataset_dir).dataset_json) == info_before
-    assert [p.name for p in ws.root.iterdir() if p.name.startswith(".")] == []
+    assert temporary_leftovers(ws.root) == []
 
 
 def test_extract_requires_a_camera_topic(tmp_path: Path) -> None:

@@ -20,6 +20,7 @@ from cam2sim.core.errors import RecordingError
 from cam2sim.core.table import read_table
 from cam2sim.core.workspace import DatasetPaths, Workspace
 from cam2sim.stages.image_import import ImportOptions, import_images
+from conftest import temporary_leftovers
 
 UTM32N = "EPSG:32632"
 POSE_T0 = 1_771_283_861_205_308_914  # like the reference drive's first stamp
@@ -268,7 +269,7 @@ def test_failed_import_keeps_the_earlier_dataset(tmp_path: Path) -> None:
     record = Workspace.open(tmp_path / "ws").stage_record("extract")
     assert record is not None
     assert record.state == "failed"
-    assert [p.name for p in (tmp_path / "ws").iterdir() if p.name.startswith(".")] == []
+    assert temporary_leftovers(tmp_path / "ws") == []
 
 
 # -- real data ---------------------------------------------------------------------------------
