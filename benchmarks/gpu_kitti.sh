@@ -16,7 +16,8 @@
 #                                                # worker's set-up times and DAVE-2's epochs)
 #                                                # (RUN_ARGS: more `cam2sim run` options, e.g.
 #                                                # --recorded-speed, the default for KITTI)
-#   PHASE=wait bash benchmarks/gpu_kitti.sh      # watch it (repeat as needed)
+#   PHASE=wait bash benchmarks/gpu_kitti.sh      # watch it (repeat as needed; COLLECT=1:
+#                                                # collect as well once it has ended)
 #   PHASE=collect bash benchmarks/gpu_kitti.sh   # $OUT: the log, report.html, the workspace's
 #                                                # JSON records (kitti.tgz), the closed
 #                                                # loop's frames and drives (loop.tgz),
@@ -42,46 +43,22 @@ esac
 MARKER=/tmp/.gpu_kitti_setup
 source "$(dirname "$0")/gpu_phase.sh"
 ws=/tmp/kitti_ws
-watch() { # until the run ends or WATCH_S passes: one line a minute
-  local until=$((SECONDS + ${WATCH_S:-560}))
+watch() { # until the run ends (checked every 5 s) or WATCH_S passes: one line a minute
+  local until=$((SECONDS + ${WATCH_S:-560})) next=0
   while [ $SECONDS -lt $until ]; do
-    echo "$(date +%H:%M:%S) $(tail -n 1 /tmp/kitti.log)"
     if ! pgrep -f "cam2sim run" > /dev/null; then
       echo "the run has ended"
       tail -n 40 /tmp/kitti.log
       return 0
     fi
-    sleep 60
+    if [ $SECONDS -ge $next ]; then
+      echo "$(date +%H:%M:%S) $(tail -n 1 /tmp/kitti.log)"
+      next=$((SECONDS + 60))
+    fi
+    sleep 5
   done
 }
-case $PHASE in
-setup)
-  python3 -c "from cam2sim.splat.raster import build_gsplat; build_gsplat()" || exit 1
-  mkdir -p /tmp/kitti03/images && touch "$MARKER"
-  ;;
-frames)
-  for part in .k03/*/; do cp "$part"images/* /tmp/kitti03/images/ 2>/dev/null; done
-  if [ -f .c19/alexnet.ckpt ]; then
-    mkdir -p "$CAM2SIM_CACHE/lpips" && cp .c19/alexnet.ckpt "$CAM2SIM_CACHE/lpips/"
-  fi
-  for wheel in .k03/*/*.whl; do
-    [ -f "$wheel" ] && python3 -m pip install -q --no-index --no-deps --no-compile \
-      --no-cache-dir --upgrade --target /tmp/site "$wheel"
-  done
-  ls /tmp/kitti03/images | wc -l
-  python3 -c "import pycolmap; print('pycolmap', pycolmap.__version__)" 2>&1 | tail -1
-  ;;
-run)
-  cp .k03/c/images/* /tmp/kitti03/images/ && cp .k03/c/poses.txt .k03/c/K.txt /tmp/kitti03/ || exit 1
-  echo "frames: $(ls /tmp/kitti03/images | wc -l) (801 wanted)"
-  setsid nohup bash -c "time (python3 -m cam2sim import $ws --images /tmp/kitti03/images \
-    --poses /tmp/kitti03/poses.txt --calibration /tmp/kitti03/K.txt --fps 10 \
-    --pose-offset fit,0,1.65 && python3 -m cam2sim -v run -o $ws ${RUN_ARGS:-})" > /tmp/kitti.log 2>&1 < /dev/null &
-  sleep 5
-  watch
-  ;;
-wait) watch ;;
-collect)
+collect() { # $OUT: the log, the report, the records, the closed loop, the tilt
   tail -n 60 /tmp/kitti.log
   cp /tmp/kitti.log "$out/kitti.log"
   cp $ws/report/report.html "$out/report.html" 2>/dev/null
@@ -110,11 +87,45 @@ for run in sorted((ws / "runs").iterdir()):
                         [cv2.IMWRITE_JPEG_QUALITY, 90])
 PY
   tar czf "$out/loop.tgz" -C "$out" loop && rm -rf "$out/loop"
-  # The splat at every 8th recorded sample, its camera tilted as recorded or level (the hill).
-  python3 benchmarks/splat_tilt.py $ws --device cuda > "$out/tilt.txt" 2>&1
-  tail -n 2 "$out/tilt.txt"
+  # The splat at every 8th recorded sample, its camera tilted as recorded or level (the hill);
+  # TILT=0 leaves it out (about 40 s of device time).
+  if [ "${TILT:-1}" != 0 ]; then
+    python3 benchmarks/splat_tilt.py $ws --device cuda > "$out/tilt.txt" 2>&1
+    tail -n 2 "$out/tilt.txt"
+  fi
   ls -la "$out"
+}
+case $PHASE in
+setup)
+  python3 -c "from cam2sim.splat.raster import build_gsplat; build_gsplat()" || exit 1
+  mkdir -p /tmp/kitti03/images && touch "$MARKER"
   ;;
+frames)
+  for part in .k03/*/; do cp "$part"images/* /tmp/kitti03/images/ 2>/dev/null; done
+  if [ -f .c19/alexnet.ckpt ]; then
+    mkdir -p "$CAM2SIM_CACHE/lpips" && cp .c19/alexnet.ckpt "$CAM2SIM_CACHE/lpips/"
+  fi
+  for wheel in .k03/*/*.whl; do
+    [ -f "$wheel" ] && python3 -m pip install -q --no-index --no-deps --no-compile \
+      --no-cache-dir --upgrade --target /tmp/site "$wheel"
+  done
+  ls /tmp/kitti03/images | wc -l
+  python3 -c "import pycolmap; print('pycolmap', pycolmap.__version__)" 2>&1 | tail -1
+  ;;
+run)
+  cp .k03/c/images/* /tmp/kitti03/images/ && cp .k03/c/poses.txt .k03/c/K.txt /tmp/kitti03/ || exit 1
+  echo "frames: $(ls /tmp/kitti03/images | wc -l) (801 wanted)"
+  setsid nohup bash -c "time (python3 -m cam2sim import $ws --images /tmp/kitti03/images \
+    --poses /tmp/kitti03/poses.txt --calibration /tmp/kitti03/K.txt --fps 10 \
+    --pose-offset fit,0,1.65 && python3 -m cam2sim -v run -o $ws ${RUN_ARGS:-})" > /tmp/kitti.log 2>&1 < /dev/null &
+  sleep 5
+  watch
+  ;;
+wait) # COLLECT=1: collect too once the run has ended (saves a call)
+  watch
+  if [ -n "${COLLECT:-}" ] && ! pgrep -f "cam2sim run" > /dev/null; then collect; fi
+  ;;
+collect) collect ;;
 sweep)
   [ -f $ws/splat/prep/scene.json ] || { echo "no prepared scene in $ws: PHASE=run first" >&2; exit 1; }
   python3 benchmarks/splat_sweep.py --prep $ws/splat/prep --chunk "${CHUNK:-0}" \
