@@ -33,7 +33,7 @@
 # CC BY-NC-SA 3.0: .k03/ stays out of git (.git/info/exclude).
 case ${PHASE:?set PHASE to setup, frames, run, wait, collect or sweep} in
 setup) WHEELS=.c21/a ;;
-run) WHEELS=.c21/b ;;
+run) WHEELS=.c21/k ;;
 frames | wait | collect | sweep) WHEELS= ;;
 *)
   echo "PHASE=$PHASE: use setup, frames, run, wait, collect or sweep" >&2
@@ -46,7 +46,7 @@ ws=/tmp/kitti_ws
 watch() { # until the run ends (checked every 5 s) or WATCH_S passes: one line a minute
   local until=$((SECONDS + ${WATCH_S:-560})) next=0
   while [ $SECONDS -lt $until ]; do
-    if ! pgrep -f "cam2sim run" > /dev/null; then
+    if ! pgrep -f "cam2sim.* run -o" > /dev/null; then
       echo "the run has ended"
       tail -n 40 /tmp/kitti.log
       return 0
@@ -123,7 +123,7 @@ run)
   ;;
 wait) # COLLECT=1: collect too once the run has ended (saves a call)
   watch
-  if [ -n "${COLLECT:-}" ] && ! pgrep -f "cam2sim run" > /dev/null; then collect; fi
+  if [ -n "${COLLECT:-}" ] && ! pgrep -f "cam2sim.* run -o" > /dev/null; then collect; fi
   ;;
 collect) collect ;;
 sweep)
