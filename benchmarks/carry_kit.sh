@@ -11,7 +11,8 @@
 #   .c21/a, .c21/b, .gl    the demo's wheels for benchmarks/gpu_demo.sh's two calls (carla
 #                          0.9.16, pyproj, gsplat: 51 MB; the other 18 packages the GPU image
 #                          lacks, osmium for .osm.pbf extracts among them: 23 MB) and the EGL
-#                          loader debs (0.4 MB; needs apt-get)
+#                          loader debs (0.4 MB; needs apt-get); .c21/k: .c21/b without osmium
+#                          and apsw (18 MB), for gpu_kitti.sh's run call
 #   .ray/                  Ray for benchmarks/gpu_bench.sh: the cp312 wheel of the version
 #                          installed here without what cam2sim never imports (Java jars, RLlib,
 #                          Tune, Train, Serve, Data, LLM, the dashboard's web client) as one
@@ -79,6 +80,9 @@ from cam2sim.splat.prepare import prepare_scene; prepare_scene(Workspace.open('$
     dl .c21/b pydantic==2.14.4 pydantic_core==2.50.5 annotated_types typing_inspection \
       typing_extensions==4.16.0 shapely rosbags backports.zstd apsw lz4 zstandard ruamel.yaml \
       moderngl glcontext scenariogeneration pyclothoids xmlschema elementpath osmium
+    # gpu_kitti.sh's run call carries the rest of the frames beside the wheels: without osmium
+    # (OSM .pbf) and apsw (ROS 2 sqlite bags), which an image import does not use, it fits 64 MiB.
+    mkdir -p .c21/k && cp .c21/b/*.whl .c21/k/ && rm .c21/k/osmium-* .c21/k/apsw-*
     apt=(-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 -oDir::State::Lists=/tmp/amd64)
     mkdir -p /tmp/amd64/partial
     apt-get "${apt[@]}" update > /dev/null
@@ -144,7 +148,7 @@ PY
   lpips) du -sh .c19/alexnet.ckpt ;;
   curves | easy) du -sh ".u22/$part" ;;
   route) du -sh .carry/route400tri ;;
-  demo) du -sh .c21/a .c21/b .gl ;;
+  demo) du -sh .c21/a .c21/b .c21/k .gl ;;
   ray) du -sh .ray ;;
   osm) du -sh .osm ;;
   kitti) du -sh .k03/a .k03/b .k03/c .k03/p ;;

@@ -10,7 +10,7 @@
 #                                                # with .k03/p: the pycolmap wheel); .c19
 #                                                # beside .k03/a brings the LPIPS weights
 #                                                # (without them the report has no LPIPS)
-#   PHASE=run bash benchmarks/gpu_kitti.sh       # carry .c21/b .k03/c: the rest, then the run
+#   PHASE=run bash benchmarks/gpu_kitti.sh       # carry .c21/k .k03/c: the rest, then the run
 #                                                # in the background, watched WATCH_S seconds
 #                                                # (`cam2sim -v`: the log also has each chunk
 #                                                # worker's set-up times and DAVE-2's epochs)

@@ -62,3 +62,51 @@ def test_no_seeds_on_masked_pixels() -> None:
     assert len(pts) > 0
     # left of the image is world +y: every seed is right of the cameras' track
     assert (pts[:, 1] <= 1e-6).all()
+
+
+def _reference_seeds(
+    poses: np.ndarray,
+    Ks: np.ndarray,
+    images: np.ndarray,
+    usable: np.ndarray,
+    *,
+    count: int,
+    reach: float,
+    seed: int,
+    height: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ground seeds as the module doc says, every pixel's world ray made (slow, plain)."""
+    down = poses[:, :3, 1].mean(axis=0)
+    down /= np.linalg.norm(down)
+    rng = np.random.default_rng(seed)
+    m, h, w = usable.shape
+    vv, uu = np.mgrid[0:h, 0:w]
+    pix = np.stack([uu + 0.5, vv + 0.5, np.ones_like(uu)], axis=-1).reshape(-1, 3).astype(float)
+    out_xyz, out_rgb = [], []
+    for pose, K, image, use in zip(poses, Ks, images, usable, strict=True):
+        rays = pix @ np.linalg.inv(K).T @ pose[:3, :3].T
+        drop = rays @ down
+        hit = np.where(drop > 1e-6, height / np.where(drop > 1e-6, drop, 1.0), np.inf)
+        ok = np.flatnonzero(use.reshape(-1) & (hit * np.linalg.norm(rays, axis=1) < reach * height))
+        pick = rng.choice(ok, size=min(int(np.ceil(count / m)), len(ok)), replace=False)
+        out_xyz.append(pose[:3, 3] + hit[pick, None] * rays[pick])
+        out_rgb.append(image.reshape(-1, 3)[pick])
+    return np.concatenate(out_xyz), np.concatenate(out_rgb)
+
+
+def test_views_with_different_intrinsics_seed_as_the_plain_per_pixel_rays_do() -> None:
+    """Only the picked pixels' rays are made, and their lengths kept per K: the same seeds."""
+    xyz, poses, Ks, images, usable = _street(n_views=6)
+    Ks[3:, 0, 0] = Ks[3:, 1, 1] = 60.0  # a longer lens on the last three views
+    Ks[4, 0, 2] += 5.0  # and one view's centre moved
+    rng = np.random.default_rng(5)
+    images[:] = rng.integers(0, 256, images.shape, dtype=np.uint8)
+    pts, rgb = ground_points(
+        xyz, poses, Ks, images, usable, count=600, reach=8.0, seed=1, height=1.5
+    )
+    ref_pts, ref_rgb = _reference_seeds(
+        poses, Ks, images, usable, count=600, reach=8.0, seed=1, height=1.5
+    )
+    np.testing.assert_array_equal(rgb, ref_rgb)  # the same pixels, drawn in the same order
+    np.testing.assert_allclose(pts, ref_pts, atol=1e-5)
+    np.testing.assert_allclose(pts[:, 2], 0.0, atol=1e-4)

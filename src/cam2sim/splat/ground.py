@@ -122,17 +122,26 @@ def ground_points(  # noqa: PLR0913 -- the views' arrays, then keywords
         0:h, 0:w
     ]  # pixel (i, j) is drawn at (j + 0.5, i + 0.5), as the rasterizers do
     pix = np.stack([uu + 0.5, vv + 0.5, np.ones_like(uu)], axis=-1).reshape(-1, 3).astype(float)
+    # A pixel's ray in the camera, scaled to depth 1, is Kinv @ pix; in the world R @ Kinv @ pix.
+    # How far down it goes per unit of depth is down . (R Kinv pix) = pix . (Kinv^T R^T down): one
+    # 3-vector a view. Its length is the camera ray's (R keeps lengths): one array per K. The ray
+    # meets the plane `height` below the camera at depth height / drop, within reach camera
+    # heights when its length < reach * drop. Only the picked pixels' rays are made in the world
+    # (12x faster than making every pixel's: 1.5 s for a KITTI chunk's 189 views).
+    lengths: dict[bytes, npt.NDArray[np.float64]] = {}
     out_xyz, out_rgb = [], []
     for pose, K, image, use in zip(poses, Ks, images, usable, strict=True):
-        rays = pix @ np.linalg.inv(K).T @ pose[:3, :3].T  # world directions, z = 1 in camera
-        drop = rays @ down  # how far down the ray goes per unit of camera depth
-        hit = np.where(drop > 1e-6, height / np.where(drop > 1e-6, drop, 1.0), np.inf)
-        reach_ok = hit * np.linalg.norm(rays, axis=1) < reach * height
-        ok = np.flatnonzero(use.reshape(-1) & reach_ok)
+        k_inv = np.linalg.inv(K)
+        key = np.asarray(K, dtype=np.float64).tobytes()
+        if key not in lengths:
+            lengths[key] = np.linalg.norm(pix @ k_inv.T, axis=1)
+        drop = pix @ (k_inv.T @ (pose[:3, :3].T @ down))
+        ok = np.flatnonzero(use.reshape(-1) & (drop > 1e-6) & (lengths[key] < reach * drop))
         if len(ok) == 0:
             continue
         pick = rng.choice(ok, size=min(per_view, len(ok)), replace=False)
-        out_xyz.append(pose[:3, 3] + hit[pick, None] * rays[pick])
+        rays = pix[pick] @ k_inv.T @ pose[:3, :3].T
+        out_xyz.append(pose[:3, 3] + (height / drop[pick])[:, None] * rays)
         out_rgb.append(image.reshape(-1, 3)[pick])
     if not out_xyz:
         return none
