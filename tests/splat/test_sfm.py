@@ -196,3 +196,14 @@ def test_final_refinement_refines_the_focal_length_only_when_asked(
     assert options.refine_focal_length is focal
     assert options.refine_extra_params
     assert not options.refine_principal_point
+
+
+def test_sift_threads_are_the_cpus_this_process_may_use(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Not the host's core count: a container or a Ray task gets a share of them."""
+    from cam2sim.core.machine import available_cpus
+    from cam2sim.splat.sfm import FeatureOptions
+
+    assert FeatureOptions().threads() == available_cpus()
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")  # as Ray sets it for a task given one CPU
+    assert FeatureOptions().threads() == 1
+    assert FeatureOptions(num_threads=3).threads() == 3

@@ -19,7 +19,6 @@ from __future__ import annotations
 import collections
 import logging
 import multiprocessing
-import os
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -91,7 +90,7 @@ class LocalPool:
     def __init__(
         self, workers: int | None = None, *, task: Callable[..., RunOutcome] = execute
     ) -> None:
-        self.workers = max(1, workers or os.cpu_count() or 1)
+        self.workers = max(1, workers or available_cpus())
         self.task = task
 
     def run(self, jobs: Sequence[Job], report: Callable[[RunOutcome], None]) -> None:

@@ -30,7 +30,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import logging
-import os
 import shutil
 import tempfile
 import time
@@ -43,6 +42,7 @@ import numpy.typing as npt
 
 from cam2sim.core.camera import PinholeCamera
 from cam2sim.core.errors import BackendUnavailableError, StageError
+from cam2sim.core.machine import available_cpus
 from cam2sim.splat.geometry import apply_similarity, similarity_from_poses
 
 if TYPE_CHECKING:
@@ -113,7 +113,9 @@ class FeatureOptions:
         first_octave: SIFT's first octave: -1 upsamples the image twice (more small features,
             about 3x slower), 0 starts at full resolution.
         max_ransac_trials: RANSAC trials per pair in geometric verification.
-        num_threads: CPU threads (None = all cores).
+        num_threads: CPU threads (None = the CPUs this process may use,
+            :func:`~cam2sim.core.machine.available_cpus`: its affinity, not the host's count,
+            which a container or a Ray task sees too).
     """
 
     window: int = 20
@@ -125,7 +127,7 @@ class FeatureOptions:
 
     def threads(self) -> int:
         """The number of CPU threads to use."""
-        return self.num_threads or os.cpu_count() or 1
+        return self.num_threads or available_cpus()
 
 
 @dataclass(frozen=True, eq=False)
