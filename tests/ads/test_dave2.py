@@ -5,6 +5,7 @@ from __future__ import annotations
 import datetime as dt
 import importlib.util
 import json
+import time
 from pathlib import Path
 
 import cv2
@@ -591,3 +592,27 @@ def test_the_pipeline_trains_dave2_beside_the_splat_to_the_same_model(tmp_path: 
     state = {k: v for k, v in weights[True].items() if isinstance(v, torch.Tensor)}
     for name, tensor in state.items():  # seeded: the same network either way
         torch.testing.assert_close(tensor, weights[False][name], rtol=0, atol=0)
+
+
+def test_an_interrupted_run_ends_the_dave2_process_beside_the_splat(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C during the splat step leaves no DAVE-2 process training on."""
+    import multiprocessing
+
+    from cam2sim.ads.train_options import TrainOptions
+    from cam2sim.stages import pipeline
+
+    def interrupted(self: object, step: object) -> None:
+        del self, step
+        time.sleep(1.0)  # the DAVE-2 process has started
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pipeline._Pipeline, "splat", interrupted)
+    ws = make_drive(tmp_path / "ws")
+    ads = TrainOptions(epochs=50, batch_size=16, device="cpu", workers=1)
+    options = pipeline.PipelineOptions(steps=("splat", "ads"), ads=ads, ads_beside_splat=True)
+    with pytest.raises(KeyboardInterrupt):
+        pipeline.run_pipeline(ws, options=options)
+    assert multiprocessing.active_children() == []
+    assert not (ws.ads_dir / "dave2.pt").exists()  # it was stopped before it finished
