@@ -32,9 +32,9 @@ from cam2sim.core.errors import StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
+    from collections.abc import Callable, Iterable
 
-__all__ = ["Sidecar"]
+__all__ = ["LogForwarder", "Sidecar", "end_processes"]
 
 logger = logging.getLogger(__name__)
 
@@ -43,18 +43,40 @@ _POLL_SECONDS = 0.5  # the reading thread checks this often whether the process 
 _JOIN_SECONDS = 10.0  # how long a terminated process may take to go
 
 
-class _LogForwarder(logging.handlers.QueueHandler):
-    """Sends the process's log records to the caller as ``("log", record)``."""
+class LogForwarder(logging.handlers.QueueHandler):
+    """Sends a child process's log records to its parent as ``("log", *tag, record)``.
+
+    The parent hands each record to its own logger of the same name
+    (``logging.getLogger(record.name).handle(record)``). ``tag`` says which child sent it (the
+    splat's chunk workers tag theirs with the chunk id; a :class:`Sidecar` has none).
+    """
+
+    def __init__(self, messages: Any, *tag: object) -> None:
+        super().__init__(messages)
+        self.tag = tag
 
     def enqueue(self, record: logging.LogRecord) -> None:
-        self.queue.put_nowait(("log", record))
+        """Put ``("log", *tag, record)`` on the queue without waiting."""
+        self.queue.put_nowait(("log", *self.tag, record))
+
+
+def end_processes(processes: Iterable[Any]) -> None:
+    """Terminate ``processes`` together, then wait for each (killed after 10 s if still there)."""
+    running = [p for p in processes if p.is_alive()]
+    for process in running:
+        process.terminate()
+    for process in running:
+        process.join(_JOIN_SECONDS)
+        if process.is_alive():
+            process.kill()
+            process.join()
 
 
 def _main(target: Callable[..., Any], args: tuple[Any, ...], messages: Any, level: int) -> None:
     """The spawned process: run ``target(*args, progress=...)``; send its value or error."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the caller, which stops us
     root = logging.getLogger()
-    root.handlers[:] = [_LogForwarder(messages)]
+    root.handlers[:] = [LogForwarder(messages)]
     root.setLevel(level)
     last: dict[str, float] = {}
 
@@ -157,9 +179,5 @@ class Sidecar:
         self._stopping.set()
         if self._process.is_alive():
             logger.warning("%s: ending its process", self.name)
-            self._process.terminate()
-            self._process.join(_JOIN_SECONDS)
-            if self._process.is_alive():
-                self._process.kill()
-                self._process.join()
+            end_processes([self._process])
         self._reader.join()

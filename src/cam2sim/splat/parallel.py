@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import logging.handlers
 import queue
 import signal
 import time
@@ -36,6 +35,7 @@ from typing import TYPE_CHECKING, Any
 
 from cam2sim.core.errors import StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
+from cam2sim.core.sidecar import LogForwarder, end_processes
 from cam2sim.splat.raster import build_gsplat
 from cam2sim.splat.train_options import SceneTrainResult
 
@@ -54,7 +54,6 @@ logger = logging.getLogger(__name__)
 
 _PROGRESS_SECONDS = 0.1  # a worker reports its step count at most this often
 _POLL_SECONDS = 0.5  # the parent checks for dead workers this often
-_JOIN_SECONDS = 10.0  # how long a terminated worker may take to go
 
 
 class ChunkOutcomes:
@@ -113,17 +112,6 @@ class ChunkOutcomes:
 # ----------------------------------------------------------------------------------- worker
 
 
-class _LogForwarder(logging.handlers.QueueHandler):
-    """Sends a worker's log records to the parent as ``("log", chunk, record)``."""
-
-    def __init__(self, messages: Any, chunk: int) -> None:
-        super().__init__(messages)
-        self.chunk = chunk
-
-    def enqueue(self, record: logging.LogRecord) -> None:
-        self.queue.put_nowait(("log", self.chunk, record))
-
-
 def _worker(  # noqa: PLR0913, PLR0917 -- a spawned process's whole job, positional
     chunk: int,
     train: SceneTrainer,
@@ -150,7 +138,7 @@ def _worker(  # noqa: PLR0913, PLR0917 -- a spawned process's whole job, positio
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which ends us
     level, threads = settings
     root = logging.getLogger()
-    root.handlers[:] = [_LogForwarder(messages, chunk)]
+    root.handlers[:] = [LogForwarder(messages, chunk)]
     root.setLevel(level)
     try:
         import torch  # noqa: PLC0415
@@ -315,13 +303,7 @@ class _Pool:
     def _terminate(self) -> None:
         if self.running:
             logger.warning("ending %d chunk worker process(es)", len(self.running))
-        for process in self.running.values():
-            process.terminate()
-        for process in self.running.values():
-            process.join(_JOIN_SECONDS)
-            if process.is_alive():
-                process.kill()
-                process.join()
+        end_processes(self.running.values())
         self.running.clear()
 
 
