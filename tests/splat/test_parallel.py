@@ -109,3 +109,16 @@ def test_an_interrupt_ends_the_workers(tmp_path: Path) -> None:
 def test_concurrency_is_validated() -> None:
     with pytest.raises(ValueError, match="concurrent_chunks=0"):
         TrainOptions(concurrent_chunks=0)
+
+
+def test_the_gpu_slots_leave_no_chunk_to_train_alone_at_the_end() -> None:
+    from cam2sim.splat.parallel import cuda_slots
+
+    # 5 chunks: 3 then 2, not 2, 2 and one alone at half the GPU's pace (KITTI 03 on an H100).
+    assert cuda_slots(5, 80.0) == 3
+    assert cuda_slots(4, 80.0) == 2  # two rounds of two
+    assert cuda_slots(3, 80.0) == 3
+    assert cuda_slots(2, 80.0) == 2
+    assert cuda_slots(1, 80.0) == 1
+    assert cuda_slots(5, 24.0) == 2  # a small card keeps two
+    assert all(1 <= cuda_slots(n, 80.0) <= min(n, 3) for n in range(1, 30))

@@ -28,6 +28,7 @@ from cam2sim.core.workspace import Workspace
 from cam2sim.demo.lidar import LidarModel, scan_scene
 from cam2sim.map.convert import has_carla
 from cam2sim.recording.bagwriter import BagWriter
+from cam2sim.splat.train_options import TrainOptions
 from cam2sim.stages.pipeline import (
     STEPS,
     PipelineOptions,
@@ -408,9 +409,11 @@ def test_run_splat_preset_caps_steps_and_triangulates_without_lidar(
     assert opts.train is not None
     assert opts.prepare.triangulate is not lidar  # points from the frames only without LiDAR
     assert opts.train.budget_per_chunk
-    if cuda:  # a third of the 30,000-step default, MCMC: cheap steps to a fixed cap
-        assert opts.train.max_steps <= 10_000
+    if cuda:  # well under the 30,000-step default, MCMC: cheap steps to a fixed cap
+        assert opts.train.max_steps <= 12_000
         assert opts.train.densify.strategy == "mcmc"
+        assert opts.train.densify.mcmc_cap == 2_000_000  # the real frames' fit needs them
+        assert opts.train.ssim_weight > TrainOptions().ssim_weight
         assert opts.train.time_budget_s is not None
         # CUDA without gsplat: the torch rasterizer has no MCMC, its own densification runs.
         no_gsplat = SplatStageOptions.for_run(cuda=True, lidar=lidar, gsplat=False)

@@ -1,9 +1,10 @@
 """Splat chunks trained side by side: one worker process per chunk on one device.
 
 :func:`cam2sim.splat.train.train_scene` calls :func:`train_chunks_in_processes` when more than
-one chunk may train at a time (``TrainOptions.concurrent_chunks``; by default 2 on CUDA). One
-Python thread cannot keep a fast GPU busy (the step is host-bound), while processes on one GPU
-overlap their kernels and host work: 1.75 times the steps per second with two on an H100.
+one chunk may train at a time (``TrainOptions.concurrent_chunks``; by default 2 or 3 on CUDA:
+:func:`cuda_slots`). One Python thread cannot keep a fast GPU busy (the step is host-bound),
+while processes on one GPU overlap their kernels and host work: 1.75 times the steps per second
+with two on an H100, 2 times on KITTI's full-size frames, little more with three.
 
 Each chunk trains in its own spawned process (``torch.multiprocessing``, start method
 ``spawn``: CUDA cannot be forked), at most ``in_flight`` at a time (one more process loads its
@@ -31,7 +32,7 @@ import signal
 import time
 import traceback
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
 from cam2sim.core.errors import StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
@@ -48,7 +49,16 @@ if TYPE_CHECKING:
     #: ``train_scene``'s signature: what a worker runs for its one chunk.
     SceneTrainer = Callable[..., SceneTrainResult]
 
-__all__ = ["ChunkOutcomes", "train_chunks_in_processes"]
+__all__ = ["CUDA_SLOT_RATES", "ChunkOutcomes", "cuda_slots", "train_chunks_in_processes"]
+
+CUDA_SLOT_RATES: Final = {1: 0.5, 2: 1.0, 3: 1.04}
+"""Steps a second of k chunks training at once on one GPU, relative to two: one process leaves
+the GPU half idle (KITTI 03 on an H100: a lone chunk 66 steps/s, two together 133, three 138;
+docs/benchmarks.md, "KITTI 03 on one GPU, seventh run"). More than three were not measured."""
+
+MIN_GIB_FOR_THREE: Final = 40.0
+"""Three chunks at a time only on a GPU with at least this much memory (a worker of a real
+chunk of 2M Gaussians at 1242x375 peaks at a few GiB; a 24 GiB card keeps two)."""
 
 logger = logging.getLogger(__name__)
 
@@ -305,6 +315,34 @@ class _Pool:
             logger.warning("ending %d chunk worker process(es)", len(self.running))
         end_processes(self.running.values())
         self.running.clear()
+
+
+def cuda_slots(n_chunks: int, gpu_gib: float) -> int:
+    """How many of ``n_chunks`` equal chunks to train at once on one GPU of ``gpu_gib`` GiB.
+
+    Chunks of equal steps run in rounds of ``k`` (a new one starts as one ends), the last round
+    holding what is left: a chunk left to train alone runs at half the GPU's pace
+    (:data:`CUDA_SLOT_RATES`). The rule takes the ``k`` whose rounds end first, the fewest
+    slots on a tie: 5 chunks train 3 then 2 (4.9 rounds of two's time) rather than 2, 2, then
+    1 alone (6); 4 chunks train 2 and 2.
+
+    Args:
+        n_chunks: Chunks to train (at least 1).
+        gpu_gib: The GPU's memory in GiB (three slots need :data:`MIN_GIB_FOR_THREE`).
+
+    Returns:
+        Slots, 1 to 3 (never more than the chunks).
+    """
+    n = max(1, n_chunks)
+    most = 3 if gpu_gib >= MIN_GIB_FOR_THREE else 2
+
+    def makespan(k: int) -> float:
+        full, rest = divmod(n, k)
+        time = full * k / CUDA_SLOT_RATES[k]
+        return time + (rest / CUDA_SLOT_RATES[rest] if rest else 0.0)
+
+    candidates = range(1, min(most, n) + 1)
+    return min(candidates, key=lambda k: (round(makespan(k), 6), k))
 
 
 def train_chunks_in_processes(

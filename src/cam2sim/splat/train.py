@@ -5,7 +5,8 @@ Reads ``WS/splat/prep/`` (:mod:`cam2sim.splat.scene`), writes ``WS/splat/models/
 appearance, densification, stopping, time budget) is :mod:`cam2sim.splat.chunk_trainer`.
 
 :func:`train_scene` trains several chunks at a time on one device, each in its own worker
-process (``concurrent_chunks``, by default 2 on CUDA; :mod:`cam2sim.splat.parallel`), or, with
+process (``concurrent_chunks``; on CUDA by default 2 or 3, by the number of chunks:
+:func:`~cam2sim.splat.parallel.cuda_slots`), or, with
 ``concurrent_chunks=1`` (the default on CPU), all chunks in one loop, one step of each in turn.
 Each chunk stops on its own plateau. torch and gsplat are imported inside functions only.
 The options and results are typed records in :mod:`cam2sim.splat.train_options` (re-exported
@@ -22,7 +23,7 @@ from pathlib import Path
 from cam2sim.core.errors import StageError
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.splat.chunk_trainer import STREET_SCALE_M, ChunkTrainer
-from cam2sim.splat.parallel import train_chunks_in_processes
+from cam2sim.splat.parallel import cuda_slots, train_chunks_in_processes
 from cam2sim.splat.raster import build_gsplat, resolve_backend, resolve_device
 from cam2sim.splat.scene import SceneRecord, load_points
 from cam2sim.splat.stop import time_share
@@ -88,6 +89,16 @@ def train_chunk(
     return result.chunks[0]
 
 
+def _default_slots(device: str, n_chunks: int) -> int:
+    """Chunks at a time when the options leave it open: :func:`cuda_slots` on CUDA, else 1."""
+    if not device.startswith("cuda"):
+        return 1
+    import torch  # noqa: PLC0415
+
+    gib = torch.cuda.get_device_properties(device).total_memory / 2**30
+    return cuda_slots(n_chunks, gib)
+
+
 def train_scene(
     prep_dir: Path,
     *,
@@ -99,7 +110,8 @@ def train_scene(
 ) -> SceneTrainResult:
     """Train every chunk (or ``chunk_ids``) of a prepared scene side by side on one device.
 
-    With ``options.concurrent_chunks`` above 1 (by default 2 on CUDA) and several chunks, each
+    With ``options.concurrent_chunks`` above 1 (on CUDA by default 2 or 3:
+    :func:`~cam2sim.splat.parallel.cuda_slots`) and several chunks, each
     chunk trains in its own worker process, that many at a time
     (:func:`cam2sim.splat.parallel.train_chunks_in_processes`); a worker trains its chunk
     exactly as this function trains one chunk alone. Otherwise one step of each unfinished
@@ -137,7 +149,7 @@ def train_scene(
         raise StageError(msg)
     device = resolve_device(options.device)
     backend = resolve_backend(options.backend, device)
-    in_flight = options.concurrent_chunks or (2 if device.startswith("cuda") else 1)
+    in_flight = options.concurrent_chunks or _default_slots(device, len(wanted))
     if in_flight > 1 and len(wanted) > 1:
         slots = min(in_flight, len(wanted))
         return train_chunks_in_processes(

@@ -251,7 +251,8 @@ class TrainOptions:
             ``TrainResult.phase_ms``; also on with ``CAM2SIM_SPLAT_PROFILE=1``.
         concurrent_chunks: Chunks trained at a time by :func:`train_scene`, each in its own
             worker process on the one device; 1 = all in one interleaved loop in this process;
-            None = 2 on CUDA (two processes overlap on one GPU), 1 elsewhere.
+            None = 2 or 3 on CUDA (processes overlap on one GPU; how many by the chunks and the
+            GPU's memory: :func:`cam2sim.splat.parallel.cuda_slots`), 1 elsewhere.
         time_budget_s: Seconds of training for all the chunks of one call (their steps and
             validations; not loading them, nor gsplat's one-time build), shared out by
             :func:`time_share`; each chunk fits its step cap to its share (module doc).
