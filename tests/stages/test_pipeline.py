@@ -410,9 +410,9 @@ def test_run_splat_preset_caps_steps_and_triangulates_without_lidar(
     assert opts.prepare.triangulate is not lidar  # points from the frames only without LiDAR
     assert opts.train.budget_per_chunk
     if cuda:  # well under the 30,000-step default, MCMC: cheap steps to a fixed cap
-        assert opts.train.max_steps <= 12_000
+        assert opts.train.max_steps <= 10_000
         assert opts.train.densify.strategy == "mcmc"
-        assert opts.train.densify.mcmc_cap == 2_000_000  # the real frames' fit needs them
+        assert opts.train.lr.poses > 0  # recorded poses are a pixel off: refined
         assert opts.train.ssim_weight > TrainOptions().ssim_weight
         assert opts.train.time_budget_s is not None
         # CUDA without gsplat: the torch rasterizer has no MCMC, its own densification runs.

@@ -54,7 +54,12 @@ from cam2sim.splat.losses import (
     ssim,
 )
 from cam2sim.splat.optim import adam_step
-from cam2sim.splat.pose_refine import corrected_pose, correction_sizes, se3_exp
+from cam2sim.splat.pose_refine import (
+    corrected_pose,
+    correction_sizes,
+    remove_common_motion,
+    se3_exp,
+)
 from cam2sim.splat.profiling import PhaseTimer, profiling_requested
 from cam2sim.splat.raster import rasterize
 from cam2sim.splat.robust import robust_keep
@@ -87,6 +92,11 @@ above 10 cm split rather than clone, above 1 m are pruned after the first opacit
 centres start moving 1.6 mm a step. On a chunk of the 400 m route it raised held-out SSIM from
 0.891 to 0.914 and cut LPIPS from 0.219 to 0.175 at 8,000 steps against the cameras' spread
 (about 59 m); another chunk gained less (``docs/benchmarks.md``)."""
+
+ANCHOR_EVERY = 10
+"""Steps between two removals of the pose corrections' shared rigid motion
+(:func:`~cam2sim.splat.pose_refine.remove_common_motion`): at the pose rates used (1e-5 a step)
+ten steps move a camera by well under a millimetre."""
 
 
 # --------------------------------------------------------------------------------- trainer
@@ -422,6 +432,8 @@ class ChunkTrainer:
             finite=True,
             non_finite_steps=self.non_finite_steps,
         )
+        if self.pose_delta is not None and self.step_no % ANCHOR_EVERY == 0:
+            remove_common_motion(self.pose_delta, self.levels[0][0].viewmats)
         timer.mark("optimizer")
         if self.path is not None and self.step_no % opts.densify.refine_every == 0:
             from cam2sim.splat.clearance import clear_path  # noqa: PLC0415

@@ -12,6 +12,12 @@ A held-out view (scored, never trained on) lies between training views along the
 recorded pose carries the same slowly varying error as theirs: the evaluation corrects it with
 the neighbours' corrections interpolated by frame index (:func:`interpolated_correction`), as
 it takes their colour transforms; it never fits the held-out image itself.
+
+The corrections and the model can move together (shift every camera and every Gaussian alike and
+the images stay the same): left free, the chunk's model drifts away from the recorded poses, and
+the closed loop, which renders at uncorrected poses, sees it shifted. After each step the
+corrections lose the part one rigid motion of the whole scene would explain
+(:func:`remove_common_motion`): the model stays where the recorded poses put it.
 """
 
 from __future__ import annotations
@@ -25,7 +31,13 @@ if TYPE_CHECKING:
     import numpy.typing as npt
     import torch
 
-__all__ = ["corrected_pose", "correction_sizes", "interpolated_correction", "se3_exp"]
+__all__ = [
+    "corrected_pose",
+    "correction_sizes",
+    "interpolated_correction",
+    "remove_common_motion",
+    "se3_exp",
+]
 
 
 def _skew(v: torch.Tensor) -> torch.Tensor:
@@ -110,3 +122,41 @@ def corrected_pose(
     fix = se3_exp(d).numpy().reshape(np.shape(T_world_cam))
     out: npt.NDArray[np.float64] = np.asarray(T_world_cam, dtype=np.float64) @ np.linalg.inv(fix)
     return out
+
+
+def remove_common_motion(delta: torch.Tensor, viewmats: torch.Tensor) -> None:
+    """Remove in place the part of the corrections that moving the whole scene would explain.
+
+    Moving every camera by one rigid motion of the scene (a turn ``w`` about the cameras'
+    centroid and a shift ``g``, world frame) changes no image: to first order it is, on view
+    ``i`` (world -> camera rotation ``R``, centre ``d`` from the centroid), the correction
+    ``omega = -R w``, ``t = -R (w x d + g)``. The ``(w, g)`` that explains the corrections best
+    (least squares in the world frame) is subtracted; what is left is each view's own error,
+    and what all views share in the camera frame (a mounting error) where the centres' spread
+    tells it from a turn of the scene.
+
+    Args:
+        delta: ``[N, 6]`` corrections ``(omega, t)`` (a parameter: changed under no_grad).
+        viewmats: ``[N, 4, 4]`` the views' world -> camera matrices as recorded.
+    """
+    import torch  # noqa: PLC0415
+
+    with torch.no_grad():
+        rot = viewmats[:, :3, :3]
+        centres = -torch.einsum("nji,nj->ni", rot, viewmats[:, :3, 3])
+        d = centres - centres.mean(dim=0)
+        parts = delta.view(-1, 2, 3)
+        world = torch.einsum("nji,ncj->nci", rot, parts)  # R^T x per view
+        a, b = world[:, 0], world[:, 1]  # the turn and shift parts, world frame
+        cross = _skew(d)  # [d]x: [d]x w = d x w
+        # a = -w, b = [d]x w - g; with the centres about their mean, g = -mean(b) and
+        # (N I + sum [d]x^T [d]x) w = -sum a + sum [d]x^T b.
+        n = float(len(d))
+        lhs = n * torch.eye(3, dtype=delta.dtype, device=delta.device) + torch.einsum(
+            "nji,njk->ik", cross, cross
+        )
+        rhs = -a.sum(dim=0) + torch.einsum("nji,nj->i", cross, b)
+        w = torch.linalg.solve(lhs, rhs)
+        g = -b.mean(dim=0)
+        shared = torch.stack([-w.expand_as(a), torch.einsum("nij,j->ni", cross, w) - g], dim=1)
+        parts.sub_(torch.einsum("nij,ncj->nci", rot, shared))

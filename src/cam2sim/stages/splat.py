@@ -31,7 +31,7 @@ from cam2sim.splat.prepare import PrepareOptions, prepare_scene
 from cam2sim.splat.render import SplatRenderer
 from cam2sim.splat.scene import SceneRecord
 from cam2sim.splat.train import TrainOptions, train_scene
-from cam2sim.splat.train_options import DensifyOptions
+from cam2sim.splat.train_options import DensifyOptions, LearningRates
 from cam2sim.stages._runner import stage_run
 from cam2sim.stages.cameras import ground_height_at
 from cam2sim.stages.rig import rig_offset
@@ -72,20 +72,23 @@ GPU shared by N processes (:func:`~cam2sim.core.machine.gpu_sharers`) gives each
 long: four benchmark worlds on one H200 stopped 12 of their 25 chunks on the 120 s cap, one
 after 570 steps."""
 
-RUN_GPU_SPLAT_STEPS: Final = 12_000
-"""Training steps of each chunk in ``cam2sim run`` on CUDA (MCMC densification)."""
-RUN_GPU_MCMC_CAP: Final = 2_000_000
-"""Gaussians each chunk of ``cam2sim run`` grows to on CUDA: KITTI 03's held-in SSIM at 10,000
-steps and 1M was 0.77-0.84, the model's fit, not over-fitting; on its weakest chunk twice the
-Gaussians with :data:`RUN_GPU_SSIM_WEIGHT` gained 0.020 held-out SSIM for about 10 % more time
-(docs/benchmarks.md, "Splat training on chunk 0 for SSIM")."""
+RUN_GPU_SPLAT_STEPS: Final = 10_000
+"""Training steps of each chunk in ``cam2sim run`` on CUDA (MCMC densification to a cap of one
+million Gaussians). Twice the Gaussians and 12,000 steps gained 0.022 held-out SSIM on KITTI 03
+(0.794) for 19.3 minutes instead of 14.3 (docs/benchmarks.md, "seventh run")."""
+RUN_GPU_POSE_RATE: Final = 1e-5
+"""Pose refinement in ``cam2sim run``'s CUDA splat (``LearningRates.poses``): on KITTI 03's
+weakest chunk it gained 0.64 dB and 0.029 held-out SSIM at 10,000 steps for about 10 % more
+time a step (1e-4: no gain), more than twice the Gaussians gained at twice the time a step
+(docs/benchmarks.md, "Splat training on chunk 0: pose refinement")."""
 RUN_GPU_SSIM_WEIGHT: Final = 0.4
-"""Weight of ``1 - SSIM`` in the loss of ``cam2sim run``'s CUDA splat (0.2 elsewhere): with the
-larger cap it costs no PSNR on real frames (chunk 0 of KITTI 03: 23.50 dB against 23.47)."""
+"""Weight of ``1 - SSIM`` in the loss of ``cam2sim run``'s CUDA splat (0.2 elsewhere): on
+KITTI 03's chunk 0 it gained 0.006 held-out SSIM for 0.24 dB (docs/benchmarks.md, "Splat
+training on chunk 0 for SSIM")."""
 RUN_GPU_SPLAT_BUDGET_S: Final = 480.0
 """A safety cap on each chunk's training seconds in ``cam2sim run`` on a GPU of its own:
-12,000 MCMC steps of a real chunk of 2M Gaussians take about 290 s beside two others on an
-H100 (docs/benchmarks.md); N times as long on a GPU shared by N processes, as
+10,000 MCMC steps of a real chunk with pose refinement take about 235 s beside two others on
+an H100 (docs/benchmarks.md); N times as long on a GPU shared by N processes, as
 :data:`DEMO_GPU_SPLAT_BUDGET_S`."""
 
 
@@ -161,10 +164,11 @@ class SplatStageOptions:
 
     @classmethod
     def for_run(cls, *, cuda: bool, lidar: bool, gsplat: bool | None = None) -> SplatStageOptions:
-        """``cam2sim run``'s splat: 12,000 MCMC steps a chunk on CUDA, the CPU demo preset else.
+        """``cam2sim run``'s splat: 10,000 MCMC steps a chunk on CUDA, the CPU demo preset else.
 
         ``cuda``: :data:`RUN_GPU_SPLAT_STEPS` steps a chunk with MCMC densification (a cap
-        of :data:`RUN_GPU_MCMC_CAP` Gaussians) and :data:`RUN_GPU_SSIM_WEIGHT`, at most
+        of one million Gaussians), pose refinement (:data:`RUN_GPU_POSE_RATE`) and
+        :data:`RUN_GPU_SSIM_WEIGHT`, at most
         :data:`RUN_GPU_SPLAT_BUDGET_S` seconds a chunk, times the processes sharing the GPU
         (the default 30,000 steps would take half an hour on a recording of 5 chunks). On real
         frames MCMC beats the default densification at these lengths and its steps are cheaper
@@ -179,14 +183,10 @@ class SplatStageOptions:
                 from cam2sim.splat.raster import has_gsplat  # noqa: PLC0415 -- lazy: imports torch
 
                 gsplat = has_gsplat()
-            densify = (
-                DensifyOptions(strategy="mcmc", mcmc_cap=RUN_GPU_MCMC_CAP)
-                if gsplat
-                else DensifyOptions(strategy="auto")
-            )
             train = TrainOptions(
                 max_steps=RUN_GPU_SPLAT_STEPS, val_every=1_000, ssim_weight=RUN_GPU_SSIM_WEIGHT,
-                densify=densify,
+                lr=LearningRates(poses=RUN_GPU_POSE_RATE),
+                densify=DensifyOptions(strategy="mcmc" if gsplat else "auto"),
                 time_budget_s=RUN_GPU_SPLAT_BUDGET_S * gpu_sharers(), budget_per_chunk=True,
             )  # fmt: skip
             opts = cls(prepare=PrepareOptions(), train=train)
