@@ -122,3 +122,18 @@ def test_the_gpu_slots_leave_no_chunk_to_train_alone_at_the_end() -> None:
     assert cuda_slots(1, 80.0) == 1
     assert cuda_slots(5, 24.0) == 2  # a small card keeps two
     assert all(1 <= cuda_slots(n, 80.0) <= min(n, 3) for n in range(1, 30))
+
+
+def test_a_shared_gpu_keeps_two_chunks_at_a_time(monkeypatch: pytest.MonkeyPatch) -> None:
+    import types
+
+    from cam2sim.core.machine import GPU_SHARERS_VARIABLE
+    from cam2sim.splat import train as train_module
+
+    card = types.SimpleNamespace(total_memory=80 * 2**30)
+    monkeypatch.setattr(torch.cuda, "get_device_properties", lambda _device: card)
+    monkeypatch.delenv(GPU_SHARERS_VARIABLE, raising=False)
+    assert train_module._default_slots("cuda:0", 5) == 3  # a GPU of its own: 3, then 2
+    monkeypatch.setenv(GPU_SHARERS_VARIABLE, "4")  # four benchmark worlds on one GPU
+    assert train_module._default_slots("cuda:0", 5) == 2
+    assert train_module._default_slots("cpu", 5) == 1

@@ -21,6 +21,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from cam2sim.core.errors import StageError
+from cam2sim.core.machine import gpu_sharers
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.splat.chunk_trainer import STREET_SCALE_M, ChunkTrainer
 from cam2sim.splat.parallel import cuda_slots, train_chunks_in_processes
@@ -90,9 +91,16 @@ def train_chunk(
 
 
 def _default_slots(device: str, n_chunks: int) -> int:
-    """Chunks at a time when the options leave it open: :func:`cuda_slots` on CUDA, else 1."""
+    """Chunks at a time when the options leave it open.
+
+    :func:`cuda_slots` on a GPU of its own; 2 on a GPU other processes share
+    (:func:`~cam2sim.core.machine.gpu_sharers`: a chunk left alone does not leave it idle
+    there); 1 on the CPU.
+    """
     if not device.startswith("cuda"):
         return 1
+    if gpu_sharers() > 1:
+        return min(2, n_chunks)
     import torch  # noqa: PLC0415
 
     gib = torch.cuda.get_device_properties(device).total_memory / 2**30
