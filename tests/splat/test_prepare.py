@@ -218,12 +218,28 @@ def _render(T_world_cam: np.ndarray) -> np.ndarray:
     return image
 
 
-def _workspace(root: Path, *, pose_less: bool = False, lidar: bool = True) -> Workspace:
-    """A tiny dataset: the car drives 6 m along +x (stopping once), looking at walls to its left."""
+def _drive_x() -> np.ndarray:
+    """Where the car is at each frame of :func:`_workspace`: 6 m along +x, standing still once."""
+    return np.concatenate([np.arange(0.0, 3.0, 0.25), np.full(3, 3.0), np.arange(3.25, 6.01, 0.25)])
+
+
+def _workspace(
+    root: Path,
+    *,
+    pose_less: bool = False,
+    lidar: bool = True,
+    pose_error_m: float = 0.0,
+    heading_from_motion: bool = False,
+) -> Workspace:
+    """A tiny dataset: the car drives 6 m along +x (stopping once), looking at walls to its left.
+
+    ``pose_error_m``: the recorded positions are off by that much (seeded, each axis), the
+    frames rendered where the car was.
+    """
     ws = Workspace.create(root, Config())
     paths = DatasetPaths(ws.dataset_dir)
     paths.frames_dir.mkdir(parents=True)
-    x = np.concatenate([np.arange(0.0, 3.0, 0.25), np.full(3, 3.0), np.arange(3.25, 6.01, 0.25)])
+    x = _drive_x()
     n = len(x)
     stamps = 1_700_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 100_000_000
     pos = np.stack([x, np.zeros(n), np.zeros(n)], 1)
@@ -232,10 +248,11 @@ def _workspace(root: Path, *, pose_less: bool = False, lidar: bool = True) -> Wo
     for i, T in enumerate(poses):
         cv2.imwrite(str(paths.frame_file(i, "png")), cv2.cvtColor(_render(T), cv2.COLOR_RGB2BGR))
     base = {"frame": np.arange(n), "stamp_ns": stamps, "t": (stamps - stamps[0]) / 1e9}
+    recorded = pos + np.random.default_rng(3).normal(scale=pose_error_m, size=pos.shape)
     if pose_less:
         write_table(paths.frames_csv, base, precision=POSE_PRECISION)
     else:
-        cols = dict(zip(("x", "y", "z"), pos.T, strict=True)) | dict(
+        cols = dict(zip(("x", "y", "z"), recorded.T, strict=True)) | dict(
             zip(("qx", "qy", "qz", "qw"), quat.T, strict=True)
         )
         cols |= {"heading": np.zeros(n), "speed": np.full(n, 2.5)}
@@ -259,6 +276,7 @@ def _workspace(root: Path, *, pose_less: bool = False, lidar: bool = True) -> Wo
         duration_s=float(stamps[-1] - stamps[0]) / 1e9,
         frame_format="png",
         world=WorldFrameRecord(proj_string=None),
+        heading_from_motion=heading_from_motion,
     ).save(paths.dataset_json)
     return ws
 
@@ -324,6 +342,55 @@ def test_prepare_scene_writes_a_valid_scene(tmp_path: Path) -> None:
     assert np.allclose(lid[:, 1], 6.0, atol=0.01)
     seen = rgb[source == 1]
     assert (np.abs(seen.astype(int) - 128).sum(1) > 0).mean() > 0.5  # coloured from the frames
+
+
+def test_poses_without_orientation_are_bundle_adjusted_toward_where_the_car_was(
+    tmp_path: Path,
+) -> None:
+    """GPS-grade poses (no orientation given) 4 cm off: the preparation refines them by bundle
+    adjustment on its own; poses that carried their orientation are kept as recorded."""
+    opts = PrepareOptions(chunk_length_m=3.0, overlap_m=1.0, match_window=6)
+    gps = prepare_scene(
+        _workspace(tmp_path / "gps", lidar=False, pose_error_m=0.04, heading_from_motion=True),
+        options=opts,
+    )
+    kept = prepare_scene(
+        _workspace(tmp_path / "odometry", lidar=False, pose_error_m=0.04), options=opts
+    )
+    assert gps.pose_source == "refined"
+    assert any("refined by bundle adjustment" in n for n in gps.notes)
+    assert kept.pose_source == "recording"
+    x = _drive_x()
+
+    def error(scene: SceneRecord) -> float:
+        where = np.stack([[x[f.dataset_frame], 0.0, 0.0] for f in scene.frames])
+        want = camera_poses(where, np.tile([0.0, 0.0, 0.0, 1.0], (len(where), 1)), LEFT_CAMERA)
+        got = np.stack([f.T() for f in scene.frames])
+        return float(np.linalg.norm(got[:, :3, 3] - want[:, :3, 3], axis=1).mean())
+
+    assert error(gps) < 0.7 * error(kept)  # nearer where the frames were taken
+
+
+def test_a_pose_prior_holds_the_adjusted_centres_to_the_recording(tmp_path: Path) -> None:
+    """A prior of 1 mm keeps every centre where it was recorded (the turns are still refined);
+    without one the chain moves as the images say, then back onto the records as a whole."""
+    ws = _workspace(tmp_path / "ws", lidar=False, pose_error_m=0.04)
+    recorded = np.stack([f.T() for f in prepare_scene(ws, options=PrepareOptions(
+        chunk_length_m=3.0, overlap_m=1.0, match_window=6, refine_poses=False
+    )).frames])  # fmt: skip
+
+    def moved(prior: float | None) -> float:
+        opts = PrepareOptions(
+            chunk_length_m=3.0, overlap_m=1.0, match_window=6, refine_poses=True,
+            pose_prior_m=prior,
+        )  # fmt: skip
+        got = np.stack([f.T() for f in prepare_scene(ws, options=opts).frames])
+        return float(np.linalg.norm(got[:, :3, 3] - recorded[:, :3, 3], axis=1).max())
+
+    assert moved(1e-3) < 0.005
+    assert moved(None) > 0.02
+    with pytest.raises(ValueError, match="pose_prior_m"):
+        PrepareOptions(pose_prior_m=0.0)
 
 
 def test_prepare_scene_needs_a_dataset(tmp_path: Path) -> None:

@@ -92,6 +92,7 @@ def test_a_gps_csv_is_geo_referenced_and_heads_where_it_drives(tmp_path: Path) -
     assert err.mean() < 0.5
     assert err.max() < 1.5  # where the turn begins: the 1 s chord straddles the change
     assert float(np.median(table["speed"])) == pytest.approx(8.0, rel=0.01)
+    assert info.heading_from_motion  # so the splat's preparation refines these poses
 
 
 def test_heading_from_noisy_gps_fixes_is_averaged_over_a_second(tmp_path: Path) -> None:

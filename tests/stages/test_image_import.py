@@ -106,6 +106,7 @@ def test_import_converts_reference_poses_to_the_world_frame(tmp_path: Path) -> N
     assert np.abs(wf.to_crs(UTM32N, xyz)[:, :2] - want_xy).max() < 1e-3
     heading_utm = wf.heading_to_crs(UTM32N, xyz[:, :2], table["heading"])
     assert np.degrees(np.abs(frames.angle_difference(heading_utm, want_heading))).max() < 0.1
+    assert not info.heading_from_motion  # the poses carry their orientation
     # The world frame starts at the first pose.
     assert np.abs(wf.from_crs(UTM32N, [[E0, N0, 0.0]])).max() < 1e-3
     # The trajectory the map, scenario and derived steering read: the images' poses in order.

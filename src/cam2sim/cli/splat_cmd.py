@@ -39,6 +39,16 @@ PoseLrOption = Annotated[
         "1e-5 is gsplat's); the corrections are written into the chunk headers."
     ),
 ]
+BundleOption = Annotated[
+    bool | None,
+    typer.Option(
+        "--bundle-adjust/--no-bundle-adjust",
+        help="Refine the recorded poses by bundle adjustment before training (default: only "
+        "when they gave no orientation, e.g. GPS fixes; good poses are better refined in "
+        "training with --pose-lr).",
+        show_default=False,
+    ),
+]
 AntialiasedOption = Annotated[
     bool,
     typer.Option(
@@ -71,6 +81,7 @@ def splat(
     densify: DensifyOption = "auto",
     robust_quantile: RobustOption = 0.0,
     pose_lr: PoseLrOption = 0.0,
+    bundle_adjust: BundleOption = None,
     antialiased: AntialiasedOption = True,
     downscale: Annotated[int, typer.Option(help="Train on images downscaled by N.")] = 1,
     segformer: Annotated[
@@ -111,6 +122,7 @@ def splat(
                 overlap_m=min(30.0, chunk_length / 4) if overlap is None else overlap,
                 segformer=segformer,
                 sfm=SfmOptions(mapper=mapper),  # type: ignore[arg-type]
+                refine_poses=bundle_adjust,
             ),
             train=TrainOptions(
                 max_steps=max_steps,

@@ -183,3 +183,8 @@ class DatasetInfo(Artifact):
     rig: tuple[str, ...] = pydantic.Field(
         default=(), description="the rig's other cameras (dataset/cameras/<name>/)"
     )
+    heading_from_motion: bool = pydantic.Field(
+        default=False,
+        description="the poses gave no orientation (GPS fixes): the heading is the direction "
+        "of travel, roll and pitch zero; the splat's preparation then refines the poses",
+    )

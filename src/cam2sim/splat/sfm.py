@@ -455,6 +455,7 @@ def triangulate_known_poses(
     *,
     window: int = 20,
     refine: bool = False,
+    prior_m: float | None = None,
     features: FeatureOptions | None = None,
     progress: ProgressCallback | None = None,
 ) -> TriangulationResult:
@@ -472,6 +473,9 @@ def triangulate_known_poses(
         masks: One mask file per image (uint8, 0 = ignore the pixel), or None.
         window: Sequential matching overlap (overrides ``features.window``).
         refine: Refine the poses by bundle adjustment.
+        prior_m: With ``refine``: hold each camera centre to its recorded position with this
+            standard deviation (metres; a pose-prior adjustment), instead of mapping the
+            adjusted chain back onto the recorded poses by one similarity (None).
         features: Extraction and matching options.
         progress: Called with ``("triangulation", step, 3)``.
 
@@ -519,7 +523,7 @@ def triangulate_known_poses(
         poses = np.stack([np.asarray(v.T_world_cam, dtype=np.float64) for v in views])
         if refine:
             start = time.perf_counter()
-            poses = _refine_known(pycolmap, rec, names, poses, opts.threads())
+            poses = _refine_known(pycolmap, rec, names, poses, opts.threads(), prior_m)
             seconds["bundle_adjustment"] = time.perf_counter() - start
         report("triangulation", 3, 3)
         cloud = _point_cloud(rec)
@@ -540,8 +544,15 @@ def _refine_known(
     names: list[str],
     poses: npt.NDArray[np.float64],
     threads: int,
+    prior_m: float | None = None,
 ) -> npt.NDArray[np.float64]:
-    """Bundle-adjust poses and points (intrinsics fixed); map back onto the recorded poses."""
+    """Bundle-adjust poses and points (intrinsics fixed), kept on the recorded poses.
+
+    With ``prior_m`` every camera centre keeps a prior at its recorded position (that standard
+    deviation, metres): the chain cannot drift from the recording further than its error
+    allows. Without it a similarity maps the adjusted chain back onto the recorded poses as a
+    whole (the chain may drift within).
+    """
     options = pycolmap.BundleAdjustmentOptions()
     options.refine_focal_length = False
     options.refine_principal_point = False
@@ -549,17 +560,42 @@ def _refine_known(
     options.print_summary = False
     options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
     options.ceres.solver_options.num_threads = threads
-    pycolmap.bundle_adjustment(rec, options)
     by_name = {img.name: img for img in rec.images.values()}
-    refined = np.stack([_T_world_cam(by_name[n]) for n in names])
-    T = similarity_from_poses(refined, poses)
-    scale = float(np.cbrt(np.linalg.det(T[:3, :3])))
-    rec.transform(pycolmap.Sim3d(T[:3, :4]))
+    if prior_m is None:
+        pycolmap.bundle_adjustment(rec, options)
+        refined = np.stack([_T_world_cam(by_name[n]) for n in names])
+        T = similarity_from_poses(refined, poses)
+        scale = float(np.cbrt(np.linalg.det(T[:3, :3])))
+        rec.transform(pycolmap.Sim3d(T[:3, :4]))
+    else:
+        config = pycolmap.BundleAdjustmentConfig()
+        priors = []
+        for name, pose in zip(names, poses, strict=True):
+            image = by_name[name]
+            config.add_image(image.image_id)
+            priors.append(
+                pycolmap.PosePrior(
+                    position=pose[:3, 3],
+                    position_covariance=np.eye(3) * prior_m**2,
+                    coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN,
+                    corr_data_id=image.data_id,
+                )
+            )
+        for point_id in rec.points3D:
+            config.add_variable_point(point_id)
+        prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
+        adjuster = pycolmap.create_pose_prior_bundle_adjuster(
+            options, prior_options, config, priors, rec
+        )
+        adjuster.solve()
+        rec.update_point_3d_errors()  # the adjuster leaves the points' errors as they were
+        scale = 1.0
     out = np.stack([_T_world_cam(by_name[n]) for n in names])
     logger.info(
-        "bundle adjustment: camera centres moved %.3f m on average (scale %.4f)",
+        "bundle adjustment: camera centres moved %.3f m on average (scale %.4f%s)",
         float(np.linalg.norm(out[:, :3, 3] - poses[:, :3, 3], axis=1).mean()),
         scale,
+        "" if prior_m is None else f", centres held to their records within {prior_m:g} m",
     )
     return out
 

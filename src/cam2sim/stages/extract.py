@@ -756,4 +756,6 @@ def _dataset_info(
         dropped=all_dropped,
         frame_format=config.frames.format,
         world=world,
+        heading_from_motion=config.pose.heading == "motion"
+        or (track.quat is None and not config.pose.orientation_topic),
     )

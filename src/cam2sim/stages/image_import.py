@@ -436,6 +436,7 @@ class _PosedImages:
     stamps: npt.NDArray[np.int64]
     columns: dict[str, npt.NDArray[Any]]
     dropped: dict[str, int]
+    heading_from_motion: bool
 
 
 def _poses_for_images(
@@ -497,7 +498,7 @@ def _poses_for_images(
         "heading": frames.yaw_from_quat(traj_q),
         "speed": speed,
     }
-    return _PosedImages(world, keep, stamps, pose_cols, dropped)
+    return _PosedImages(world, keep, stamps, pose_cols, dropped, given is None)
 
 
 @dataclass(frozen=True)
@@ -564,6 +565,7 @@ def import_images(
         keep = np.ones(len(files), dtype=bool)
         pose_cols: dict[str, npt.NDArray[Any]] | None = None
         pose_point: PosePoint | None = None
+        motion = False
         if table is not None:
             posed = _poses_for_images(
                 table, files, stamps, opts, ws.world_frame(), time_source, config.sync
@@ -577,6 +579,7 @@ def import_images(
                 posed.columns,
                 posed.dropped,
             )
+            motion = posed.heading_from_motion
         kept = [f for f, k in zip(files, keep, strict=True) if k]
         kept_stamps = stamps[keep]
         fmt = config.frames.format
@@ -610,6 +613,7 @@ def import_images(
             frame_format=fmt,
             world=world,
             rig=rig_names,
+            heading_from_motion=motion,
         )
         info.save(paths.dataset_json)
         run.world = world
