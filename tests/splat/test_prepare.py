@@ -359,6 +359,8 @@ def test_poses_without_orientation_are_bundle_adjusted_toward_where_the_car_was(
     )
     assert gps.pose_source == "refined"
     assert any("refined by bundle adjustment" in n for n in gps.notes)
+    (points,) = [n for n in gps.notes if n.startswith("points:")]
+    assert float(points.split("(")[1].split(" px")[0]) < 1.0  # every point kept fits its views
     assert kept.pose_source == "recording"
     x = _drive_x()
 

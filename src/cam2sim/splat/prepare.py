@@ -130,13 +130,14 @@ class PrepareOptions:
         refine_poses: Refine the recorded poses by bundle adjustment (intrinsics fixed) after
             triangulating at them; None = when the poses gave no orientation
             (``DatasetInfo.heading_from_motion``: GPS fixes, whose heading is the direction of
-            travel and whose roll and pitch are zero). On KITTI 03 with a GPS-like error the
-            adjustment took the frames' reprojection error from 1.83 to 0.26 px and the
-            rotation error from 0.63 to 0.16 degrees; on its ground-truth poses it fits the
-            images better too (0.99 -> 0.31 px) but lets the chain drift 0.5 m from them over
-            85 m, which the closed loop (rendering at the recorded poses) would see, so good
-            poses are refined in training instead (``LearningRates.poses``)
-            (docs/benchmarks.md, "Noisy poses and bundle adjustment").
+            travel and whose roll and pitch are zero). On 85 m of KITTI 03 with a GPS-like
+            error the adjustment took the rotation error from 0.63 to 0.16 degrees and the
+            frame-to-frame error from 25 to 7 cm (reprojection 1.83 -> 0.26 px); on its
+            ground-truth poses it fits the images better too (0.83 -> 0.31 px) but moves the
+            centres 0.5 m from them (2 m at most), which the closed loop, rendering at the
+            recorded poses, would see: good poses are refined in training instead
+            (``LearningRates.poses``) (docs/benchmarks.md, "Noisy poses and bundle
+            adjustment").
         pose_prior_m: With ``refine_poses``: hold each camera centre to its recorded position
             with this standard deviation, metres (a pose-prior bundle adjustment, so a long
             drive cannot drift from its recording); None = adjust freely, then map the chain

@@ -70,6 +70,9 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 _BA_MAX_ITERATIONS = 50
+_ADJUSTED_MAX_ERROR_PX = 4.0
+"""After a bundle adjustment of known poses, points with a larger mean reprojection error are
+dropped (COLMAP's own triangulation filter; a few points end behind a camera or far off)."""
 
 CameraModel = Literal["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"]
 Mapper = Literal["incremental", "global"]
@@ -148,6 +151,12 @@ class PointCloud:
 
     def __len__(self) -> int:
         return int(self.xyz.shape[0])
+
+    def subset(self, keep: npt.NDArray[np.bool_]) -> PointCloud:
+        """The points where ``keep`` is set."""
+        return PointCloud(
+            self.xyz[keep], self.rgb[keep], self.error_px[keep], self.track_length[keep]
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -520,14 +529,32 @@ def triangulate_known_poses(
                 "frames overlap and the poses and calibration belong to these images"
             )
             raise StageError(msg)
-        poses = np.stack([np.asarray(v.T_world_cam, dtype=np.float64) for v in views])
+        recorded = np.stack([np.asarray(v.T_world_cam, dtype=np.float64) for v in views])
+        poses = recorded
         if refine:
+            # Adjust, triangulate again at the adjusted poses (the matches that the recorded
+            # poses' error left untriangulated), adjust once more.
             start = time.perf_counter()
-            poses = _refine_known(pycolmap, rec, names, poses, opts.threads(), prior_m)
+            poses = _refine_known(pycolmap, rec, names, recorded, opts.threads(), prior_m)
+            first = rec.num_points3D()
+            (tmp / "sparse2").mkdir()
+            rec = pycolmap.triangulate_points(
+                rec, database, image_dir, tmp / "sparse2", clear_points=True, options=pipeline
+            )
+            poses = _refine_known(pycolmap, rec, names, recorded, opts.threads(), prior_m)
+            logger.info(
+                "bundle adjustment: %d points at the recorded poses, %d at the adjusted ones",
+                first,
+                rec.num_points3D(),
+            )
             seconds["bundle_adjustment"] = time.perf_counter() - start
         report("triangulation", 3, 3)
         cloud = _point_cloud(rec)
-        error = float(rec.compute_mean_reprojection_error())
+        if refine:  # points the adjustment could not place (behind a camera, far off) go
+            rec.update_point_3d_errors()
+            cloud = _point_cloud(rec)
+            cloud = cloud.subset(cloud.error_px <= _ADJUSTED_MAX_ERROR_PX)
+        error = float(cloud.error_px.mean()) if len(cloud) else 0.0
     logger.info(
         "triangulation: %d points from %d images (%.2f px mean error%s)",
         len(cloud),
