@@ -595,7 +595,7 @@ def _refine_known(
         scale = float(np.cbrt(np.linalg.det(T[:3, :3])))
         rec.transform(pycolmap.Sim3d(T[:3, :4]))
     else:
-        config = pycolmap.BundleAdjustmentConfig()
+        config = pycolmap.BundleAdjustmentConfig()  # the images' points are variable with them
         priors = []
         for name, pose in zip(names, poses, strict=True):
             image = by_name[name]
@@ -608,8 +608,6 @@ def _refine_known(
                     corr_data_id=image.data_id,
                 )
             )
-        for point_id in rec.points3D:
-            config.add_variable_point(point_id)
         prior_options = pycolmap.PosePriorBundleAdjustmentOptions()
         adjuster = pycolmap.create_pose_prior_bundle_adjuster(
             options, prior_options, config, priors, rec
