@@ -170,6 +170,7 @@ def _tf_config(bag: Path, **updates: Any) -> Config:
 def test_extract_pose_from_tf_chain_reproduces_tf_poses_at_camera_times(tmp_path: Path) -> None:
     ws = Workspace.create(tmp_path / "ws", _tf_config(write_tf_bag(tmp_path / "bag")))
     info = extract(ws).info
+    assert not info.heading_from_motion  # the tf chain gives the orientation
     poses = read_table(DatasetPaths(ws.dataset_dir).poses_csv)
     np.testing.assert_array_equal(poses["stamp_ns"], CAMERA_NS)
     assert info.counts.frames == len(CAMERA_NS)
@@ -273,6 +274,7 @@ def test_extract_navsatfix_heading_from_motion_and_positions_match_pyproj(
     # The world frame is a tmerc at the first fix: north-east is ~45 degrees everywhere.
     heading_deg = np.degrees(poses["heading"])
     assert np.abs(heading_deg - 45.0).max() < 0.5
+    assert info.heading_from_motion  # the splat's preparation bundle-adjusts these poses
     to_world = pyproj.Transformer.from_crs("EPSG:4326", world.proj_string, always_xy=True)
     fx, fy = to_world.transform(lon, lat)
     rel = (FIX_NS - T0).astype(float)
