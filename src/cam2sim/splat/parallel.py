@@ -338,8 +338,8 @@ def cuda_slots(n_chunks: int, gpu_gib: float) -> int:
 
     def makespan(k: int) -> float:
         full, rest = divmod(n, k)
-        time = full * k / CUDA_SLOT_RATES[k]
-        return time + (rest / CUDA_SLOT_RATES[rest] if rest else 0.0)
+        span = full * k / CUDA_SLOT_RATES[k]
+        return span + (rest / CUDA_SLOT_RATES[rest] if rest else 0.0)
 
     candidates = range(1, min(most, n) + 1)
     return min(candidates, key=lambda k: (round(makespan(k), 6), k))

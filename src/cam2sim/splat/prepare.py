@@ -572,7 +572,7 @@ def _with_poses(
     assert source.progress_m is not None
     undist = undistort_camera(camera.camera())
     views = _write_views(source.files, undist, hood, out, opts, report)
-    poses = tri_input = camera_poses(source.position, source.quat, mount)
+    recorded = poses = camera_poses(source.position, source.quat, mount)
     points, pose_source, notes = _Points.empty(), "recording", []
     if opts.triangulate:
         tri = triangulate_known_poses(
@@ -593,7 +593,7 @@ def _with_poses(
         )
         if tri.refined:
             poses, pose_source = tri.T_world_cam, "refined"
-            moved = np.linalg.norm(poses[:, :3, 3] - tri_input[:, :3, 3], axis=1)
+            moved = np.linalg.norm(poses[:, :3, 3] - recorded[:, :3, 3], axis=1)
             notes.append(
                 f"poses refined by bundle adjustment: cameras moved {moved.mean():.2f} m on "
                 f"average ({moved.max():.2f} m at most)"

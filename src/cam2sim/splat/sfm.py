@@ -549,10 +549,10 @@ def triangulate_known_poses(
             )
             seconds["bundle_adjustment"] = time.perf_counter() - start
         report("triangulation", 3, 3)
+        if refine:  # the adjusters leave the points' errors as they were
+            rec.update_point_3d_errors()
         cloud = _point_cloud(rec)
         if refine:  # points the adjustment could not place (behind a camera, far off) go
-            rec.update_point_3d_errors()
-            cloud = _point_cloud(rec)
             cloud = cloud.subset(cloud.error_px <= _ADJUSTED_MAX_ERROR_PX)
         error = float(cloud.error_px.mean()) if len(cloud) else 0.0
     logger.info(
@@ -613,7 +613,6 @@ def _refine_known(
             options, prior_options, config, priors, rec
         )
         adjuster.solve()
-        rec.update_point_3d_errors()  # the adjuster leaves the points' errors as they were
         scale = 1.0
     out = np.stack([_T_world_cam(by_name[n]) for n in names])
     logger.info(
