@@ -53,8 +53,10 @@ __all__ = ["CUDA_SLOT_RATES", "ChunkOutcomes", "cuda_slots", "train_chunks_in_pr
 
 CUDA_SLOT_RATES: Final = {1: 0.5, 2: 1.0, 3: 1.04}
 """Steps a second of k chunks training at once on one GPU, relative to two: one process leaves
-the GPU half idle (KITTI 03 on an H100: a lone chunk 66 steps/s, two together 133, three 138;
-docs/benchmarks.md, "KITTI 03 on one GPU, seventh run"). More than three were not measured."""
+the GPU half idle (KITTI 03 on an H100: a lone chunk 66 steps/s, two together 133, three 138,
+averaged over a run; at the 1M cap two and three alike step 84-88 times a second together:
+docs/benchmarks.md, "KITTI 03 on one GPU", seventh and eighth runs). More than three were not
+measured."""
 
 MIN_GIB_FOR_THREE: Final = 40.0
 """Three chunks at a time only on a GPU with at least this much memory (a worker of a real
