@@ -42,7 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 from cam2sim.core.files import write_text_atomic
 from cam2sim.splat.geometry import similarity_from_poses
-from cam2sim.splat.sfm import KnownView, triangulate_known_poses
+from cam2sim.splat.sfm import KnownView, PoseAdjustment, triangulate_known_poses
 
 NOISE = {
     # name: (position drift sigma m, position jitter sigma m, heading/pitch drift sigma deg)
@@ -115,7 +115,8 @@ def run(images: list[Path], T: Any, K: Any, *, adjust: str) -> dict[str, Any]:
         views = [KnownView(K=K, T_world_cam=t) for t in T]
         start = time.perf_counter()
         prior = None if adjust in {"off", "free"} else float(adjust)
-        result = triangulate_known_poses(links, views, refine=adjust != "off", prior_m=prior)
+        refine = PoseAdjustment(prior_m=prior) if adjust != "off" else False
+        result = triangulate_known_poses(links, views, refine=refine)
         seconds = time.perf_counter() - start
     return {
         "poses": result.T_world_cam,

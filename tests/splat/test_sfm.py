@@ -10,9 +10,12 @@ import cv2
 import numpy as np
 import pytest
 
+from cam2sim.core import frames as fr
+from cam2sim.splat.geometry import interpolated_corrections
 from cam2sim.splat.sfm import (
     FeatureOptions,
     KnownView,
+    PoseAdjustment,
     SfmCamera,
     SfmOptions,
     apply_similarity,
@@ -140,6 +143,65 @@ def test_triangulate_known_poses_refine_keeps_the_recorded_frame(tmp_path: Path)
     moved = np.linalg.norm(result.T_world_cam[:, :3, 3] - poses[:, :3, 3], axis=1)
     assert moved.max() < 0.05
     assert np.median(wall_distance(result.points.xyz)) < 0.05
+
+
+def test_interpolated_corrections_carry_the_neighbours_correction() -> None:
+    recorded = camera_track(5)
+    turn = np.eye(4)
+    turn[:3, :3] = fr.quat_to_matrix(fr.quat_from_yaw(0.02))
+    shift = np.eye(4)
+    shift[:3, 3] = [0.1, 0.0, 0.0]
+    adjusted = recorded.copy()
+    adjusted[1] = recorded[1] @ turn
+    adjusted[3] = recorded[3] @ shift
+    adjusted[2] = adjusted[0] = adjusted[4] = np.nan  # unfitted rows are never read
+    fitted = np.array([False, True, False, True, False])
+    out = interpolated_corrections(recorded, adjusted, fitted)
+    assert np.allclose(out[[1, 3]], adjusted[[1, 3]])
+    half = np.linalg.inv(recorded[2]) @ out[2]
+    assert np.allclose(half[:3, 3], [0.05, 0.0, 0.0])
+    assert np.isclose(fr.yaw_from_quat(fr.quat_from_matrix(half[:3, :3])), 0.01)
+    assert np.allclose(out[0], recorded[0] @ turn)  # beyond the ends: the nearest one's
+    assert np.allclose(out[4], recorded[4] @ shift)
+    everything = np.ones(5, bool)
+    assert np.array_equal(interpolated_corrections(recorded, recorded, everything), recorded)
+    with pytest.raises(ValueError, match="at least one"):
+        interpolated_corrections(recorded, adjusted, np.zeros(5, bool))
+
+
+@pytest.mark.parametrize("prior_m", [None, 1.0])
+def test_held_out_views_shape_nothing_and_are_aligned_to_their_own_images(
+    tmp_path: Path, prior_m: float | None
+) -> None:
+    """A held-out view is kept out of the triangulation and the adjustment: whatever its
+    recorded pose, the other poses and the points come out the same (scoring the splat there
+    stays honest). Its own pose is then fitted to its image against the adjusted points."""
+    poses = camera_track()
+    files = _write_views(tmp_path / "images", poses)
+    noisy = poses.copy()
+    noisy[1:, :3, 3] += np.random.default_rng(0).normal(scale=0.005, size=(len(poses) - 1, 3))
+    held = [i == 4 for i in range(len(poses))]
+    fitted = ~np.array(held)
+    runs = []
+    for error_m in (0.08, -0.15):
+        recorded = noisy.copy()
+        recorded[4, 1, 3] += error_m  # this view's own error
+        runs.append(
+            triangulate_known_poses(
+                files,
+                [KnownView(K, T) for T in recorded],
+                window=5,
+                refine=PoseAdjustment(prior_m=prior_m, held_out=tuple(held)),
+                features=FeatureOptions(num_threads=2),
+            )
+        )
+    a, b = runs
+    assert np.allclose(a.T_world_cam[fitted], b.T_world_cam[fitted], atol=1e-4)
+    assert np.allclose(a.points.xyz, b.points.xyz, atol=1e-4)
+    for run in runs:
+        assert np.linalg.norm(run.T_world_cam[4, :3, 3] - poses[4, :3, 3]) < 0.03  # aligned
+        others = np.linalg.norm(run.T_world_cam[fitted, :3, 3] - poses[fitted, :3, 3], axis=1)
+        assert others.max() < 0.03
 
 
 def test_triangulate_known_poses_rejects_mismatched_views(tmp_path: Path) -> None:

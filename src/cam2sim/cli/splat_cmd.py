@@ -43,9 +43,10 @@ BundleOption = Annotated[
     bool | None,
     typer.Option(
         "--bundle-adjust/--no-bundle-adjust",
-        help="Refine the recorded poses by bundle adjustment before training (default: only "
-        "when they gave no orientation, e.g. GPS fixes; good poses are better refined in "
-        "training with --pose-lr).",
+        help="Refine the recorded poses by bundle adjustment before training, the held-out "
+        "frames kept out of it (default: a real recording's poses, held within 1 m of GPS "
+        "fixes or 5 cm of poses that came with an orientation; a demo world's exact poses "
+        "are kept).",
         show_default=False,
     ),
 ]

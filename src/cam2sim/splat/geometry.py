@@ -27,6 +27,7 @@ __all__ = [
     "chunk_membership",
     "chunks_by_distance",
     "distance_travelled",
+    "interpolated_corrections",
     "select_by_distance",
     "similarity_from_poses",
     "undistort_camera",
@@ -313,6 +314,57 @@ def apply_similarity(S: npt.ArrayLike, T_world_cam: npt.ArrayLike) -> npt.NDArra
     out = T.copy()
     out[..., :3, :3] = (Sm[:3, :3] / scale) @ T[..., :3, :3]
     out[..., :3, 3] = T[..., :3, 3] @ Sm[:3, :3].T + Sm[:3, 3]
+    return out
+
+
+def interpolated_corrections(
+    recorded: npt.ArrayLike, adjusted: npt.ArrayLike, fitted: npt.ArrayLike
+) -> npt.NDArray[np.float64]:
+    """Adjusted poses where ``fitted``; elsewhere the recorded pose with its neighbours' correction.
+
+    A fitted frame's correction is ``C = T_recorded^-1 T_adjusted`` (in its camera frame). An
+    unfitted frame (a held-out view kept out of a bundle adjustment, so its pose is never
+    fitted to its own image) takes the correction of the fitted frames before and after it,
+    interpolated by frame number (rotation by slerp, translation linearly); beyond the ends,
+    the nearest one's.
+
+    Args:
+        recorded: ``(N, 4, 4)`` recorded poses ``T_world_cam``.
+        adjusted: ``(N, 4, 4)`` the adjusted poses (only the fitted rows are read).
+        fitted: ``(N,)`` bool, True where ``adjusted`` holds a fitted pose (at least one).
+
+    Returns:
+        ``(N, 4, 4)`` float64 poses.
+
+    Raises:
+        ValueError: Shapes differ, or no frame is fitted.
+    """
+    rec = np.asarray(recorded, dtype=np.float64)
+    adj = np.asarray(adjusted, dtype=np.float64)
+    mask = np.asarray(fitted, dtype=bool)
+    if rec.shape != adj.shape or rec.ndim != 3 or rec.shape[1:] != (4, 4):
+        msg = f"need two (N, 4, 4) pose stacks of one shape, got {rec.shape} and {adj.shape}"
+        raise ValueError(msg)
+    if mask.shape != (rec.shape[0],) or not mask.any():
+        msg = f"fitted must be ({rec.shape[0]},) bools with at least one True"
+        raise ValueError(msg)
+    out = adj.copy()
+    if mask.all():
+        return out
+    known = np.flatnonzero(mask)
+    corr = np.linalg.inv(rec[known]) @ adj[known]
+    quat = fr.quat_from_matrix(corr[:, :3, :3])
+    todo = np.flatnonzero(~mask)
+    after = np.clip(np.searchsorted(known, todo), 1, max(len(known) - 1, 1))
+    before = after - 1
+    if len(known) == 1:
+        before = after = np.zeros_like(todo)
+    span = (known[after] - known[before]).astype(np.float64)
+    t = np.clip((todo - known[before]) / np.where(span > 0, span, 1.0), 0.0, 1.0)
+    C = np.tile(np.eye(4), (len(todo), 1, 1))
+    C[:, :3, :3] = fr.quat_to_matrix(fr.slerp(quat[before], quat[after], t))
+    C[:, :3, 3] = (1 - t)[:, None] * corr[before, :3, 3] + t[:, None] * corr[after, :3, 3]
+    out[todo] = rec[todo] @ C
     return out
 
 

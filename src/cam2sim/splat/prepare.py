@@ -61,6 +61,7 @@ from cam2sim.splat.scene import ChunkRecord, FrameRecord, SceneRecord, save_poin
 from cam2sim.splat.sfm import (
     FeatureOptions,
     KnownView,
+    PoseAdjustment,
     SfmOptions,
     SfmResult,
     apply_similarity,
@@ -78,6 +79,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "GPS_PRIOR_M",
+    "ORIENTED_PRIOR_M",
     "PREP_DIR",
     "PrepareOptions",
     "Undistorter",
@@ -101,6 +103,12 @@ GPS_PRIOR_M = 1.0
 """How far (one standard deviation, metres) the bundle adjustment of poses without orientation
 may move a camera centre from its recorded position: a GNSS fix fused with an IMU, or a good
 receiver alone (docs/benchmarks.md, "Noisy poses and bundle adjustment")."""
+ORIENTED_PRIOR_M = 0.05
+"""The same for poses that came with an orientation (odometry, SLAM, a survey's ground truth):
+KITTI 03's ground-truth poses are not pixel-consistent with its frames; held to them within
+5 cm the adjustment moved them 0.08 m on average (0.18 m at most), and the CPU splat gained on
+held-out frames that took no part in it (docs/benchmarks.md). A freer chain drifts from the
+record (0.54 m rms at 1 m), which the closed loop, rendering at recorded poses, would see."""
 
 _HOOD_FRAMES = 30
 _SKY_BATCH = 8
@@ -128,20 +136,22 @@ class PrepareOptions:
             the middle of each interval (:func:`is_held_out`).
         triangulate: Triangulate initial points from the frames (pycolmap).
         refine_poses: Refine the recorded poses by bundle adjustment (intrinsics fixed) after
-            triangulating at them; None = when the poses gave no orientation
-            (``DatasetInfo.heading_from_motion``: GPS fixes, whose heading is the direction of
-            travel and whose roll and pitch are zero). On 85 m of KITTI 03 with a GPS-like
+            triangulating at them, the held-out frames kept out of it and aligned to their own
+            images afterwards (:func:`~cam2sim.splat.sfm.triangulate_known_poses`). None =
+            when the poses gave no orientation (``DatasetInfo.heading_from_motion``: GPS
+            fixes, whose heading is the direction of travel and whose roll and pitch are
+            zero), and, with ``refine_oriented``, when a real recording's poses came with one
+            (a demo world's poses are exact and stay). On 85 m of KITTI 03 with a GPS-like
             error the adjustment took the rotation error from 0.63 to 0.16 degrees and the
-            frame-to-frame error from 25 to 7 cm (reprojection 1.83 -> 0.26 px); on its
-            ground-truth poses it fits the images better too (0.83 -> 0.31 px) but moves the
-            centres 0.5 m from them (2 m at most), which the closed loop, rendering at the
-            recorded poses, would see: good poses are refined in training instead
-            (``LearningRates.poses``) (docs/benchmarks.md, "Noisy poses and bundle
-            adjustment").
+            frame-to-frame error from 25 to 7 cm (reprojection 1.83 -> 0.26 px)
+            (docs/benchmarks.md, "Noisy poses and bundle adjustment").
+        refine_oriented: Under ``refine_poses=None``, also adjust a real recording's poses
+            that came with an orientation (held within :data:`ORIENTED_PRIOR_M`). ``cam2sim
+            run``'s CUDA preset leaves them to the pose refinement in training instead.
         pose_prior_m: With ``refine_poses``: hold each camera centre to its recorded position
             with this standard deviation, metres (a pose-prior bundle adjustment, so a long
-            drive cannot drift from its recording); None = adjust freely, then map the chain
-            back onto the recorded poses by one similarity.
+            drive cannot drift from its recording); None = by the poses' kind:
+            :data:`GPS_PRIOR_M` without an orientation, :data:`ORIENTED_PRIOR_M` with one.
         match_window: Sequential matching window, frames.
         lidar_voxel_m: Voxel size for downsampling LiDAR points, metres.
         sfm: Options of images-only SfM (pose-less datasets, or no intrinsics).
@@ -160,7 +170,8 @@ class PrepareOptions:
     held_out_every: int = 8
     triangulate: bool = True
     refine_poses: bool | None = None
-    pose_prior_m: float | None = GPS_PRIOR_M
+    refine_oriented: bool = True
+    pose_prior_m: float | None = None
     match_window: int = 20
     lidar_voxel_m: float = 0.1
     sfm: SfmOptions = field(default_factory=SfmOptions)
@@ -510,7 +521,12 @@ def prepare_scene(
     paths = DatasetPaths(ws.dataset_dir)
     info, calib = _load_dataset(paths)
     if opts.refine_poses is None:
-        opts = replace(opts, refine_poses=info.heading_from_motion)
+        real = not ws.truth_world_json.is_file()  # a demo world's poses are exact
+        auto = info.heading_from_motion or (real and opts.refine_oriented and not info.pose_less)
+        opts = replace(opts, refine_poses=auto)
+    if opts.pose_prior_m is None:
+        kind = GPS_PRIOR_M if info.heading_from_motion else ORIENTED_PRIOR_M
+        opts = replace(opts, pose_prior_m=kind)
     source = _select(paths, info, opts)
     size = _frame_size(source.files[0])
     logger.info("splat prep: %d frames selected from %s", len(source.files), paths.root)
@@ -580,8 +596,14 @@ def _with_poses(
             [KnownView(undist.K_new, T) for T in poses],
             views.masks,
             window=opts.match_window,
-            refine=bool(opts.refine_poses),
-            prior_m=opts.pose_prior_m,
+            # The held-out views stay out of the adjustment: no point or other pose is
+            # fitted to the images they are scored on.
+            refine=PoseAdjustment(
+                prior_m=opts.pose_prior_m,
+                held_out=tuple(is_held_out(i, opts.held_out_every) for i in range(len(poses))),
+            )
+            if opts.refine_poses
+            else False,
             # Full resolution from the first octave: about 3x faster than upsampled SIFT.
             features=FeatureOptions(window=opts.match_window, first_octave=0),
             progress=report,

@@ -43,7 +43,11 @@ import numpy.typing as npt
 from cam2sim.core.camera import PinholeCamera
 from cam2sim.core.errors import BackendUnavailableError, StageError
 from cam2sim.core.machine import available_cpus
-from cam2sim.splat.geometry import apply_similarity, similarity_from_poses
+from cam2sim.splat.geometry import (
+    apply_similarity,
+    interpolated_corrections,
+    similarity_from_poses,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Iterator, Sequence
@@ -56,6 +60,7 @@ __all__ = [
     "KnownView",
     "Mapper",
     "PointCloud",
+    "PoseAdjustment",
     "SfmCamera",
     "SfmOptions",
     "SfmResult",
@@ -79,6 +84,13 @@ Mapper = Literal["incremental", "global"]
 
 # pycolmap objects are untyped (no stubs); they travel as Any inside this module only.
 _Colmap = Any
+
+
+_ALIGN_MIN_INLIERS = 30
+"""Fewest inlier matches that align a held-out view's pose to its own image."""
+_ALIGN_MAX_MOVE_M = 2.0
+"""Farthest a held-out view's aligned centre may lie from its interpolated one (metres); a
+pose farther off is a wrong registration, and the view keeps its neighbours' corrections."""
 
 
 def has_pycolmap() -> bool:
@@ -170,6 +182,38 @@ class KnownView:
 
     K: npt.NDArray[np.float64]
     T_world_cam: npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class PoseAdjustment:
+    """How :func:`triangulate_known_poses` refines the poses by bundle adjustment.
+
+    Attributes:
+        prior_m: Hold each camera centre to its recorded position with this standard
+            deviation (metres; a pose-prior adjustment), instead of mapping the adjusted chain
+            back onto the recorded poses by one similarity (None).
+        held_out: True for the images kept out of the triangulation and the adjustment (the
+            held-out views: no point and no other pose depends on them, so scoring the splat
+            on them stays honest). Each is then aligned to its own image against the adjusted
+            points, the model fixed (test-time pose alignment, as pose-free NeRF and 3DGS
+            papers evaluate), or, where that finds too little, takes its neighbours'
+            corrections, interpolated (:func:`cam2sim.splat.geometry.interpolated_corrections`).
+            None: none kept out.
+    """
+
+    prior_m: float | None = None
+    held_out: tuple[bool, ...] | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class _Work:
+    """What the triangulation's steps share: COLMAP's database, the images, a scratch folder."""
+
+    database: Path
+    image_dir: Path
+    tmp: Path
+    pipeline: Any  # pycolmap.IncrementalPipelineOptions
+    threads: int
 
 
 @dataclass(frozen=True, eq=False)
@@ -463,8 +507,7 @@ def triangulate_known_poses(
     masks: Sequence[Path] | None = None,
     *,
     window: int = 20,
-    refine: bool = False,
-    prior_m: float | None = None,
+    refine: bool | PoseAdjustment = False,
     features: FeatureOptions | None = None,
     progress: ProgressCallback | None = None,
 ) -> TriangulationResult:
@@ -481,10 +524,8 @@ def triangulate_known_poses(
         views: One :class:`KnownView` per image; all share one ``K``.
         masks: One mask file per image (uint8, 0 = ignore the pixel), or None.
         window: Sequential matching overlap (overrides ``features.window``).
-        refine: Refine the poses by bundle adjustment.
-        prior_m: With ``refine``: hold each camera centre to its recorded position with this
-            standard deviation (metres; a pose-prior adjustment), instead of mapping the
-            adjusted chain back onto the recorded poses by one similarity (None).
+        refine: Refine the poses by bundle adjustment (True: :class:`PoseAdjustment`'s
+            defaults).
         features: Extraction and matching options.
         progress: Called with ``("triangulation", step, 3)``.
 
@@ -499,6 +540,12 @@ def triangulate_known_poses(
     pycolmap = _pycolmap()
     image_dir, names = _check_images(images)
     _check_views(views, len(names))
+    adjust = PoseAdjustment() if refine is True else (refine or None)
+    held = None if adjust is None else adjust.held_out
+    fitted = np.ones(len(names), bool) if held is None else ~np.asarray(held, bool)
+    if fitted.shape != (len(names),) or not fitted.any():
+        msg = f"held_out must be {len(names)} bools, not all True"
+        raise ValueError(msg)
     opts = features or FeatureOptions()
     opts = dataclasses.replace(opts, window=window)
     report = progress or (lambda _task, _done, _total: None)
@@ -515,8 +562,11 @@ def triangulate_known_poses(
         seconds = _extract_and_match(pycolmap, database, image_dir, names, reader, opts)
         report("triangulation", 1, 3)
         rec = _known_reconstruction(pycolmap, database, names, views)
+        if adjust is not None:  # the held-out views shape no point and no other pose
+            _deregister(rec, names, fitted)
         pipeline = pycolmap.IncrementalPipelineOptions()
         pipeline.num_threads = opts.threads()
+        work = _Work(database, image_dir, tmp, pipeline, opts.threads())
         start = time.perf_counter()
         rec = pycolmap.triangulate_points(
             rec, database, image_dir, tmp / "sparse", clear_points=True, options=pipeline
@@ -529,30 +579,15 @@ def triangulate_known_poses(
                 "frames overlap and the poses and calibration belong to these images"
             )
             raise StageError(msg)
-        recorded = np.stack([np.asarray(v.T_world_cam, dtype=np.float64) for v in views])
-        poses = recorded
-        if refine:
-            # Adjust, triangulate again at the adjusted poses (the matches that the recorded
-            # poses' error left untriangulated), adjust once more.
+        poses = np.stack([np.asarray(v.T_world_cam, dtype=np.float64) for v in views])
+        if adjust is not None:
             start = time.perf_counter()
-            poses = _refine_known(pycolmap, rec, names, recorded, opts.threads(), prior_m)
-            first = rec.num_points3D()
-            (tmp / "sparse2").mkdir()
-            rec = pycolmap.triangulate_points(
-                rec, database, image_dir, tmp / "sparse2", clear_points=True, options=pipeline
-            )
-            poses = _refine_known(pycolmap, rec, names, recorded, opts.threads(), prior_m)
-            logger.info(
-                "bundle adjustment: %d points at the recorded poses, %d at the adjusted ones",
-                first,
-                rec.num_points3D(),
-            )
+            rec, poses = _adjust(pycolmap, rec, work, names, poses, fitted, adjust.prior_m)
             seconds["bundle_adjustment"] = time.perf_counter() - start
+            rec.update_point_3d_errors()  # the adjusters leave the points' errors as they were
         report("triangulation", 3, 3)
-        if refine:  # the adjusters leave the points' errors as they were
-            rec.update_point_3d_errors()
         cloud = _point_cloud(rec)
-        if refine:  # points the adjustment could not place (behind a camera, far off) go
+        if adjust is not None:  # points the adjustment could not place (behind a camera) go
             cloud = cloud.subset(cloud.error_px <= _ADJUSTED_MAX_ERROR_PX)
         error = float(cloud.error_px.mean()) if len(cloud) else 0.0
     logger.info(
@@ -560,9 +595,125 @@ def triangulate_known_poses(
         len(cloud),
         len(names),
         error,
-        ", poses refined" if refine else "",
+        ", poses refined" if adjust is not None else "",
     )
-    return TriangulationResult(cloud, poses, refine, error, seconds)
+    return TriangulationResult(cloud, poses, adjust is not None, error, seconds)
+
+
+def _adjust(
+    pycolmap: _Colmap,
+    rec: _Colmap,
+    work: _Work,
+    names: list[str],
+    recorded: npt.NDArray[np.float64],
+    fitted: npt.NDArray[np.bool_],
+    prior_m: float | None,
+) -> tuple[_Colmap, npt.NDArray[np.float64]]:
+    """Adjust the poses twice, triangulating again between; align the held-out views.
+
+    The second triangulation, at the adjusted poses, finds the matches that the recorded
+    poses' error left untriangulated.
+    """
+    _refine_known(pycolmap, rec, names, recorded, fitted, work.threads, prior_m)
+    first = rec.num_points3D()
+    (work.tmp / "sparse2").mkdir()
+    rec = pycolmap.triangulate_points(
+        rec, work.database, work.image_dir, work.tmp / "sparse2", clear_points=True,
+        options=work.pipeline,
+    )  # fmt: skip
+    poses = _refine_known(pycolmap, rec, names, recorded, fitted, work.threads, prior_m)
+    poses = _align_held_out(pycolmap, rec, work.database, names, fitted, poses)
+    logger.info(
+        "bundle adjustment: %d points at the recorded poses, %d at the adjusted ones",
+        first,
+        rec.num_points3D(),
+    )
+    return rec, poses
+
+
+def _deregister(rec: _Colmap, names: list[str], fitted: npt.NDArray[np.bool_]) -> None:
+    """Take the images not ``fitted`` out of ``rec``, their observations with them.
+
+    Out of the reconstruction, not only out of an adjustment: COLMAP holds a point constant
+    while any image outside the adjustment observes it. (A reconstruction triangulated again
+    without them no longer holds them.)
+    """
+    by_name = {img.name: img for img in rec.images.values()}
+    registered = set(rec.reg_frame_ids())
+    for name, fit in zip(names, fitted, strict=True):
+        image = by_name.get(name)
+        if not fit and image is not None and image.frame_id in registered:
+            rec.deregister_frame(image.frame_id)
+
+
+def _align_held_out(
+    pycolmap: _Colmap,
+    rec: _Colmap,
+    database: Path,
+    names: list[str],
+    fitted: npt.NDArray[np.bool_],
+    poses: npt.NDArray[np.float64],
+) -> npt.NDArray[np.float64]:
+    """Each held-out view's pose fitted to its own image against the adjusted points.
+
+    The evaluation's test-time pose alignment, done here: the model (points, other poses) is
+    already fixed, so the held-out image decides its own pose and nothing else. Its keypoints
+    meet the points through their verified matches with the adjusted images; the pose is
+    estimated robustly (LO-RANSAC, then refined) and kept only where it is well supported
+    (:data:`_ALIGN_MIN_INLIERS`) and near the interpolated one (:data:`_ALIGN_MAX_MOVE_M`);
+    else the view keeps its neighbours' corrections.
+    """
+    out = poses.copy()
+    if fitted.all() or rec.num_points3D() == 0:
+        return out
+    point_ids = np.array(list(rec.points3D.keys()), dtype=np.int64)
+    xyz = np.stack([rec.points3D[int(i)].xyz for i in point_ids])
+    row_of = dict(zip(point_ids.tolist(), range(len(point_ids)), strict=True))
+    observed: dict[int, npt.NDArray[np.int64]] = {}  # image id -> point row of each keypoint
+    for image in rec.images.values():
+        table = np.full(image.num_points2D(), -1, np.int64)
+        idx = np.asarray(image.get_observation_point2D_idxs(), dtype=np.int64)
+        table[idx] = [row_of[p.point3D_id] for p in image.get_observation_points2D()]
+        observed[image.image_id] = table
+    camera = next(iter(rec.cameras.values()))
+    aligned = 0
+    db = pycolmap.Database.open(database)
+    try:
+        ids = {img.name: img.image_id for img in db.read_all_images()}
+        for k in np.flatnonzero(~fitted):
+            held = ids[names[k]]
+            keypoints = np.asarray(db.read_keypoints(held), dtype=np.float64)[:, :2]
+            row = np.full(len(keypoints), -1, np.int64)
+            for other, table in observed.items():
+                if not db.exists_two_view_geometry(held, other):
+                    continue
+                pairs = np.asarray(db.read_two_view_geometry(held, other).inlier_matches)
+                if pairs.size:
+                    seen = table[pairs[:, 1]]
+                    row[pairs[seen >= 0, 0]] = seen[seen >= 0]
+            keep = row >= 0
+            if keep.sum() < _ALIGN_MIN_INLIERS:
+                continue
+            # COLMAP's keypoints have the pixel centre at 0.5; the camera model agrees.
+            found = pycolmap.estimate_and_refine_absolute_pose(
+                keypoints[keep], xyz[row[keep]], camera
+            )
+            if found is None or int(found["num_inliers"]) < _ALIGN_MIN_INLIERS:
+                continue
+            T = np.eye(4)
+            T[:3] = found["cam_from_world"].inverse().matrix()
+            if np.linalg.norm(T[:3, 3] - poses[k, :3, 3]) > _ALIGN_MAX_MOVE_M:
+                continue
+            out[k] = T
+            aligned += 1
+    finally:
+        db.close()
+    logger.info(
+        "held-out views: %d of %d aligned to their own images against the adjusted points",
+        aligned,
+        int((~fitted).sum()),
+    )
+    return out
 
 
 def _refine_known(
@@ -570,6 +721,7 @@ def _refine_known(
     rec: _Colmap,
     names: list[str],
     poses: npt.NDArray[np.float64],
+    fitted: npt.NDArray[np.bool_],
     threads: int,
     prior_m: float | None = None,
 ) -> npt.NDArray[np.float64]:
@@ -578,7 +730,9 @@ def _refine_known(
     With ``prior_m`` every camera centre keeps a prior at its recorded position (that standard
     deviation, metres): the chain cannot drift from the recording further than its error
     allows. Without it a similarity maps the adjusted chain back onto the recorded poses as a
-    whole (the chain may drift within).
+    whole (the chain may drift within). Only the ``fitted`` images take part: the others
+    leave the reconstruction (their observations with them) and take their neighbours'
+    corrections, interpolated.
     """
     options = pycolmap.BundleAdjustmentOptions()
     options.refine_focal_length = False
@@ -587,17 +741,20 @@ def _refine_known(
     options.print_summary = False
     options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
     options.ceres.solver_options.num_threads = threads
+    _deregister(rec, names, fitted)
     by_name = {img.name: img for img in rec.images.values()}
     if prior_m is None:
         pycolmap.bundle_adjustment(rec, options)
-        refined = np.stack([_T_world_cam(by_name[n]) for n in names])
-        T = similarity_from_poses(refined, poses)
+        refined = np.stack([_T_world_cam(by_name[n]) for n in np.asarray(names)[fitted]])
+        T = similarity_from_poses(refined, poses[fitted])
         scale = float(np.cbrt(np.linalg.det(T[:3, :3])))
         rec.transform(pycolmap.Sim3d(T[:3, :4]))
     else:
         config = pycolmap.BundleAdjustmentConfig()  # the images' points are variable with them
         priors = []
-        for name, pose in zip(names, poses, strict=True):
+        for name, pose, fit in zip(names, poses, fitted, strict=True):
+            if not fit:
+                continue
             image = by_name[name]
             config.add_image(image.image_id)
             priors.append(
@@ -614,7 +771,11 @@ def _refine_known(
         )
         adjuster.solve()
         scale = 1.0
-    out = np.stack([_T_world_cam(by_name[n]) for n in names])
+    out = poses.copy()
+    for k, (name, fit) in enumerate(zip(names, fitted, strict=True)):
+        if fit:
+            out[k] = _T_world_cam(by_name[name])
+    out = interpolated_corrections(poses, out, fitted)
     logger.info(
         "bundle adjustment: camera centres moved %.3f m on average (scale %.4f%s)",
         float(np.linalg.norm(out[:, :3, 3] - poses[:, :3, 3], axis=1).mean()),
