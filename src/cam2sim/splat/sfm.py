@@ -516,8 +516,10 @@ def triangulate_known_poses(
     SIFT features are extracted (masked pixels ignored), matched with the next ``window``
     images and verified; COLMAP triangulates them with the poses held fixed. With ``refine``,
     a bundle adjustment then refines poses and points with the intrinsics fixed (robust loss),
-    and the result is mapped back onto the recorded poses by a similarity
-    (:func:`similarity_from_poses`), so the world frame and scale stay the recording's.
+    the centres held to their records by a prior or the result mapped back onto them by a
+    similarity (:func:`similarity_from_poses`), so the world frame and scale stay the
+    recording's; the points are triangulated again at the adjusted poses and adjusted once
+    more (:class:`PoseAdjustment`).
 
     Args:
         images: Undistorted image files in one folder, names sorting in recording order.
