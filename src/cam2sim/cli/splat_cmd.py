@@ -44,9 +44,8 @@ BundleOption = Annotated[
     typer.Option(
         "--bundle-adjust/--no-bundle-adjust",
         help="Refine the recorded poses by bundle adjustment before training, the held-out "
-        "frames kept out of it (default: a real recording's poses, held within 1 m of GPS "
-        "fixes or 5 cm of poses that came with an orientation; a demo world's exact poses "
-        "are kept).",
+        "frames kept out of it (default: only poses without orientation, GPS fixes, held "
+        "within 1 m; forced on, poses with an orientation are held within 5 cm).",
         show_default=False,
     ),
 ]

@@ -146,8 +146,11 @@ class PrepareOptions:
             frame-to-frame error from 25 to 7 cm (reprojection 1.83 -> 0.26 px)
             (docs/benchmarks.md, "Noisy poses and bundle adjustment").
         refine_oriented: Under ``refine_poses=None``, also adjust a real recording's poses
-            that came with an orientation (held within :data:`ORIENTED_PRIOR_M`). ``cam2sim
-            run``'s CUDA preset leaves them to the pose refinement in training instead.
+            that came with an orientation (held within :data:`ORIENTED_PRIOR_M`). Off by
+            default: on KITTI 03's whole drive it raised the CPU splat's held-out scores
+            (20.1 -> 21.3 dB) but its closed-loop runs left the road at the start, where the
+            last run without it drove the route (docs/benchmarks.md); on the GPU such poses
+            are refined in training.
         pose_prior_m: With ``refine_poses``: hold each camera centre to its recorded position
             with this standard deviation, metres (a pose-prior bundle adjustment, so a long
             drive cannot drift from its recording); None = by the poses' kind:
@@ -170,7 +173,7 @@ class PrepareOptions:
     held_out_every: int = 8
     triangulate: bool = True
     refine_poses: bool | None = None
-    refine_oriented: bool = True
+    refine_oriented: bool = False
     pose_prior_m: float | None = None
     match_window: int = 20
     lidar_voxel_m: float = 0.1

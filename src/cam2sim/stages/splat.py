@@ -189,9 +189,7 @@ class SplatStageOptions:
                 densify=DensifyOptions(strategy="mcmc" if gsplat else "auto"),
                 time_budget_s=RUN_GPU_SPLAT_BUDGET_S * gpu_sharers(), budget_per_chunk=True,
             )  # fmt: skip
-            # Poses that came with an orientation are refined in training (RUN_GPU_POSE_RATE),
-            # measured there; a bundle adjustment before it was not measured on a GPU.
-            opts = cls(prepare=PrepareOptions(refine_oriented=False), train=train)
+            opts = cls(prepare=PrepareOptions(), train=train)
         else:
             opts = cls.demo()
         assert opts.prepare is not None  # both presets set it
