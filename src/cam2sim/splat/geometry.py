@@ -355,10 +355,8 @@ def interpolated_corrections(
     corr = np.linalg.inv(rec[known]) @ adj[known]
     quat = fr.quat_from_matrix(corr[:, :3, :3])
     todo = np.flatnonzero(~mask)
-    after = np.clip(np.searchsorted(known, todo), 1, max(len(known) - 1, 1))
-    before = after - 1
-    if len(known) == 1:
-        before = after = np.zeros_like(todo)
+    after = np.minimum(np.searchsorted(known, todo), len(known) - 1)
+    before = np.maximum(after - 1, 0)
     span = (known[after] - known[before]).astype(np.float64)
     t = np.clip((todo - known[before]) / np.where(span > 0, span, 1.0), 0.0, 1.0)
     C = np.tile(np.eye(4), (len(todo), 1, 1))
