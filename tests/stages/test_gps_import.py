@@ -112,6 +112,35 @@ def test_heading_from_noisy_gps_fixes_is_averaged_over_a_second(tmp_path: Path) 
     assert err.max() < 5.0
 
 
+def test_gps_fixes_are_not_fitted_for_where_they_sit_on_the_car(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A heading taken from the fixes' own motion never slips in a turn, wherever the antenna
+    is: ``--pose-offset fit`` says it cannot tell and takes the rear axle, and the scenario's
+    check stays quiet about a pose point it could not measure."""
+    from cam2sim.stages.scenario import check_pose_point
+
+    t, xy, _ = _arc(120, turn=0.3)  # 8 m/s, a 27 m radius: a camera 1 m ahead slips 2 degrees
+    lat, lon = _to_wgs84(UTM10N, xy[:, 0], xy[:, 1])
+    stamps = T0 + np.round(t * 1e9).astype(np.int64)
+    rows = ["timestamp,lat,lon"]
+    rows += [f"{s / 1e9:.3f},{a:.10f},{b:.10f}" for s, a, b in zip(stamps, lat, lon, strict=True)]
+    (tmp_path / "gps.csv").write_text("\n".join(rows) + "\n")
+    _images(tmp_path / "images", [f"{s}.png" for s in stamps])
+    opts = ImportOptions(poses=tmp_path / "gps.csv", pose_offset_m=(None, 0.0, 1.5))
+    with caplog.at_level("WARNING", logger="cam2sim.stages.image_import"):
+        result = import_images(tmp_path / "ws", tmp_path / "images", options=opts)
+    assert result.pose_point is None
+    assert "have no orientation" in caplog.text
+    ws = Workspace.open(tmp_path / "ws")
+    vehicle = ws.load_config().vehicle
+    assert vehicle.reference_xyz() == pytest.approx((vehicle.rear_axle_x_m, 0.0, 1.5))
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="cam2sim.stages.scenario"):
+        assert check_pose_point(ws) is None
+    assert not caplog.text
+
+
 def _oxts_folder(root: Path, lat: np.ndarray, lon: np.ndarray, rpy: np.ndarray) -> Path:
     """KITTI raw's layout: oxts/data/0000000000.txt ... and oxts/timestamps.txt."""
     data = root / "oxts" / "data"

@@ -155,9 +155,24 @@ def _place_poses(
     ``--pose-offset`` left X to be fitted (``fit,Y,Z``) or was not given (then only when the
     poses are clearly not at the rear axle, the default); the config is saved with it. A
     pose point given in numbers, or in an existing workspace's config, is kept, and a warning
-    names the fitted one when they disagree. Returns the config and the fit (None: the drive
-    turns too little to tell).
+    names the fitted one when they disagree. Poses without orientation (GPS fixes) are not
+    fitted: their heading is their own direction of travel, so they never slip. Returns the
+    config and the fit (None: the drive turns too little to tell, or the poses have no
+    orientation).
     """
+    given = opts.pose_offset_m
+    wants_fit = created and (given is None or given[0] is None)
+    if posed.heading_from_motion:
+        # The heading is the poses' own direction of travel: they never slip, wherever they
+        # sit on the car, so their turns cannot tell; taken as the rear axle's, the path is
+        # driven as the recorded one moved.
+        if wants_fit and given is not None:
+            logger.warning(
+                "--pose-offset fit: the poses have no orientation (their heading is their "
+                "direction of travel), so their turns cannot tell where they sit along the car; "
+                "they are taken to be over the rear axle (give X in metres if you know it)"
+            )
+        return config, None
     cols = posed.columns
     order = np.argsort(posed.stamps[posed.keep], kind="stable")
     fit = fit_pose_point(
@@ -168,8 +183,6 @@ def _place_poses(
     )
     vehicle = config.vehicle
     ahead = vehicle.reference_ahead_of_rear_axle_m()
-    given = opts.pose_offset_m
-    wants_fit = created and (given is None or given[0] is None)
     if fit is None:
         if wants_fit and given is not None:
             logger.warning(

@@ -284,10 +284,13 @@ def check_pose_point(ws: Workspace) -> PosePoint | None:
 
     A car posed at the wrong point cannot turn as the recorded one did (KITTI 03 with its
     camera put 1.3 m too far forward left the road at every junction run). None: no
-    trajectory, or a drive that turns too little to tell.
+    trajectory, a drive that turns too little to tell, or poses without orientation (their
+    heading is their own direction of travel: they never slip, wherever they sit).
     """
     paths = dataset_paths(ws.dataset_dir)
     if not paths.trajectory_csv.is_file():
+        return None
+    if paths.dataset_json.is_file() and DatasetInfo.load(paths.dataset_json).heading_from_motion:
         return None
     tr = read_table(paths.trajectory_csv)
     fit = fit_pose_point(
