@@ -26,9 +26,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from pose_noise import NOISE, add_noise
-
 from cam2sim.core.files import write_text_atomic
+from pose_noise import NOISE, add_noise
 
 
 def main() -> None:
