@@ -95,6 +95,23 @@ def test_a_gps_csv_is_geo_referenced_and_heads_where_it_drives(tmp_path: Path) -
     assert info.heading_from_motion  # so the splat's preparation refines these poses
 
 
+def test_gps_fixes_on_a_hill_pitch_the_car_with_the_road(tmp_path: Path) -> None:
+    """Fixes that climb 5 % give poses pitched nose up by the grade (ROS pitch: negative), so
+    the splat camera leans with the recorded road; the heading stays the direction of travel."""
+    t, xy, _ = _arc(80, turn=0.0)
+    lat, lon = _to_wgs84(UTM10N, xy[:, 0], xy[:, 1])
+    travelled = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+    alt = 30.0 + 0.05 * travelled
+    stamps = T0 + np.round(t * 1e9).astype(np.int64)
+    _import_gps(tmp_path, stamps, lat, lon, alt)
+    table = read_table(DatasetPaths(tmp_path / "ws" / "dataset").poses_csv)
+    quat = np.stack([table[c] for c in ("qx", "qy", "qz", "qw")], -1)
+    euler = frames.euler_from_quat(quat)
+    np.testing.assert_allclose(np.degrees(euler.pitch), -np.degrees(np.arctan(0.05)), atol=0.05)
+    np.testing.assert_allclose(euler.roll, 0.0, atol=1e-6)
+    np.testing.assert_allclose(euler.yaw, table["heading"], atol=1e-6)
+
+
 def test_heading_from_noisy_gps_fixes_is_averaged_over_a_second(tmp_path: Path) -> None:
     """10 cm of GPS noise at 10 Hz and 8 m/s: a 0.2 s chord (1.6 m) turns the heading by
     several degrees at every fix; the 1 s chord keeps it within about one degree."""

@@ -164,6 +164,14 @@ class SyncConfig(_Model):
         "window costs little in turns and averages GPS noise (0.1 m of noise: 0.9 degrees "
         "with 1 s, 4.4 with 0.2 s at 8 m/s).",
     )
+    pitch_window_m: float = pydantic.Field(
+        15.0,
+        gt=0,
+        description="Pitch from motion (poses without orientation) = the path's grade over a "
+        "chord of this many metres of travel, centred on the pose: a car pitches with its "
+        "road, and the splat camera leans with the recorded pitch (0.1 m of height noise: "
+        "0.5 degrees).",
+    )
 
 
 class IntrinsicsConfig(_Model):

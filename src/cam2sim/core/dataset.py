@@ -186,5 +186,6 @@ class DatasetInfo(Artifact):
     heading_from_motion: bool = pydantic.Field(
         default=False,
         description="the poses gave no orientation (GPS fixes): the heading is the direction "
-        "of travel, roll and pitch zero; the splat's preparation then refines the poses",
+        "of travel, the pitch the path's grade, roll zero; the splat's preparation then refines "
+        "the poses",
     )

@@ -15,7 +15,13 @@ import numpy.typing as npt
 
 from cam2sim.core import frames
 
-__all__ = ["DropReason", "Trajectory", "TrajectorySample", "heading_from_motion"]
+__all__ = [
+    "DropReason",
+    "Trajectory",
+    "TrajectorySample",
+    "heading_from_motion",
+    "pitch_from_motion",
+]
 
 
 class DropReason:
@@ -157,3 +163,34 @@ def heading_from_motion(
     first = int(np.flatnonzero(moving)[0])
     idx[idx < 0] = first
     return frames.unwrap_angles(heading[idx])
+
+
+def pitch_from_motion(
+    position: npt.NDArray[np.float64], *, window_m: float
+) -> npt.NDArray[np.float64]:
+    """Pitch (radians, ROS: positive nose down) from the grade of the path over a centred window.
+
+    A car pitches with its road: the grade is the height gained over a chord of ``window_m``
+    metres of horizontal travel centred on each pose (shrunk at the ends of the path). Counted
+    in metres, not seconds, so slow driving and standing still do not amplify the height's
+    noise (0.1 m of GPS noise over 15 m: 0.5 degrees). Positions without heights give 0.
+
+    Args:
+        position: ``(N, 3)`` positions in time order, metres (z up).
+        window_m: Chord length, metres.
+    """
+    p = np.asarray(position, dtype=np.float64).reshape(-1, 3)
+    if len(p) < 2:
+        return np.zeros(len(p))
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p[:, :2], axis=0), axis=1))])
+    if not s[-1] > 0:
+        return np.zeros(len(p))
+    # Heights at equal arc lengths: repeated s (standing still) keeps the first sample's height.
+    s_unique, first = np.unique(s, return_index=True)
+    z = p[first, 2]
+    s0 = np.clip(s - 0.5 * window_m, 0.0, s[-1])
+    s1 = np.clip(s + 0.5 * window_m, 0.0, s[-1])
+    rise = np.interp(s1, s_unique, z) - np.interp(s0, s_unique, z)
+    run = s1 - s0
+    pitch = np.where(run > 0, -np.arctan2(rise, np.maximum(run, 1e-9)), 0.0)
+    return np.asarray(pitch, dtype=np.float64)

@@ -1,0 +1,47 @@
+"""Orientation from motion for poses that give none (GPS fixes): the pitch from the grade."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cam2sim.core.trajectory import pitch_from_motion
+
+
+def _hill(n: int = 400, step_m: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """A road along x: flat for 100 m, a 6 % climb for 150 m, flat again (heights, grade)."""
+    x = np.arange(n) * step_m
+    grade = np.where((x >= 100.0) & (x < 250.0), 0.06, 0.0)
+    z = np.concatenate([[0.0], np.cumsum(grade[:-1] * step_m)])
+    return np.stack([x, 0.5 * x, z], -1), grade
+
+
+def test_pitch_is_the_grade_nose_up_when_climbing() -> None:
+    xyz, _ = _hill()
+    pitch = pitch_from_motion(xyz, window_m=15.0)
+    along = np.hypot(xyz[:, 0], xyz[:, 1])
+    mid_climb = (along > 130.0) & (along < 260.0)  # 15 m chords inside the climb
+    flat = along < 100.0
+    # ROS pitch is positive nose down: a climb is negative. The run is horizontal travel.
+    run_grade = 0.06 / np.hypot(1.0, 0.5)
+    want = -np.degrees(np.arctan(run_grade))
+    assert np.degrees(pitch[mid_climb]) == pytest.approx(want, abs=0.01)
+    assert np.abs(pitch[flat]).max() < 1e-12
+
+
+def test_standing_still_and_noise_do_not_tilt_the_car() -> None:
+    xyz, _ = _hill()
+    still = np.repeat(xyz[150:151], 50, axis=0)  # 50 fixes at one place, mid-climb
+    path = np.concatenate([xyz[:150], still, xyz[151:]])
+    pitch = pitch_from_motion(path, window_m=15.0)
+    assert np.ptp(pitch[150:200]) < 1e-12  # the same chord while standing
+    noisy = xyz + np.random.default_rng(0).normal(0.0, 0.1, xyz.shape)
+    err = pitch_from_motion(noisy, window_m=15.0) - pitch_from_motion(xyz, window_m=15.0)
+    assert np.degrees(np.abs(err)).mean() < 0.6  # 0.1 m over 15 m: about half a degree
+
+
+def test_no_heights_or_no_motion_give_a_level_car() -> None:
+    flat = np.stack([np.arange(10.0), np.zeros(10), np.zeros(10)], -1)
+    assert not pitch_from_motion(flat, window_m=15.0).any()
+    assert not pitch_from_motion(np.zeros((5, 3)), window_m=15.0).any()
+    assert pitch_from_motion(np.zeros((1, 3)), window_m=15.0).shape == (1,)
