@@ -235,7 +235,7 @@ def _offset_scores(
 
     coverage: list[float] = []
     with BackgroundJobs[tuple[float | None, float | None, float | None]](
-        1 if lpips is not None else None, name="cam2sim-splat-offsets"
+        _scoring_workers(lpips), name="cam2sim-splat-offsets"
     ) as jobs:
         for offset in offsets:
             for frame, centre, exclude in frames:
@@ -259,6 +259,17 @@ def _offset_scores(
             )
         )
     return out
+
+
+def _scoring_workers(lpips: Lpips | None) -> int | None:
+    """Worker threads for scoring pairs: one where LPIPS runs on the CPU, else every CPU.
+
+    LPIPS on the CPU already spreads over the cores (torch's own threads); scoring beside it
+    would fight them. On a GPU the pairs' reading, lossless WebP writing (about 0.1 s a
+    KITTI frame), PSNR and SSIM are CPU work that threads share (OpenCV and numpy release
+    the GIL; torch's CUDA calls may come from any thread).
+    """
+    return 1 if lpips is not None and lpips.device.type == "cpu" else None
 
 
 def _load_lpips(
@@ -352,10 +363,9 @@ def evaluate_splat(
         kept_for_offsets = []
         masks = []
         total = len(held) + len(pick) * len(offsets)
-        # This thread renders (the GPU); reading, scoring and writing run on worker threads
-        # (LPIPS, a torch model on the renderer's device, keeps them in this one).
+        # This thread renders (the GPU); reading, scoring and writing run on worker threads.
         with BackgroundJobs[HeldOutFrame](
-            1 if lpips is not None else None, name="cam2sim-splat-eval"
+            _scoring_workers(lpips), name="cam2sim-splat-eval"
         ) as jobs:
             for n, frame in enumerate(held):
                 exclude = frame_exclusion(prep_dir, frame)
