@@ -163,7 +163,9 @@ def main() -> int:
     rows: list[dict[str, Any]] = []
     tiles = []
     rates = turn_rates(scene.frames)
-    with SplatRenderer(Path(args.models), options=RenderOptions(device=args.device)) as renderer:
+    with SplatRenderer(  # at the scene's own poses
+        Path(args.models), options=RenderOptions(device=args.device, pose_frame="model")
+    ) as renderer:
         for frame in scene.frames[:: args.every]:
             real = read_rgb(prep / "images" / f"{frame.index:06d}.png").astype(np.float32) / 255
             rgb = renderer.render(frame.T(), frame.camera()).rgb

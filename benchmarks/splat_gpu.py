@@ -193,7 +193,9 @@ def time_rendering(prep: Path, models: Path, frames_wanted: int) -> dict[str, An
     # K scaled from the image corner, as resize_prep scales it.
     poses = [(f.T(), f.camera().scaled(*size, convention="corners")) for f in scene.frames]
     result: dict[str, Any] = {}
-    with SplatRenderer(models, options=RenderOptions(device="cuda")) as renderer:
+    with SplatRenderer(
+        models, options=RenderOptions(device="cuda", pose_frame="model")
+    ) as renderer:
         n_chunks = [len(renderer.render(pose, cam).chunk_weights) for pose, cam in poses]
         blended = [p for p, n in zip(poses, n_chunks, strict=True) if n > 1]
         single = [p for p, n in zip(poses, n_chunks, strict=True) if n == 1] or poses

@@ -210,7 +210,8 @@ def run_setting(  # noqa: PLR0913, PLR0915, PLR0917 -- one process's whole job
         from cam2sim.splat.render import RenderOptions, SplatRenderer  # noqa: PLC0415
 
         frame = next(f for f in scene.frames if f.index == montage_frame)
-        with SplatRenderer(models, options=RenderOptions(device=device)) as renderer:
+        options = RenderOptions(device=device, pose_frame="model")  # at the scene's own pose
+        with SplatRenderer(models, options=options) as renderer:
             image = renderer.render(frame.T(), frame.camera()).rgb
         np.save(out / f"{name}_render.npy", image)
 

@@ -381,6 +381,10 @@ def test_poses_of_a_real_recording_are_bundle_adjusted_toward_where_the_car_was(
 
     assert error(gps) < 0.7 * error(kept)  # nearer where the frames were taken
     assert error(oriented) < error(kept)
+    # The closed loop poses the camera where the recording put it: each adjusted frame says
+    # how to reach the model from there; frames kept as recorded need nothing.
+    assert all(f.from_recorded is not None for f in gps.frames + oriented.frames)
+    assert all(f.from_recorded is None for f in kept.frames)
     left = prepare_scene(_workspace(tmp_path / "default", lidar=False), options=opts)
     assert left.pose_source == "recording"  # oriented poses: kept unless asked
 

@@ -81,8 +81,10 @@ def write_chunk(
     gains: list[float] | None = None,
     *,
     antialiased: bool = False,
+    from_recorded: list[float] | None = None,
 ) -> None:
-    """A chunk with training views every 0.5 m of its extent; ``gains`` scale their colours."""
+    """A chunk with training views every 0.5 m of its extent; ``gains`` scale their colours;
+    ``from_recorded``: every view's correction from the recorded poses (the preparation's)."""
     progress = np.arange(extent[0], extent[1] + 1e-9, 0.5)
     views = [
         gm.ViewRecord(
@@ -90,6 +92,7 @@ def write_chunk(
             progress_m=float(p),
             position=[0.0, float(p), 1.5],
             forward=[0.0, 1.0, 0.0],
+            from_recorded=from_recorded,
         )
         for p in progress
     ]
@@ -245,6 +248,25 @@ def test_appearance_is_interpolated_between_training_views(tmp_path: Path) -> No
         tuned = renderer.render(pose, CAMERA).rgb.astype(float)
     bright = plain > 40
     assert np.median(tuned[bright] / plain[bright]) == pytest.approx(0.6, abs=0.02)
+
+
+def test_recorded_poses_reach_the_model_through_the_views_corrections(tmp_path: Path) -> None:
+    """Models trained at adjusted poses (0.4 m right of and 2 degrees left of the record, in the
+    camera frame): a recorded pose renders what the adjusted pose shows; the evaluation, at the
+    scene's own poses, asks for the model's frame."""
+    models = tmp_path / "models"
+    turn = np.radians(2.0)
+    write_chunk(models, 0, (0.0, 3.0), (0.0, 0.0, 0.0), from_recorded=[0.0, -turn, 0.0, 0.4, 0, 0])
+    recorded = camera_pose(1.0, x=-0.4)
+    adjusted = camera_pose(1.0, yaw_deg=-2.0)  # camera y points down: -turn about it is a left turn
+    with SplatRenderer(models, options=_cpu(appearance="none")) as renderer:
+        mapped = renderer.render(recorded, CAMERA)
+    with SplatRenderer(models, options=_cpu(appearance="none", pose_frame="model")) as renderer:
+        at_adjusted = renderer.render(adjusted, CAMERA).rgb.astype(float)
+        at_recorded = renderer.render(recorded, CAMERA).rgb.astype(float)
+    assert np.abs(mapped.rgb.astype(float) - at_adjusted).max() <= 1.0
+    assert np.abs(at_recorded - at_adjusted).mean() > 5.0  # the correction matters here
+    assert mapped.distance_m < 0.05  # coverage is measured in the model: on a training view
 
 
 def test_chunks_load_lazily_and_are_evicted(two_chunks: Path) -> None:

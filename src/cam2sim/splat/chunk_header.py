@@ -29,6 +29,11 @@ class ViewRecord(pydantic.BaseModel):
         description="Learned pose correction (omega, t) of this view, when pose refinement ran "
         "(cam2sim.splat.pose_refine); position and forward are already corrected",
     )
+    from_recorded: list[float] | None = pydantic.Field(
+        None,
+        description="The correction from a recorded pose near this view to the model's, when "
+        "the preparation adjusted the poses (cam2sim.splat.scene.FrameRecord.from_recorded)",
+    )
 
 
 class ChunkHeader(Artifact):

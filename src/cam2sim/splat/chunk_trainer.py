@@ -573,6 +573,7 @@ class ChunkTrainer:
                 position=pose[:3, 3].tolist(),
                 forward=pose[:3, 2].tolist(),
                 correction=delta,
+                from_recorded=f.from_recorded,
             )
             for f, pose, delta in zip(self.views.frames, poses, deltas, strict=True)
         ]

@@ -352,7 +352,10 @@ def evaluate_splat(
     if not held:
         msg = f"{prep_dir / 'scene.json'} marks no frame held_out; re-run splat preparation"
         raise StageError(msg)
-    render_options = RenderOptions(device=opts.device, backend=opts.backend, street_alpha=True)
+    # The held-out frames are scored at the scene's own (adjusted) poses: the models' frame.
+    render_options = RenderOptions(
+        device=opts.device, backend=opts.backend, street_alpha=True, pose_frame="model"
+    )
     cache: RenderCache = {}
     envelope = None
     with SplatRenderer(models_dir, options=render_options) as renderer:
@@ -426,7 +429,7 @@ def _truth_scores(
     """The models against the ground-truth camera on and off the path (``eval.json``'s truth)."""
     # Colours only (no street share): a 320x200 demo frame on 2 CPU cores takes 0.22 s
     # instead of 0.31 s.
-    plain = RenderOptions(device=opts.device, backend=opts.backend)
+    plain = RenderOptions(device=opts.device, backend=opts.backend, pose_frame="model")
     with SplatRenderer(models_dir, options=plain) as renderer:
         return truth_envelope(
             renderer,

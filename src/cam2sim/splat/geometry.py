@@ -28,8 +28,10 @@ __all__ = [
     "chunks_by_distance",
     "distance_travelled",
     "interpolated_corrections",
+    "recorded_to_model",
     "select_by_distance",
     "similarity_from_poses",
+    "smoothed_corrections",
     "undistort_camera",
     "undistorter",
     "voxel_downsample",
@@ -363,6 +365,80 @@ def interpolated_corrections(
     C[:, :3, :3] = fr.quat_to_matrix(fr.slerp(quat[before], quat[after], t))
     C[:, :3, 3] = (1 - t)[:, None] * corr[before, :3, 3] + t[:, None] * corr[after, :3, 3]
     out[todo] = rec[todo] @ C
+    return out
+
+
+def smoothed_corrections(
+    recorded: npt.ArrayLike,
+    adjusted: npt.ArrayLike,
+    progress_m: npt.ArrayLike,
+    use: npt.ArrayLike,
+    *,
+    sigma_m: float,
+    step_m: float = 0.25,
+) -> npt.NDArray[np.float64]:
+    """Each frame's correction from its recorded pose to its adjusted one, smoothed along the route.
+
+    A frame's correction is ``D = T_recorded^-1 T_adjusted`` (in its camera frame), written as
+    ``(rotation vector, translation)``; the corrections of the frames in ``use`` are averaged
+    with a Gaussian of ``sigma_m`` metres of route progress (through a grid of ``step_m``) and
+    read at every frame. What a bundle adjustment corrects slowly (a GPS drift, a heading taken
+    from motion that misses the car's slip in a turn) stays; a recorded pose's frame-to-frame
+    jitter, which a pose on a smooth path (the closed loop's) does not have, is averaged out.
+
+    Args:
+        recorded: ``(N, 4, 4)`` recorded poses ``T_world_cam``.
+        adjusted: ``(N, 4, 4)`` adjusted poses.
+        progress_m: ``(N,)`` route progress of each frame, metres.
+        use: ``(N,)`` bool, the frames whose corrections count (say, not the held-out ones).
+        sigma_m: Smoothing, metres of progress.
+        step_m: Grid spacing, metres.
+
+    Returns:
+        ``(N, 6)`` float64 rows ``(rx, ry, rz, tx, ty, tz)``: see :func:`recorded_to_model`.
+
+    Raises:
+        ValueError: Shapes differ, or no frame is used.
+    """
+    from scipy.ndimage import gaussian_filter1d  # noqa: PLC0415 -- lazy: scipy is heavy
+
+    rec = np.asarray(recorded, dtype=np.float64)
+    adj = np.asarray(adjusted, dtype=np.float64)
+    s = np.asarray(progress_m, dtype=np.float64).reshape(-1)
+    mask = np.asarray(use, dtype=bool).reshape(-1)
+    if rec.shape != adj.shape or rec.ndim != 3 or rec.shape[1:] != (4, 4) or s.shape != mask.shape:
+        msg = (
+            f"need (N, 4, 4) poses, (N,) progress and use; got {rec.shape}, {adj.shape}, {s.shape}"
+        )
+        raise ValueError(msg)
+    if s.shape[0] != rec.shape[0] or not mask.any():
+        msg = f"need {rec.shape[0]} progress values and use flags, at least one used"
+        raise ValueError(msg)
+    corr = np.linalg.inv(rec[mask]) @ adj[mask]
+    rows = np.concatenate(
+        [fr.rotvec_from_quat(fr.quat_from_matrix(corr[:, :3, :3])), corr[:, :3, 3]], 1
+    )
+    order = np.argsort(s[mask], kind="stable")
+    known_s, rows = s[mask][order], rows[order]
+    grid = np.arange(s.min(), s.max() + step_m, step_m)
+    on_grid = np.stack([np.interp(grid, known_s, rows[:, k]) for k in range(6)], -1)
+    smooth = gaussian_filter1d(on_grid, sigma_m / step_m, axis=0, mode="nearest")
+    return np.stack([np.interp(s, grid, smooth[:, k]) for k in range(6)], -1)
+
+
+def recorded_to_model(
+    T_world_cam: npt.ArrayLike, correction: npt.ArrayLike
+) -> npt.NDArray[np.float64]:
+    """Poses with a :func:`smoothed_corrections` row applied: ``T exp(D)``.
+
+    ``T_world_cam`` is ``(4, 4)`` with a ``(6,)`` row or ``(N, 4, 4)`` with ``(N, 6)`` rows.
+    """
+    T = np.asarray(T_world_cam, dtype=np.float64)
+    rows = np.asarray(correction, dtype=np.float64).reshape(-1, 6)
+    D = np.tile(np.eye(4), (len(rows), 1, 1))
+    D[:, :3, :3] = fr.quat_to_matrix(fr.quat_from_rotvec(rows[:, :3]))
+    D[:, :3, 3] = rows[:, 3:]
+    out: npt.NDArray[np.float64] = (T.reshape(-1, 4, 4) @ D).reshape(T.shape)
     return out
 
 

@@ -53,6 +53,7 @@ from cam2sim.splat.geometry import (
     chunks_by_distance,
     distance_travelled,
     select_by_distance,
+    smoothed_corrections,
     undistort_camera,
     undistorter,
     voxel_downsample,
@@ -109,6 +110,11 @@ KITTI 03's ground-truth poses are not pixel-consistent with its frames; held to 
 5 cm the adjustment moved them 0.08 m on average (0.18 m at most), and the CPU splat gained on
 held-out frames that took no part in it (docs/benchmarks.md). A freer chain drifts from the
 record (0.54 m rms at 1 m), which the closed loop, rendering at recorded poses, would see."""
+CORRECTION_SIGMA_M = 2.0
+"""Where the preparation adjusted the recorded poses, the renderer maps a recorded (or
+simulated) pose into the model through the corrections of the nearby frames, smoothed with a
+Gaussian of this many metres of the route: a GPS drift or a heading that missed the car's slip
+in a turn varies over tens of metres and stays, a fix's frame-to-frame jitter goes."""
 
 _HOOD_FRAMES = 30
 _SKY_BATCH = 8
@@ -482,6 +488,7 @@ class _Posed:
     pose_source: str
     scale_ambiguous: bool
     notes: list[str]
+    recorded: npt.NDArray[np.float64] | None = None  # (M, 4, 4) where ``poses`` are not these
 
 
 def is_held_out(index: int, every: int) -> bool:
@@ -633,6 +640,7 @@ def _with_poses(
         pose_source,
         scale_ambiguous=False,
         notes=notes,
+        recorded=recorded if pose_source == "refined" else None,
     )
 
 
@@ -710,7 +718,7 @@ def _posed_from_sfm(
         )
     ]
     poses, xyz = result.T_world_cam, result.points.xyz
-    scale_ambiguous = True
+    scale_ambiguous, recorded = True, None
     if kept.position is not None and kept.quat is not None and rows.shape[0] >= 3:
         recorded = camera_poses(kept.position, kept.quat, sfm.mount)
         S = similarity_from_poses(poses, recorded)
@@ -739,6 +747,7 @@ def _posed_from_sfm(
         "sfm",
         scale_ambiguous,
         notes,
+        recorded=recorded,
     )
 
 
@@ -761,6 +770,19 @@ def _scene_record(posed: _Posed, notes: list[str], opts: PrepareOptions) -> Scen
         )
     member = chunk_membership(chunks)
     cam = posed.camera
+    held = [is_held_out(i, opts.held_out_every) for i in range(len(posed.source.frame))]
+    from_recorded: list[list[float] | None] = [None] * len(held)
+    if posed.recorded is not None and not all(held):
+        # The closed loop renders at recorded poses: the model is reached through each pose's
+        # smoothed correction (the held-out views', fitted to their own images, do not count).
+        rows = smoothed_corrections(
+            posed.recorded,
+            posed.poses,
+            posed.progress_m,
+            ~np.asarray(held),
+            sigma_m=CORRECTION_SIGMA_M,
+        )
+        from_recorded = [[float(v) for v in r] for r in rows]
     frame_records = [
         FrameRecord(
             index=i,
@@ -773,9 +795,10 @@ def _scene_record(posed: _Posed, notes: list[str], opts: PrepareOptions) -> Scen
             cy=cam.cy,
             width=cam.width,
             height=cam.height,
-            held_out=is_held_out(i, opts.held_out_every),
+            held_out=held[i],
             chunks=member.get(i, []),
             progress_m=float(posed.progress_m[i]),
+            from_recorded=from_recorded[i],
         )
         for i in range(len(posed.source.frame))
     ]

@@ -29,6 +29,14 @@ centres, ``a_i`` the angle (degrees) between the optical axes, ``d0 = coverage_d
 (1 m) and ``a0 = coverage_angle_deg`` (15 degrees). 0 on a training view; 0.39 at one ``d0``
 (or one ``a0``) away; 0.86 at two; 0.99 at three. A high value flags a render that extrapolates
 beyond the recorded views and should not be trusted; it does not measure image quality.
+
+**Recorded poses.** Where the preparation adjusted the recorded poses (a bundle adjustment of
+GPS fixes, SfM aligned to the record), the models live at the adjusted poses while replays and
+closed-loop drives pose the camera in the recording's frame. With ``pose_frame="recorded"``
+(the default) a pose is first taken into the model by the smoothed correction of the training
+views near it (``ViewRecord.from_recorded``, interpolated in progress): at a recorded pose the
+camera sees what the adjusted one saw, and a step sideways stays a step sideways. The splat
+evaluation, which renders at the scene's own (adjusted) poses, passes ``pose_frame="model"``.
 """
 
 from __future__ import annotations
@@ -43,6 +51,7 @@ from typing import TYPE_CHECKING, ClassVar, Literal, Self
 import numpy as np
 
 from cam2sim.core.errors import WorkspaceError
+from cam2sim.splat.geometry import recorded_to_model
 from cam2sim.splat.raster import rasterize, resolve_backend, resolve_device
 
 if TYPE_CHECKING:
@@ -74,6 +83,8 @@ class RenderOptions:
         near_plane: Gaussians closer than this (metres) are not drawn.
         street_alpha: Also return the street share of each pixel (costs speed: colours are
             then evaluated for every Gaussian instead of in gsplat's fused SH kernel).
+        pose_frame: ``"recorded"``: poses are in the recording's frame (module doc);
+            ``"model"``: in the models' own (the prepared scene's poses).
     """
 
     device: str = "auto"
@@ -84,6 +95,7 @@ class RenderOptions:
     coverage_angle_deg: float = 15.0
     near_plane: float = 0.01
     street_alpha: bool = False
+    pose_frame: Literal["recorded", "model"] = "recorded"
 
 
 @dataclass(frozen=True)
@@ -204,6 +216,15 @@ class SplatRenderer:
         forwards = np.array([v.forward for v in ordered], dtype=np.float64)
         self._forwards = forwards / np.linalg.norm(forwards, axis=1, keepdims=True)
         self._extents = [(h.chunk_id, h.start_m, h.end_m) for h in self.headers.values()]
+        mapped = [v for v in ordered if v.from_recorded is not None]
+        self._from_recorded = (
+            (
+                np.array([v.progress_m for v in mapped], dtype=np.float64),
+                np.array([v.from_recorded for v in mapped], dtype=np.float64),
+            )
+            if mapped and self.options.pose_frame == "recorded"
+            else None
+        )
         self._loaded: OrderedDict[int, _Loaded] = OrderedDict()
         _log.info(
             "splat renderer: %d chunk(s), %d training views, %s on %s",
@@ -397,6 +418,10 @@ class SplatRenderer:
         camera.require_undistorted("the splat renderer")
         k, width, height = camera.K(), camera.width, camera.height
         progress = self.progress_of(pose[:3, 3])
+        if self._from_recorded is not None:
+            at, table = self._from_recorded
+            pose = recorded_to_model(pose, [np.interp(progress, at, table[:, j]) for j in range(6)])
+            progress = self.progress_of(pose[:3, 3])
         weights = chunk_weights(self._extents, progress)
         coverage, distance, angle = self.coverage_of(pose)
         mode = appearance or self.options.appearance

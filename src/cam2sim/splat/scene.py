@@ -49,6 +49,14 @@ class FrameRecord(pydantic.BaseModel):
     )
     chunks: list[int] = pydantic.Field(default_factory=list, description="Chunks it belongs to")
     progress_m: float = pydantic.Field(0.0, description="Distance travelled at this frame")
+    from_recorded: list[float] | None = pydantic.Field(
+        None,
+        description="Where the preparation adjusted the recorded poses (bundle adjustment): "
+        "the correction from the recorded pose near this frame to the model's, (rotation "
+        "vector, translation m) in the camera frame, smoothed along the route "
+        "(cam2sim.splat.geometry.smoothed_corrections); the closed loop renders at recorded "
+        "poses and the renderer applies it",
+    )
 
     def T(self) -> npt.NDArray[np.float64]:
         """``T_world_cam`` as a (4, 4) array."""

@@ -28,7 +28,7 @@ from cam2sim.splat.distributed import train_scene_on_ray
 from cam2sim.splat.envelope import RigView, TruthEnvelopeOptions, TruthReference, rig_scores
 from cam2sim.splat.evaluate import EvalOptions, evaluate_splat
 from cam2sim.splat.prepare import PrepareOptions, prepare_scene
-from cam2sim.splat.render import SplatRenderer
+from cam2sim.splat.render import RenderOptions, SplatRenderer
 from cam2sim.splat.scene import SceneRecord
 from cam2sim.splat.train import TrainOptions, train_scene
 from cam2sim.splat.train_options import DensifyOptions, LearningRates
@@ -322,7 +322,7 @@ def _rig_views(ws: Workspace) -> list[RigView]:
 def _score_rig(models_dir: Path, scene: SceneRecord, rig: list[RigView]) -> list[RigScore]:
     """PSNR and SSIM at the rig cameras' real frames (LPIPS left out: PSNR, SSIM suffice)."""
     held = [f for f in scene.frames if f.held_out]
-    with SplatRenderer(models_dir) as renderer:
+    with SplatRenderer(models_dir, options=RenderOptions(pose_frame="model")) as renderer:
         return rig_scores(renderer, rig, held, lpips=None)
 
 

@@ -27,12 +27,14 @@ __all__ = [
     "quat_conjugate",
     "quat_from_euler",
     "quat_from_matrix",
+    "quat_from_rotvec",
     "quat_from_yaw",
     "quat_inverse",
     "quat_multiply",
     "quat_normalize",
     "quat_rotate",
     "quat_to_matrix",
+    "rotvec_from_quat",
     "slerp",
     "unwrap_angles",
     "wrap_angle",
@@ -192,6 +194,44 @@ def quat_from_matrix(R: npt.ArrayLike) -> npt.NDArray[np.float64]:
     q = np.take_along_axis(cand, choice[..., None, None], axis=-2)[..., 0, :]
     q = quat_normalize(q)
     return np.where(q[..., 3:] < 0.0, -q, q)
+
+
+def rotvec_from_quat(q: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Rotation vectors (axis times angle, radians, angle in ``[0, pi]``) of quaternions.
+
+    Args:
+        q: ``(..., 4)`` quaternions ``(x, y, z, w)``.
+
+    Returns:
+        ``(..., 3)`` float64.
+    """
+    u = quat_normalize(q)
+    u = np.where(u[..., 3:] < 0.0, -u, u)
+    norm = np.linalg.norm(u[..., :3], axis=-1)
+    angle = 2.0 * np.arctan2(norm, u[..., 3])
+    # angle / sin(angle / 2), with its limit 2 at zero
+    scale = np.where(norm > 1e-12, angle / np.maximum(norm, 1e-300), 2.0)
+    out: npt.NDArray[np.float64] = u[..., :3] * scale[..., None]
+    return out
+
+
+def quat_from_rotvec(v: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Quaternions ``(x, y, z, w)`` of rotation vectors (inverse of :func:`rotvec_from_quat`).
+
+    Args:
+        v: ``(..., 3)`` axis times angle, radians.
+
+    Returns:
+        ``(..., 4)`` float64 unit quaternions.
+    """
+    r = _as_float(v, "v")
+    if r.shape[-1:] != (3,):
+        msg = f"v must have shape (..., 3), got {r.shape}"
+        raise ValueError(msg)
+    angle = np.linalg.norm(r, axis=-1)
+    # sin(angle / 2) / angle, with its limit 1/2 at zero
+    scale = np.where(angle > 1e-12, np.sin(0.5 * angle) / np.maximum(angle, 1e-300), 0.5)
+    return np.concatenate([r * scale[..., None], np.cos(0.5 * angle)[..., None]], axis=-1)
 
 
 def quat_from_yaw(yaw: npt.ArrayLike) -> npt.NDArray[np.float64]:
