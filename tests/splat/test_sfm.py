@@ -192,7 +192,9 @@ def test_held_out_views_shape_nothing_and_are_aligned_to_their_own_images(
                 [KnownView(K, T) for T in recorded],
                 window=5,
                 refine=PoseAdjustment(prior_m=prior_m, held_out=tuple(held)),
-                features=FeatureOptions(num_threads=2),
+                # One thread: matching and the adjustment on threads vary in the last bits from
+                # run to run, and the adjustment can carry that far (flaky at 2 threads).
+                features=FeatureOptions(num_threads=1),
             )
         )
     a, b = runs
