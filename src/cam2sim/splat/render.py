@@ -395,7 +395,8 @@ class SplatRenderer:
         """Render the view of a pinhole camera.
 
         Args:
-            T_world_cam: ``(4, 4)`` camera (OpenCV optical axes) -> world, metres.
+            T_world_cam: ``(4, 4)`` camera (OpenCV optical axes) -> world, metres, in the
+                frame ``options.pose_frame`` names (module doc, "Recorded poses").
             camera: The camera of the wanted image (intrinsics and size, pixels), without lens
                 distortion: the image is an undistorted pinhole image, as the models were
                 trained on.
