@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from cam2sim.core import frames
+from cam2sim.core.polyline import arc_length
 
 __all__ = [
     "DropReason",
@@ -182,7 +183,7 @@ def pitch_from_motion(
     p = np.asarray(position, dtype=np.float64).reshape(-1, 3)
     if len(p) < 2:
         return np.zeros(len(p))
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p[:, :2], axis=0), axis=1))])
+    s = arc_length(p[:, :2])
     if not s[-1] > 0:
         return np.zeros(len(p))
     # Heights at equal arc lengths: repeated s (standing still) keeps the first sample's height.
