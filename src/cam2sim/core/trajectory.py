@@ -21,6 +21,7 @@ __all__ = [
     "Trajectory",
     "TrajectorySample",
     "heading_from_motion",
+    "orientation_from_motion",
     "pitch_from_motion",
 ]
 
@@ -195,3 +196,23 @@ def pitch_from_motion(
     run = s1 - s0
     pitch = np.where(run > 0, -np.arctan2(rise, np.maximum(run, 1e-9)), 0.0)
     return np.asarray(pitch, dtype=np.float64)
+
+
+def orientation_from_motion(
+    stamp_ns: npt.NDArray[np.int64],
+    position: npt.NDArray[np.float64],
+    *,
+    window_s: float,
+    min_speed_mps: float,
+    pitch_window_m: float,
+) -> npt.NDArray[np.float64]:
+    """``(N, 4)`` quaternions for poses that give none (GPS fixes), in time order.
+
+    The heading is :func:`heading_from_motion`'s, the pitch :func:`pitch_from_motion`'s, the
+    roll zero.
+    """
+    heading = heading_from_motion(
+        stamp_ns, position, window_s=window_s, min_speed_mps=min_speed_mps
+    )
+    pitch = pitch_from_motion(position, window_m=pitch_window_m)
+    return frames.quat_from_euler(0.0, pitch, heading)

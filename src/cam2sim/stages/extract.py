@@ -44,7 +44,7 @@ from cam2sim.core.files import (
 from cam2sim.core.images import frames_are_grey
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.table import write_table
-from cam2sim.core.trajectory import Trajectory, heading_from_motion, pitch_from_motion
+from cam2sim.core.trajectory import Trajectory, orientation_from_motion
 from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
 from cam2sim.recording.bag import BagMessage, Recording
 from cam2sim.recording.pointcloud import decode_pointcloud
@@ -253,14 +253,13 @@ def world_trajectory_from_track(
         position = wf.from_crs(world.source_crs, track.position)
     pose_cfg = config.pose
     if pose_cfg.heading == "motion" or (track.quat is None and orientation is None):
-        heading = heading_from_motion(
+        quat = orientation_from_motion(
             track.stamp_ns,
             position,
             window_s=config.sync.heading_window_s,
             min_speed_mps=config.sync.min_motion_speed_mps,
+            pitch_window_m=config.sync.pitch_window_m,
         )
-        pitch = pitch_from_motion(position, window_m=config.sync.pitch_window_m)
-        quat = frames.quat_from_euler(0.0, pitch, heading)
     else:
         if track.quat is not None:
             quat = track.quat

@@ -48,7 +48,7 @@ from cam2sim.core.files import atomic_folder, file_fingerprint, write_bytes_atom
 from cam2sim.core.images import frames_are_grey
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.table import write_table
-from cam2sim.core.trajectory import Trajectory, heading_from_motion, pitch_from_motion
+from cam2sim.core.trajectory import Trajectory, orientation_from_motion
 from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
 from cam2sim.recording.kitti_calibration import (
     KITTI_RAW_FILES,
@@ -431,19 +431,20 @@ def _heading_quats(
         msg = "the pose file gives no orientation and no times; add yaw or qx,qy,qz,qw"
         raise RecordingError(msg)
     order = np.argsort(table.stamp_ns, kind="stable")
-    heading, pitch = np.empty(len(order)), np.empty(len(order))
-    heading[order] = heading_from_motion(
+    quat = np.empty((len(order), 4))
+    quat[order] = orientation_from_motion(
         table.stamp_ns[order],
         xyz[order],
         window_s=sync.heading_window_s,
         min_speed_mps=sync.min_motion_speed_mps,
+        pitch_window_m=sync.pitch_window_m,
     )
-    pitch[order] = pitch_from_motion(xyz[order], window_m=sync.pitch_window_m)
+    pitch = frames.euler_from_quat(quat).pitch
     logger.info(
         "import: the poses give no orientation; heading from the direction of travel, pitch "
         "from the grade (%.1f to %.1f degrees)", np.degrees(pitch.min()), np.degrees(pitch.max())
     )  # fmt: skip
-    return frames.quat_from_euler(0.0, pitch, heading)
+    return quat
 
 
 @dataclass(frozen=True)
