@@ -16,6 +16,9 @@
 #                                                # worker's set-up times and DAVE-2's epochs)
 #                                                # (RUN_ARGS: more `cam2sim run` options, e.g.
 #                                                # --recorded-speed, the default for KITTI)
+#                                                # (POSES=gps: KITTI's poses as GPS fixes,
+#                                                # benchmarks/gps_fixes.py, imported as a
+#                                                # GPS logger's CSV: no orientation)
 #   PHASE=wait bash benchmarks/gpu_kitti.sh      # watch it (repeat as needed; COLLECT=1:
 #                                                # collect as well once it has ended)
 #   PHASE=collect bash benchmarks/gpu_kitti.sh   # $OUT: the log, report.html, the workspace's
@@ -115,8 +118,13 @@ frames)
 run)
   cp .k03/c/images/* /tmp/kitti03/images/ && cp .k03/c/poses.txt .k03/c/K.txt /tmp/kitti03/ || exit 1
   echo "frames: $(ls /tmp/kitti03/images | wc -l) (801 wanted)"
+  poses=/tmp/kitti03/poses.txt
+  if [ "${POSES:-kitti}" = gps ]; then # KITTI's poses as a GPS logger's fixes (no orientation)
+    python3 benchmarks/gps_fixes.py --poses $poses --out /tmp/kitti03/gps.csv || exit 1
+    poses=/tmp/kitti03/gps.csv
+  fi
   setsid nohup bash -c "time (python3 -m cam2sim import $ws --images /tmp/kitti03/images \
-    --poses /tmp/kitti03/poses.txt --calibration /tmp/kitti03/K.txt --fps 10 \
+    --poses $poses --calibration /tmp/kitti03/K.txt --fps 10 \
     --pose-offset fit,0,1.65 && python3 -m cam2sim -v run -o $ws ${RUN_ARGS:-})" > /tmp/kitti.log 2>&1 < /dev/null &
   sleep 5
   watch
