@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cam2sim.core import frames as fr
-from cam2sim.splat.geometry import recorded_to_model, smoothed_corrections
+from cam2sim.splat.geometry import on_route_ground, recorded_to_model, smoothed_corrections
 
 
 def _poses(x: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> np.ndarray:
@@ -58,3 +58,27 @@ def test_smoothed_corrections_refuse_mismatched_input() -> None:
         smoothed_corrections(T, T[:4], np.arange(5.0), np.ones(5, bool), sigma_m=1.0)
     with pytest.raises(ValueError, match="at least one"):
         smoothed_corrections(T, T, np.arange(5.0), np.zeros(5, bool), sigma_m=1.0)
+
+
+def _tilted(yaw: float, pitch: float, roll: float, xyz: tuple[float, float, float]) -> np.ndarray:
+    """A camera (optical axes) on a car with ROS yaw, pitch (nose down) and roll, at ``xyz``."""
+    base = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    T = np.eye(4)
+    T[:3, :3] = fr.quat_to_matrix(fr.quat_from_euler(roll, pitch, yaw)) @ base
+    T[:3, 3] = xyz
+    return T
+
+
+def test_on_route_ground_keeps_the_vehicles_place_and_heading_and_takes_height_and_tilt() -> None:
+    """A planar car's camera (level, at a jittered GPS height) given the recorded view's height
+    and tilt: its own x, y and heading stay; it ends up as the recorded camera would stand
+    there, the car pitched 4 degrees on a grade and rolled 2 degrees."""
+    view = _tilted(np.radians(30.0), np.radians(4.0), np.radians(2.0), (5.0, 2.0, 1.65))
+    car = _tilted(np.radians(37.0), 0.0, 0.0, (5.3, 1.8, 1.95))
+    out = on_route_ground(car, 1.65, view[:3, 2], view[:3, 1])
+    want = _tilted(np.radians(37.0), np.radians(4.0), np.radians(2.0), (5.3, 1.8, 1.65))
+    np.testing.assert_allclose(out, want, atol=1e-9)
+    np.testing.assert_allclose(out[:3, :3] @ out[:3, :3].T, np.eye(3), atol=1e-12)
+    only_height = on_route_ground(car, 1.65, view[:3, 2], None)
+    np.testing.assert_allclose(only_height[:3, :3], car[:3, :3])
+    assert only_height[2, 3] == 1.65

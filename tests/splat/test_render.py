@@ -82,16 +82,22 @@ def write_chunk(
     *,
     antialiased: bool = False,
     from_recorded: list[float] | None = None,
+    pitch_deg: float | None = None,
 ) -> None:
     """A chunk with training views every 0.5 m of its extent; ``gains`` scale their colours;
-    ``from_recorded``: every view's correction from the recorded poses (the preparation's)."""
+    ``from_recorded``: every view's correction from the recorded poses (the preparation's);
+    ``pitch_deg``: the views look that much down and keep their image-down axis (else none)."""
+    p_rad = np.radians(pitch_deg or 0.0)
+    forward = [0.0, float(np.cos(p_rad)), float(-np.sin(p_rad))]
+    down = None if pitch_deg is None else [0.0, float(-np.sin(p_rad)), float(-np.cos(p_rad))]
     progress = np.arange(extent[0], extent[1] + 1e-9, 0.5)
     views = [
         gm.ViewRecord(
             index=round(p * 2),
             progress_m=float(p),
             position=[0.0, float(p), 1.5],
-            forward=[0.0, 1.0, 0.0],
+            forward=forward,
+            down=down,
             from_recorded=from_recorded,
         )
         for p in progress
@@ -267,6 +273,33 @@ def test_recorded_poses_reach_the_model_through_the_views_corrections(tmp_path: 
     assert np.abs(mapped.rgb.astype(float) - at_adjusted).max() <= 1.0
     assert np.abs(at_recorded - at_adjusted).mean() > 5.0  # the correction matters here
     assert mapped.distance_m < 0.05  # coverage is measured in the model: on a training view
+
+
+def pitched(pose: np.ndarray, pitch_deg: float) -> np.ndarray:
+    """``pose`` looking ``pitch_deg`` further down (about its own x axis)."""
+    a = np.radians(pitch_deg)
+    turn = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), np.sin(a)], [0.0, -np.sin(a), np.cos(a)]])
+    out = pose.copy()
+    out[:3, :3] = pose[:3, :3] @ turn
+    return out
+
+
+def test_vehicle_poses_take_the_views_height_and_tilt(tmp_path: Path) -> None:
+    """Views 1.5 m up looking 4 degrees down; a planar car's camera 0.3 m too high and level
+    (a GPS altitude, a road without pitch), turned 3 degrees: with ``pose_frame="vehicle"`` it
+    renders what the views' height and tilt show at its own place and heading."""
+    models = tmp_path / "models"
+    write_chunk(models, 0, (0.0, 3.0), (0.0, 0.0, 0.0), pitch_deg=4.0)
+    car = camera_pose(1.0, x=0.2, yaw_deg=3.0)
+    car[2, 3] = 1.8
+    expected = pitched(camera_pose(1.0, x=0.2, yaw_deg=3.0), 4.0)
+    with SplatRenderer(models, options=_cpu(appearance="none", pose_frame="vehicle")) as renderer:
+        as_vehicle = renderer.render(car, CAMERA).rgb.astype(float)
+    with SplatRenderer(models, options=_cpu(appearance="none", pose_frame="model")) as renderer:
+        want = renderer.render(expected, CAMERA).rgb.astype(float)
+        as_given = renderer.render(car, CAMERA).rgb.astype(float)
+    assert np.abs(as_vehicle - want).max() <= 1.0
+    assert np.abs(as_given - want).mean() > 5.0  # height and tilt matter here
 
 
 def test_chunks_load_lazily_and_are_evicted(two_chunks: Path) -> None:

@@ -24,10 +24,15 @@ class ViewRecord(pydantic.BaseModel):
     progress_m: float
     position: list[float] = pydantic.Field(description="Camera centre, world metres")
     forward: list[float] = pydantic.Field(description="Optical axis (camera +z), world, unit")
+    down: list[float] | None = pydantic.Field(
+        None,
+        description="Image-down axis (camera +y), world, unit; None in models written before "
+        "it was kept (the closed loop then takes only the views' height, not their tilt)",
+    )
     correction: list[float] | None = pydantic.Field(
         None,
         description="Learned pose correction (omega, t) of this view, when pose refinement ran "
-        "(cam2sim.splat.pose_refine); position and forward are already corrected",
+        "(cam2sim.splat.pose_refine); position, forward and down are already corrected",
     )
     from_recorded: list[float] | None = pydantic.Field(
         None,

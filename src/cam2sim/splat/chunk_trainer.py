@@ -572,6 +572,7 @@ class ChunkTrainer:
                 progress_m=f.progress_m,
                 position=pose[:3, 3].tolist(),
                 forward=pose[:3, 2].tolist(),
+                down=pose[:3, 1].tolist(),
                 correction=delta,
                 from_recorded=f.from_recorded,
             )

@@ -28,6 +28,7 @@ __all__ = [
     "chunks_by_distance",
     "distance_travelled",
     "interpolated_corrections",
+    "on_route_ground",
     "recorded_to_model",
     "select_by_distance",
     "similarity_from_poses",
@@ -439,6 +440,54 @@ def recorded_to_model(
     D[:, :3, :3] = fr.quat_to_matrix(fr.quat_from_rotvec(rows[:, :3]))
     D[:, :3, 3] = rows[:, 3:]
     out: npt.NDArray[np.float64] = (T.reshape(-1, 4, 4) @ D).reshape(T.shape)
+    return out
+
+
+def _level_rotation(heading: float) -> npt.NDArray[np.float64]:
+    """Camera (optical: x right, y down, z forward) -> world (z up) of a level camera."""
+    c, s = math.cos(heading), math.sin(heading)
+    return np.array([[s, 0.0, c], [-c, 0.0, s], [0.0, -1.0, 0.0]])
+
+
+def on_route_ground(
+    T_world_cam: npt.ArrayLike,
+    z: float,
+    forward: npt.ArrayLike,
+    down: npt.ArrayLike | None,
+) -> npt.NDArray[np.float64]:
+    """A planar vehicle's camera pose given the recorded camera's height and tilt at its place.
+
+    A closed-loop vehicle moves in the plane: of its camera pose only the position across the
+    ground and the heading are its own. Height, pitch and roll are the road's and the car's at
+    that place, which the training views know best (a GPS altitude jitters by decimetres, a
+    pitch taken from the grade is smoothed; either moves the horizon the policy sees). The
+    result keeps ``T_world_cam``'s ``x, y`` and heading (the azimuth of its optical axis) and
+    takes world height ``z`` and the tilt of a camera looking along ``forward`` with image-down
+    ``down`` (its rotation relative to a level camera of its own heading); with ``down`` None
+    only the height is taken.
+
+    Args:
+        T_world_cam: ``(4, 4)`` camera (OpenCV optical axes) -> world (z up), metres.
+        z: World height of the camera, metres.
+        forward: ``(3,)`` optical axis of the camera whose tilt is taken (need not be unit).
+        down: ``(3,)`` its image-down axis, or None.
+
+    Returns:
+        ``(4, 4)`` float64.
+    """
+    out = np.array(T_world_cam, dtype=np.float64)
+    out[2, 3] = z
+    if down is None:
+        return out
+    f = np.asarray(forward, dtype=np.float64)
+    f = f / np.linalg.norm(f)
+    d = np.asarray(down, dtype=np.float64)
+    d = d - (d @ f) * f
+    d = d / np.linalg.norm(d)
+    tilted = np.column_stack([np.cross(d, f), d, f])
+    tilt = _level_rotation(math.atan2(f[1], f[0])).T @ tilted
+    own = math.atan2(out[1, 2], out[0, 2])
+    out[:3, :3] = _level_rotation(own) @ tilt
     return out
 
 

@@ -28,7 +28,7 @@ from cam2sim.render.raster import RasterRenderer, RasterScene
 from cam2sim.render.truth import TruthRenderer
 from cam2sim.scenario.body import body_point_positions
 from cam2sim.scenario.model import Scenario
-from cam2sim.splat.render import SplatRenderer
+from cam2sim.splat.render import RenderOptions, SplatRenderer
 from cam2sim.stages.map import load_buildings, load_road_map
 
 if TYPE_CHECKING:
@@ -228,7 +228,8 @@ def _splat(ctx: RunContext) -> CameraRenderer:
     if not models.is_dir():
         msg = f"{ctx.ws.root} has no splat models; run `cam2sim splat {ctx.ws.root}`"
         raise StageError(msg)
-    return SplatRenderer(models)
+    # The run's vehicle is planar: its camera takes the recorded views' height and tilt.
+    return SplatRenderer(models, options=RenderOptions(pose_frame="vehicle"))
 
 
 register_camera("raster", _raster)
