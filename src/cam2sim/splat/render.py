@@ -42,8 +42,8 @@ evaluation, which renders at the scene's own (adjusted) poses, passes ``pose_fra
 roll come from the recorded pose nearest to it, which for GPS fixes jitter (an altitude by
 decimetres) or are estimated (a pitch from the grade). A steering model trained on the
 recorded frames reads the horizon: on the KITTI drive as GPS fixes, 10 cm lower changed
-DAVE-2's answer by up to 1.3 units and 0.5 degrees of pitch by up to 1.8, where 10 cm sideways
-or 0.5 degrees of heading changed it by 0.05. With ``pose_frame="vehicle"`` (the closed loop's
+DAVE-2's answer by up to 1.3 units and 0.5 degrees of pitch by up to 3.3, where 10 cm sideways
+or 0.5 degrees of heading changed it by under 0.1. With ``pose_frame="vehicle"`` (the closed loop's
 cameras) a pose is taken into the model as a recorded one and then given the height and tilt
 of the training views at its progress (interpolated; :func:`~cam2sim.splat.geometry.
 on_route_ground`): its own are the position across the ground and the heading.
