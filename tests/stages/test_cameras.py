@@ -161,3 +161,27 @@ def test_a_grey_recordings_cameras_render_grey() -> None:
     assert (image == round(0.299 * 200)).all()  # the luma of pure red, in every channel
     with Cameras(None, ("red",)) as cams:  # type: ignore[arg-type]
         assert (cams.render("red", np.eye(4), camera)[..., 0] == 200).all()
+
+
+def test_the_runs_splat_camera_takes_vehicle_poses(
+    tmp_path: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Replays and drives render the splat for a planar vehicle: the views' height and tilt."""
+    from types import SimpleNamespace
+
+    seen: list[str] = []
+
+    def opened(models: Any, *, options: Any) -> _Flat:
+        seen.append(options.pose_frame)
+        return _Flat(0)
+
+    monkeypatch.setattr(cameras, "SplatRenderer", opened)
+    models = tmp_path / "models"
+    ctx = SimpleNamespace(
+        ws=SimpleNamespace(root=tmp_path, splat_files=SimpleNamespace(models_dir=models))
+    )
+    with pytest.raises(StageError, match="no splat models"):
+        cameras._CAMERAS["splat"](ctx)  # type: ignore[arg-type]
+    models.mkdir()
+    cameras._CAMERAS["splat"](ctx)  # type: ignore[arg-type]
+    assert seen == ["vehicle"]
