@@ -43,10 +43,11 @@ roll come from the recorded pose nearest to it, which for GPS fixes jitter (an a
 decimetres) or are estimated (a pitch from the grade). A steering model trained on the
 recorded frames reads the horizon: on the KITTI drive as GPS fixes, 10 cm lower changed
 DAVE-2's answer by up to 1.3 units and 0.5 degrees of pitch by up to 3.3, where 10 cm sideways
-or 0.5 degrees of heading changed it by under 0.1. With ``pose_frame="vehicle"`` (the closed loop's
-cameras) a pose is taken into the model as a recorded one and then given the height and tilt
-of the training views at its progress (interpolated; :func:`~cam2sim.splat.geometry.
-on_route_ground`): its own are the position across the ground and the heading.
+or 0.5 degrees of heading changed it by under 0.1. With ``pose_frame="vehicle"`` (the closed
+loop's cameras) a pose is taken into the model as a recorded one and then given the height and
+tilt of the training views at its progress (interpolated;
+:func:`~cam2sim.splat.geometry.on_route_ground`): its own are the position across the ground
+and the heading.
 """
 
 from __future__ import annotations
@@ -133,6 +134,13 @@ class RenderResult:
     angle_deg: float
     progress_m: float
     chunk_weights: dict[int, float]
+
+
+def _at_progress(
+    progress_m: float, at: npt.NDArray[np.float64], table: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """Each column of ``table`` (one row per progress in ``at``) interpolated at ``progress_m``."""
+    return np.array([np.interp(progress_m, at, column) for column in table.T])
 
 
 def smoothstep(t: float) -> float:
@@ -288,12 +296,8 @@ class SplatRenderer:
         """``pose`` with the training views' height and tilt at ``progress`` (module doc)."""
         at = self._route_progress
         z = float(np.interp(progress, at, self._view_z))
-        forward = [np.interp(progress, at, self._forwards[:, j]) for j in range(3)]
-        down = (
-            None
-            if self._view_down is None
-            else [np.interp(progress, at, self._view_down[:, j]) for j in range(3)]
-        )
+        forward = _at_progress(progress, at, self._forwards)
+        down = None if self._view_down is None else _at_progress(progress, at, self._view_down)
         return on_route_ground(pose, z, forward, down)
 
     def coverage_of(self, T_world_cam: npt.NDArray[np.float64]) -> tuple[float, float, float]:
@@ -355,7 +359,7 @@ class SplatRenderer:
         if mode == "none" or len(chunk.view_progress) == 0:
             return None
         table = chunk.appearance
-        row = [np.interp(progress_m, chunk.view_progress, table[:, j]) for j in range(12)]
+        row = _at_progress(progress_m, chunk.view_progress, table)
         return torch.tensor(row, dtype=torch.float32, device=self.device).reshape(3, 4)
 
     def _render_chunk(
@@ -453,7 +457,7 @@ class SplatRenderer:
         progress = self.progress_of(pose[:3, 3])
         if self._from_recorded is not None:
             at, table = self._from_recorded
-            pose = recorded_to_model(pose, [np.interp(progress, at, table[:, j]) for j in range(6)])
+            pose = recorded_to_model(pose, _at_progress(progress, at, table))
             progress = self.progress_of(pose[:3, 3])
         if self.options.pose_frame == "vehicle":
             pose = self._on_route_ground(pose, progress)
