@@ -272,12 +272,16 @@ def extract(
 def import_(
     workspace: Annotated[Path, typer.Argument(help="The workspace folder (created if new).")],
     *,
-    images: Annotated[Path, typer.Option(help="Folder of .png/.jpg frames.")],
+    images: Annotated[
+        Path,
+        typer.Option(help="Folder of .png/.jpg frames, or a video file (.mp4, .mov, .avi, .mkv)."),
+    ],
     poses: Annotated[
         Path | None,
         typer.Option(
             help="CSV: timestamp,x,y[,z] or timestamp,lat,lon[,alt] (GPS), qx,qy,qz,qw or yaw "
-            "(else the heading of travel)[, image]; KITTI's poses.txt; KITTI raw's oxts/ folder."
+            "(else the heading of travel)[, image]; KITTI's poses.txt; KITTI raw's oxts/ folder; "
+            "a TUM trajectory (SLAM); a GPS track (GPX, NMEA log)."
         ),
     ] = None,
     calibration: Annotated[
@@ -295,6 +299,16 @@ def import_(
         AxisConvention, typer.Option(help="Where the pose frame's x axis points on the car.")
     ] = AxisConvention.X_FORWARD,
     fps: Annotated[float, typer.Option(help="Frame rate when file names carry no time.")] = 30.0,
+    video_fps: Annotated[
+        float, typer.Option(help="A video's frames kept a second (at most its own rate).")
+    ] = 10.0,
+    start: Annotated[
+        str | None,
+        typer.Option(
+            help="When the first frame was taken, on the poses' clock (seconds, or an ISO date "
+            "for a GPS track). Default: the file names' times, else the first pose's time."
+        ),
+    ] = None,
     signal: Annotated[
         list[str] | None,
         typer.Option(
@@ -321,6 +335,8 @@ def import_(
     """Import images (and optional poses, calibration, signals) as the workspace dataset.
 
     Example: cam2sim import ws --images frames/ --poses poses.csv --crs EPSG:32632
+
+    Example (a dash camera): cam2sim import ws --images drive.mp4 --poses track.gpx
     """
     from cam2sim.stages.image_import import ImportOptions, import_images  # noqa: PLC0415 -- lazy: imports numpy (keeps --help fast)
 
@@ -333,12 +349,16 @@ def import_(
         signals=tuple(_name_path(s) for s in signal or ()),
         pose_offset_m=_xyz(pose_offset) if pose_offset else None,
         rig=rig,
+        start=start,
+        video_fps=video_fps,
     )
     with progress_bars(enabled=bool(_state["progress"])) as sink:
         result = import_images(workspace, images, options=opts, progress=sink)
     info = result.info
     kind = "pose-less " if info.pose_less else ""
     console.print(f"{result.dataset_dir}: {kind}dataset of {info.counts.frames} frames")
+    for note in result.notes:
+        console.print(f"  - {note}", highlight=False)
     if (point := result.pose_point) is not None:
         console.print(
             f"the poses sit {point.ahead_m:.2f} +- {point.stderr_m:.2f} m ahead of the rear axle "

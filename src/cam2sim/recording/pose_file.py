@@ -1,6 +1,6 @@
 """Pose files that come beside an image folder: the poses of ``cam2sim import``.
 
-Four layouts are read, each into one :class:`PoseTable`:
+Seven layouts are read, each into one :class:`PoseTable`:
 
 - a CSV in a metric frame: ``timestamp|t|stamp_ns, x, y[, z]`` (the frame's CRS is the
   import's ``--crs``, or none: a local frame);
@@ -9,7 +9,11 @@ Four layouts are read, each into one :class:`PoseTable`:
 - KITTI odometry's ``poses.txt``: a 3x4 camera-to-world matrix a line, line k for image k;
 - KITTI raw's ``oxts/`` folder (or its ``data/``): one text file a frame, file k for image k,
   whose first six numbers are latitude, longitude, altitude, roll, pitch and yaw (the GPS/IMU
-  unit's axes x forward, y left, z up; yaw 0 east, counter-clockwise; ``R = Rz Ry Rx``).
+  unit's axes x forward, y left, z up; yaw 0 east, counter-clockwise; ``R = Rz Ry Rx``);
+- the TUM trajectory format SLAM systems and ``evo`` write (``timestamp tx ty tz qx qy qz qw`` a
+  line, ``#`` comments): a camera's optical axes (z forward, as visual SLAM writes them) or a
+  body's (x forward), told apart by the direction the poses travel in;
+- a GPS track: GPX, or an NMEA 0183 log (:mod:`cam2sim.recording.gps_track`).
 
 A CSV's orientation is ``qx, qy, qz, qw`` or ``yaw``/``heading`` (radians, counter-clockwise from
 the frame's x axis; east for GPS); without either it is left to the caller to take from the
@@ -29,6 +33,7 @@ import numpy.typing as npt
 
 from cam2sim.core import frames
 from cam2sim.core.errors import RecordingError
+from cam2sim.recording.gps_track import GpsTrack, is_nmea, read_gpx, read_nmea
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -54,7 +59,9 @@ class PoseTable:
         images: The image file each row belongs to, or None.
         by_index: Row k belongs to the k-th image (KITTI's poses.txt and OXTS folders).
         geographic: ``xyz`` holds WGS84 latitude, longitude, altitude.
-        kind: What was read (``csv``, ``gps csv``, ``kitti poses``, ``kitti oxts``).
+        kind: What was read (``csv``, ``gps csv``, ``kitti poses``, ``kitti oxts``, ``tum``,
+            ``tum camera``, ``gpx``, ``nmea``).
+        notes: What the reader found or assumed that the user should know.
     """
 
     stamp_ns: npt.NDArray[np.int64]
@@ -64,6 +71,7 @@ class PoseTable:
     by_index: bool = False
     geographic: bool = False
     kind: str = "csv"
+    notes: tuple[str, ...] = ()
 
 
 def first_column(rows: list[dict[str, str]], *names: str) -> str | None:
@@ -156,6 +164,89 @@ def _read_kitti_poses(path: Path, lines: list[str]) -> PoseTable:
     quat = frames.quat_normalize(frames.quat_from_matrix(rot))
     stamps = np.arange(len(m), dtype=np.int64)  # placeholders: the images give the times
     return PoseTable(stamps, xyz, quat, None, by_index=True, kind="kitti poses")
+
+
+def _is_tum(line: str) -> bool:
+    """Whether a line is a TUM pose: 8 numbers, whitespace-separated (time, position, quat)."""
+    parts = line.split()
+    if len(parts) != 8 or "," in line:
+        return False
+    try:
+        [float(p) for p in parts]
+    except ValueError:
+        return False
+    return True
+
+
+def _optical_axes(rot: npt.NDArray[np.float64], xyz: npt.NDArray[np.float64]) -> bool | None:
+    """Whether poses travel along their z axis (a camera's optical frame) or their x axis.
+
+    Returns:
+        True: along z; False: along x (a body frame); None: they do not move, or neither.
+    """
+    step = np.diff(xyz, axis=0)
+    moving = np.linalg.norm(step, axis=1) > 0.01
+    if moving.sum() < 2:
+        return None
+    local = np.einsum("nji,nj->ni", rot[:-1][moving], step[moving])  # R^T d
+    mean = (local / np.linalg.norm(local, axis=1, keepdims=True)).mean(axis=0)
+    if mean[2] > 0.7:
+        return True
+    if abs(mean[0]) > 0.7:
+        return False
+    return None
+
+
+def _read_tum(path: Path, lines: list[str]) -> PoseTable:
+    """A TUM trajectory (``timestamp tx ty tz qx qy qz qw`` a line).
+
+    Poses that travel along their own z axis are a camera's (visual SLAM, COLMAP): they become
+    the vehicle's axes at the camera, as KITTI's, and a world whose up is not +z (SLAM's first
+    camera frame, y down) is turned z up from the first pose. Others are a body's (x forward):
+    as given, ``--axis-convention`` saying where their x points.
+    """
+    rows = [ln.split() for ln in lines if not ln.lstrip().startswith("#")]
+    try:
+        stamps = np.array([stamp_ns_from_text(r[0]) for r in rows], dtype=np.int64)
+        values = np.array([[float(v) for v in r[1:]] for r in rows], dtype=np.float64)
+    except (ValueError, IndexError) as err:
+        msg = f"{path}: a TUM line is not 'timestamp tx ty tz qx qy qz qw' ({err}); fix it"
+        raise RecordingError(msg) from None
+    if values.shape[1:] != (7,) or not np.isfinite(values).all():
+        msg = f"{path}: every TUM line needs 8 finite numbers; fix the lines that do not"
+        raise RecordingError(msg)
+    order = np.argsort(stamps, kind="stable")
+    stamps, values = stamps[order], values[order]
+    if (np.diff(stamps) == 0).any():
+        msg = f"{path}: two poses share a timestamp; remove duplicates"
+        raise RecordingError(msg)
+    xyz, quat = values[:, :3], frames.quat_normalize(values[:, 3:])
+    rot = frames.quat_to_matrix(quat)
+    optical = _optical_axes(rot, xyz)
+    if optical is None:
+        msg = (
+            f"{path}: the poses travel along neither their x axis (a vehicle's) nor their z "
+            "axis (a camera's); give poses of a moving car or camera"
+        )
+        raise RecordingError(msg)
+    if not optical:
+        note = "TUM poses of a body (x forward)"
+        return PoseTable(stamps, xyz, quat, None, kind="tum", notes=(note,))
+    up = np.einsum("nij,j->ni", rot, [0.0, -1.0, 0.0]).mean(axis=0)  # the camera's up, in world
+    z_up = bool(up[2] > 0.9 * np.linalg.norm(up))
+    turn = np.eye(3) if z_up else _WORLD_FROM_FIRST_CAMERA @ rot[0].T
+    rot_v = turn @ rot @ _VEHICLE_IN_OPTICAL
+    note = "TUM poses of a camera (optical axes: z forward), placed as the vehicle's"
+    if not z_up:
+        note += "; the world turned z up from the first camera"
+    return PoseTable(
+        stamps,
+        (turn @ xyz.T).T,
+        frames.quat_normalize(frames.quat_from_matrix(rot_v)),
+        None,
+        kind="tum camera",
+        notes=(note,),
+    )
 
 
 def _oxts_stamps(path: Path, count: int) -> npt.NDArray[np.int64]:
@@ -272,7 +363,7 @@ def _read_csv(path: Path, lines: list[str]) -> PoseTable:
 
 
 def read_pose_file(path: Path) -> PoseTable:
-    """Read a pose CSV (metric or GPS), KITTI's poses.txt or KITTI raw's OXTS folder.
+    """Read a pose CSV (metric or GPS), KITTI's poses.txt or OXTS folder, TUM, GPX or NMEA.
 
     Raises:
         RecordingError: The file does not exist or is not one of these layouts (the message
@@ -280,12 +371,37 @@ def read_pose_file(path: Path) -> PoseTable:
     """
     if path.is_dir():
         return _read_oxts(path)
+    if path.suffix.lower() == ".gpx":
+        return _from_track(read_gpx(path), "gpx")
     try:
         with path.open(newline="", encoding="utf-8") as handle:
             lines = [ln for ln in handle if ln.strip()]
     except FileNotFoundError:
         msg = f"--poses {path} does not exist"
         raise RecordingError(msg) from None
-    if lines and _is_kitti(lines[0]):
-        return _read_kitti_poses(path, lines)
+    data = [ln for ln in lines if not ln.lstrip().startswith("#")]
+    if data and _is_kitti(data[0]):
+        return _read_kitti_poses(path, data)
+    if data and _is_tum(data[0]):
+        return _read_tum(path, lines)
+    track = (
+        read_gpx(path) if lines and lines[0].lstrip().startswith("<")
+        else read_nmea(path, lines) if is_nmea(lines)
+        else None
+    )  # fmt: skip
+    if track is not None:
+        return _from_track(track, "gpx" if lines[0].lstrip().startswith("<") else "nmea")
     return _read_csv(path, lines)
+
+
+def _from_track(track: GpsTrack, kind: str) -> PoseTable:
+    """A GPS track's fixes as a geographic pose table (no orientation)."""
+    notes = [f"{kind.upper()}: {len(track.stamp_ns)} fixes"]
+    if track.skipped:
+        notes.append("skipped " + ", ".join(f"{v} ({k})" for k, v in track.skipped.items()))
+    if not track.dated:
+        notes.append("no RMC sentence gives the date: the times count from 1970-01-01")
+    return PoseTable(
+        track.stamp_ns, track.lat_lon_alt, None, None, geographic=True, kind=kind,
+        notes=tuple(notes),
+    )  # fmt: skip

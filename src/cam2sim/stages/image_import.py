@@ -1,11 +1,14 @@
 """``cam2sim import``: images (plus an optional pose table and calibration) into a dataset.
 
-The minimum input without a bag. Images are taken in natural name order; their times come from
-numeric file names (ns, us, ms or s by magnitude) or from the frame rate. The poses are any
-file :mod:`cam2sim.recording.pose_file` reads (a CSV of x, y or of GPS fixes, KITTI's
-poses.txt, KITTI raw's OXTS folder); GPS fixes put the world frame at the first fix, and poses
-without an orientation head where they travel. Without poses the dataset is marked pose-less
-(the splat stage estimates poses itself).
+The minimum input without a bag. Images are a folder, taken in natural name order, their times
+from numeric file names (ns, us, ms or s by magnitude) or from the frame rate; or a video file
+(a dash camera's), decoded at most ``video_fps`` frames a second, its times from the video
+(:mod:`cam2sim.recording.video`). Times that count from zero meet dated poses (a GPS track) at
+``--start``, else at the first pose. The poses are any file :mod:`cam2sim.recording.pose_file`
+reads (a CSV of x, y or of GPS fixes, KITTI's poses.txt, KITTI raw's OXTS folder, a TUM
+trajectory, GPX, NMEA); GPS fixes put the world frame at the first fix, and poses without an
+orientation head where they travel. Without poses the dataset is marked pose-less (the splat
+stage estimates poses itself).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import math
 import re
 import shutil
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Literal
 
@@ -56,10 +60,17 @@ from cam2sim.recording.kitti_calibration import (
     read_kitti_raw_calibration,
 )
 from cam2sim.recording.pose import yaw_offset_quat
-from cam2sim.recording.pose_file import PoseTable, first_column, read_pose_file, table_stamps
+from cam2sim.recording.pose_file import (
+    PoseTable,
+    first_column,
+    read_pose_file,
+    stamp_ns_from_text,
+    table_stamps,
+)
+from cam2sim.recording.video import decode_video, is_video
 from cam2sim.scenario.calibration import PosePoint, fit_pose_point
 from cam2sim.stages._runner import stage_run
-from cam2sim.stages.rig import read_rig, write_rig
+from cam2sim.stages.rig import RigSpec, read_rig, write_rig
 
 __all__ = ["ImportResult", "import_images", "intrinsics_from_file", "stamps_from_names"]
 
@@ -72,11 +83,12 @@ _IDENTITY_OPTICAL = (-0.5, 0.5, -0.5, 0.5)  # optical camera looking along the b
 
 @dataclass(frozen=True)
 class ImportResult:
-    """What :func:`import_images` did."""
+    """What :func:`import_images` did (``notes``: what it found or assumed, for the user)."""
 
     dataset_dir: Path
     info: DatasetInfo
     pose_point: PosePoint | None = None
+    notes: tuple[str, ...] = ()
 
 
 def _natural_key(path: Path) -> list[object]:
@@ -502,7 +514,8 @@ def _poses_for_images(
             f"no image has a pose: images span {stamps.min() / 1e9:.3f}-"
             f"{stamps.max() / 1e9:.3f} s ({time_source}), poses span "
             f"{table.stamp_ns[0] / 1e9:.3f}-{table.stamp_ns[-1] / 1e9:.3f} s. Name the "
-            "images by timestamp or add an image column to the pose table"
+            "images by timestamp, add an image column to the pose table, or give --start "
+            "(when the first frame was taken, on the poses' clock)"
         )
         raise RecordingError(msg)
     pose_cols = {
@@ -532,6 +545,8 @@ class ImportOptions:
     signals: tuple[tuple[str, Path], ...] = ()
     pose_offset_m: tuple[float | None, float, float] | None = None
     rig: Path | None = None
+    start: str | None = None
+    video_fps: float = 10.0
 
 
 def _fingerprint(path: Path) -> str:
@@ -558,12 +573,105 @@ def import_images(
     """
     opts = options or ImportOptions()
     progress = progress or no_progress
-    files = _list_images(Path(images))
+    images = Path(images)
+    video = is_video(images)
+    files = [] if video else _list_images(images)
     signals = {name: _read_signal(name, path) for name, path in opts.signals}
     rig = read_rig(opts.rig) if opts.rig is not None else []
-    ws, config, created = _open_workspace(Path(root), opts)
-    stamps, time_source = stamps_from_names(files, fps=opts.fps)
     table = read_pose_file(opts.poses) if opts.poses else None
+    ws, config, created = _open_workspace(Path(root), opts)
+    scratch = ws.root / ".video_frames.partial"
+    try:
+        if video:
+            shutil.rmtree(scratch, ignore_errors=True)
+            decoded = decode_video(
+                images, scratch, max_fps=opts.video_fps, fmt=config.frames.format,
+                jpeg_quality=config.frames.jpeg_quality, progress=progress,
+            )  # fmt: skip
+            files, stamps = decoded.files, decoded.stamp_ns
+            time_source = (
+                f"the video's frame times ({len(files)} of its {decoded.decoded} frames, at most "
+                f"{opts.video_fps:g} a second)"
+            )
+        else:
+            stamps, time_source = stamps_from_names(files, fps=opts.fps)
+        stamps, notes = _start_time(stamps, time_source, table, opts.start)
+        source = _Frames(images, files, stamps, time_source)
+        inputs = _Inputs(table, signals, rig, (*(table.notes if table else ()), *notes))
+        return _import(ws, config, created, source, inputs, opts, progress)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _start_time(
+    stamps: npt.NDArray[np.int64], time_source: str, table: PoseTable | None, start: str | None
+) -> tuple[npt.NDArray[np.int64], tuple[str, ...]]:
+    """The images' times on the poses' clock: from ``--start``, or the first pose's time.
+
+    Images whose times count from zero (a frame rate, a video) beside poses with dates (a GPS
+    track) take the first pose's time for the first frame, with a note saying so.
+
+    Raises:
+        RecordingError: ``start`` is neither seconds nor a date.
+    """
+    if start is not None:
+        try:
+            first = stamp_ns_from_text(start)
+        except ValueError:
+            msg = f"--start takes seconds or an ISO date (2026-05-01T09:30:00Z); got {start!r}"
+            raise RecordingError(msg) from None
+        return stamps - stamps[0] + first, ()
+    relative = not time_source.startswith("file names")
+    dated = table is not None and not table.by_index and table.images is None
+    if not (relative and dated and table is not None and table.stamp_ns[0] > _DATED_NS):
+        return stamps, ()
+    first = int(table.stamp_ns[0])
+    when = datetime.fromtimestamp(first / 1e9, tz=UTC).isoformat(timespec="milliseconds")
+    note = (
+        f"the images have no dates ({time_source}): the first frame is taken at the first "
+        f"pose's time, {when}; pass --start if the recording and the poses began apart"
+    )
+    return stamps - stamps[0] + first, (note,)
+
+
+_DATED_NS = 10**17
+"""Times past this (1973) are dates, not a recording's own clock from zero."""
+
+
+@dataclass(frozen=True)
+class _Frames:
+    """The frames to import: the ``--images`` given, its image files and their times."""
+
+    images: Path
+    files: list[Path]
+    stamps: npt.NDArray[np.int64]
+    time_source: str
+
+
+@dataclass(frozen=True)
+class _Inputs:
+    """What comes beside the frames: poses, signals, rig cameras, and notes for the user."""
+
+    table: PoseTable | None
+    signals: dict[str, tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]]
+    rig: list[RigSpec]
+    notes: tuple[str, ...]
+
+
+def _import(
+    ws: Workspace,
+    config: Config,
+    created: bool,
+    source: _Frames,
+    inputs: _Inputs,
+    opts: ImportOptions,
+    progress: ProgressCallback,
+) -> ImportResult:
+    """:func:`import_images` once its frames, times and poses are read."""
+    images, files, stamps, time_source = (
+        source.images, source.files, source.stamps, source.time_source
+    )  # fmt: skip
+    table, signals, rig, notes = inputs.table, inputs.signals, inputs.rig, inputs.notes
     intr, mount = (None, None)
     if opts.calibration:
         intr, mount = intrinsics_from_file(opts.calibration, _image_size(files[0]), images)
@@ -572,7 +680,10 @@ def import_images(
         *(path for _, path in opts.signals),
     ]
     sources = [SourceRecord(path=str(p), fingerprint=_fingerprint(p)) for p in extra_inputs]
-    inputs_hash = hash_inputs({"files": [f.name for f in files], "opts": repr(opts)})
+    images_print = (
+        file_fingerprint(images) if images.is_file() else hash_inputs([f.name for f in files])
+    )
+    inputs_hash = hash_inputs({"files": images_print, "opts": repr(opts)})
     with (
         stage_run(ws, STAGE, inputs_hash=inputs_hash, config=config) as run,
         atomic_folder(ws.dataset_dir) as tmp,
@@ -615,7 +726,7 @@ def import_images(
             kind="images",
             pose_less=table is None,
             sources=(
-                SourceRecord(path=str(images), fingerprint=hash_inputs([f.name for f in files])),
+                SourceRecord(path=str(images), fingerprint=images_print),
                 *sources,
             ),
             time_base="file",
@@ -636,7 +747,9 @@ def import_images(
         info.save(paths.dataset_json)
         run.world = world
     logger.info("import: %d frames (%s), pose-less: %s", len(kept), time_source, table is None)
-    return ImportResult(ws.dataset_dir, info, pose_point)
+    for note in notes:
+        logger.info("import: %s", note)
+    return ImportResult(ws.dataset_dir, info, pose_point, notes)
 
 
 def _write_frame_tables(

@@ -1,0 +1,136 @@
+"""Video files as a frame source: a dash camera's or phone's drive, decoded with OpenCV.
+
+:func:`decode_video` writes the frames ``cam2sim import`` keeps (at most ``max_fps`` a second)
+as image files and returns their times, from the container's presentation times (the frame
+index over the stream's frame rate where the container gives none). The times count from the
+video's first frame; ``cam2sim import --start`` says when that was on the poses' clock.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+
+from cam2sim.core.errors import RecordingError
+from cam2sim.core.progress import ProgressCallback, no_progress
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    import numpy.typing as npt
+
+__all__ = ["VIDEO_SUFFIXES", "DecodedVideo", "decode_video", "is_video"]
+
+VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mts", ".ts")
+
+
+def is_video(path: Path) -> bool:
+    """Whether ``path`` is a video file (by its suffix)."""
+    return path.is_file() and path.suffix.lower() in VIDEO_SUFFIXES
+
+
+@dataclass(frozen=True)
+class DecodedVideo:
+    """The frames :func:`decode_video` kept.
+
+    Attributes:
+        files: The image files written, in time order.
+        stamp_ns: ``(N,)`` int64 times from the video's first frame, nanoseconds.
+        fps: The stream's frame rate (0 where the container does not say).
+        decoded: Frames decoded in all (``len(files)`` of them kept).
+    """
+
+    files: list[Path]
+    stamp_ns: npt.NDArray[np.int64]
+    fps: float
+    decoded: int
+
+
+def _open(path: Path) -> tuple[Any, float, int]:
+    """An OpenCV capture of ``path``, its frame rate (0: unknown) and frame count (0: unknown).
+
+    Raises:
+        RecordingError: OpenCV cannot open it.
+    """
+    import cv2  # noqa: PLC0415 -- lazy: cv2 is heavy
+
+    capture = cv2.VideoCapture(str(path))
+    if not capture.isOpened():
+        msg = (
+            f"{path} cannot be opened as a video (OpenCV's FFmpeg reads MP4, MOV, AVI, MKV); "
+            "convert it, or extract its frames into a folder"
+        )
+        raise RecordingError(msg)
+    fps = float(capture.get(cv2.CAP_PROP_FPS) or 0.0)
+    return capture, fps, int(capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+
+
+def decode_video(
+    path: Path,
+    out_dir: Path,
+    *,
+    max_fps: float = 10.0,
+    fmt: Literal["png", "jpeg"] = "png",
+    jpeg_quality: int = 95,
+    progress: ProgressCallback = no_progress,
+) -> DecodedVideo:
+    """Decode ``path``, keeping at most ``max_fps`` frames a second, into ``out_dir``.
+
+    A frame is kept when at least ``1 / max_fps`` seconds passed since the last kept one
+    (every frame of a video slower than ``max_fps``).
+
+    Raises:
+        RecordingError: The file cannot be opened or holds no frame.
+    """
+    import cv2  # noqa: PLC0415 -- lazy: cv2 is heavy
+
+    from cam2sim.recording.image import encode_image_file  # noqa: PLC0415 -- lazy: imports cv2
+
+    if max_fps <= 0:
+        msg = f"--video-fps must be positive; got {max_fps}"
+        raise RecordingError(msg)
+    capture, fps, total = _open(path)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    suffix = "jpg" if fmt == "jpeg" else "png"
+    files: list[Path] = []
+    stamps: list[int] = []
+    step_ns = round(1e9 / max_fps)
+    next_ns = 0
+    last = -1
+    decoded = 0
+    try:
+        while True:
+            ok, frame = capture.read()
+            if not ok:
+                break
+            stamp = round(float(capture.get(cv2.CAP_PROP_POS_MSEC) or 0.0) * 1e6)
+            if stamp <= last:  # the container gives no (or no rising) times: index / fps
+                if fps <= 0:
+                    msg = (
+                        f"{path}: its frames carry no times and it names no frame rate; "
+                        "extract the frames into a folder and pass --fps"
+                    )
+                    raise RecordingError(msg)
+                stamp = max(last + 1, round(decoded * 1e9 / fps))
+            last = stamp
+            decoded += 1
+            if stamp < next_ns - step_ns // 20:  # a 5 % tolerance for rounded times
+                continue
+            next_ns = stamp + step_ns
+            image: Any = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
+            target = out_dir / f"frame_{len(files):06d}.{suffix}"
+            target.write_bytes(encode_image_file(image, fmt, jpeg_quality=jpeg_quality))
+            files.append(target)
+            stamps.append(stamp)
+            if decoded % 32 == 0:
+                progress("video frames", decoded, max(total, decoded))
+    finally:
+        capture.release()
+    progress("video frames", decoded, decoded)
+    if not files:
+        msg = f"{path}: no frame could be decoded; check the file plays, or convert it"
+        raise RecordingError(msg)
+    t = np.asarray(stamps, dtype=np.int64)
+    return DecodedVideo(files, t - t[0], fps, decoded)
