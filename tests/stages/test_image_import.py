@@ -462,6 +462,29 @@ def test_cam2sim_run_takes_an_imported_dataset_as_extracted(tmp_path: Path) -> N
     assert not result.failed
 
 
+def test_run_stops_before_the_splat_when_replay_and_drive_could_not_render(
+    tmp_path: Path,
+) -> None:
+    """Posed frames without intrinsics: the run says to import with --calibration or --fov."""
+    from cam2sim.stages.pipeline import PipelineOptions, run_pipeline
+
+    stamps = [10**18 + i * 100_000_000 for i in range(6)]
+    _write_images(tmp_path / "images", [f"{s}.png" for s in stamps])
+    poses = tmp_path / "poses.csv"
+    poses.write_text(
+        "stamp_ns,x,y\n" + "".join(f"{s},{2.0 * i},0\n" for i, s in enumerate(stamps))
+    )
+    import_images(tmp_path / "ws", tmp_path / "images", options=ImportOptions(poses=poses))
+    ws = Workspace.open(tmp_path / "ws")
+    result = run_pipeline(ws, options=PipelineOptions(steps=("splat", "replay")))
+    splat = result.outcome("splat")
+    assert splat.state == "failed"
+    assert "--calibration" in splat.message
+    assert "--fov" in splat.message
+    assert result.outcome("replay").state == "skipped"
+    assert not ws.splat_files.models_dir.is_dir()  # nothing trained for nothing
+
+
 def test_kitti_03_import_map_from_its_path_and_scenario(tmp_path: Path, shared_data: Path) -> None:
     """A real drive with poses but no CRS and no OSM: the map is the road it drove on."""
     pytest.importorskip("carla", reason="the scenario's checks need carla (cam2sim[map])")

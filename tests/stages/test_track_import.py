@@ -289,3 +289,20 @@ def test_kitti_03_as_a_tum_trajectory_imports_as_its_poses_txt(
     assert a["x"][-1] > 30.0  # it drove ahead, along +x
     for col in ("x", "y", "z", "heading", "speed"):
         np.testing.assert_allclose(b[col], a[col], atol=1e-5)
+
+
+def test_fov_gives_a_dash_camera_a_pinhole_k(tmp_path: Path) -> None:
+    from cam2sim.core.dataset import Calibration
+
+    images = _frames(tmp_path / "images", 3)  # 16 x 12
+    import_images(tmp_path / "ws", images, options=ImportOptions(fov_deg=90.0))
+    cam = Calibration.load(DatasetPaths(tmp_path / "ws" / "dataset").calibration_json).camera
+    assert cam is not None
+    assert (cam.width, cam.height) == (16, 12)
+    np.testing.assert_allclose(cam.K, [[8.0, 0.0, 7.5], [0.0, 8.0, 5.5], [0.0, 0.0, 1.0]])
+    assert "--fov 90" in cam.source
+    with pytest.raises(RecordingError, match="not both"):
+        opts = ImportOptions(fov_deg=90.0, calibration=tmp_path / "K.txt")
+        import_images(tmp_path / "ws2", images, options=opts)
+    with pytest.raises(RecordingError, match="10 to 170"):
+        import_images(tmp_path / "ws3", images, options=ImportOptions(fov_deg=180.0))

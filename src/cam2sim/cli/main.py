@@ -291,6 +291,13 @@ def import_(
             "or KITTI raw's calibration folder."
         ),
     ] = None,
+    fov: Annotated[
+        float | None,
+        typer.Option(
+            help="Without a calibration: the camera's horizontal field of view in degrees (its "
+            "data sheet's), for a pinhole K."
+        ),
+    ] = None,
     crs: Annotated[
         str | None,
         typer.Option(help="CRS of x,y pose positions, e.g. EPSG:32632 (GPS lat,lon need none)."),
@@ -351,6 +358,7 @@ def import_(
         rig=rig,
         start=start,
         video_fps=video_fps,
+        fov_deg=fov,
     )
     with progress_bars(enabled=bool(_state["progress"])) as sink:
         result = import_images(workspace, images, options=opts, progress=sink)

@@ -9,7 +9,7 @@ z up) at the recording's pose reference point, heading is radians CCW from +x.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Final, Literal
 
 import numpy as np
 import pydantic
@@ -23,6 +23,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "LIDAR_COLUMNS",
+    "NO_INTRINSICS_HINT",
     "POSE_COLUMNS",
     "POSE_PRECISION",
     "SIGNAL_COLUMNS",
@@ -34,6 +35,13 @@ __all__ = [
     "MountRecord",
     "SourceRecord",
 ]
+
+NO_INTRINSICS_HINT: Final = (
+    "import the images again with --calibration K.txt (or --fov DEG, the camera's horizontal "
+    "field of view), or, for a bag, set camera.intrinsics in config.yaml"
+)
+"""What to do when a dataset has no camera intrinsics: an import names none, a bag's have
+``topics.camera_info`` or ``camera.intrinsics``."""
 
 POSE_COLUMNS = ("frame", "stamp_ns", "t", "x", "y", "z", "qx", "qy", "qz", "qw", "heading", "speed")
 TRAJECTORY_COLUMNS = POSE_COLUMNS[1:]

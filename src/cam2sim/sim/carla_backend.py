@@ -50,6 +50,7 @@ from typing import TYPE_CHECKING, Any, Self
 import numpy as np
 import numpy.typing as npt
 
+from cam2sim.core.dataset import NO_INTRINSICS_HINT
 from cam2sim.core.errors import BackendUnavailableError, ConfigError, StageError
 from cam2sim.core.frames.carla import (
     CarlaTransform,
@@ -203,7 +204,7 @@ def horizontal_fov_deg(scenario: Scenario) -> float:
     """
     cam = scenario.camera
     if cam is None:
-        msg = "the scenario has no camera intrinsics; set camera.intrinsics in config.yaml"
+        msg = f"the scenario has no camera intrinsics; {NO_INTRINSICS_HINT}"
         raise StageError(msg)
     return math.degrees(2.0 * math.atan(0.5 * cam.width / cam.K[0][0]))
 

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any, Final, Literal, Self
 import numpy as np
 
 from cam2sim.core import frames as fr
+from cam2sim.core.dataset import NO_INTRINSICS_HINT
 from cam2sim.core.errors import StageError
 from cam2sim.core.files import write_bytes_atomic
 from cam2sim.core.images import as_grey
@@ -111,7 +112,7 @@ def run_camera(scenario: Scenario, size: tuple[int, int] | None) -> PinholeCamer
     same geometry in simulation.
     """
     if scenario.camera is None:
-        msg = "the scenario has no camera intrinsics; set camera.intrinsics in config.yaml"
+        msg = f"the scenario has no camera intrinsics; {NO_INTRINSICS_HINT}"
         raise StageError(msg)
     cam = scenario.camera.camera()
     return cam if size is None else cam.scaled(*size)

@@ -22,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 from cam2sim.core import frames as fr
-from cam2sim.core.dataset import Calibration, DatasetInfo
+from cam2sim.core.dataset import NO_INTRINSICS_HINT, Calibration, DatasetInfo
 from cam2sim.core.errors import StageError, WorkspaceError
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.table import read_table, write_table
@@ -173,7 +173,7 @@ def _camera_frames(
         raise StageError(msg)
     cam = calib.camera
     if cam is None:
-        msg = "the dataset has no camera intrinsics; set camera.intrinsics in config.yaml"
+        msg = f"the dataset has no camera intrinsics; {NO_INTRINSICS_HINT}"
         raise StageError(msg)
     table = read_table(paths.poses_csv)
     rows = np.arange(0, table["frame"].shape[0], every)

@@ -72,7 +72,13 @@ from cam2sim.scenario.calibration import PosePoint, fit_pose_point
 from cam2sim.stages._runner import stage_run
 from cam2sim.stages.rig import RigSpec, read_rig, write_rig
 
-__all__ = ["ImportResult", "import_images", "intrinsics_from_file", "stamps_from_names"]
+__all__ = [
+    "ImportResult",
+    "import_images",
+    "intrinsics_from_file",
+    "intrinsics_from_fov",
+    "stamps_from_names",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -319,6 +325,28 @@ def _kitti_raw(folder: Path, images: Path | None) -> tuple[CameraIntrinsics, Mou
     return intr, mount
 
 
+def intrinsics_from_fov(fov_deg: float, size: tuple[int, int]) -> CameraIntrinsics:
+    """A pinhole camera of ``size`` (width, height) with a horizontal field of view ``fov_deg``.
+
+    For a camera known only by its data sheet (a dash camera's "120 degrees"): square pixels,
+    the principal point at the image centre, no distortion (a fisheye's wide angle is not a
+    pinhole's: calibrate such a lens, ``docs/commands/import.md``).
+
+    Raises:
+        RecordingError: The angle is not within (10, 170) degrees, or the size is unknown.
+    """
+    if not 10.0 < fov_deg < 170.0:
+        msg = f"--fov {fov_deg:g}: give the horizontal field of view in degrees, 10 to 170"
+        raise RecordingError(msg)
+    width, height = size
+    if width <= 0 or height <= 0:
+        msg = "--fov needs the images' size, and the first image cannot be read"
+        raise RecordingError(msg)
+    f = 0.5 * width / math.tan(math.radians(fov_deg) / 2.0)
+    camera = PinholeCamera(f, f, (width - 1) / 2.0, (height - 1) / 2.0, width, height, ())
+    return CameraIntrinsics.from_camera(camera, f"--fov {fov_deg:g} (pinhole, no distortion)")
+
+
 def intrinsics_from_file(
     path: Path, size: tuple[int, int] | None = None, images: Path | None = None
 ) -> tuple[CameraIntrinsics, MountRecord | None]:
@@ -547,6 +575,7 @@ class ImportOptions:
     rig: Path | None = None
     start: str | None = None
     video_fps: float = 10.0
+    fov_deg: float | None = None
 
 
 def _fingerprint(path: Path) -> str:
@@ -573,6 +602,9 @@ def import_images(
     """
     opts = options or ImportOptions()
     progress = progress or no_progress
+    if opts.calibration is not None and opts.fov_deg is not None:
+        msg = "give --calibration or --fov, not both (the calibration says more)"
+        raise RecordingError(msg)
     images = Path(images)
     video = is_video(images)
     files = [] if video else _list_images(images)
@@ -675,6 +707,8 @@ def _import(
     intr, mount = (None, None)
     if opts.calibration:
         intr, mount = intrinsics_from_file(opts.calibration, _image_size(files[0]), images)
+    elif opts.fov_deg is not None:
+        intr = intrinsics_from_fov(opts.fov_deg, _image_size(files[0]) or (0, 0))
     extra_inputs = [
         *(p for p in (opts.poses, opts.calibration, opts.rig) if p is not None),
         *(path for _, path in opts.signals),

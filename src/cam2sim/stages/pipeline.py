@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, Literal
 
-from cam2sim.core.dataset import DatasetInfo
+from cam2sim.core.dataset import NO_INTRINSICS_HINT, Calibration, DatasetInfo
 from cam2sim.core.errors import ConfigError, StageError
 from cam2sim.core.files import file_fingerprint, write_text_atomic
 from cam2sim.core.machine import available_cpus
@@ -420,8 +420,21 @@ class _Pipeline:
             msg = f"the car stood still ({length:.1f} m driven); {what}"
             raise _NotApplicableError(msg)
 
+    def _require_intrinsics(self) -> None:
+        """Fail before a long splat when the replay and drive steps could not render anyway."""
+        if not (self.options.wants("replay") or self.options.wants("drive")):
+            return
+        path = dataset_paths(self.ws.dataset_dir).calibration_json
+        if path.is_file() and Calibration.load(path).camera is None:
+            msg = (
+                "the recording has no camera intrinsics, which the replay and drive steps "
+                f"need; {NO_INTRINSICS_HINT} (or --skip replay,drive to train the splat alone)"
+            )
+            raise StageError(msg)
+
     def splat(self, step: _Step) -> None:
         self._require_motion("a splat needs views from a moving camera")
+        self._require_intrinsics()
         opts = self.options.splat
         if opts is None:
             import torch  # noqa: PLC0415
