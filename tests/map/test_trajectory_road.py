@@ -95,6 +95,26 @@ def test_smoothing_keeps_the_ends_and_drops_standstills() -> None:
     assert np.allclose(smooth[-1, :2], xyz[-1, :2], atol=1e-6)
 
 
+def test_a_tight_turn_keeps_its_radius_and_the_noise_still_goes() -> None:
+    """A 6 m U-turn: a plain Gaussian of 2 m pulled the road 0.3 m inside the driven path."""
+    a = np.linspace(0.0, np.pi, 60)
+    xy = np.concatenate(
+        [
+            np.column_stack([np.arange(-60.0, 0.0, 0.5), np.zeros(120)]),
+            np.column_stack([6.0 * np.sin(a), 6.0 - 6.0 * np.cos(a)]),
+            np.column_stack([np.arange(-0.5, -60.5, -0.5), np.full(120, 12.0)]),
+        ]
+    )
+    _, smooth = smooth_path(xy, smooth_m=2.0)
+    bend = smooth[:, 0] > 0.5
+    radius = np.hypot(smooth[bend, 0], smooth[bend, 1] - 6.0)
+    assert np.abs(radius - 6.0).max() < 0.06
+    noisy = xy + np.random.default_rng(0).normal(0.0, 0.1, xy.shape)
+    _, smooth = smooth_path(noisy, smooth_m=2.0)
+    straight = (smooth[:, 0] < -10.0) & (smooth[:, 1] < 6.0)
+    assert np.abs(smooth[straight, 1]).max() < 0.1  # the 0.1 m jitter, smoothed out
+
+
 def test_kitti_03s_poses_give_a_road_it_drove_on() -> None:
     xyz = _kitti_xyz()
     road = trajectory_road(xyz, TrajectoryRoadOptions(pose_height_m=1.65))

@@ -475,3 +475,22 @@ def test_a_cpu_splat_replay_is_kept_within_its_frame_budget() -> None:
         every = replay_stride(n, ("splat",), cuda=False)
         assert len(range(0, n, every)) <= CPU_SPLAT_REPLAY_FRAMES
         assert every == 1 or len(range(0, n, every - 1)) > CPU_SPLAT_REPLAY_FRAMES
+
+
+def test_a_run_of_some_steps_drives_the_trained_dave2_unless_ads_is_skipped(
+    tmp_path: Path, recording: tuple[Path, Path]
+) -> None:
+    from cam2sim.stages.pipeline import _Pipeline
+
+    bag, osm = recording
+    ws = Workspace.create(tmp_path / "ws", _config(bag))
+
+    def policy(**kw: Any) -> str:
+        return _Pipeline(ws, _fast(osm, **kw), lambda *a: None)._policy()
+
+    assert policy(steps=("drive",)) == "pure-pursuit"  # nothing trained yet
+    ws.ads_files.onnx.parent.mkdir(parents=True, exist_ok=True)
+    ws.ads_files.onnx.write_bytes(b"onnx")
+    assert policy(steps=("drive",)) == str(ws.ads_files.onnx)  # `cam2sim run --steps drive`
+    assert policy(skip=("ads",)) == "pure-pursuit"  # `--skip ads`: drive without it
+    assert policy(policy="pure-pursuit") == "pure-pursuit"

@@ -127,8 +127,8 @@ class PipelineOptions:
         skip: Steps not to run (applied after ``steps``).
         detect_model: Camera detector for recordings without LiDAR; None: detect only from
             LiDAR (``detect`` is not applicable without it).
-        policy: Drive policy; None: the DAVE-2 ONNX of the ads step when there is one, else
-            ``pure-pursuit``.
+        policy: Drive policy; None: the DAVE-2 ONNX the workspace has (unless ``skip`` holds
+            ``ads``), else ``pure-pursuit``.
         cameras: Cameras for replay and drive; None: ``raster``, plus ``splat`` when splat
             models exist, plus (drive only) ``truth`` when the workspace has a ground-truth world
             (``WS/truth/world.json``; its runs are real-world runs). ``("none",)`` renders
@@ -499,10 +499,14 @@ class _Pipeline:
         step.message = f"wrote {export_ads(self.ws, progress=self.progress).path}{derived}"
 
     def _policy(self) -> str:
+        """The given policy, else the trained DAVE-2 (unless ``--skip ads``), else pure pursuit.
+
+        A run of some steps only (``--steps drive``) drives the DAVE-2 the workspace has.
+        """
         if self.options.policy is not None:
             return self.options.policy
         onnx = self.ws.ads_files.onnx
-        return str(onnx) if onnx.is_file() and self.options.wants("ads") else "pure-pursuit"
+        return str(onnx) if onnx.is_file() and "ads" not in self.options.skip else "pure-pursuit"
 
     def replay(self, step: _Step) -> None:
         cameras = self._cameras()
