@@ -35,6 +35,7 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from cam2sim.core.errors import ConfigError, StageError
+from cam2sim.map.road_room import LaneWidening, RecordedBody, lane_widening
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -58,6 +59,9 @@ class TrajectoryRoadOptions:
         segment_m: Length of one arc record.
         pose_height_m: Height of the pose point above the road (``vehicle.reference`` z).
         extend_m: Straight road before the first and after the last pose.
+        room_m: Where the recorded car's footprint (when given) came closer than this to the
+            road's edge, the outermost lane there is widened to leave it this much
+            (:mod:`cam2sim.map.road_room`).
     """
 
     lanes: int = 1
@@ -68,6 +72,7 @@ class TrajectoryRoadOptions:
     segment_m: float = 2.0
     pose_height_m: float = 0.0
     extend_m: float = 10.0
+    room_m: float = 0.5
 
     def __post_init__(self) -> None:
         problems = []
@@ -79,6 +84,8 @@ class TrajectoryRoadOptions:
             problems.append(f"sidewalk {self.sidewalk_m!r} m (give 0 to 10)")
         if self.driving_side not in ("right", "left"):
             problems.append(f"driving side {self.driving_side!r} (give right or left)")
+        if not (0.0 <= self.room_m <= 5.0):
+            problems.append(f"room_m={self.room_m} (give 0 to 5)")
         if not (0.0 <= self.extend_m <= 100.0):
             problems.append(f"extend_m={self.extend_m} (give 0 to 100)")
         if not (0.0 <= self.smooth_m <= 50.0 and 0.5 <= self.segment_m <= 50.0):
@@ -99,6 +106,8 @@ class TrajectoryRoad:
             the centre offset is taken off), metres.
         smoothing_m: Largest distance the smoothing moved a point of the path, metres.
         centre_xy: ``(N, 2)`` the reference line (road centre) at the arcs' starts and end.
+        widened_m: The most an outermost lane was widened for the recorded car's sweep.
+        widened_length_m: Length of road with a widened lane.
     """
 
     xodr: str
@@ -106,6 +115,8 @@ class TrajectoryRoad:
     fit_m: float
     smoothing_m: float
     centre_xy: npt.NDArray[np.float64]
+    widened_m: float = 0.0
+    widened_length_m: float = 0.0
 
 
 def smooth_path(
@@ -191,12 +202,16 @@ def trajectory_road(
     *,
     proj_string: str | None = None,
     name: str = "recorded route",
+    body: RecordedBody | None = None,
 ) -> TrajectoryRoad:
     """One OpenDRIVE road along the driven path ``xyz`` (world frame, ``(N, 2|3)``).
 
     Args:
         xyz: The recorded positions in driving order.
         options: Lanes, widths, smoothing.
+        body: The recorded car, placed at each position on the smoothed path (with its
+            recorded heading, else along the path): the outermost lanes widen where it swept
+            near the edge (``options.room_m``).
         proj_string: The world frame's projection, written as ``<geoReference>``; None for a
             local map.
         name: The road's name.
@@ -245,14 +260,63 @@ def trajectory_road(
         )
         raise StageError(msg)
     fit = float(np.max(np.hypot(*(chain - node_xy).T)))
-    xodr = _xodr_text(name, centre, node_h, centre_curv, centre_len, node_z, opts, proj_string)
+    widening = (
+        None if body is None else _widening(raw, body, opts, (s, path, heading), node_s, ds[-1])
+    )
+    xodr = _xodr_text(
+        name, _Chain(centre, node_h, centre_curv, centre_len, node_z), opts, proj_string, widening
+    )
+    widened = 0.0 if widening is None else widening.widest_m
+    wide = (
+        np.zeros(len(centre_len), dtype=bool)
+        if widening is None
+        else (np.maximum(widening.right_m, widening.left_m)[:-1] > 0.01)
+    )
     return TrajectoryRoad(
         xodr=xodr,
         length_m=float(centre_len.sum()),
         fit_m=fit,
         smoothing_m=smoothing,
         centre_xy=centre,
+        widened_m=widened,
+        widened_length_m=float(centre_len[wide].sum()),
     )
+
+
+def _widening(
+    raw: npt.NDArray[np.float64],
+    body: RecordedBody,
+    opts: TrajectoryRoadOptions,
+    smoothed: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]],
+    node_s: npt.NDArray[np.float64],
+    extended_m: float,
+) -> LaneWidening:
+    """How much the outermost lanes widen at the arcs' nodes for the recorded car's sweep.
+
+    The car stands on the smoothed path at each pose's station (position noise is not a
+    sweep), turned as recorded or along the path.
+    """
+    s, path, heading = smoothed
+    # Each pose's station: along the recorded path, after the extension, scaled onto the
+    # smoothed path.
+    step = np.hypot(*np.diff(raw[:, :2], axis=0).T)
+    station = np.concatenate([[0.0], np.cumsum(step)]) + (opts.extend_m if len(raw) > 1 else 0.0)
+    station *= s[-1] / extended_m if extended_m > 0 else 1.0
+    point = np.column_stack([np.interp(station, s, path[:, k]) for k in range(2)])
+    turned = (
+        np.interp(station, s, heading)
+        if body.heading is None
+        else np.asarray(body.heading, dtype=np.float64).reshape(-1)
+    )
+    corners = body.corners(point, turned)
+    w, n = opts.lane_width_m, opts.lanes
+    far = (2 * n - 0.5) * w  # the road's other edge, beyond the lanes of both directions
+    band = (-w / 2, far) if opts.driving_side == "right" else (-far, w / 2)
+    return lane_widening(
+        s, path[:, :2], heading, corners.reshape(-1, 2),
+        np.repeat(station, corners.shape[1]), band=band, stations=node_s, room_m=opts.room_m,
+        hold_m=float(np.max(np.diff(node_s), initial=0.0)),
+    )  # fmt: skip
 
 
 def _extended(xyz: npt.NDArray[np.float64], extend_m: float) -> npt.NDArray[np.float64]:
@@ -284,16 +348,30 @@ def _direction(xy: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     return axis if float(np.dot(xy[-1] - xy[0], axis)) >= 0 else -axis
 
 
+@dataclass(frozen=True, eq=False)
+class _Chain:
+    """The reference line's arcs.
+
+    Start points and headings (K + 1), curvatures and lengths (K), and the ground's height at
+    the nodes (K + 1).
+    """
+
+    centre: npt.NDArray[np.float64]
+    heading: npt.NDArray[np.float64]
+    curvature: npt.NDArray[np.float64]
+    length: npt.NDArray[np.float64]
+    ground_z: npt.NDArray[np.float64]
+
+
 def _xodr_text(
     name: str,
-    centre: npt.NDArray[np.float64],
-    heading: npt.NDArray[np.float64],
-    curvature: npt.NDArray[np.float64],
-    length: npt.NDArray[np.float64],
-    ground_z: npt.NDArray[np.float64],
+    chain: _Chain,
     opts: TrajectoryRoadOptions,
     proj_string: str | None,
+    widening: LaneWidening | None = None,
 ) -> str:
+    centre, heading, curvature = chain.centre, chain.heading, chain.curvature
+    length, ground_z = chain.length, chain.ground_z
     starts = np.concatenate([[0.0], np.cumsum(length)])
     total = float(starts[-1])
     # A straight stretch is a line: CARLA's arc divides by its curvature (NaN at zero).
@@ -312,7 +390,7 @@ def _xodr_text(
         f'      <elevation s="{s0:.6f}" a="{z:.6f}" b="{g:.9f}" c="0" d="0"/>'
         for s0, z, g in zip(starts[:-1], ground_z[:-1], grade, strict=True)
     )
-    lanes = _lane_section(opts)
+    lanes = _lane_section(opts, None if widening is None else (starts, widening))
     geo = f"    <geoReference><![CDATA[{proj_string}]]></geoReference>\n" if proj_string else ""
     xs, ys = centre[:, 0], centre[:, 1]
     rule = ' rule="LHT"' if opts.driving_side == "left" else ""
@@ -339,21 +417,58 @@ def _xodr_text(
     )
 
 
-def _lane(lane_id: int, kind: str, width: float, mark: str) -> str:
+def _lane(lane_id: int, kind: str, width: float | str, mark: str) -> str:
+    """A lane of constant ``width``, or of the ``<width>`` records ``width`` holds."""
+    records = (
+        f'            <width sOffset="0" a="{width:.3f}" b="0" c="0" d="0"/>\n'
+        if isinstance(width, float)
+        else width
+    )
     return (
         f'          <lane id="{lane_id}" type="{kind}" level="false">\n'
         "            <link/>\n"
-        f'            <width sOffset="0" a="{width:.3f}" b="0" c="0" d="0"/>\n'
+        f"{records}"
         f'            <roadMark sOffset="0" type="{mark}" weight="standard" color="standard" '
         'width="0.15"/>\n'
         "          </lane>\n"
     )
 
 
-def _lane_section(opts: TrajectoryRoadOptions) -> str:
+def _widened(base: float, starts: npt.NDArray[np.float64], extra: npt.NDArray[np.float64]) -> str:
+    """``<width>`` records of a lane ``base`` wide plus ``extra`` at the nodes ``starts``.
+
+    Linear from node to node; runs without widening merge into one constant record.
+    """
+    width = base + np.asarray(extra, dtype=np.float64)
+    slope = np.diff(width) / np.diff(starts)
+    out = []
+    for k in range(len(starts) - 1):  # one record a changing arc; the lane section is short
+        flat = abs(slope[k]) < 1e-9
+        if k and flat and abs(slope[k - 1]) < 1e-9 and abs(width[k] - width[k - 1]) < 1e-9:
+            continue
+        out.append(
+            f'            <width sOffset="{starts[k]:.6f}" a="{width[k]:.4f}" '
+            f'b="{slope[k]:.9f}" c="0" d="0"/>\n'
+        )
+    return "".join(out)
+
+
+def _lane_section(
+    opts: TrajectoryRoadOptions,
+    widening: tuple[npt.NDArray[np.float64], LaneWidening] | None = None,
+) -> str:
+    def width(lane_id: int) -> float | str:
+        if widening is None or abs(lane_id) != opts.lanes:
+            return opts.lane_width_m
+        starts, extra = widening
+        side = extra.left_m if lane_id > 0 else extra.right_m
+        if not np.any(side > 0.0):
+            return opts.lane_width_m
+        return _widened(opts.lane_width_m, starts, side)
+
     def side(sign: int) -> str:
         ids = [sign * k for k in range(1, opts.lanes + 1)]
-        body = [_lane(i, "driving", opts.lane_width_m, "broken") for i in ids]
+        body = [_lane(i, "driving", width(i), "broken") for i in ids]
         if opts.sidewalk_m > 0:
             body.append(_lane(sign * (opts.lanes + 1), "sidewalk", opts.sidewalk_m, "solid"))
         if sign > 0:

@@ -27,7 +27,7 @@ import shutil
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path  # noqa: TC003 - dataclass field types
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -60,9 +60,13 @@ from cam2sim.map.report import (
     road_counts,
     route_warnings,
 )
+from cam2sim.map.road_room import RecordedBody
 from cam2sim.map.trajectory_road import TrajectoryRoadOptions, trajectory_road
 from cam2sim.scenario.body import vehicle_geometry
 from cam2sim.stages._runner import stage_run
+
+if TYPE_CHECKING:
+    from cam2sim.scenario.model import VehicleGeometry
 
 __all__ = [
     "MAP_FILES",
@@ -349,11 +353,33 @@ def _cached_report(ws: Workspace) -> MapReport | None:
 
 @dataclass(frozen=True, eq=False)
 class _Place:
-    """Where the route is: the world frame (None: local), its OSM box, the route itself."""
+    """Where the route is.
+
+    The world frame (None: local), its OSM box, the route itself, and the recorded car.
+    """
 
     frame: WorldFrame | None
     box: BBox | None
     route: _Route
+    body: RecordedBody
+
+
+def _recorded_body(ws: Workspace, route: _Route, vehicle: VehicleGeometry) -> RecordedBody:
+    """The recorded car for the road's room: its footprint and, when recorded, its headings.
+
+    A heading from motion (GPS fixes) is the noisy path's own: the car is then put along the
+    smoothed path instead.
+    """
+    path = dataset_paths(ws.dataset_dir).dataset_json
+    from_motion = path.is_file() and DatasetInfo.load(path).heading_from_motion
+    heading = route.heading
+    usable = heading is not None and np.all(np.isfinite(heading)) and not from_motion
+    return RecordedBody(
+        length_m=vehicle.length_m,
+        width_m=vehicle.width_m,
+        reference_xy=(float(vehicle.reference_xyz[0]), float(vehicle.reference_xyz[1])),
+        heading=heading if usable else None,
+    )
 
 
 def _road_source(
@@ -397,11 +423,20 @@ def _road_source(
             notes,
         )
     road = trajectory_road(
-        route.xyz, road_options, proj_string=frame.proj_string if frame is not None else None
+        route.xyz,
+        road_options,
+        proj_string=frame.proj_string if frame is not None else None,
+        body=place.body,
+    )
+    widened = (
+        f"; widened by up to {road.widened_m:.2f} m over {road.widened_length_m:.0f} m where "
+        f"the recorded car swept within {road_options.room_m:.1f} m of the edge"
+        if road.widened_m > 0.01
+        else ""
     )
     notes.append(
         f"the road follows the driven path ({road.length_m:.0f} m, "
-        f"{road_options.lanes} lane(s) each way of {road_options.lane_width_m:.2f} m; "
+        f"{road_options.lanes} lane(s) each way of {road_options.lane_width_m:.2f} m{widened}; "
         f"smoothing moved the path by up to {road.smoothing_m:.2f} m): no junctions, "
         "side streets or buildings"
     )
@@ -468,16 +503,18 @@ def build_map(
     mode = _road_mode(options, frame)
     box = route_box(frame, route.xyz, options.margin_m) if frame is not None else None
     trajectory_csv = dataset_paths(ws.dataset_dir).trajectory_csv
+    vehicle = vehicle_geometry(ws.load_config().vehicle)
     road_options = dataclasses.replace(
         options.trajectory,
         lane_width_m=options.convert.lane_width_m,
-        pose_height_m=float(vehicle_geometry(ws.load_config().vehicle).reference_xyz[2]),
+        pose_height_m=float(vehicle.reference_xyz[2]),
     )
     inputs_hash = hash_inputs(
         {
             "source": _source_key(options, box, mode),
             "road": options.road,
             "road_options": dataclasses.asdict(road_options),
+            "vehicle": vehicle.model_dump() if mode == "trajectory" else None,
             "margin_m": options.margin_m,
             "convert": options.convert.as_dict(),
             "proj_string": frame.proj_string if frame is not None else None,
@@ -491,7 +528,8 @@ def build_map(
             return MapResult(ws.map_dir, cached, skipped=True)
     with stage_run(ws, STAGE, inputs_hash=inputs_hash, config=None):
         progress("map", 0, 5)
-        made = _road_source(ws, options, mode, _Place(frame, box, route), road_options)
+        place = _Place(frame, box, route, _recorded_body(ws, route, vehicle))
+        made = _road_source(ws, options, mode, place, road_options)
         xodr, source, osm, osm_xml, notes = made
         if frame is None:
             notes.append(
