@@ -45,3 +45,27 @@ def test_no_heights_or_no_motion_give_a_level_car() -> None:
     assert not pitch_from_motion(flat, window_m=15.0).any()
     assert not pitch_from_motion(np.zeros((5, 3)), window_m=15.0).any()
     assert pitch_from_motion(np.zeros((1, 3)), window_m=15.0).shape == (1,)
+
+
+def test_slow_fixes_follow_the_turn_between_them_and_gaps_stay_gaps() -> None:
+    """1 Hz fixes on a 10 m-radius circle at 8 m/s: chords would cut 0.8 m inside it."""
+    from cam2sim.core.trajectory import densify_positions, gap_limit_s
+
+    t = np.arange(0, 12, 1.0)
+    t[8:] += 4.0  # a 5 s dropout between the 8th and 9th fixes
+    angle = 0.8 * t
+    xyz = np.column_stack([10 * np.sin(angle), 10 - 10 * np.cos(angle), np.zeros_like(t)])
+    stamps = np.round(t * 1e9).astype(np.int64)
+    gap = gap_limit_s(stamps, 0.5)
+    assert gap == pytest.approx(2.5)  # one missing fix bridged, the dropout not
+    dense_t, dense = densify_positions(stamps, xyz, max_gap_s=gap)
+    assert np.all(np.diff(dense_t) > 0)
+    assert np.isin(stamps, dense_t).all()  # the fixes kept
+    radius = np.hypot(dense[:, 0], dense[:, 1] - 10)
+    assert np.abs(radius - 10).max() < 0.15  # on the circle, not on its chords (0.76 m in)
+    within = (dense_t > stamps[7]) & (dense_t < stamps[8])
+    assert not within.any()  # nothing made up inside the dropout
+    assert len(dense_t) == len(t) + 9 * 10  # 9 points in each of the 10 one-second intervals
+    fast_t, fast = densify_positions(dense_t, dense, max_gap_s=gap)
+    np.testing.assert_array_equal(fast_t, dense_t)  # 10 Hz already: as it is
+    np.testing.assert_array_equal(fast, dense)

@@ -227,9 +227,9 @@ def _fixes_north_east() -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(lat), np.asarray(lon)
 
 
-def write_navsatfix_bag(path: Path, *, no_fix: tuple[int, ...] = ()) -> Path:
+def write_navsatfix_bag(path: Path, *, no_fix: tuple[int, ...] = (), every: int = 1) -> Path:
     lat, lon = _fixes_north_east()
-    events = [(int(s), "fix", i) for i, s in enumerate(FIX_NS)]
+    events = [(int(s), "fix", i) for i, s in enumerate(FIX_NS) if i % every == 0]
     events += [(int(s), "cam", i) for i, s in enumerate(CAMERA_NS)]
     with BagWriter(path, "mcap") as w:
         for stamp, kind, i in sorted(events):
@@ -284,6 +284,19 @@ def test_extract_navsatfix_heading_from_motion_and_positions_match_pyproj(
     assert np.abs(xy - want).max() < 1e-3
     assert np.abs(poses["z"]).max() < 1e-6
     assert np.abs(poses["speed"] - 5.0).max() < 0.05
+
+
+def test_extract_a_1_hz_navsatfix_poses_every_camera_frame(tmp_path: Path) -> None:
+    """A GPS receiver logging once a second is slow, not broken: frames between fixes stay."""
+    every = write_navsatfix_bag(tmp_path / "fast")
+    slow = write_navsatfix_bag(tmp_path / "slow", every=10)  # fixes at 0, 1 and 2 s
+    counts = []
+    for bag in (every, slow):
+        ws = Workspace.create(tmp_path / f"ws_{bag.name}", _fix_config(bag))
+        info = extract(ws).info
+        counts.append(info.counts.frames)
+        assert not info.dropped.get("camera")
+    assert counts[1] == counts[0] > 3
 
 
 def test_extract_navsatfix_without_fix_suggests_dropping(tmp_path: Path) -> None:

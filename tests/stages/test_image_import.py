@@ -471,9 +471,7 @@ def test_run_stops_before_the_splat_when_replay_and_drive_could_not_render(
     stamps = [10**18 + i * 100_000_000 for i in range(6)]
     _write_images(tmp_path / "images", [f"{s}.png" for s in stamps])
     poses = tmp_path / "poses.csv"
-    poses.write_text(
-        "stamp_ns,x,y\n" + "".join(f"{s},{2.0 * i},0\n" for i, s in enumerate(stamps))
-    )
+    poses.write_text("stamp_ns,x,y\n" + "".join(f"{s},{2.0 * i},0\n" for i, s in enumerate(stamps)))
     import_images(tmp_path / "ws", tmp_path / "images", options=ImportOptions(poses=poses))
     ws = Workspace.open(tmp_path / "ws")
     result = run_pipeline(ws, options=PipelineOptions(steps=("splat", "replay")))

@@ -301,8 +301,32 @@ def test_fov_gives_a_dash_camera_a_pinhole_k(tmp_path: Path) -> None:
     assert (cam.width, cam.height) == (16, 12)
     np.testing.assert_allclose(cam.K, [[8.0, 0.0, 7.5], [0.0, 8.0, 5.5], [0.0, 0.0, 1.0]])
     assert "--fov 90" in cam.source
+    both = ImportOptions(fov_deg=90.0, calibration=tmp_path / "K.txt")
     with pytest.raises(RecordingError, match="not both"):
-        opts = ImportOptions(fov_deg=90.0, calibration=tmp_path / "K.txt")
-        import_images(tmp_path / "ws2", images, options=opts)
+        import_images(tmp_path / "ws2", images, options=both)
     with pytest.raises(RecordingError, match="10 to 170"):
         import_images(tmp_path / "ws3", images, options=ImportOptions(fov_deg=180.0))
+
+
+def test_a_1_hz_track_poses_every_frame_and_a_dropout_is_said(tmp_path: Path) -> None:
+    """Phones and dash cameras log GPS once a second; the frames come 10 times as often."""
+    t, xy, _ = _arc(60)
+    lat, lon = _lat_lon(xy)
+    fixes = list(range(0, 60, 10))  # 1 Hz: t = 0, 1, ..., 5 s
+    images = _frames(tmp_path / "images", 51)  # 0 to 5.0 s at 10 fps
+    track = _gpx(tmp_path / "slow.gpx", t[fixes], lat[fixes], lon[fixes])
+    import_images(tmp_path / "ws", images, options=ImportOptions(fps=10.0, poses=track))
+    slow = _trajectory(tmp_path / "ws")
+    assert len(slow["x"]) == 51  # every frame, not only those at a fix
+    full = _gpx(tmp_path / "full.gpx", t[:51], lat[:51], lon[:51])
+    import_images(tmp_path / "ref", images, options=ImportOptions(fps=10.0, poses=full))
+    ref = _trajectory(tmp_path / "ref")
+    # the turn between the fixes is followed, not cut by straight chords
+    gap = np.hypot(slow["x"] - ref["x"], slow["y"] - ref["y"])
+    assert gap.max() < 0.1
+    # a receiver that lost the sky for 3 s: those frames have no pose, and the import says so
+    lost = [i for i in fixes if i not in (20, 30)]
+    track = _gpx(tmp_path / "lost.gpx", t[lost], lat[lost], lon[lost])
+    result = import_images(tmp_path / "ws2", images, options=ImportOptions(fps=10.0, poses=track))
+    assert result.info.counts.frames == 51 - 29  # 1.1 to 3.9 s
+    assert any("29 of 51 frames have no pose (29 pose gap)" in n for n in result.notes)

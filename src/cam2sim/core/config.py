@@ -148,7 +148,10 @@ class SyncConfig(_Model):
     """How sensor samples are matched to poses."""
 
     max_pose_gap_s: float = pydantic.Field(
-        0.5, gt=0, description="Drop frames inside a pose gap longer than this."
+        0.5,
+        gt=0,
+        description="Drop frames inside a pose gap longer than this (and than 2.5 of the pose "
+        "source's own median interval: a 1 Hz GPS's missing fix is bridged).",
     )
     speed_window_s: float = pydantic.Field(
         0.2, gt=0, description="Speed = distance travelled over this window / window."

@@ -469,6 +469,11 @@ class Workspace:
         return self.root / "real"
 
     @property
+    def video_scratch_dir(self) -> Path:
+        """``.video_frames.partial/``: a video's decoded frames while ``cam2sim import`` runs."""
+        return self.root / ".video_frames.partial"
+
+    @property
     def detection_files(self) -> DetectionPaths:
         """The detect stage's files."""
         return DetectionPaths(self.detections_dir)

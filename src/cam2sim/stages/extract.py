@@ -44,7 +44,12 @@ from cam2sim.core.files import (
 from cam2sim.core.images import frames_are_grey
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.table import write_table
-from cam2sim.core.trajectory import Trajectory, orientation_from_motion
+from cam2sim.core.trajectory import (
+    Trajectory,
+    densify_positions,
+    gap_limit_s,
+    orientation_from_motion,
+)
 from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
 from cam2sim.recording.bag import BagMessage, Recording
 from cam2sim.recording.pointcloud import decode_pointcloud
@@ -252,9 +257,13 @@ def world_trajectory_from_track(
         assert world.source_crs is not None
         position = wf.from_crs(world.source_crs, track.position)
     pose_cfg = config.pose
+    stamp_ns = track.stamp_ns
     if pose_cfg.heading == "motion" or (track.quat is None and orientation is None):
+        # Slow fixes (1 Hz GPS) follow a cubic through them, not straight chords.
+        gap = gap_limit_s(stamp_ns, config.sync.max_pose_gap_s)
+        stamp_ns, position = densify_positions(stamp_ns, position, max_gap_s=gap)
         quat = orientation_from_motion(
-            track.stamp_ns,
+            stamp_ns,
             position,
             window_s=config.sync.heading_window_s,
             min_speed_mps=config.sync.min_motion_speed_mps,
@@ -292,7 +301,8 @@ def world_trajectory_from_track(
             ).quats
         offset = AXIS_CONVENTION_YAW_OFFSET[pose_cfg.axis_convention]
         quat = frames.quat_normalize(frames.quat_multiply(quat, yaw_offset_quat(offset)))
-    return Trajectory(stamp_ns=track.stamp_ns, position=position, quat=quat)
+        stamp_ns = track.stamp_ns
+    return Trajectory(stamp_ns=stamp_ns, position=position, quat=quat)
 
 
 def _read_trajectory(
@@ -477,6 +487,8 @@ def _stream_sensors(
     traj: Trajectory,
     paths: DatasetPaths,
     progress: ProgressCallback,
+    *,
+    max_gap_s: float,
 ) -> _SensorOutput:
     topics = config.topics
     assert topics.camera is not None
@@ -490,7 +502,6 @@ def _stream_sensors(
     dropped: dict[str, Counter[str]] = {"camera": Counter(), "lidar": Counter()}
     cam_rows, lidar_rows = _SensorRows([], []), _SensorRows([], [])
     writer = _FrameWriter(paths, config)
-    sync = config.sync
     seen_camera = 0
     done = 0
     try:
@@ -503,7 +514,7 @@ def _stream_sensors(
                 seen_camera += 1
                 if (seen_camera - 1) % config.frames.every:
                     continue
-                s = traj.sample(query, max_gap_s=sync.max_pose_gap_s)
+                s = traj.sample(query, max_gap_s=max_gap_s)
                 if not s.valid[0]:
                     dropped["camera"][str(s.reason[0])] += 1
                     continue
@@ -511,7 +522,7 @@ def _stream_sensors(
                 writer.submit(index, m.msgtype, m.msg)
                 cam_rows.add(index, m.stamp_ns)
             else:
-                s = traj.sample(query, max_gap_s=sync.max_pose_gap_s)
+                s = traj.sample(query, max_gap_s=max_gap_s)
                 if not s.valid[0]:
                     dropped["lidar"][str(s.reason[0])] += 1
                     continue
@@ -687,7 +698,8 @@ def extract(
             if config.topics.lidar
             else None
         )
-        out = _stream_sensors(rec, config, traj, paths, progress)
+        gap = gap_limit_s(track.stamp_ns, config.sync.max_pose_gap_s)  # 1 Hz GPS: 2.5 s
+        out = _stream_sensors(rec, config, traj, paths, progress, max_gap_s=gap)
         cam, lidar, dropped, size = out.camera, out.lidar, out.dropped, out.frame_size
         _check_overlap(traj, cam, dropped["camera"], config.topics.camera)
         _write_tables(paths, traj, config, cam, lidar, lidar_mount, streams.signals)

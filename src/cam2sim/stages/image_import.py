@@ -52,7 +52,12 @@ from cam2sim.core.files import atomic_folder, file_fingerprint, write_bytes_atom
 from cam2sim.core.images import frames_are_grey
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.table import write_table
-from cam2sim.core.trajectory import Trajectory, orientation_from_motion
+from cam2sim.core.trajectory import (
+    Trajectory,
+    densify_positions,
+    gap_limit_s,
+    orientation_from_motion,
+)
 from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
 from cam2sim.recording.kitti_calibration import (
     KITTI_RAW_FILES,
@@ -464,16 +469,19 @@ def _world(
 
 
 def _heading_quats(
-    table: PoseTable, xyz: npt.NDArray[np.float64], sync: SyncConfig
+    table: PoseTable,
+    stamp_ns: npt.NDArray[np.int64],
+    xyz: npt.NDArray[np.float64],
+    sync: SyncConfig,
 ) -> npt.NDArray[np.float64]:
     """Orientation from the direction of travel, for poses that give none (GPS fixes)."""
     if table.by_index:
         msg = "the pose file gives no orientation and no times; add yaw or qx,qy,qz,qw"
         raise RecordingError(msg)
-    order = np.argsort(table.stamp_ns, kind="stable")
+    order = np.argsort(stamp_ns, kind="stable")
     quat = np.empty((len(order), 4))
     quat[order] = orientation_from_motion(
-        table.stamp_ns[order],
+        stamp_ns[order],
         xyz[order],
         window_s=sync.heading_window_s,
         min_speed_mps=sync.min_motion_speed_mps,
@@ -509,7 +517,12 @@ def _poses_for_images(
     """Give every image its pose: by the table's image column, else by time."""
     dropped: dict[str, int] = {}
     world, xyz, given = _world(table, opts.crs, existing)
-    quat = given if given is not None else _heading_quats(table, xyz, sync)
+    stamp_ns = table.stamp_ns
+    gap = gap_limit_s(stamp_ns, opts.max_pose_gap_s)  # a 1 Hz GPS: 2.5 s
+    if given is None and not (table.by_index or table.images is not None):
+        # Slow fixes (1 Hz GPS) follow a cubic through them, not straight chords.
+        stamp_ns, xyz = densify_positions(stamp_ns, xyz, max_gap_s=gap)
+    quat = given if given is not None else _heading_quats(table, stamp_ns, xyz, sync)
     offset = AXIS_CONVENTION_YAW_OFFSET[opts.axis_convention]
     quat = frames.quat_normalize(frames.quat_multiply(quat, yaw_offset_quat(offset)))
     if table.images is not None or table.by_index:
@@ -531,8 +544,8 @@ def _poses_for_images(
             traj = Trajectory(stamps[keep][order], traj_pos[order], traj_q[order])
             speed[order] = traj.speed_at(stamps[keep][order], window_s=0.2)
     else:
-        traj = Trajectory(table.stamp_ns, xyz, quat)
-        s = traj.sample(stamps, max_gap_s=opts.max_pose_gap_s)
+        traj = Trajectory(stamp_ns, xyz, quat)
+        s = traj.sample(stamps, max_gap_s=gap)
         keep = s.valid
         for reason in np.unique(s.reason[~s.valid]):
             dropped[str(reason)] = int((s.reason == reason).sum())
@@ -612,7 +625,7 @@ def import_images(
     rig = read_rig(opts.rig) if opts.rig is not None else []
     table = read_pose_file(opts.poses) if opts.poses else None
     ws, config, created = _open_workspace(Path(root), opts)
-    scratch = ws.root / ".video_frames.partial"
+    scratch = ws.video_scratch_dir
     try:
         if video:
             shutil.rmtree(scratch, ignore_errors=True)
@@ -743,6 +756,10 @@ def _import(
                 posed.dropped,
             )
             motion = posed.heading_from_motion
+            if dropped:
+                why = ", ".join(f"{n} {reason.replace('_', ' ')}" for reason, n in dropped.items())
+                left = f"{sum(dropped.values())} of {len(files)} frames have no pose ({why})"
+                notes = (*notes, f"{left} and were left out")
         kept = [f for f, k in zip(files, keep, strict=True) if k]
         kept_stamps = stamps[keep]
         fmt = config.frames.format
