@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from cam2sim.core.errors import RecordingError
+from cam2sim.recording.timestamps import stamp_ns_from_text
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -64,8 +65,6 @@ def read_gpx(path: Path) -> GpsTrack:
             coordinate (the message names the point).
     """
     from xml.etree import ElementTree as ET  # noqa: PLC0415 -- lazy: only GPX needs it
-
-    from cam2sim.recording.pose_file import stamp_ns_from_text  # noqa: PLC0415 -- cycle
 
     try:
         root = ET.parse(path).getroot()  # noqa: S314 -- a local file the user gives

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import csv
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -34,6 +33,7 @@ import numpy.typing as npt
 from cam2sim.core import frames
 from cam2sim.core.errors import RecordingError
 from cam2sim.recording.gps_track import GpsTrack, is_nmea, read_gpx, read_nmea
+from cam2sim.recording.timestamps import iso_ns, stamp_ns_from_text
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -80,39 +80,6 @@ def first_column(rows: list[dict[str, str]], *names: str) -> str | None:
         if name in rows[0]:
             return name
     return None
-
-
-def stamp_ns_from_text(text: str) -> int:
-    """Nanoseconds of a time in seconds, or of an ISO 8601 date and time.
-
-    A 16+ digit integer is taken as nanoseconds; a date and time (``2011-09-26 13:02:25.964``,
-    ``...T...Z``) without a zone as UTC, every fractional digit kept.
-
-    Raises:
-        ValueError: The text is neither.
-    """
-    text = text.strip()
-    if len(text) >= 19 and text[4] == "-" and text[10] in " T":
-        return _iso_ns(text)
-    sec, _, frac = text.partition(".")
-    if not frac and abs(int(sec)) > 10**15:
-        return int(sec)
-    return int(sec) * 1_000_000_000 + int((frac + "000000000")[:9]) * (
-        -1 if sec.startswith("-") else 1
-    )
-
-
-def _iso_ns(text: str) -> int:
-    """Nanoseconds since the epoch of an ISO 8601 date and time (UTC when it names no zone)."""
-    head, frac, tail = text[:19], "", text[19:]
-    if tail.startswith("."):
-        digits = len(tail) - len(tail[1:].lstrip("0123456789"))
-        frac, tail = tail[1:digits], tail[digits:]
-    moment = datetime.fromisoformat(head.replace(" ", "T") + tail)
-    if moment.tzinfo is None:
-        moment = moment.replace(tzinfo=UTC)
-    seconds = int(moment.timestamp())
-    return seconds * 1_000_000_000 + int((frac + "000000000")[:9])
 
 
 def table_stamps(rows: list[dict[str, str]], column: str) -> npt.NDArray[np.int64]:
@@ -263,7 +230,7 @@ def _oxts_stamps(path: Path, count: int) -> npt.NDArray[np.int64]:
         )
         raise RecordingError(msg)
     try:
-        ns = np.array([_iso_ns(ln) for ln in lines], dtype=np.int64)
+        ns = np.array([iso_ns(ln) for ln in lines], dtype=np.int64)
     except ValueError as err:
         msg = f"{stamps_file}: not KITTI's 'YYYY-MM-DD hh:mm:ss.fffffffff' times ({err})"
         raise RecordingError(msg) from None
