@@ -73,13 +73,9 @@ long: four benchmark worlds on one H200 stopped 12 of their 25 chunks on the 120
 after 570 steps."""
 
 RUN_GPU_SPLAT_STEPS: Final = 10_000
-"""Training steps of each chunk in ``cam2sim run`` on CUDA (MCMC densification to
-:data:`RUN_GPU_MCMC_CAP` Gaussians). Twice the Gaussians and 12,000 steps gained 0.022 held-out
-SSIM on KITTI 03 (0.794) for 19.3 minutes instead of 14.3 (docs/benchmarks.md, "seventh run")."""
-RUN_GPU_MCMC_CAP: Final = 1_500_000
-"""The Gaussians each chunk of ``cam2sim run``'s CUDA splat grows to (MCMC's cap; gsplat's own
-default is 1M): on KITTI 03's chunk 0 at 10,000 steps 1.5M gained 0.009 held-out SSIM over 1M
-for 7 % more time three chunks at once (docs/benchmarks.md, "Chunk 0 right after")."""
+"""Training steps of each chunk in ``cam2sim run`` on CUDA (MCMC densification to a cap of one
+million Gaussians). Twice the Gaussians and 12,000 steps gained 0.022 held-out SSIM on KITTI 03
+(0.794) for 19.3 minutes instead of 14.3 (docs/benchmarks.md, "seventh run")."""
 RUN_GPU_POSE_RATE: Final = 1e-5
 """Pose refinement in ``cam2sim run``'s CUDA splat (``LearningRates.poses``): on KITTI 03's
 weakest chunk it gained 0.64 dB and 0.029 held-out SSIM at 10,000 steps for about 10 % more
@@ -170,8 +166,8 @@ class SplatStageOptions:
     def for_run(cls, *, cuda: bool, lidar: bool, gsplat: bool | None = None) -> SplatStageOptions:
         """``cam2sim run``'s splat: 10,000 MCMC steps a chunk on CUDA, the CPU demo preset else.
 
-        ``cuda``: :data:`RUN_GPU_SPLAT_STEPS` steps a chunk with MCMC densification (to
-        :data:`RUN_GPU_MCMC_CAP` Gaussians), pose refinement (:data:`RUN_GPU_POSE_RATE`) and
+        ``cuda``: :data:`RUN_GPU_SPLAT_STEPS` steps a chunk with MCMC densification (a cap
+        of one million Gaussians), pose refinement (:data:`RUN_GPU_POSE_RATE`) and
         :data:`RUN_GPU_SSIM_WEIGHT`, at most
         :data:`RUN_GPU_SPLAT_BUDGET_S` seconds a chunk, times the processes sharing the GPU
         (the default 30,000 steps would take half an hour on a recording of 5 chunks). On real
@@ -190,9 +186,7 @@ class SplatStageOptions:
             train = TrainOptions(
                 max_steps=RUN_GPU_SPLAT_STEPS, val_every=1_000, ssim_weight=RUN_GPU_SSIM_WEIGHT,
                 lr=LearningRates(poses=RUN_GPU_POSE_RATE),
-                densify=DensifyOptions(
-                    strategy="mcmc" if gsplat else "auto", mcmc_cap=RUN_GPU_MCMC_CAP
-                ),
+                densify=DensifyOptions(strategy="mcmc" if gsplat else "auto"),
                 time_budget_s=RUN_GPU_SPLAT_BUDGET_S * gpu_sharers(), budget_per_chunk=True,
             )  # fmt: skip
             opts = cls(prepare=PrepareOptions(), train=train)
