@@ -8,6 +8,7 @@ video's first frame; ``cam2sim import --start`` says when that was on the poses'
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -17,6 +18,7 @@ from cam2sim.core.errors import RecordingError
 from cam2sim.core.progress import ProgressCallback, no_progress
 
 if TYPE_CHECKING:
+    from concurrent.futures import Future
     from pathlib import Path
 
     import numpy.typing as npt
@@ -67,6 +69,47 @@ def _open(path: Path) -> tuple[Any, float, int]:
     return capture, fps, int(capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
 
 
+class _FrameFiles:
+    """Frames converted, encoded and written on worker threads (OpenCV releases the GIL).
+
+    At most twice the workers' count of frames wait in memory; the first failure is raised.
+    """
+
+    def __init__(self, out_dir: Path, fmt: Literal["png", "jpeg"], jpeg_quality: int) -> None:
+        from concurrent.futures import ThreadPoolExecutor  # noqa: PLC0415 -- lazy
+
+        from cam2sim.core.machine import available_cpus  # noqa: PLC0415 -- lazy
+
+        self.out_dir, self.fmt, self.quality = out_dir, fmt, jpeg_quality
+        self.suffix = "jpg" if fmt == "jpeg" else "png"
+        self.workers = max(1, available_cpus())
+        self.pool = ThreadPoolExecutor(self.workers, thread_name_prefix="cam2sim-video")
+        self.pending: deque[Future[None]] = deque()
+        self.files: list[Path] = []
+
+    def _write(self, frame: Any, target: Path) -> None:
+        import cv2  # noqa: PLC0415 -- lazy: cv2 is heavy
+
+        from cam2sim.recording.image import encode_image_file  # noqa: PLC0415 -- lazy
+
+        image = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
+        target.write_bytes(encode_image_file(image, self.fmt, jpeg_quality=self.quality))
+
+    def add(self, frame: Any) -> None:
+        target = self.out_dir / f"frame_{len(self.files):06d}.{self.suffix}"
+        self.files.append(target)
+        self.pending.append(self.pool.submit(self._write, frame, target))
+        while len(self.pending) > 2 * self.workers:
+            self.pending.popleft().result()
+
+    def close(self) -> None:
+        try:
+            while self.pending:
+                self.pending.popleft().result()
+        finally:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+
+
 def decode_video(
     path: Path,
     out_dir: Path,
@@ -79,22 +122,20 @@ def decode_video(
     """Decode ``path``, keeping at most ``max_fps`` frames a second, into ``out_dir``.
 
     A frame is kept when at least ``1 / max_fps`` seconds passed since the last kept one
-    (every frame of a video slower than ``max_fps``).
+    (every frame of a video slower than ``max_fps``). The kept frames are encoded and written
+    on every CPU while the next ones decode.
 
     Raises:
         RecordingError: The file cannot be opened or holds no frame.
     """
     import cv2  # noqa: PLC0415 -- lazy: cv2 is heavy
 
-    from cam2sim.recording.image import encode_image_file  # noqa: PLC0415 -- lazy: imports cv2
-
     if max_fps <= 0:
         msg = f"--video-fps must be positive; got {max_fps}"
         raise RecordingError(msg)
     capture, fps, total = _open(path)
     out_dir.mkdir(parents=True, exist_ok=True)
-    suffix = "jpg" if fmt == "jpeg" else "png"
-    files: list[Path] = []
+    writer = _FrameFiles(out_dir, fmt, jpeg_quality)
     stamps: list[int] = []
     step_ns = round(1e9 / max_fps)
     next_ns = 0
@@ -119,18 +160,16 @@ def decode_video(
             if stamp < next_ns - step_ns // 20:  # a 5 % tolerance for rounded times
                 continue
             next_ns = stamp + step_ns
-            image: Any = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
-            target = out_dir / f"frame_{len(files):06d}.{suffix}"
-            target.write_bytes(encode_image_file(image, fmt, jpeg_quality=jpeg_quality))
-            files.append(target)
+            writer.add(frame)
             stamps.append(stamp)
             if decoded % 32 == 0:
                 progress("video frames", decoded, max(total, decoded))
     finally:
         capture.release()
+        writer.close()
     progress("video frames", decoded, decoded)
-    if not files:
+    if not writer.files:
         msg = f"{path}: no frame could be decoded; check the file plays, or convert it"
         raise RecordingError(msg)
     t = np.asarray(stamps, dtype=np.int64)
-    return DecodedVideo(files, t - t[0], fps, decoded)
+    return DecodedVideo(writer.files, t - t[0], fps, decoded)

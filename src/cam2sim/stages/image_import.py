@@ -763,11 +763,14 @@ def _import(
         kept = [f for f, k in zip(files, keep, strict=True) if k]
         kept_stamps = stamps[keep]
         fmt = config.frames.format
-        size = _write_frames(kept, paths, fmt, config.frames.jpeg_quality, progress)
+        size = _write_frames(
+            kept, paths, fmt, config.frames.jpeg_quality, progress, move=images.is_file()
+        )
         _write_frame_tables(paths, kept_stamps, pose_cols)
         _write_signals(paths, signals)
         if intr is not None:  # a grey camera's simulated views are made grey too
-            intr = intr.model_copy(update={"grey": frames_are_grey(kept)})
+            written = [paths.frame_file(i, fmt) for i in range(len(kept))]
+            intr = intr.model_copy(update={"grey": frames_are_grey(written)})
         rig_names = write_rig(
             paths, rig, keep, intr, source=opts.rig or Path(), fmt=fmt,
             list_images=_list_images, intrinsics_from_file=intrinsics_from_file,
@@ -848,12 +851,21 @@ def _write_frames(
     fmt: Literal["png", "jpeg"],
     quality: int,
     progress: ProgressCallback,
+    *,
+    move: bool = False,
 ) -> tuple[int, int]:
     import cv2  # noqa: PLC0415
 
     from cam2sim.recording.image import encode_image_file  # noqa: PLC0415 -- lazy: imports cv2
 
     paths.frames_dir.mkdir(parents=True, exist_ok=True)
+    if move:  # a video's frames, decoded into the workspace in this format: one size, renamed
+        first = _image_size(files[0])
+        assert first is not None  # decode_video wrote it
+        for i, f in enumerate(files):
+            f.replace(paths.frame_file(i, fmt))
+        progress("images", len(files), len(files))
+        return first
     size: tuple[int, int] | None = None
     want_suffix = (".jpg", ".jpeg") if fmt == "jpeg" else (".png",)
     for i, f in enumerate(files):
