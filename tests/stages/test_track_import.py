@@ -330,3 +330,16 @@ def test_a_1_hz_track_poses_every_frame_and_a_dropout_is_said(tmp_path: Path) ->
     result = import_images(tmp_path / "ws2", images, options=ImportOptions(fps=10.0, poses=track))
     assert result.info.counts.frames == 51 - 29  # 1.1 to 3.9 s
     assert any("29 of 51 frames have no pose (29 pose gap)" in n for n in result.notes)
+
+
+def test_an_undated_nmea_log_meets_frames_counted_from_zero_at_its_first_fix(
+    tmp_path: Path,
+) -> None:
+    t, xy, _ = _arc(40)
+    lat, lon = _lat_lon(xy)
+    log = _nmea(tmp_path / "gga.nmea", t, lat, lon, rmc=False)  # times of day only
+    images = _frames(tmp_path / "images", 30)
+    result = import_images(tmp_path / "ws", images, options=ImportOptions(fps=10.0, poses=log))
+    assert result.info.counts.frames == 30
+    assert any("1970" in n for n in result.notes)  # no date in the log
+    assert any("first pose's time" in n for n in result.notes)

@@ -654,7 +654,8 @@ def _start_time(
     """The images' times on the poses' clock: from ``--start``, or the first pose's time.
 
     Images whose times count from zero (a frame rate, a video) beside poses with dates (a GPS
-    track) take the first pose's time for the first frame, with a note saying so.
+    track), or on a clock the images' times never meet, take the first pose's time for the
+    first frame, with a note saying so.
 
     Raises:
         RecordingError: ``start`` is neither seconds nor a date.
@@ -667,8 +668,13 @@ def _start_time(
             raise RecordingError(msg) from None
         return stamps - stamps[0] + first, ()
     relative = not time_source.startswith("file names")
-    dated = table is not None and not table.by_index and table.images is None
-    if not (relative and dated and table is not None and table.stamp_ns[0] > _DATED_NS):
+    timed = table is not None and not table.by_index and table.images is None
+    if not (relative and timed and table is not None):
+        return stamps, ()
+    # Dated poses (a GPS track), or poses on a clock of their own that the images' times never
+    # meet (an NMEA log without dates counts from midnight): the first frame at the first pose.
+    apart = stamps.max() < table.stamp_ns[0] or stamps.min() > table.stamp_ns[-1]
+    if not (table.stamp_ns[0] > _DATED_NS or apart):
         return stamps, ()
     first = int(table.stamp_ns[0])
     when = datetime.fromtimestamp(first / 1e9, tz=UTC).isoformat(timespec="milliseconds")
