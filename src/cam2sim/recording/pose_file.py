@@ -99,10 +99,13 @@ _VEHICLE_IN_OPTICAL = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0
 _WORLD_FROM_FIRST_CAMERA = _VEHICLE_IN_OPTICAL.T
 
 
-def _is_kitti(line: str) -> bool:
-    """Whether a line is a KITTI pose: 12 numbers, whitespace-separated, no header."""
+def _numbers(line: str, count: int) -> bool:
+    """Whether a line is ``count`` whitespace-separated numbers (no commas, no header).
+
+    KITTI's poses are 12 (a 3x4 matrix), TUM's 8 (time, position, quaternion).
+    """
     parts = line.split()
-    if len(parts) != 12 or "," in line:
+    if len(parts) != count or "," in line:
         return False
     try:
         [float(p) for p in parts]
@@ -131,18 +134,6 @@ def _read_kitti_poses(path: Path, lines: list[str]) -> PoseTable:
     quat = frames.quat_normalize(frames.quat_from_matrix(rot))
     stamps = np.arange(len(m), dtype=np.int64)  # placeholders: the images give the times
     return PoseTable(stamps, xyz, quat, None, by_index=True, kind="kitti poses")
-
-
-def _is_tum(line: str) -> bool:
-    """Whether a line is a TUM pose: 8 numbers, whitespace-separated (time, position, quat)."""
-    parts = line.split()
-    if len(parts) != 8 or "," in line:
-        return False
-    try:
-        [float(p) for p in parts]
-    except ValueError:
-        return False
-    return True
 
 
 def _optical_axes(rot: npt.NDArray[np.float64], xyz: npt.NDArray[np.float64]) -> bool | None:
@@ -347,9 +338,9 @@ def read_pose_file(path: Path) -> PoseTable:
         msg = f"--poses {path} does not exist"
         raise RecordingError(msg) from None
     data = [ln for ln in lines if not ln.lstrip().startswith("#")]
-    if data and _is_kitti(data[0]):
+    if data and _numbers(data[0], 12):
         return _read_kitti_poses(path, data)
-    if data and _is_tum(data[0]):
+    if data and _numbers(data[0], 8):
         return _read_tum(path, lines)
     track = (
         read_gpx(path) if lines and lines[0].lstrip().startswith("<")
