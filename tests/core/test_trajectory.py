@@ -69,3 +69,52 @@ def test_slow_fixes_follow_the_turn_between_them_and_gaps_stay_gaps() -> None:
     fast_t, fast = densify_positions(dense_t, dense, max_gap_s=gap)
     np.testing.assert_array_equal(fast_t, dense_t)  # 10 Hz already: as it is
     np.testing.assert_array_equal(fast, dense)
+
+
+def test_jittery_fixes_are_smoothed_turns_and_gaps_kept() -> None:
+    """10 Hz fixes with 0.1 m jitter on a 15 m-radius circle at 8 m/s, with a 10 s dropout."""
+    from cam2sim.core.trajectory import Trajectory, smooth_positions
+
+    rng = np.random.default_rng(0)
+    t = np.arange(0, 30, 0.1)
+    t[150:] += 10.0  # a dropout: the run after it starts 5 m off the circle
+    angle = 8.0 / 15.0 * t
+    truth = np.column_stack([15 * np.sin(angle), 15 - 15 * np.cos(angle), np.zeros_like(t)])
+    truth[150:, 0] += 5.0
+    noisy = truth + rng.normal(0, 0.1, truth.shape)
+    stamps = np.round(t * 1e9).astype(np.int64)
+    smooth, moved = smooth_positions(stamps, noisy, max_gap_s=0.5)
+    err = np.linalg.norm(smooth - truth, axis=1)
+    assert np.sqrt(np.mean(np.linalg.norm(noisy - truth, axis=1) ** 2)) > 0.15
+    assert np.sqrt(np.mean(err**2)) < 0.06  # the jitter gone
+    assert 0.1 < moved < 0.25  # and the measure of it says so
+    radius = np.hypot(smooth[:150, 0], smooth[:150, 1] - 15)
+    assert abs(np.median(radius) - 15) < 0.03  # the turn kept, not cut inside
+    assert err[145:155].max() < 0.5  # a run's ends are noisier; a blend would be metres
+
+    def speed(p: np.ndarray) -> np.ndarray:
+        quat = np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1))
+        return Trajectory(stamps, p, quat).speed_at(stamps, window_s=0.2)
+
+    inside = np.r_[5:145, 155:295]
+    assert np.abs(speed(noisy) - 8.0)[inside].mean() > 0.3  # 0.1 m over 0.2 s
+    assert np.abs(speed(smooth) - 8.0)[inside].mean() < 0.1
+
+
+def test_smoothing_keeps_clean_fixes_and_short_runs_and_shares_stamps() -> None:
+    from cam2sim.core.trajectory import smooth_positions
+
+    t = np.arange(0, 10, 0.1)
+    line = np.column_stack([5 * t, 0.5 * t, np.zeros_like(t)])
+    stamps = np.round(t * 1e9).astype(np.int64)
+    smooth, moved = smooth_positions(stamps, line, max_gap_s=0.5)
+    assert moved < 1e-3  # a clean straight drive stays where it is
+    zigzag = line[:4] + np.outer([1, -1, 1, -1], [0, 0.3, 0])
+    few, moved = smooth_positions(stamps[:4], zigzag, max_gap_s=0.5)
+    np.testing.assert_array_equal(few, zigzag)
+    assert moved == 0.0  # four fixes: too few to tell noise from the path
+    twice = np.repeat(stamps, 2)  # two receivers' fixes at the same stamps, 0.2 m apart
+    pair = np.repeat(line, 2, axis=0) + np.tile([[0, 0.1, 0], [0, -0.1, 0]], (len(t), 1))
+    smooth, _ = smooth_positions(twice, pair, max_gap_s=0.5)
+    np.testing.assert_allclose(smooth[0::2], smooth[1::2])  # one position a stamp
+    np.testing.assert_allclose(smooth[0::2], line, atol=1e-3)  # their mean, on the line

@@ -129,6 +129,26 @@ def test_heading_from_noisy_gps_fixes_is_averaged_over_a_second(tmp_path: Path) 
     assert err.max() < 5.0
 
 
+def test_noisy_gps_fixes_are_smoothed_and_the_import_says_so(tmp_path: Path) -> None:
+    """The frames' positions and speeds come from the smoothed fixes, not the jittery ones."""
+    t, xy, _ = _arc(120)
+    noisy = xy + np.random.default_rng(4).normal(0.0, 0.1, xy.shape)
+    lat, lon = _to_wgs84(UTM10N, noisy[:, 0], noisy[:, 1])
+    stamps = T0 + np.round(t * 1e9).astype(np.int64)
+    info = _import_gps(tmp_path, stamps, lat, lon)
+    table = read_table(DatasetPaths(tmp_path / "ws" / "dataset").poses_csv)
+    wf = frames.WorldFrame(info.world.origin_lat_deg, info.world.origin_lon_deg)  # type: ignore[arg-type]
+    xyz = np.stack([table["x"], table["y"], table["z"]], -1)
+    e, n = wf.to_crs(UTM10N, xyz)[:, :2].T
+    err = np.hypot(e - xy[:, 0], n - xy[:, 1])[5:-5]
+    assert np.sqrt(np.mean(err**2)) < 0.07  # the fixes were 0.14 m off (0.1 per axis)
+    assert np.abs(table["speed"][5:-5] - 8.0).max() < 0.5  # 0.2 s chords of the fixes: 1 m/s
+    result = import_images(
+        tmp_path / "ws", tmp_path / "images", options=ImportOptions(poses=tmp_path / "gps.csv")
+    )
+    assert any("smoothed" in note for note in result.notes)
+
+
 def test_gps_fixes_are_not_fitted_for_where_they_sit_on_the_car(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

@@ -9,6 +9,9 @@ A slow position source (a GPS receiver at 1 Hz: 8 m between fixes at 30 km/h) is
 allowed gap grows with the source's own interval (:func:`gap_limit_s`), and positions without
 an orientation are first resampled along a cubic through the fixes (:func:`densify_positions`),
 so a 10 m-radius turn between 1 Hz fixes is not cut short by up to 0.8 m of straight chords.
+Before that their jitter is smoothed away (:func:`smooth_positions`): a heading, a speed and a
+path curvature taken from 10 Hz fixes carry it otherwise (0.1 m of jitter is 0.7 m/s of speed
+over 0.2 s).
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ __all__ = [
     "heading_from_motion",
     "orientation_from_motion",
     "pitch_from_motion",
+    "smooth_positions",
 ]
 
 
@@ -94,6 +98,59 @@ def densify_positions(
     stamps = np.concatenate([t, new_t])
     merged = np.argsort(stamps, kind="stable")
     return stamps[merged], np.concatenate([p, new])[merged]
+
+
+MIN_SMOOTHED_FIXES: Final = 5
+"""A run of fixes between gaps shorter than this is left as it is (too few to tell noise)."""
+
+
+def smooth_positions(
+    stamp_ns: npt.ArrayLike, position: npt.ArrayLike, *, max_gap_s: float
+) -> tuple[npt.NDArray[np.float64], float]:
+    """Positions without orientation (GPS fixes) with their jitter smoothed away.
+
+    Each coordinate of each run of fixes between gaps (intervals longer than ``max_gap_s``) is
+    replaced by a cubic smoothing spline in time whose smoothness generalised cross-validation
+    picks from the fixes themselves (``scipy.interpolate.make_smoothing_spline``): white jitter
+    goes, the path's turns and a slow drift (which no filter can tell from the road) stay. On
+    KITTI 03 written as 10 Hz fixes with 0.1 m jitter: 0.098 m of jitter -> 0.022 m, speed error
+    0.73 -> 0.16 m/s. Fixes sharing a stamp are averaged first; a run of fewer than
+    :data:`MIN_SMOOTHED_FIXES` stamps is left alone.
+
+    Returns:
+        ``(positions, change_rms_m)``: ``(N, D)`` positions in the input's order, and the RMS
+        distance they moved (a measure of the jitter removed).
+    """
+    from scipy.interpolate import make_smoothing_spline  # noqa: PLC0415 -- lazy: heavy
+
+    t = np.asarray(stamp_ns, dtype=np.int64).reshape(-1)
+    p = np.asarray(position, dtype=np.float64).reshape(len(t), -1)
+    out = p.copy()
+    if len(t) < MIN_SMOOTHED_FIXES:
+        return out, 0.0
+    order = np.argsort(t, kind="stable")
+    ts, ps = t[order], p[order]
+    unique, inverse, count = np.unique(ts, return_inverse=True, return_counts=True)
+    mean = np.zeros((len(unique), p.shape[1]))
+    np.add.at(mean, inverse, ps)
+    mean /= count[:, None]
+    sec = (unique - unique[0]).astype(np.float64) / 1e9
+    gap = np.diff(sec) > max_gap_s
+    bounds = np.concatenate([[0], np.flatnonzero(gap) + 1, [len(unique)]])
+    fitted = mean.copy()
+    for lo, hi in itertools.pairwise(bounds):  # one fit a run of fixes, not one a point
+        if hi - lo < MIN_SMOOTHED_FIXES:
+            continue
+        x = sec[lo:hi] - sec[lo]
+        try:
+            fitted[lo:hi] = np.stack(
+                [make_smoothing_spline(x, mean[lo:hi, k])(x) for k in range(p.shape[1])], -1
+            )
+        except (ValueError, np.linalg.LinAlgError):  # degenerate run: keep the fixes
+            continue
+    out[order] = fitted[inverse]
+    change = np.linalg.norm(out - p, axis=1)
+    return out, float(np.sqrt(np.mean(change**2)))
 
 
 def _velocities(

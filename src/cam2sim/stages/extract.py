@@ -49,6 +49,7 @@ from cam2sim.core.trajectory import (
     densify_positions,
     gap_limit_s,
     orientation_from_motion,
+    smooth_positions,
 )
 from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
 from cam2sim.recording.bag import BagMessage, Recording
@@ -259,8 +260,11 @@ def world_trajectory_from_track(
     pose_cfg = config.pose
     stamp_ns = track.stamp_ns
     if pose_cfg.heading == "motion" or (track.quat is None and orientation is None):
-        # Slow fixes (1 Hz GPS) follow a cubic through them, not straight chords.
+        # Jitter smoothed away (it reaches the heading, the speed and the derived steering),
+        # then slow fixes (1 Hz GPS) follow a cubic through them, not straight chords.
         gap = gap_limit_s(stamp_ns, config.sync.max_pose_gap_s)
+        position, moved = smooth_positions(stamp_ns, position, max_gap_s=gap)
+        logger.info("positions smoothed for a heading from motion: moved %.3f m RMS", moved)
         stamp_ns, position = densify_positions(stamp_ns, position, max_gap_s=gap)
         quat = orientation_from_motion(
             stamp_ns,

@@ -57,6 +57,7 @@ from cam2sim.core.trajectory import (
     densify_positions,
     gap_limit_s,
     orientation_from_motion,
+    smooth_positions,
 )
 from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
 from cam2sim.recording.kitti_calibration import (
@@ -503,6 +504,7 @@ class _PosedImages:
     columns: dict[str, npt.NDArray[Any]]
     dropped: dict[str, int]
     heading_from_motion: bool
+    notes: tuple[str, ...] = ()
 
 
 def _poses_for_images(
@@ -519,8 +521,14 @@ def _poses_for_images(
     world, xyz, given = _world(table, opts.crs, existing)
     stamp_ns = table.stamp_ns
     gap = gap_limit_s(stamp_ns, opts.max_pose_gap_s)  # a 1 Hz GPS: 2.5 s
+    notes: tuple[str, ...] = ()
     if given is None and not (table.by_index or table.images is not None):
-        # Slow fixes (1 Hz GPS) follow a cubic through them, not straight chords.
+        # Fixes without orientation: their jitter smoothed away (else it reaches the heading,
+        # the speed and the derived steering), then slow ones (1 Hz GPS) follow a cubic
+        # through them, not straight chords.
+        xyz, moved = smooth_positions(stamp_ns, xyz, max_gap_s=gap)
+        if moved > 0:
+            notes = (f"the position fixes were smoothed (they moved {moved:.3f} m RMS)",)
         stamp_ns, xyz = densify_positions(stamp_ns, xyz, max_gap_s=gap)
     quat = given if given is not None else _heading_quats(table, stamp_ns, xyz, sync)
     offset = AXIS_CONVENTION_YAW_OFFSET[opts.axis_convention]
@@ -570,7 +578,7 @@ def _poses_for_images(
         "heading": frames.yaw_from_quat(traj_q),
         "speed": speed,
     }
-    return _PosedImages(world, keep, stamps, pose_cols, dropped, given is None)
+    return _PosedImages(world, keep, stamps, pose_cols, dropped, given is None, notes)
 
 
 @dataclass(frozen=True)
@@ -762,6 +770,7 @@ def _import(
                 posed.dropped,
             )
             motion = posed.heading_from_motion
+            notes = (*notes, *posed.notes)
             if dropped:
                 why = ", ".join(f"{n} {reason.replace('_', ' ')}" for reason, n in dropped.items())
                 left = f"{sum(dropped.values())} of {len(files)} frames have no pose ({why})"
