@@ -408,6 +408,10 @@ def test_run_splat_preset_caps_steps_and_triangulates_without_lidar(
     assert opts.prepare is not None
     assert opts.train is not None
     assert opts.prepare.triangulate is not lidar  # points from the frames only without LiDAR
+    assert opts.prepare.refine_poses is None  # adjusted when the poses have no orientation
+    adjusted = SplatStageOptions.for_run(cuda=cuda, lidar=lidar, gsplat=cuda, bundle_adjust=True)
+    assert adjusted.prepare is not None
+    assert adjusted.prepare.refine_poses is True  # `cam2sim run --bundle-adjust`
     assert opts.train.budget_per_chunk
     if cuda:  # well under the 30,000-step default, MCMC: cheap steps to a fixed cap
         assert opts.train.max_steps <= 10_000
@@ -461,8 +465,12 @@ def test_run_remembers_the_osm_and_detector_it_was_given(tmp_path: Path) -> None
     drives = (tmp_path / "pass2.csv", tmp_path / "pass3")
     assert remember_inputs(ws, PipelineOptions(real=drives)).real == drives
     assert remember_inputs(ws, PipelineOptions()).real == drives  # further passes remembered
+    assert remember_inputs(ws, PipelineOptions(bundle_adjust=False)).bundle_adjust is False
+    assert remember_inputs(ws, PipelineOptions()).bundle_adjust is False  # not retrained on
+    assert remember_inputs(ws, PipelineOptions(bundle_adjust=True)).bundle_adjust is True
     fresh = Workspace.create(tmp_path / "fresh", Config())
     assert remember_inputs(fresh, PipelineOptions()).osm is None
+    assert remember_inputs(fresh, PipelineOptions()).bundle_adjust is None
 
 
 def test_a_cpu_splat_replay_is_kept_within_its_frame_budget() -> None:

@@ -143,6 +143,16 @@ def run(
     splat_on_cpu: Annotated[
         bool, typer.Option(help="Train splats on the CPU (the CPU preset) when there is no GPU.")
     ] = True,
+    bundle_adjust: Annotated[
+        bool | None,
+        typer.Option(
+            "--bundle-adjust/--no-bundle-adjust",
+            help="Adjust the recorded poses to the frames before the splat trains (held-out "
+            "frames then aligned to their own images). Default: for poses without an "
+            "orientation (GPS fixes).",
+            show_default=False,
+        ),
+    ] = None,
     continue_on_error: Annotated[
         bool, typer.Option(help="Go on with the next steps after a step failed.")
     ] = False,
@@ -172,6 +182,7 @@ def run(
         run_variation=DEMO_RUN_VARIATION if vary else None,
         recorded_speed=recorded_speed,
         splat_on_cpu=splat_on_cpu,
+        bundle_adjust=bundle_adjust,
         continue_on_error=continue_on_error,
     )
     ws = _workspace(out, list(bags or []), config)

@@ -152,6 +152,12 @@ class PipelineOptions:
             the frames when there is no LiDAR).
         splat_on_cpu: Train splats without a GPU (the CPU preset: minutes a chunk); False makes
             ``splat`` not applicable there.
+        bundle_adjust: Adjust the recorded poses to the frames before the splat trains (a
+            pose-prior bundle adjustment; the held-out frames are then aligned to their own
+            images, as pose-free 3DGS papers evaluate); None: when the poses came without an
+            orientation (GPS fixes), see :attr:`PrepareOptions.refine_poses
+            <cam2sim.splat.prepare.PrepareOptions.refine_poses>`. Only with the run's own splat
+            preset (``splat`` None).
         steering_signal: Signal the ads step trains on; None: ``steering``, else the first
             signal whose name holds ``steer``.
         continue_on_error: Go on after a failed step (later steps may then fail too).
@@ -190,6 +196,7 @@ class PipelineOptions:
     recorded_speed: bool | None = None
     splat: SplatStageOptions | None = None
     splat_on_cpu: bool = True
+    bundle_adjust: bool | None = None
     steering_signal: str | None = None
     continue_on_error: bool = False
     ads: Any = None
@@ -444,7 +451,9 @@ class _Pipeline:
                 msg = "no CUDA GPU, and splat training on the CPU is turned off"
                 raise _NotApplicableError(msg)
             lidar = self._dataset_info().counts.lidar_scans > 0
-            opts = SplatStageOptions.for_run(cuda=cuda, lidar=lidar)
+            opts = SplatStageOptions.for_run(
+                cuda=cuda, lidar=lidar, bundle_adjust=self.options.bundle_adjust
+            )
             if not cuda:
                 step.message = "no CUDA GPU: trained the CPU preset"
         results: list[SplatResult] = []
@@ -760,9 +769,9 @@ RUN_INPUTS: Final = "run_inputs.json"
 def remember_inputs(ws: Workspace, options: PipelineOptions) -> PipelineOptions:
     """``options`` with the inputs an earlier run was given where this one gives none.
 
-    A resume needs no repeat of ``--osm``, ``--detect-model`` or ``--real``: what a run is
-    given is saved in ``WS/run_inputs.json`` and taken again by the next run that omits it
-    (logged). A run that gives one again replaces it.
+    A resume needs no repeat of ``--osm``, ``--detect-model``, ``--real`` or
+    ``--bundle-adjust``: what a run is given is saved in ``WS/run_inputs.json`` and taken again
+    by the next run that omits it (logged). A run that gives one again replaces it.
     """
     import json  # noqa: PLC0415
     import os  # noqa: PLC0415
@@ -780,6 +789,7 @@ def remember_inputs(ws: Workspace, options: PipelineOptions) -> PipelineOptions:
         "osm": options.osm,
         "detect_model": options.detect_model,
         "real": os.pathsep.join(str(p) for p in options.real) or None,
+        "bundle_adjust": None if options.bundle_adjust is None else str(options.bundle_adjust),
     }
     used: dict[str, Any] = {}
     for key, value in given.items():
@@ -794,6 +804,8 @@ def remember_inputs(ws: Workspace, options: PipelineOptions) -> PipelineOptions:
             used[key] = Path(text)
         elif key == "real":
             used[key] = tuple(Path(p) for p in text.split(os.pathsep))
+        elif key == "bundle_adjust":
+            used[key] = text == "True"
         else:
             used[key] = text
     if saved:

@@ -163,7 +163,14 @@ class SplatStageOptions:
         return cls(prepare=prepare, train=train, offsets_m=(-1.0, 1.0))
 
     @classmethod
-    def for_run(cls, *, cuda: bool, lidar: bool, gsplat: bool | None = None) -> SplatStageOptions:
+    def for_run(
+        cls,
+        *,
+        cuda: bool,
+        lidar: bool,
+        gsplat: bool | None = None,
+        bundle_adjust: bool | None = None,
+    ) -> SplatStageOptions:
         """``cam2sim run``'s splat: 10,000 MCMC steps a chunk on CUDA, the CPU demo preset else.
 
         ``cuda``: :data:`RUN_GPU_SPLAT_STEPS` steps a chunk with MCMC densification (a cap
@@ -177,6 +184,9 @@ class SplatStageOptions:
         Either way the starting points are triangulated from the frames (pycolmap) when the
         recording has no LiDAR. MCMC needs gsplat (``gsplat``; None: whether it can run here):
         on CUDA without it the torch rasterizer trains with its own densification.
+        ``bundle_adjust`` is :attr:`PrepareOptions.refine_poses
+        <cam2sim.splat.prepare.PrepareOptions.refine_poses>` (None: for poses without an
+        orientation).
         """
         if cuda:
             if gsplat is None:
@@ -193,7 +203,7 @@ class SplatStageOptions:
         else:
             opts = cls.demo()
         assert opts.prepare is not None  # both presets set it
-        prepare = replace(opts.prepare, triangulate=not lidar)
+        prepare = replace(opts.prepare, triangulate=not lidar, refine_poses=bundle_adjust)
         return replace(opts, prepare=prepare)
 
 
