@@ -219,16 +219,19 @@ FIX_NS = T0 + 100 * MS * np.arange(21, dtype=np.int64)  # 10 Hz for 2 s
 _LOCAL = f"+proj=tmerc +lat_0={LAT0} +lon_0={LON0} +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m"
 
 
-def _fixes_north_east() -> tuple[np.ndarray, np.ndarray]:
-    """Latitude, longitude of a straight drive to the north-east at 5 m/s."""
+def _fixes_north_east(jitter_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Latitude, longitude of a straight drive to the north-east at 5 m/s (seeded jitter)."""
     s = 5.0 * (FIX_NS - T0) / 1e9
+    noise = np.random.default_rng(7).normal(0.0, jitter_m, (2, len(s)))
     to_wgs84 = pyproj.Transformer.from_crs(_LOCAL, "EPSG:4326", always_xy=True)
-    lon, lat = to_wgs84.transform(s / math.sqrt(2), s / math.sqrt(2))
+    lon, lat = to_wgs84.transform(s / math.sqrt(2) + noise[0], s / math.sqrt(2) + noise[1])
     return np.asarray(lat), np.asarray(lon)
 
 
-def write_navsatfix_bag(path: Path, *, no_fix: tuple[int, ...] = (), every: int = 1) -> Path:
-    lat, lon = _fixes_north_east()
+def write_navsatfix_bag(
+    path: Path, *, no_fix: tuple[int, ...] = (), every: int = 1, jitter_m: float = 0.0
+) -> Path:
+    lat, lon = _fixes_north_east(jitter_m)
     events = [(int(s), "fix", i) for i, s in enumerate(FIX_NS) if i % every == 0]
     events += [(int(s), "cam", i) for i, s in enumerate(CAMERA_NS)]
     with BagWriter(path, "mcap") as w:
@@ -284,6 +287,24 @@ def test_extract_navsatfix_heading_from_motion_and_positions_match_pyproj(
     assert np.abs(xy - want).max() < 1e-3
     assert np.abs(poses["z"]).max() < 1e-6
     assert np.abs(poses["speed"] - 5.0).max() < 0.05
+
+
+def test_extract_smooths_jittery_navsatfix_before_the_heading_and_speed(tmp_path: Path) -> None:
+    """0.1 m of jitter at 10 Hz: 0.2 s chords would make the speed 5 +- 0.7 m/s."""
+    bag = write_navsatfix_bag(tmp_path / "bag", jitter_m=0.1)
+    ws = Workspace.create(tmp_path / "ws", _fix_config(bag))
+    world = extract(ws).info.world
+    assert world.proj_string is not None
+    poses = read_table(DatasetPaths(ws.dataset_dir).poses_csv)
+    lat, lon = _fixes_north_east()  # the drive without the jitter
+    to_world = pyproj.Transformer.from_crs("EPSG:4326", world.proj_string, always_xy=True)
+    fx, fy = to_world.transform(lon, lat)
+    rel, q = (FIX_NS - T0).astype(float), (poses["stamp_ns"] - T0).astype(float)
+    true = np.stack([np.interp(q, rel, fx), np.interp(q, rel, fy)], -1)
+    err = np.linalg.norm(np.stack([poses["x"], poses["y"]], -1) - true, axis=1)
+    assert np.sqrt(np.mean(err**2)) < 0.07  # the fixes were 0.14 m off
+    assert np.abs(poses["speed"] - 5.0).max() < 0.3
+    assert np.abs(np.degrees(poses["heading"]) - 45.0).max() < 2.0
 
 
 def test_extract_a_1_hz_navsatfix_poses_every_camera_frame(tmp_path: Path) -> None:
