@@ -118,3 +118,16 @@ def test_smoothing_keeps_clean_fixes_and_short_runs_and_shares_stamps() -> None:
     smooth, _ = smooth_positions(twice, pair, max_gap_s=0.5)
     np.testing.assert_allclose(smooth[0::2], smooth[1::2])  # one position a stamp
     np.testing.assert_allclose(smooth[0::2], line, atol=1e-3)  # their mean, on the line
+
+
+def test_heading_off_travel_is_nan_standing_still_and_sees_a_turned_convention() -> None:
+    from cam2sim.core.trajectory import heading_off_travel
+
+    x = np.concatenate([np.zeros(10), np.linspace(0.0, 20.0, 41), np.full(10, 20.0)])
+    xy = np.stack([x, np.zeros_like(x)], -1)  # standing, 20 m east, standing
+    off = heading_off_travel(xy, np.zeros(len(x)))
+    assert np.isfinite(off).sum() > 20
+    np.testing.assert_allclose(off[np.isfinite(off)], 0.0, atol=1e-9)
+    assert np.isnan(heading_off_travel(np.zeros((5, 2)), np.zeros(5))).all()  # never moved
+    turned = heading_off_travel(xy, np.full(len(x), np.pi / 2))  # x to the left
+    np.testing.assert_allclose(turned[np.isfinite(turned)], np.pi / 2)

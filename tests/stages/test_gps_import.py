@@ -149,6 +149,44 @@ def test_noisy_gps_fixes_are_smoothed_and_the_import_says_so(tmp_path: Path) -> 
     assert any("smoothed" in note for note in result.notes)
 
 
+def test_a_gnss_heading_is_degrees_from_north_and_headers_may_carry_units(
+    tmp_path: Path,
+) -> None:
+    """What a GNSS/INS logger writes: `Latitude (deg)`, `Heading [deg]` clockwise from north."""
+    t, xy, heading = _arc(120)
+    lat, lon = _to_wgs84(UTM10N, xy[:, 0], xy[:, 1])
+    stamps = T0 + np.round(t * 1e9).astype(np.int64)
+    compass = (90.0 - np.degrees(heading)) % 360.0
+    rows = ["Time [s],Latitude (deg),Longitude (deg),Heading [deg]"]
+    rows += [
+        f"{s // 10**9}.{s % 10**9:09d},{a:.10f},{b:.10f},{c:.3f}"
+        for s, a, b, c in zip(stamps.tolist(), lat, lon, compass, strict=True)
+    ]
+    (tmp_path / "ins.csv").write_text("\n".join(rows) + "\n")
+    _images(tmp_path / "images", [f"{s}.png" for s in stamps])
+    opts = ImportOptions(poses=tmp_path / "ins.csv")
+    info = import_images(tmp_path / "ws", tmp_path / "images", options=opts).info
+    assert not info.heading_from_motion  # the INS's heading is the orientation
+    table = read_table(DatasetPaths(tmp_path / "ws" / "dataset").poses_csv)
+    wf = frames.WorldFrame(info.world.origin_lat_deg, info.world.origin_lon_deg)  # type: ignore[arg-type]
+    xyz = np.stack([table["x"], table["y"], table["z"]], -1)
+    grid = wf.heading_to_crs(UTM10N, xyz[:, :2], table["heading"])
+    assert np.degrees(np.abs(frames.angle_difference(grid, heading))).max() < 0.5
+    # The same degrees under `yaw` (radians from east): headings that do not follow the
+    # drive, which the import refuses, naming the conventions.
+    (tmp_path / "bad.csv").write_text(
+        "\n".join([rows[0].replace("Heading [deg]", "yaw"), *rows[1:]]) + "\n"
+    )
+    with pytest.raises(
+        RecordingError,
+        match=r"degrees from their own direction of travel.*"
+        r"`heading` is read as degrees clockwise from north",
+    ):
+        import_images(
+            tmp_path / "ws2", tmp_path / "images", options=ImportOptions(poses=tmp_path / "bad.csv")
+        )
+
+
 def test_gps_fixes_are_not_fitted_for_where_they_sit_on_the_car(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

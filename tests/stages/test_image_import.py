@@ -120,7 +120,9 @@ def test_import_drops_and_counts_images_outside_the_pose_span(tmp_path: Path) ->
     poses = ReferencePoses()
     stamps = _image_stamps()
     _write_images(tmp_path / "images", [f"{s}.png" for s in stamps])
-    opts = ImportOptions(poses=poses.write(tmp_path / "poses.csv"), crs=UTM32N)
+    opts = ImportOptions(
+        poses=poses.write(tmp_path / "poses.csv"), crs=UTM32N, axis_convention=AxisConvention.X_LEFT
+    )
     info = import_images(tmp_path / "ws", tmp_path / "images", options=opts).info
     outside = int(((stamps < poses.stamp_ns[0]) | (stamps > poses.stamp_ns[-1])).sum())
     assert outside == 10  # 5 before and 5 after
@@ -129,6 +131,22 @@ def test_import_drops_and_counts_images_outside_the_pose_span(tmp_path: Path) ->
     assert info.counts.pose_samples == len(poses.stamp_ns)
     frames_dir = DatasetPaths(tmp_path / "ws" / "dataset").frames_dir
     assert len(list(frames_dir.iterdir())) == len(stamps) - outside
+
+
+def test_poses_whose_x_axis_points_left_are_refused_without_the_convention(
+    tmp_path: Path,
+) -> None:
+    """The reference car's odometry (x to the left) taken as x forward would drive sideways."""
+    poses = ReferencePoses()
+    _write_images(tmp_path / "images", [f"{s}.png" for s in _image_stamps()])
+    opts = ImportOptions(poses=poses.write(tmp_path / "poses.csv"), crs=UTM32N)
+    with pytest.raises(
+        RecordingError,
+        match=r"90 degrees from their own direction of travel.*"
+        r"--axis-convention x_left",
+    ):
+        import_images(tmp_path / "ws", tmp_path / "images", options=opts)
+    assert not (tmp_path / "ws" / "dataset").exists()  # nothing half written
 
 
 def test_import_assigns_poses_by_the_image_column(tmp_path: Path) -> None:

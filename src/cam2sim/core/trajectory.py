@@ -33,6 +33,7 @@ __all__ = [
     "densify_positions",
     "gap_limit_s",
     "heading_from_motion",
+    "heading_off_travel",
     "orientation_from_motion",
     "pitch_from_motion",
     "smooth_positions",
@@ -310,6 +311,39 @@ def heading_from_motion(
     first = int(np.flatnonzero(moving)[0])
     idx[idx < 0] = first
     return frames.unwrap_angles(heading[idx])
+
+
+def heading_off_travel(
+    position: npt.ArrayLike, heading: npt.ArrayLike, *, chord_m: float = 4.0
+) -> npt.NDArray[np.float64]:
+    """``(N,)`` how far each given heading is from the direction of travel, radians.
+
+    The direction of travel at a sample is the chord from the path ``chord_m / 2`` behind it
+    to ``chord_m / 2`` ahead (by arc length, so standing still and odd timing do not matter);
+    samples whose chord is shorter than half ``chord_m`` (the path's ends, a car standing
+    still) are NaN. A recorded orientation follows the travel within a few degrees (a sensor
+    mounted askew, a pose point's slip in a turn); tens of degrees on most samples are a
+    convention mistake (degrees read as radians, compass headings read as ENU yaw).
+
+    Args:
+        position: ``(N, 2+)`` positions in path order, metres.
+        heading: ``(N,)`` the recorded headings, radians counter-clockwise from +x.
+        chord_m: Length of the chord that gives the direction of travel, metres.
+    """
+    p = np.asarray(position, dtype=np.float64)
+    p = p.reshape(len(p), -1)[:, :2]
+    h = np.asarray(heading, dtype=np.float64).reshape(-1)
+    out = np.full(len(p), np.nan)
+    if len(p) < 2:
+        return out
+    s = arc_length(p)
+    lo = np.clip(np.searchsorted(s, s - 0.5 * chord_m, side="left"), 0, len(p) - 1)
+    hi = np.clip(np.searchsorted(s, s + 0.5 * chord_m, side="right") - 1, 0, len(p) - 1)
+    d = p[hi] - p[lo]
+    ok = np.hypot(d[:, 0], d[:, 1]) >= 0.5 * chord_m
+    travel = np.arctan2(d[:, 1], d[:, 0])
+    out[ok] = frames.angle_difference(h[ok], travel[ok])
+    return out
 
 
 def pitch_from_motion(

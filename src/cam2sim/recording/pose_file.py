@@ -15,15 +15,19 @@ Seven layouts are read, each into one :class:`PoseTable`:
   body's (x forward), told apart by the direction the poses travel in;
 - a GPS track: GPX, or an NMEA 0183 log (:mod:`cam2sim.recording.gps_track`).
 
-A CSV's orientation is ``qx, qy, qz, qw`` or ``yaw``/``heading`` (radians, counter-clockwise from
-the frame's x axis; east for GPS); without either it is left to the caller to take from the
-direction of travel (:attr:`PoseTable.quat` is None). An ``image`` column names the file each
-row belongs to.
+A CSV's orientation is ``qx, qy, qz, qw``, ``yaw`` (radians, counter-clockwise from the frame's
+x axis; east for GPS) or ``heading`` (the same in a metric CSV; in a GPS CSV what a GNSS/INS
+writes: degrees clockwise from north). A GPS receiver's ``course`` or ``bearing`` (the
+direction of travel, undefined standing still) is not an orientation and is not read. Without
+one the caller takes the heading from the direction of travel (:attr:`PoseTable.quat` is
+None). An ``image`` column names the file each row belongs to. Column names are matched
+trimmed, in any case and without a unit (``Latitude (deg)``, ``time [s]``).
 """
 
 from __future__ import annotations
 
 import csv
+import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -43,7 +47,14 @@ __all__ = ["PoseTable", "first_column", "read_pose_file", "stamp_ns_from_text", 
 _LAT = ("lat", "latitude", "lat_deg")
 _LON = ("lon", "lng", "longitude", "lon_deg")
 _ALT = ("alt", "altitude", "alt_m")
-_TIME = ("stamp_ns", "timestamp", "t", "time", "Timestamp_Sec")
+_TIME = ("stamp_ns", "timestamp", "t", "time", "timestamp_sec")
+_UNIT = re.compile(r"\s*[(\[][^)\]]*[)\]]\s*$")
+"""A unit after a column name: ``Latitude (deg)``, ``time [s]``."""
+
+
+def _column_name(name: str | None) -> str:
+    """A CSV header cell as the reader looks it up: trimmed, lower case, without a unit."""
+    return _UNIT.sub("", (name or "").strip()).lower()
 
 
 @dataclass(frozen=True)
@@ -263,10 +274,31 @@ def _read_oxts(path: Path) -> PoseTable:
     )
 
 
+def _csv_orientation(
+    rows: list[dict[str, str]], *, geographic: bool
+) -> npt.NDArray[np.float64] | None:
+    """A CSV's orientation column(s) as quaternions (None: it has none).
+
+    Raises:
+        ValueError: A cell is not a number.
+    """
+    if all(c in rows[0] for c in ("qx", "qy", "qz", "qw")):
+        return np.array([[float(r[c]) for c in ("qx", "qy", "qz", "qw")] for r in rows])
+    if "yaw" in rows[0]:
+        return frames.quat_from_yaw(np.array([float(r["yaw"]) for r in rows]))
+    if "heading" in rows[0]:
+        heading = np.array([float(r["heading"]) for r in rows])
+        # With lat/lon a heading is a GNSS/INS one: degrees clockwise from north.
+        return frames.quat_from_yaw(np.radians(90.0 - heading) if geographic else heading)
+    return None
+
+
 def _read_csv(path: Path, lines: list[str]) -> PoseTable:
     if lines and lines[0].startswith("#"):
         lines[0] = lines[0].lstrip("#")
-    rows = [{k.strip(): (v or "").strip() for k, v in r.items()} for r in csv.DictReader(lines)]
+    rows = [
+        {_column_name(k): (v or "").strip() for k, v in r.items()} for r in csv.DictReader(lines)
+    ]
     if not rows:
         msg = f"{path}: no pose rows; expected a header line and one row per pose"
         raise RecordingError(msg)
@@ -291,11 +323,7 @@ def _read_csv(path: Path, lines: list[str]) -> PoseTable:
             )
         else:
             xyz = np.array([[float(r["x"]), float(r["y"]), float(r.get("z") or 0.0)] for r in rows])
-        quat: npt.NDArray[np.float64] | None = None
-        if all(c in rows[0] for c in ("qx", "qy", "qz", "qw")):
-            quat = np.array([[float(r[c]) for c in ("qx", "qy", "qz", "qw")] for r in rows])
-        elif (ycol := first_column(rows, "yaw", "heading")) is not None:
-            quat = frames.quat_from_yaw(np.array([float(r[ycol]) for r in rows]))
+        quat = _csv_orientation(rows, geographic=geographic)
     except ValueError as err:
         msg = f"{path}: a value is not a number ({err}); fix that row"
         raise RecordingError(msg) from None
@@ -305,7 +333,7 @@ def _read_csv(path: Path, lines: list[str]) -> PoseTable:
     if geographic and not ((np.abs(xyz[:, 0]) < 90).all() and (np.abs(xyz[:, 1]) <= 180).all()):
         msg = f"{path}: latitudes must lie within +-90 and longitudes within +-180 degrees"
         raise RecordingError(msg)
-    icol = first_column(rows, "image", "file", "ImageFile")
+    icol = first_column(rows, "image", "file", "imagefile")
     images = [r[icol].replace("\\", "/").rsplit("/", 1)[-1] for r in rows] if icol else None
     if images is None:
         order = np.argsort(stamps, kind="stable")

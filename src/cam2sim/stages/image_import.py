@@ -22,7 +22,7 @@ import shutil
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -56,6 +56,7 @@ from cam2sim.core.trajectory import (
     Trajectory,
     densify_positions,
     gap_limit_s,
+    heading_off_travel,
     orientation_from_motion,
     smooth_positions,
 )
@@ -496,6 +497,51 @@ def _heading_quats(
     return quat
 
 
+ORIENTATION_OFF_TRAVEL_DEG: Final = 30.0
+"""A pose file's headings this far (median over the samples driven) from the direction of
+travel are a convention mistake, not a car: the import stops and says which."""
+
+
+def _check_orientation(
+    table: PoseTable,
+    xyz: npt.NDArray[np.float64],
+    quat: npt.NDArray[np.float64],
+    opts: ImportOptions,
+) -> None:
+    """Stop when the poses' headings do not follow their own travel.
+
+    Raises:
+        RecordingError: The median heading is more than :data:`ORIENTATION_OFF_TRAVEL_DEG`
+            from the direction of travel over the samples driven (at least 10).
+    """
+    order = np.argsort(table.stamp_ns, kind="stable")  # by_index: the rows' order
+    off = heading_off_travel(xyz[order], frames.yaw_from_quat(quat[order]))
+    driven = off[np.isfinite(off)]
+    if len(driven) < 10:
+        return
+    median = float(np.degrees(np.median(np.abs(driven))))
+    if median <= ORIENTATION_OFF_TRAVEL_DEG:
+        return
+    signed = float(np.degrees(np.median(driven)))
+    turned = {90.0: "x_left", -90.0: "x_right", 180.0: "x_backward", -180.0: "x_backward"}
+    near = [name for angle, name in turned.items() if abs(signed - angle) < 20.0]
+    axes = f"--axis-convention {near[0]}" if near else "--axis-convention"
+    geographic = (
+        "in a lat/lon CSV `heading` is read as degrees clockwise from north (as GNSS/INS "
+        "write it) and `yaw` as radians counter-clockwise from east"
+        if table.geographic
+        else "a CSV's `yaw`/`heading` is read as radians counter-clockwise from x"
+    )
+    msg = (
+        f"{opts.poses}: the poses' headings are {median:.0f} degrees from their own direction "
+        f"of travel (median over {len(driven)} samples driven; typically {signed:+.0f}): "
+        f"{geographic}. Give {axes} when the body's forward axis is not the poses' x, fix the "
+        "orientation's convention, or leave the orientation out to take the heading from the "
+        "motion"
+    )
+    raise RecordingError(msg)
+
+
 @dataclass(frozen=True)
 class _PosedImages:
     world: WorldFrameRecord
@@ -533,6 +579,8 @@ def _poses_for_images(
     quat = given if given is not None else _heading_quats(table, stamp_ns, xyz, sync)
     offset = AXIS_CONVENTION_YAW_OFFSET[opts.axis_convention]
     quat = frames.quat_normalize(frames.quat_multiply(quat, yaw_offset_quat(offset)))
+    if given is not None:
+        _check_orientation(table, xyz, quat, opts)
     if table.images is not None or table.by_index:
         if table.by_index:  # row k belongs to the k-th image; the images give the times
             rows = np.where(np.arange(len(files)) < len(table.xyz), np.arange(len(files)), -1)
