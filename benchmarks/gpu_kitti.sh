@@ -25,6 +25,12 @@
 #                                                # JSON records (kitti.tgz), the closed
 #                                                # loop's frames and drives (loop.tgz),
 #                                                # the splat tilted vs level (tilt.txt)
+#   PHASE=prep bash benchmarks/gpu_kitti.sh --config run:densify.strategy=mcmc,...
+#                                                # instead of run (carry .c21/k .k03/c): import
+#                                                # and prepare the scene only (BUNDLE=1, the
+#                                                # default: bundle-adjusted as `run
+#                                                # --bundle-adjust`; 0: as recorded), then the
+#                                                # sweep below on it, in one call
 #   PHASE=sweep bash benchmarks/gpu_kitti.sh --config base: --config mcmc:densify.strategy=mcmc
 #                                                # after a run: splat_sweep.py on one chunk of
 #                                                # the run's prepared scene (CHUNK, default 0;
@@ -34,12 +40,12 @@
 # Build the carried folders here first: `bash benchmarks/carry_kit.sh demo kitti` (kitti needs
 # the sequence: KITTI03=/path/with/images bash benchmarks/carry_kit.sh kitti). KITTI is
 # CC BY-NC-SA 3.0: .k03/ stays out of git (.git/info/exclude).
-case ${PHASE:?set PHASE to setup, frames, run, wait, collect or sweep} in
+case ${PHASE:?set PHASE to setup, frames, run, prep, wait, collect or sweep} in
 setup) WHEELS=.c21/a ;;
-run) WHEELS=.c21/k ;;
+run | prep) WHEELS=.c21/k ;;
 frames | wait | collect | sweep) WHEELS= ;;
 *)
-  echo "PHASE=$PHASE: use setup, frames, run, wait, collect or sweep" >&2
+  echo "PHASE=$PHASE: use setup, frames, run, prep, wait, collect or sweep" >&2
   exit 2
   ;;
 esac
@@ -134,6 +140,24 @@ wait) # COLLECT=1: collect too once the run has ended (saves a call)
   if [ -n "${COLLECT:-}" ] && ! pgrep -f "cam2sim.* run -o" > /dev/null; then collect; fi
   ;;
 collect) collect ;;
+prep)
+  cp .k03/c/images/* /tmp/kitti03/images/ && cp .k03/c/poses.txt .k03/c/K.txt /tmp/kitti03/ || exit 1
+  python3 -m cam2sim import $ws --images /tmp/kitti03/images --poses /tmp/kitti03/poses.txt \
+    --calibration /tmp/kitti03/K.txt --fps 10 --pose-offset fit,0,1.65 > /tmp/kitti.log 2>&1 || exit 1
+  python3 - "$ws" "${BUNDLE:-1}" << 'PY' 2>&1 | tail -n 8
+import sys, time
+from cam2sim.core.workspace import Workspace
+from cam2sim.splat.prepare import PrepareOptions, prepare_scene
+start = time.perf_counter()
+scene = prepare_scene(Workspace.open(sys.argv[1]),
+                      options=PrepareOptions(triangulate=True, refine_poses=sys.argv[2] == "1"))
+print(f"prepared in {time.perf_counter() - start:.0f} s:", *scene.notes, sep="\n  ")
+PY
+  [ -f $ws/splat/prep/scene.json ] || exit 1
+  python3 benchmarks/splat_sweep.py --prep $ws/splat/prep --chunk "${CHUNK:-0}" \
+    --steps "${STEPS:-10000}" --eval-at "${EVALS:-5000,10000}" \
+    --deadline "${LIMIT:-300}" --work /tmp/kitti_sweep --out "$out/sweep.json" "$@"
+  ;;
 sweep)
   [ -f $ws/splat/prep/scene.json ] || { echo "no prepared scene in $ws: PHASE=run first" >&2; exit 1; }
   python3 benchmarks/splat_sweep.py --prep $ws/splat/prep --chunk "${CHUNK:-0}" \
