@@ -37,9 +37,10 @@ import numpy.typing as npt
 from cam2sim.core import frames
 from cam2sim.core.errors import RecordingError
 from cam2sim.recording.gps_track import GpsTrack, is_nmea, read_gpx, read_nmea
-from cam2sim.recording.timestamps import iso_ns, stamp_ns_from_text
+from cam2sim.recording.timestamps import UNIT_NS, iso_ns, stamp_ns_from_text
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
     from pathlib import Path
 
 __all__ = ["PoseTable", "first_column", "read_pose_file", "stamp_ns_from_text", "table_stamps"]
@@ -47,14 +48,29 @@ __all__ = ["PoseTable", "first_column", "read_pose_file", "stamp_ns_from_text", 
 _LAT = ("lat", "latitude", "lat_deg")
 _LON = ("lon", "lng", "longitude", "lon_deg")
 _ALT = ("alt", "altitude", "alt_m")
-_TIME = ("stamp_ns", "timestamp", "t", "time", "timestamp_sec")
-_UNIT = re.compile(r"\s*[(\[][^)\]]*[)\]]\s*$")
+_TIME = tuple(
+    f"{name}{unit}"
+    for name in ("stamp", "timestamp", "t", "time")
+    for unit in ("", "_s", "_sec", "_ms", "_us", "_ns")
+    if f"{name}{unit}" != "stamp"
+)
+_UNIT = re.compile(r"\s*[(\[]([^)\]]*)[)\]]\s*$")
 """A unit after a column name: ``Latitude (deg)``, ``time [s]``."""
 
 
 def _column_name(name: str | None) -> str:
     """A CSV header cell as the reader looks it up: trimmed, lower case, without a unit."""
     return _UNIT.sub("", (name or "").strip()).lower()
+
+
+def _column_units(header: Sequence[str] | None) -> dict[str, str]:
+    """The unit each header cell names in brackets, by its looked-up name (``time [ms]``)."""
+    units = {}
+    for cell in header or []:
+        found = _UNIT.search((cell or "").strip())
+        if found:
+            units[_column_name(cell)] = found.group(1).strip().lower()
+    return units
 
 
 @dataclass(frozen=True)
@@ -93,14 +109,28 @@ def first_column(rows: list[dict[str, str]], *names: str) -> str | None:
     return None
 
 
-def table_stamps(rows: list[dict[str, str]], column: str) -> npt.NDArray[np.int64]:
-    """Nanosecond stamps of a table's time column (``stamp_ns`` as is, else seconds).
+def table_stamps(
+    rows: list[dict[str, str]], column: str, unit: str | None = None
+) -> npt.NDArray[np.int64]:
+    """Nanosecond stamps of a table's time column.
+
+    The unit is ``unit`` (a header's ``time [ms]``), else the column name's (``stamp_ns``,
+    ``time_ms``), else seconds, dates or times of day (:func:`stamp_ns_from_text`, which also
+    tells epoch milliseconds, microseconds and nanoseconds by their size). Times of day that
+    run past midnight go on into the next day.
 
     Raises:
-        ValueError: A cell is not a number.
+        ValueError: A cell is not a number, a date or a time of day.
     """
-    parse = int if column == "stamp_ns" else stamp_ns_from_text
-    return np.array([parse(r[column]) for r in rows], dtype=np.int64)
+    suffix = column.rpartition("_")[2]
+    if unit is None and "_" in column and suffix in (*UNIT_NS, "sec"):
+        unit = "s" if suffix == "sec" else suffix
+    stamps = np.array([stamp_ns_from_text(r[column], unit) for r in rows], dtype=np.int64)
+    first = rows[0][column] if rows else ""
+    if ":" in first and not any(c in first for c in "-/") and len(stamps) > 1:  # times of day
+        day = 86_400 * 1_000_000_000
+        stamps = stamps + day * np.cumsum(np.r_[0, np.diff(stamps) < -day // 2])
+    return stamps
 
 
 # KITTI's camera-to-world poses: camera axes x right, y down, z forward, in the first camera's
@@ -296,9 +326,9 @@ def _csv_orientation(
 def _read_csv(path: Path, lines: list[str]) -> PoseTable:
     if lines and lines[0].startswith("#"):
         lines[0] = lines[0].lstrip("#")
-    rows = [
-        {_column_name(k): (v or "").strip() for k, v in r.items()} for r in csv.DictReader(lines)
-    ]
+    reader = csv.DictReader(lines)
+    rows = [{_column_name(k): (v or "").strip() for k, v in r.items()} for r in reader]
+    units = _column_units(reader.fieldnames)
     if not rows:
         msg = f"{path}: no pose rows; expected a header line and one row per pose"
         raise RecordingError(msg)
@@ -313,7 +343,7 @@ def _read_csv(path: Path, lines: list[str]) -> PoseTable:
         )
         raise RecordingError(msg)
     try:
-        stamps = table_stamps(rows, tcol)
+        stamps = table_stamps(rows, tcol, units.get(tcol))
         if geographic:
             assert lat is not None
             assert lon is not None

@@ -502,6 +502,57 @@ ORIENTATION_OFF_TRAVEL_DEG: Final = 30.0
 travel are a convention mistake, not a car: the import stops and says which."""
 
 
+def _check_poses(
+    table: PoseTable,
+    stamp_ns: npt.NDArray[np.int64],
+    xyz: npt.NDArray[np.float64],
+    given: npt.NDArray[np.float64] | None,
+    opts: ImportOptions,
+) -> None:
+    """Stop on poses whose times or orientation are in a convention the reader did not assume.
+
+    ``given``: the orientation the file gave (world frame, body axes), None without one.
+    """
+    if not table.by_index:
+        _check_speed(stamp_ns, xyz, opts)
+    if given is not None:
+        _check_orientation(table, xyz, given, opts)
+
+
+MAX_MEDIAN_SPEED_MPS: Final = 70.0
+"""Poses whose median speed is above this (250 km/h) have times in the wrong unit."""
+MIN_MEDIAN_SPEED_MPS: Final = 0.05
+"""Poses that cover 20 m at a median speed below this (milliseconds read as seconds: 8 m/s
+becomes 0.008) have times in the wrong unit too."""
+
+
+def _check_speed(
+    stamp_ns: npt.NDArray[np.int64], xyz: npt.NDArray[np.float64], opts: ImportOptions
+) -> None:
+    """Stop when the poses move faster than a car: their times are not in seconds.
+
+    Raises:
+        RecordingError: The median speed between poses is above :data:`MAX_MEDIAN_SPEED_MPS`.
+    """
+    order = np.argsort(stamp_ns, kind="stable")
+    dt = np.diff(stamp_ns[order]).astype(np.float64) / 1e9
+    step = np.linalg.norm(np.diff(xyz[order][:, :2], axis=0), axis=1)
+    moving = (dt > 0) & (step > 0)
+    if moving.sum() < 3:
+        return
+    speed = float(np.median(step[moving] / dt[moving]))
+    crawl = speed < MIN_MEDIAN_SPEED_MPS and float(step.sum()) > 20.0
+    if speed <= MAX_MEDIAN_SPEED_MPS and not crawl:
+        return
+    than = "faster than a car" if not crawl else "slower than a car could cover them"
+    msg = (
+        f"{opts.poses}: the poses move at a median {speed:.3g} m/s between them, {than}: "
+        "their times are likely not in seconds. Name the time column's unit (`time_ms`, "
+        "`time [ms]`, `stamp_ns`) or write the times in seconds"
+    )
+    raise RecordingError(msg)
+
+
 def _check_orientation(
     table: PoseTable,
     xyz: npt.NDArray[np.float64],
@@ -579,8 +630,7 @@ def _poses_for_images(
     quat = given if given is not None else _heading_quats(table, stamp_ns, xyz, sync)
     offset = AXIS_CONVENTION_YAW_OFFSET[opts.axis_convention]
     quat = frames.quat_normalize(frames.quat_multiply(quat, yaw_offset_quat(offset)))
-    if given is not None:
-        _check_orientation(table, xyz, quat, opts)
+    _check_poses(table, stamp_ns, xyz, quat if given is not None else None, opts)
     if table.images is not None or table.by_index:
         if table.by_index:  # row k belongs to the k-th image; the images give the times
             rows = np.where(np.arange(len(files)) < len(table.xyz), np.arange(len(files)), -1)
