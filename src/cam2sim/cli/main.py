@@ -280,8 +280,9 @@ def import_(
         Path | None,
         typer.Option(
             help="CSV: timestamp,x,y[,z] or timestamp,lat,lon[,alt] (GPS), qx,qy,qz,qw or yaw "
-            "(else the heading of travel)[, image]; KITTI's poses.txt; KITTI raw's oxts/ folder; "
-            "a TUM trajectory (SLAM); a GPS track (GPX, NMEA log)."
+            "(radians from x or east; a GPS CSV's heading: degrees from north; else the heading "
+            "of travel)[, image]; KITTI's poses.txt; KITTI raw's oxts/ folder; a TUM trajectory "
+            "(SLAM); a GPS track (GPX, NMEA log)."
         ),
     ] = None,
     calibration: Annotated[
