@@ -350,22 +350,21 @@ def test_poses_of_a_real_recording_are_bundle_adjusted_toward_where_the_car_was(
     tmp_path: Path,
 ) -> None:
     """Poses 4 cm off: GPS-grade ones (no orientation given) are refined by bundle adjustment
-    on their own, within 1 m; ones with an orientation within 5 cm when asked
-    (``refine_oriented``), else kept; a demo world's (exact, its ground truth beside them)
-    are kept as recorded."""
+    within 1 m; ones with an orientation within 5 cm (``refine_oriented``, the default), kept
+    when told not to; a demo world's (exact, its ground truth beside them) are kept as
+    recorded."""
     opts = PrepareOptions(chunk_length_m=3.0, overlap_m=1.0, match_window=6)
     gps = prepare_scene(
         _workspace(tmp_path / "gps", lidar=False, pose_error_m=0.04, heading_from_motion=True),
         options=opts,
     )
     oriented = prepare_scene(
-        _workspace(tmp_path / "odometry", lidar=False, pose_error_m=0.04),
-        options=replace(opts, refine_oriented=True),
+        _workspace(tmp_path / "odometry", lidar=False, pose_error_m=0.04), options=opts
     )
     demo_ws = _workspace(tmp_path / "demo", lidar=False, pose_error_m=0.04)
     demo_ws.truth_world_json.parent.mkdir(parents=True, exist_ok=True)
     demo_ws.truth_world_json.write_text("{}")
-    kept = prepare_scene(demo_ws, options=replace(opts, refine_oriented=True))
+    kept = prepare_scene(demo_ws, options=opts)
     assert gps.pose_source == oriented.pose_source == "refined"
     assert any("refined by bundle adjustment" in n for n in gps.notes)
     (points,) = [n for n in gps.notes if n.startswith("points:")]
@@ -385,8 +384,10 @@ def test_poses_of_a_real_recording_are_bundle_adjusted_toward_where_the_car_was(
     # how to reach the model from there; frames kept as recorded need nothing.
     assert all(f.from_recorded is not None for f in gps.frames + oriented.frames)
     assert all(f.from_recorded is None for f in kept.frames)
-    left = prepare_scene(_workspace(tmp_path / "default", lidar=False), options=opts)
-    assert left.pose_source == "recording"  # oriented poses: kept unless asked
+    left = prepare_scene(
+        _workspace(tmp_path / "asked", lidar=False), options=replace(opts, refine_oriented=False)
+    )
+    assert left.pose_source == "recording"  # oriented poses kept when told to
 
 
 def test_a_pose_prior_holds_the_adjusted_centres_to_the_recording(tmp_path: Path) -> None:

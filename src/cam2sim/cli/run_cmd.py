@@ -148,8 +148,8 @@ def run(
         typer.Option(
             "--bundle-adjust/--no-bundle-adjust",
             help="Adjust the recorded poses to the frames before the splat trains (held-out "
-            "frames then aligned to their own images). Default: for poses without an "
-            "orientation (GPS fixes).",
+            "frames then aligned to their own images). Default: a real recording's poses "
+            "(a demo world's exact ones are kept).",
             show_default=False,
         ),
     ] = None,

@@ -44,8 +44,9 @@ BundleOption = Annotated[
     typer.Option(
         "--bundle-adjust/--no-bundle-adjust",
         help="Refine the recorded poses by bundle adjustment before training, the held-out "
-        "frames kept out of it (default: only poses without orientation, GPS fixes, held "
-        "within 1 m; forced on, poses with an orientation are held within 5 cm).",
+        "frames kept out of it and aligned to their own images (default: a real recording's "
+        "poses, GPS fixes held within 1 m, poses with an orientation within 5 cm; a demo "
+        "world's exact poses are kept).",
         show_default=False,
     ),
 ]

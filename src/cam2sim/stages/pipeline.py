@@ -154,8 +154,8 @@ class PipelineOptions:
             ``splat`` not applicable there.
         bundle_adjust: Adjust the recorded poses to the frames before the splat trains (a
             pose-prior bundle adjustment; the held-out frames are then aligned to their own
-            images, as pose-free 3DGS papers evaluate); None: when the poses came without an
-            orientation (GPS fixes), see :attr:`PrepareOptions.refine_poses
+            images, as pose-free 3DGS papers evaluate); None: a real recording's poses (a demo
+            world's exact ones are kept), see :attr:`PrepareOptions.refine_poses
             <cam2sim.splat.prepare.PrepareOptions.refine_poses>`. Only with the run's own splat
             preset (``splat`` None).
         steering_signal: Signal the ads step trains on; None: ``steering``, else the first

@@ -185,8 +185,7 @@ class SplatStageOptions:
         recording has no LiDAR. MCMC needs gsplat (``gsplat``; None: whether it can run here):
         on CUDA without it the torch rasterizer trains with its own densification.
         ``bundle_adjust`` is :attr:`PrepareOptions.refine_poses
-        <cam2sim.splat.prepare.PrepareOptions.refine_poses>` (None: for poses without an
-        orientation).
+        <cam2sim.splat.prepare.PrepareOptions.refine_poses>` (None: a real recording's poses).
         """
         if cuda:
             if gsplat is None:
