@@ -78,3 +78,21 @@ def test_milliseconds_written_as_seconds_stop_the_import(tmp_path: Path) -> None
     opts = ImportOptions(poses=tmp_path / "poses.csv", fps=0.01)
     with pytest.raises(RecordingError, match=r"0.008 m/s.*not in seconds.*time_ms"):
         import_images(tmp_path / "ws", tmp_path / "images", options=opts)
+
+
+def test_a_repeated_fix_is_kept_once_and_different_poses_at_one_time_are_refused(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "log.csv"
+    path.write_text(
+        "t,lat,lon\n0.0,48.1,11.5\n0.1,48.10001,11.5\n0.1,48.10001,11.5\n0.2,48.10002,11.5\n"
+    )
+    table = read_pose_file(path)  # the logger repeated its fix at 0.1 s until a new one came
+    np.testing.assert_array_equal(table.stamp_ns, [0, 100_000_000, 200_000_000])
+    path.write_text("t,lat,lon\n0,48.1,11.5\n0,48.10001,11.5\n1,48.10002,11.5\n")
+    with pytest.raises(
+        RecordingError,
+        match=r"two different poses share the timestamp 0\.0+;.*"
+        r"whole seconds",
+    ):
+        read_pose_file(path)

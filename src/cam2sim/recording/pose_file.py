@@ -304,6 +304,34 @@ def _read_oxts(path: Path) -> PoseTable:
     )
 
 
+def _in_time_order(
+    path: Path,
+    stamps: npt.NDArray[np.int64],
+    xyz: npt.NDArray[np.float64],
+    quat: npt.NDArray[np.float64] | None,
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.float64] | None]:
+    """A table's rows sorted by time, a repeated row (a logger repeating its last fix) once.
+
+    Raises:
+        RecordingError: Two different poses share a time.
+    """
+    order = np.argsort(stamps, kind="stable")
+    stamps, xyz = stamps[order], xyz[order]
+    quat = quat[order] if quat is not None else None
+    same = np.diff(stamps) == 0
+    values = xyz if quat is None else np.concatenate([xyz, quat], axis=1)
+    repeat = same & (np.diff(values, axis=0) == 0).all(axis=1)
+    if (same & ~repeat).any():
+        k = int(np.flatnonzero(same & ~repeat)[0])
+        msg = (
+            f"{path}: two different poses share the timestamp {stamps[k] / 1e9:.9f}; a time "
+            "column of whole seconds at a faster rate? Give the times with their fraction"
+        )
+        raise RecordingError(msg)
+    keep = np.concatenate([[True], ~repeat])
+    return stamps[keep], xyz[keep], quat[keep] if quat is not None else None
+
+
 def _csv_orientation(
     rows: list[dict[str, str]], *, geographic: bool
 ) -> npt.NDArray[np.float64] | None:
@@ -366,12 +394,7 @@ def _read_csv(path: Path, lines: list[str]) -> PoseTable:
     icol = first_column(rows, "image", "file", "imagefile")
     images = [r[icol].replace("\\", "/").rsplit("/", 1)[-1] for r in rows] if icol else None
     if images is None:
-        order = np.argsort(stamps, kind="stable")
-        if (np.diff(stamps[order]) == 0).any():
-            msg = f"{path}: two poses share a timestamp; remove duplicates"
-            raise RecordingError(msg)
-        stamps, xyz = stamps[order], xyz[order]
-        quat = quat[order] if quat is not None else None
+        stamps, xyz, quat = _in_time_order(path, stamps, xyz, quat)
     quat = frames.quat_normalize(quat) if quat is not None else None
     return PoseTable(
         stamps, xyz, quat, images, geographic=geographic, kind="gps csv" if geographic else "csv"
