@@ -21,7 +21,7 @@ from cam2sim.stages.image_import import ImportOptions, import_images
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from cam2sim.core.dataset import DatasetInfo
+    from cam2sim.stages.image_import import ImportResult
 
 UTM10N = "EPSG:32610"
 T0 = 1_500_000_000_000_000_000
@@ -55,7 +55,7 @@ def _import_gps(
     lon: np.ndarray,
     alt: np.ndarray | None = None,
     names: tuple[str, str, str] = ("lat", "lon", "alt"),
-) -> DatasetInfo:
+) -> ImportResult:
     """Write ``root/gps.csv`` (timestamp, lat, lon[, alt]) and a frame per fix; import them."""
     header = ["timestamp", *names[: 2 if alt is None else 3]]
     rows = [",".join(header)]
@@ -65,7 +65,24 @@ def _import_gps(
     (root / "gps.csv").write_text("\n".join(rows) + "\n")
     _images(root / "images", [f"{s}.png" for s in stamps])
     opts = ImportOptions(poses=root / "gps.csv")
-    return import_images(root / "ws", root / "images", options=opts).info
+    return import_images(root / "ws", root / "images", options=opts)
+
+
+def _noisy_arc(
+    root: Path, seed: int
+) -> tuple[np.ndarray, np.ndarray, ImportResult, dict[str, np.ndarray], np.ndarray]:
+    """:func:`_arc` as 10 Hz fixes with 0.1 m of jitter, imported: the true UTM positions and
+    headings, the import's result, its poses table and their UTM positions."""
+    _, xy, heading = _arc(120)
+    noisy = xy + np.random.default_rng(seed).normal(0.0, 0.1, xy.shape)
+    lat, lon = _to_wgs84(UTM10N, noisy[:, 0], noisy[:, 1])
+    stamps = T0 + np.round(np.arange(120) * 0.1 * 1e9).astype(np.int64)
+    result = _import_gps(root, stamps, lat, lon)
+    table = read_table(DatasetPaths(root / "ws" / "dataset").poses_csv)
+    world = result.info.world
+    wf = frames.WorldFrame(world.origin_lat_deg, world.origin_lon_deg)  # type: ignore[arg-type]
+    utm = wf.to_crs(UTM10N, np.stack([table["x"], table["y"], table["z"]], -1))
+    return xy, heading, result, table, utm
 
 
 def test_a_gps_csv_is_geo_referenced_and_heads_where_it_drives(tmp_path: Path) -> None:
@@ -75,7 +92,7 @@ def test_a_gps_csv_is_geo_referenced_and_heads_where_it_drives(tmp_path: Path) -
     lat, lon = _to_wgs84(UTM10N, xy[:, 0], xy[:, 1])
     stamps = T0 + np.round(t * 1e9).astype(np.int64)
     alt = np.full(len(stamps), 12.5)
-    info = _import_gps(tmp_path, stamps, lat, lon, alt, ("latitude", "longitude", "altitude"))
+    info = _import_gps(tmp_path, stamps, lat, lon, alt, ("latitude", "longitude", "altitude")).info
     world = info.world
     assert world.georeferenced
     assert world.source_crs == "EPSG:4326"
@@ -115,13 +132,9 @@ def test_gps_fixes_on_a_hill_pitch_the_car_with_the_road(tmp_path: Path) -> None
 def test_heading_from_noisy_gps_fixes_is_averaged_over_a_second(tmp_path: Path) -> None:
     """10 cm of GPS noise at 10 Hz and 8 m/s: a 0.2 s chord (1.6 m) turns the heading by
     several degrees at every fix; the 1 s chord keeps it within about one degree."""
-    t, xy, heading = _arc(120)
-    noisy = xy + np.random.default_rng(3).normal(0.0, 0.1, xy.shape)
-    lat, lon = _to_wgs84(UTM10N, noisy[:, 0], noisy[:, 1])
-    stamps = T0 + np.round(t * 1e9).astype(np.int64)
-    info = _import_gps(tmp_path, stamps, lat, lon)
-    table = read_table(DatasetPaths(tmp_path / "ws" / "dataset").poses_csv)
-    wf = frames.WorldFrame(info.world.origin_lat_deg, info.world.origin_lon_deg)  # type: ignore[arg-type]
+    _, heading, result, table, _ = _noisy_arc(tmp_path, seed=3)
+    world = result.info.world
+    wf = frames.WorldFrame(world.origin_lat_deg, world.origin_lon_deg)  # type: ignore[arg-type]
     xyz = np.stack([table["x"], table["y"], table["z"]], -1)
     grid = wf.heading_to_crs(UTM10N, xyz[:, :2], table["heading"])
     err = np.degrees(np.abs(frames.angle_difference(grid[10:-10], heading[10:-10])))
@@ -131,21 +144,10 @@ def test_heading_from_noisy_gps_fixes_is_averaged_over_a_second(tmp_path: Path) 
 
 def test_noisy_gps_fixes_are_smoothed_and_the_import_says_so(tmp_path: Path) -> None:
     """The frames' positions and speeds come from the smoothed fixes, not the jittery ones."""
-    t, xy, _ = _arc(120)
-    noisy = xy + np.random.default_rng(4).normal(0.0, 0.1, xy.shape)
-    lat, lon = _to_wgs84(UTM10N, noisy[:, 0], noisy[:, 1])
-    stamps = T0 + np.round(t * 1e9).astype(np.int64)
-    info = _import_gps(tmp_path, stamps, lat, lon)
-    table = read_table(DatasetPaths(tmp_path / "ws" / "dataset").poses_csv)
-    wf = frames.WorldFrame(info.world.origin_lat_deg, info.world.origin_lon_deg)  # type: ignore[arg-type]
-    xyz = np.stack([table["x"], table["y"], table["z"]], -1)
-    e, n = wf.to_crs(UTM10N, xyz)[:, :2].T
-    err = np.hypot(e - xy[:, 0], n - xy[:, 1])[5:-5]
+    xy, _, result, table, utm = _noisy_arc(tmp_path, seed=4)
+    err = np.linalg.norm(utm[:, :2] - xy, axis=1)[5:-5]
     assert np.sqrt(np.mean(err**2)) < 0.07  # the fixes were 0.14 m off (0.1 per axis)
     assert np.abs(table["speed"][5:-5] - 8.0).max() < 0.5  # 0.2 s chords of the fixes: 1 m/s
-    result = import_images(
-        tmp_path / "ws", tmp_path / "images", options=ImportOptions(poses=tmp_path / "gps.csv")
-    )
     assert any("smoothed" in note for note in result.notes)
 
 
@@ -297,7 +299,7 @@ def test_a_real_gps_drive_without_osm_gets_a_geo_referenced_road_and_a_scenario(
     to_geo = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
     lon, lat, alt = to_geo.transform(ecef[:, 0], ecef[:, 1], ecef[:, 2])
     stamps = T0 + np.round((times - times[0]) * 1e9).astype(np.int64)
-    info = _import_gps(tmp_path, stamps, np.asarray(lat), np.asarray(lon), np.asarray(alt))
+    info = _import_gps(tmp_path, stamps, np.asarray(lat), np.asarray(lon), np.asarray(alt)).info
     assert info.world.georeferenced
     assert info.counts.frames == 300
     ws = Workspace.open(tmp_path / "ws")

@@ -126,20 +126,15 @@ def smooth_positions(
 
     t = np.asarray(stamp_ns, dtype=np.int64).reshape(-1)
     p = np.asarray(position, dtype=np.float64).reshape(len(t), -1)
-    out = p.copy()
     if len(t) < MIN_SMOOTHED_FIXES:
-        return out, 0.0
-    order = np.argsort(t, kind="stable")
-    ts, ps = t[order], p[order]
-    unique, inverse, count = np.unique(ts, return_inverse=True, return_counts=True)
+        return p.copy(), 0.0
+    unique, inverse, count = np.unique(t, return_inverse=True, return_counts=True)
     mean = np.zeros((len(unique), p.shape[1]))
-    np.add.at(mean, inverse, ps)
+    np.add.at(mean, inverse, p)
     mean /= count[:, None]
     sec = (unique - unique[0]).astype(np.float64) / 1e9
-    gap = np.diff(sec) > max_gap_s
-    bounds = np.concatenate([[0], np.flatnonzero(gap) + 1, [len(unique)]])
     fitted = mean.copy()
-    for lo, hi in itertools.pairwise(bounds):  # one fit a run of fixes, not one a point
+    for lo, hi in _runs(np.diff(sec) > max_gap_s):  # one fit a run of fixes, not one a point
         if hi - lo < MIN_SMOOTHED_FIXES:
             continue
         x = sec[lo:hi] - sec[lo]
@@ -149,9 +144,15 @@ def smooth_positions(
             )
         except (ValueError, np.linalg.LinAlgError):  # degenerate run: keep the fixes
             continue
-    out[order] = fitted[inverse]
+    out = fitted[inverse]
     change = np.linalg.norm(out - p, axis=1)
     return out, float(np.sqrt(np.mean(change**2)))
+
+
+def _runs(gap: npt.NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """``(start, stop)`` of each run of samples between the intervals marked ``gap``."""
+    bounds = np.concatenate([[0], np.flatnonzero(gap) + 1, [len(gap) + 1]])
+    return [(int(lo), int(hi)) for lo, hi in itertools.pairwise(bounds)]
 
 
 def _velocities(
@@ -163,8 +164,7 @@ def _velocities(
     so that no tangent spans a gap.
     """
     out = np.zeros_like(p)
-    bounds = np.concatenate([[0], np.flatnonzero(gap) + 1, [len(t)]])
-    for lo, hi in itertools.pairwise(bounds):  # one call a run of fixes, not one a point
+    for lo, hi in _runs(gap):  # one call a run of fixes, not one a point
         if hi - lo >= 3:
             out[lo:hi] = np.gradient(p[lo:hi], t[lo:hi], axis=0, edge_order=2)
         elif hi - lo == 2:

@@ -37,7 +37,7 @@ import numpy.typing as npt
 from cam2sim.core import frames
 from cam2sim.core.errors import RecordingError
 from cam2sim.recording.gps_track import GpsTrack, is_nmea, read_gpx, read_nmea
-from cam2sim.recording.timestamps import UNIT_NS, iso_ns, stamp_ns_from_text
+from cam2sim.recording.timestamps import UNIT_NS, is_time_of_day, iso_ns, stamp_ns_from_text
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -126,8 +126,7 @@ def table_stamps(
     if unit is None and "_" in column and suffix in (*UNIT_NS, "sec"):
         unit = "s" if suffix == "sec" else suffix
     stamps = np.array([stamp_ns_from_text(r[column], unit) for r in rows], dtype=np.int64)
-    first = rows[0][column] if rows else ""
-    if ":" in first and not any(c in first for c in "-/") and len(stamps) > 1:  # times of day
+    if len(stamps) > 1 and is_time_of_day(rows[0][column]):
         day = 86_400 * 1_000_000_000
         stamps = stamps + day * np.cumsum(np.r_[0, np.diff(stamps) < -day // 2])
     return stamps

@@ -6,7 +6,7 @@ import re
 from datetime import UTC, datetime
 from typing import Final
 
-__all__ = ["UNIT_NS", "iso_ns", "stamp_ns_from_text"]
+__all__ = ["UNIT_NS", "is_time_of_day", "iso_ns", "stamp_ns_from_text"]
 
 UNIT_NS: Final = {
     "s": 1_000_000_000,
@@ -23,6 +23,11 @@ _EPOCH_DIGITS: Final = ((10**17, 1), (10**14, 1_000), (10**11, 1_000_000))
 digits until 2286, and no relative time in seconds reaches 10**11 (3,000 years)."""
 
 _TIME_OF_DAY = re.compile(r"(\d{1,2}):(\d{2}):(\d{2})(\.\d+)?")
+
+
+def is_time_of_day(text: str) -> bool:
+    """Whether ``text`` is a bare time of day (``13:02:25.5``), which counts from midnight."""
+    return _TIME_OF_DAY.fullmatch(text.strip()) is not None
 
 
 def stamp_ns_from_text(text: str, unit: str | None = None) -> int:
