@@ -260,14 +260,15 @@ def test_import_rejects_a_pose_csv_missing_columns(tmp_path: Path) -> None:
         import_images(tmp_path / "ws", tmp_path / "images", options=ImportOptions(poses=csv))
 
 
-def test_import_rejects_a_calibration_for_another_image_size(tmp_path: Path) -> None:
+def test_import_rejects_a_calibration_for_another_image_shape(tmp_path: Path) -> None:
+    """16:9 calibration, 4:3 frames: cropped, not resized (one of the same shape is scaled)."""
     _write_images(tmp_path / "images", ["1.png", "2.png"])
     calib = tmp_path / "calib.json"
-    K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
-    calib.write_text(json.dumps({"K": K, "distortion": [0.1], "width": 640, "height": 480}))
+    K = [[500.0, 0.0, 320.0], [0.0, 500.0, 180.0], [0.0, 0.0, 1.0]]
+    calib.write_text(json.dumps({"K": K, "distortion": [0.1], "width": 640, "height": 360}))
     with pytest.raises(
         RecordingError,
-        match=r"calibration is for 640x480 but images are 16x12; pass the calibration",
+        match=r"calibration is for 640x360 but images are 16x12; pass the calibration",
     ):
         import_images(
             tmp_path / "ws", tmp_path / "images", options=ImportOptions(calibration=calib)

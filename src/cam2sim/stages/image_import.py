@@ -47,7 +47,7 @@ from cam2sim.core.dataset import (
     MountRecord,
     SourceRecord,
 )
-from cam2sim.core.errors import RecordingError
+from cam2sim.core.errors import ConfigError, RecordingError
 from cam2sim.core.files import atomic_folder, file_fingerprint, write_bytes_atomic
 from cam2sim.core.images import frames_are_grey
 from cam2sim.core.progress import ProgressCallback, no_progress
@@ -61,6 +61,7 @@ from cam2sim.core.trajectory import (
     smooth_positions,
 )
 from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
+from cam2sim.recording.calibration_file import CameraFile, camera_from_mapping, read_camera_text
 from cam2sim.recording.kitti_calibration import (
     KITTI_RAW_FILES,
     is_kitti_raw_calibration,
@@ -359,11 +360,15 @@ def intrinsics_from_file(
 ) -> tuple[CameraIntrinsics, MountRecord | None]:
     """Read camera intrinsics (and a mount, when the file has one).
 
-    Accepts our ``calibration.json``, a Cam2Sim ``camera.json``, plain JSON
-    ``{K, distortion, width, height}``, a plain-text K (3x3: KITTI's ``K.txt``, or the
-    ``P0:`` line of its ``calib.txt``), whose image ``size`` (width, height) the images give,
-    or KITTI raw's calibration folder (K, size and the camera's mount on the GPS/IMU unit, the
-    camera named by ``images``' ``image_0N`` folder).
+    Accepts our ``calibration.json``, a Cam2Sim ``camera.json``, a plain-text K (3x3: KITTI's
+    ``K.txt``, or the ``P0:`` line of its ``calib.txt``), KITTI raw's calibration folder (K,
+    size and the camera's mount on the GPS/IMU unit, the camera named by ``images``'
+    ``image_0N`` folder), and the files calibration tools write
+    (:mod:`cam2sim.recording.calibration_file`: ROS ``camera_info`` YAML, OpenCV YAML/XML,
+    Kalibr, COLMAP ``cameras.txt``, nerfstudio ``transforms.json``, JSON or YAML of ``K`` or
+    ``fx, fy, cx, cy``). A file without a size takes the images' ``size``; one for a larger
+    or smaller image of the same shape is scaled to it (the images were resized), one of
+    another shape is refused when the dataset is written.
     """
     if is_kitti_raw_calibration(Path(path)):
         return _kitti_raw(Path(path), images)
@@ -375,8 +380,8 @@ def intrinsics_from_file(
         raise RecordingError(msg)
     try:
         text = Path(path).read_text(encoding="utf-8")
-    except OSError as err:
-        msg = f"--calibration {path}: cannot read it ({err})"
+    except (OSError, UnicodeDecodeError) as err:
+        msg = f"--calibration {path}: cannot read it as text ({err})"
         raise RecordingError(msg) from None
     try:
         raw: Any = json.loads(text)
@@ -384,47 +389,102 @@ def intrinsics_from_file(
         intr = _text_K(Path(path), text, size)
         if intr is not None:
             return intr, None
-        msg = (
-            f"--calibration {path}: neither JSON ({err}) nor a plain 3x3 K matrix; pass a "
-            "calibration.json, a camera.json or a K.txt"
-        )
-        raise RecordingError(msg) from None
+        found = read_camera_text(Path(path), text)
+        if found is None:
+            msg = (
+                f"--calibration {path}: neither JSON ({err}) nor a plain 3x3 K matrix nor a "
+                "calibration YAML, OpenCV XML or COLMAP cameras.txt; pass a calibration.json, "
+                "a camera.json, a K.txt or a tool's calibration file (docs/commands/import.md)"
+            )
+            raise RecordingError(msg) from None
+        return _from_camera_file(Path(path), found, size), None
     if isinstance(raw, dict) and "camera_mount" in raw:
         calib = Calibration.model_validate(raw)
         if calib.camera is None:
             msg = f"{path}: calibration.json has no camera intrinsics"
             raise RecordingError(msg)
         return calib.camera, calib.camera_mount
-    mount = None
     if isinstance(raw, dict) and isinstance(raw.get("camera"), dict):
-        cam = raw["camera"]
-        cal = cam.get("calibration", {})
-        original = cam.get("original_size", {})
-        raw = {"K": cal.get("K"), "distortion": cal.get("distortion", [])}
-        raw |= {"width": original.get("x"), "height": original.get("y")}
-        if isinstance(cam.get("position"), dict):
-            pos = cam["position"]
-            # Cam2Sim's camera.json uses CARLA's vehicle frame: x forward, y right, z up.
-            pitch = math.radians(float(cam.get("pitch", 0.0)))
-            q = frames.quat_multiply(
-                frames.quat_from_euler(0.0, -pitch, 0.0), np.asarray(_IDENTITY_OPTICAL)
-            )
-            mount = MountRecord(
-                translation_m=(float(pos["x"]), -float(pos["y"]), float(pos["z"])),
-                quat_xyzw=tuple(float(v) for v in q),
-                axes="optical",
-                source=f"file {path}",
-            )
-    try:
-        K = np.asarray(raw["K"], dtype=float).reshape(3, 3)
-        camera = PinholeCamera.from_K(
-            K, int(raw["width"]), int(raw["height"]), [float(v) for v in raw.get("distortion", [])]
+        return _cam2sim_camera(Path(path), raw["camera"])
+    found = camera_from_mapping(Path(path), raw, "JSON") if isinstance(raw, dict) else None
+    if found is None:
+        msg = (
+            f"{path}: expected K (3x3), width, height[, distortion] (or fx, fy, cx, cy, or a "
+            "tool's calibration: docs/commands/import.md)"
         )
-        intr = CameraIntrinsics.from_camera(camera, f"file {path}")
+        raise RecordingError(msg)
+    return _from_camera_file(Path(path), found, size), None
+
+
+def _cam2sim_camera(path: Path, cam: dict[str, Any]) -> tuple[CameraIntrinsics, MountRecord | None]:
+    """A Cam2Sim ``camera.json``'s camera: intrinsics and its pose on the car."""
+    cal = cam.get("calibration", {})
+    original = cam.get("original_size", {})
+    mount = None
+    if isinstance(cam.get("position"), dict):
+        pos = cam["position"]
+        # Cam2Sim's camera.json uses CARLA's vehicle frame: x forward, y right, z up.
+        pitch = math.radians(float(cam.get("pitch", 0.0)))
+        q = frames.quat_multiply(
+            frames.quat_from_euler(0.0, -pitch, 0.0), np.asarray(_IDENTITY_OPTICAL)
+        )
+        mount = MountRecord(
+            translation_m=(float(pos["x"]), -float(pos["y"]), float(pos["z"])),
+            quat_xyzw=tuple(float(v) for v in q),
+            axes="optical",
+            source=f"file {path}",
+        )
+    try:
+        K = np.asarray(cal.get("K"), dtype=float).reshape(3, 3)
+        camera = PinholeCamera.from_K(
+            K,
+            int(original.get("x")),
+            int(original.get("y")),
+            [float(v) for v in cal.get("distortion", [])],
+        )
     except (KeyError, TypeError, ValueError) as err:
-        msg = f"{path}: expected K (3x3), width, height[, distortion]; {err!r}"
+        msg = f"{path}: expected camera.calibration.K (3x3) and camera.original_size; {err!r}"
         raise RecordingError(msg) from None
-    return intr, mount
+    return CameraIntrinsics.from_camera(camera, f"file {path}"), mount
+
+
+def _from_camera_file(
+    path: Path, found: CameraFile, size: tuple[int, int] | None
+) -> CameraIntrinsics:
+    """The intrinsics of a tool's calibration file, fitted to the images' ``size``."""
+    source = f"file {path} ({found.form})"
+    width, height = found.width, found.height
+    if width is None or height is None:
+        if size is None:
+            msg = f"--calibration {path} gives no image size; the size must come from the images"
+            raise RecordingError(msg)
+        width, height = size
+        source += "; size from the images"
+    try:
+        camera = PinholeCamera.from_K(
+            found.K, width, height, found.distortion, distortion_model=found.model
+        )
+    except ConfigError as err:
+        msg = f"--calibration {path}: {err}"
+        raise RecordingError(msg) from None
+    for note in found.notes:
+        logger.warning("calibration: %s", note)
+    if size is not None and (width, height) != tuple(size) and _same_shape((width, height), size):
+        logger.warning(
+            "calibration: %s is for %dx%d images; scaled to the images' %dx%d (resized, "
+            "not cropped: give the calibration of these images if they were cropped)",
+            path, width, height, size[0], size[1],
+        )  # fmt: skip
+        camera = camera.scaled(size[0], size[1])
+        source += f"; scaled from {width}x{height}"
+    return CameraIntrinsics.from_camera(camera, source)
+
+
+def _same_shape(a: tuple[int, int], b: tuple[int, int]) -> bool:
+    """Whether two image sizes have one aspect ratio (to half a pixel of the smaller)."""
+    small, large = sorted((a, b), key=lambda s: s[0])
+    scale = large[0] / small[0]
+    return abs(large[1] / scale - small[1]) <= 0.5
 
 
 def _world(

@@ -135,8 +135,8 @@ class SplatStageOptions:
         benchmark": a time rule starved the chunks with the most Gaussians).
 
         ``cuda``: gsplat at full size with densification, :data:`DEMO_GPU_SPLAT_STEPS` steps a
-        chunk, from LiDAR points on a 0.2 m grid, at most :data:`DEMO_GPU_SPLAT_BUDGET_S` seconds a chunk (times
-        the processes sharing the GPU: :func:`~cam2sim.core.machine.gpu_sharers`).
+        chunk, from LiDAR points on a 0.2 m grid, at most :data:`DEMO_GPU_SPLAT_BUDGET_S` seconds
+        a chunk (times the processes sharing the GPU: :func:`~cam2sim.core.machine.gpu_sharers`).
         CPU: a frame every 0.5 m, 40k LiDAR points, nearly opaque starting Gaussians,
         700-1,400 steps a chunk at half size, at most :data:`DEMO_CPU_SPLAT_BUDGET_S` seconds a
         chunk; from step 500 our densification grows each chunk (to 70-130k Gaussians; no
