@@ -12,6 +12,7 @@ import pytest
 from cam2sim.core.dataset import Calibration
 from cam2sim.core.errors import RecordingError
 from cam2sim.core.workspace import DatasetPaths
+from cam2sim.recording.calibration_file import model_named
 from cam2sim.stages.image_import import ImportOptions, import_images, intrinsics_from_file
 
 K = np.array([[701.5, 0.0, 640.2], [0.0, 699.8, 359.7], [0.0, 0.0, 1.0]])
@@ -248,3 +249,18 @@ def test_import_takes_a_ros_calibration_for_resized_frames(tmp_path: Path) -> No
     assert saved.camera is not None
     assert (saved.camera.width, saved.camera.height) == (320, 180)
     assert saved.camera.K[0][0] == pytest.approx(701.5 / 4)
+
+
+@pytest.mark.parametrize(
+    ("name", "model"),
+    [(None, "plumb_bob"), ("plumb_bob", "plumb_bob"), ("rational_polynomial", "plumb_bob"),
+     ("radtan", "plumb_bob"), ("equidistant", "equidistant"), ("fisheye", "equidistant"),
+     ("Kannala_Brandt", "equidistant")],
+)  # fmt: skip
+def test_distortion_model_names_as_tools_and_camera_info_topics_write_them(
+    name: str | None, model: str
+) -> None:
+    """Also what extract takes from a bag's CameraInfo (a driver's 'fisheye' is equidistant)."""
+    assert model_named("topics.camera_info /cam/camera_info", name) == model
+    with pytest.raises(RecordingError, match=r"/cam/camera_info: distortion model 'mei'"):
+        model_named("topics.camera_info /cam/camera_info", "mei")

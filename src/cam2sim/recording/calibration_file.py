@@ -40,7 +40,7 @@ from cam2sim.core.errors import RecordingError
 if TYPE_CHECKING:
     from pathlib import Path
 
-__all__ = ["CameraFile", "camera_from_mapping", "read_camera_text"]
+__all__ = ["CameraFile", "camera_from_mapping", "model_named", "read_camera_text"]
 
 Model = Literal["plumb_bob", "equidistant"]
 
@@ -209,7 +209,7 @@ def _camera(path: Path, data: dict[str, Any], K: npt.NDArray[np.float64], form: 
     dkey = next((k for k in _D_KEYS if k in data), None)
     coeffs = () if dkey is None else tuple(_matrix(path, data[dkey], dkey, None).ravel())
     named = next((str(data[k]) for k in _MODEL_KEYS if isinstance(data.get(k), str)), None)
-    model = _model(path, named)
+    model = model_named(path, named)
     return CameraFile(K, width, height, _checked(path, coeffs, model), model, form)
 
 
@@ -230,7 +230,7 @@ def _kalibr(path: Path, cam: dict[str, Any], form: str) -> CameraFile:
         if key in cam
         for v in _matrix(path, cam[key], key, None).ravel()
     )
-    model = _model(path, cam.get("distortion_model"))
+    model = model_named(path, cam.get("distortion_model"))
     width, height = _size(path, cam)
     return CameraFile(K, width, height, _checked(path, coeffs, model), model, form)
 
@@ -400,14 +400,19 @@ def _size(path: Path, data: dict[str, Any]) -> tuple[int | None, int | None]:
     return None, None
 
 
-def _model(path: Path, named: Any) -> Model:
-    if named is None:
+def model_named(where: object, named: Any) -> Model:
+    """The distortion model a tool's name stands for (None: OpenCV's polynomial).
+
+    Raises:
+        RecordingError: The name is no model undistorted here; the message names ``where``.
+    """
+    if named is None or named == "":
         return "plumb_bob"
     model = _MODELS.get(str(named).lower())
     if model is None:
         known = ", ".join(sorted(_MODELS))
         msg = (
-            f"{path}: distortion model {named!r} is not one this project undistorts ({known}); "
+            f"{where}: distortion model {named!r} is not one this project undistorts ({known}); "
             "recalibrate with a polynomial or equidistant model"
         )
         raise RecordingError(msg)

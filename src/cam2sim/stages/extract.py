@@ -23,7 +23,7 @@ import numpy as np
 import numpy.typing as npt
 
 from cam2sim.core import frames
-from cam2sim.core.camera import DistortionModel, PinholeCamera
+from cam2sim.core.camera import PinholeCamera
 from cam2sim.core.config import AXIS_CONVENTION_YAW_OFFSET, Config, MountConfig
 from cam2sim.core.dataset import (
     POSE_PRECISION,
@@ -53,6 +53,7 @@ from cam2sim.core.trajectory import (
 )
 from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
 from cam2sim.recording.bag import BagMessage, Recording
+from cam2sim.recording.calibration_file import model_named
 from cam2sim.recording.pointcloud import decode_pointcloud
 from cam2sim.recording.pose import (
     ORIENTATION_MSGTYPES,
@@ -365,9 +366,8 @@ def _intrinsics(config: Config, camera_info: Any) -> CameraIntrinsics | None:
     if k.size != 9 or not np.isfinite(k).all() or k[0] <= 0:
         msg = "topics.camera_info has no valid K matrix; set camera.intrinsics in config.yaml"
         raise RecordingError(msg)
-    model: DistortionModel = (
-        "equidistant" if camera_info.distortion_model == "equidistant" else "plumb_bob"
-    )
+    where = f"topics.camera_info {config.topics.camera_info}"
+    model = model_named(where, camera_info.distortion_model) if d.any() else "plumb_bob"
     try:
         camera = PinholeCamera.from_K(
             k, int(camera_info.width), int(camera_info.height), d.tolist(), distortion_model=model
