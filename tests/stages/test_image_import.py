@@ -19,7 +19,7 @@ from cam2sim.core.dataset import Calibration, DatasetInfo
 from cam2sim.core.errors import RecordingError
 from cam2sim.core.table import read_table
 from cam2sim.core.workspace import DatasetPaths, Workspace
-from cam2sim.stages.image_import import ImportOptions, import_images
+from cam2sim.stages.image_import import ImportOptions, import_images, stamps_from_names
 from conftest import temporary_leftovers
 
 UTM32N = "EPSG:32632"
@@ -578,3 +578,30 @@ def test_import_brings_signals_and_where_the_poses_sit_on_the_car(tmp_path: Path
             options=ImportOptions(signals=(("steering", bad),)),
         )
     assert not (tmp_path / "ws2").exists()
+
+
+@pytest.mark.parametrize(
+    ("names", "source", "first_ns", "step_ns"),
+    [
+        (["1479425441182877835.jpg", "1479425441232704425.jpg"], "file names (ns)",
+         1479425441182877835, 49826590),
+        (["center_1479425441182877835.jpg", "center_1479425441232704425.jpg"], "file names (ns)",
+         1479425441182877835, 49826590),
+        (["left_1541178393.125.png", "left_1541178393.225.png"], "file names (s)",
+         1541178393125000000, 100000000),
+        (["1418381798113072.png", "1418381798175573.png"], "file names (us)",  # RobotCar
+         1418381798113072000, 62501000),
+        (["1541178393125.jpg", "1541178393225.jpg"], "file names (ms)", 1541178393125000000,
+         100000000),
+        (["cam0_frame_000001.png", "cam0_frame_000002.png"], "frame index at 10 fps", 0, 100000000),
+        (["t_1541178393_125.png", "t_1541178394_025.png"], "frame index at 10 fps", 0, 100000000),
+    ],
+)  # fmt: skip
+def test_image_times_from_the_number_that_differs_in_their_names(
+    names: list[str], source: str, first_ns: int, step_ns: int
+) -> None:
+    """A name's prefix (Udacity's ``center_``) does not hide its time; two numbers do."""
+    stamps, where = stamps_from_names([Path(n) for n in names], fps=10.0)
+    assert where == source
+    assert stamps[0] == first_ns
+    assert stamps[1] - stamps[0] == pytest.approx(step_ns, abs=1000)

@@ -1,7 +1,7 @@
 """``cam2sim import``: images (plus an optional pose table and calibration) into a dataset.
 
 The minimum input without a bag. Images are a folder, taken in natural name order, their times
-from numeric file names (ns, us, ms or s by magnitude) or from the frame rate; or a video file
+from the number in their file names (an epoch time by its size) or from the frame rate; or a video file
 (a dash camera's), decoded at most ``video_fps`` frames a second, its times from the video
 (:mod:`cam2sim.recording.video`). Times that count from zero meet dated poses (a GPS track) at
 ``--start``, else at the first pose. The poses are any file :mod:`cam2sim.recording.pose_file`
@@ -122,25 +122,49 @@ def _list_images(images: Path) -> list[Path]:
     return files
 
 
+_EPOCH_S: Final = 10**9
+"""A whole number in a file name this large is a time (seconds since 1970 from 2001 on); a
+smaller one counts frames (KITTI's ``000042.png``)."""
+_NAME_UNITS: Final = ((10**17, "ns"), (10**14, "us"), (10**11, "ms"), (_EPOCH_S, "s"))
+"""The unit of an epoch time by its size, as
+:func:`~cam2sim.recording.timestamps.stamp_ns_from_text` reads it."""
+
+
 def stamps_from_names(files: list[Path], *, fps: float) -> tuple[npt.NDArray[np.int64], str]:
-    """Times of image files: numeric stems by magnitude (ns/us/ms/s), else index / fps.
+    """Times of image files: the number in their names, else the frame index / fps.
+
+    The number is an epoch time by its size (ns, us, ms, s) or, with a decimal point, seconds.
+    It may stand alone (``1479425441182877835.jpg``) or inside a name the files share
+    (``center_1479425441182877835.jpg``, ``left_1541178393.123456.png``): the one number that
+    differs from file to file, the rest of every name the same.
 
     Returns:
         ``(N,)`` int64 nanoseconds and a word saying where they came from.
     """
-    stems = [p.stem for p in files]
-    if all(re.fullmatch(r"\d+(\.\d+)?", s) for s in stems):
-        values = np.array([float(s) for s in stems])
-        if all("." not in s for s in stems) and values.max() > 1e15:
-            stamps = np.array([int(s) for s in stems], dtype=np.int64)
-            return stamps, "file names (ns)"
-        for scale, unit in ((1e3, "us"), (1e6, "ms"), (1e9, "s")):
-            limit = {"us": 1e12, "ms": 1e9, "s": 1e6}[unit]
-            if values.max() > limit:
-                stamps = np.round(values * scale).astype(np.int64)
-                return stamps, f"file names ({unit})"
+    numbers = _name_numbers([p.stem for p in files])
+    if numbers is not None:
+        decimal = any("." in n for n in numbers)
+        largest = max(int(n.partition(".")[0]) for n in numbers)
+        if decimal or largest >= _EPOCH_S:  # times; smaller whole numbers count frames
+            stamps = np.array([stamp_ns_from_text(n) for n in numbers], dtype=np.int64)
+            unit = "s" if decimal else next(u for size, u in _NAME_UNITS if largest >= size)
+            return stamps, f"file names ({unit})"
     stamps = np.round(np.arange(len(files)) * (1e9 / fps)).astype(np.int64)
     return stamps, f"frame index at {fps:g} fps"
+
+
+def _name_numbers(stems: list[str]) -> list[str] | None:
+    """The number that tells files apart, when the rest of their names is the same; else None."""
+    split = [re.split(r"(\d+(?:\.\d+)?)", s) for s in stems]
+    if not split or len({len(parts) for parts in split}) != 1 or len(split[0]) < 3:
+        return None
+    columns = list(zip(*split, strict=True))
+    if any(len(set(columns[i])) != 1 for i in range(0, len(columns), 2)):
+        return None  # the text around the numbers differs
+    varying = [i for i in range(1, len(columns), 2) if len(set(columns[i])) > 1]
+    if len(varying) != 1 and len(stems) > 1:
+        return None  # two numbers change (seconds_microseconds, camera_frame): not one time
+    return list(columns[varying[0] if varying else 1])
 
 
 def _image_size(path: Path) -> tuple[int, int] | None:
