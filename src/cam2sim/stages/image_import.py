@@ -2,8 +2,8 @@
 
 The minimum input without a bag. Images are a folder, taken in natural name order, their times
 from the number in their file names (an epoch time by its size) or from the frame rate; or a
-video file (a dash camera's), decoded at most ``video_fps`` frames a second, its times from the video
-(:mod:`cam2sim.recording.video`). Times that count from zero meet dated poses (a GPS track) at
+video file (a dash camera's), decoded at most ``video_fps`` frames a second, its times from the
+video (:mod:`cam2sim.recording.video`). Times that count from zero meet dated poses (a GPS track) at
 ``--start``, else at the first pose. The poses are any file :mod:`cam2sim.recording.pose_file`
 reads (a CSV of x, y or of GPS fixes, KITTI's poses.txt, KITTI raw's OXTS folder, a TUM
 trajectory, GPX, NMEA); GPS fixes put the world frame at the first fix, and poses without an
