@@ -64,6 +64,23 @@ def test_a_gps_csv_with_units_in_its_header(tmp_path: Path) -> None:
     np.testing.assert_allclose(table.xyz[:, 2], 500.0)
 
 
+@pytest.mark.parametrize(
+    "header",
+    ["datetime,gps_lat,gps_lng,elevation", "utc,latitude_deg,longitude_deg,height",
+     "unix_time,lat,long,ele"],
+)  # fmt: skip
+def test_a_gps_csv_under_other_loggers_column_names(tmp_path: Path, header: str) -> None:
+    path = tmp_path / "log.csv"
+    first = "2026-05-01T10:00:00.000Z" if header.startswith("datetime") else "1777629600.0"
+    second = "2026-05-01T10:00:00.100Z" if header.startswith("datetime") else "1777629600.1"
+    path.write_text(f"{header}\n{first},48.1,11.5,500\n{second},48.10001,11.5,501\n")
+    table = read_pose_file(path)
+    assert table.geographic
+    assert table.stamp_ns[1] - table.stamp_ns[0] == 100_000_000
+    np.testing.assert_allclose(table.xyz[:, 1], 11.5)
+    np.testing.assert_allclose(table.xyz[:, 2], [500.0, 501.0])
+
+
 def test_milliseconds_written_as_seconds_stop_the_import(tmp_path: Path) -> None:
     """8 m/s with times in ms and no unit: 0.008 m/s, which no car drives for 100 m."""
     import cv2

@@ -45,14 +45,18 @@ if TYPE_CHECKING:
 
 __all__ = ["PoseTable", "first_column", "read_pose_file", "stamp_ns_from_text", "table_stamps"]
 
-_LAT = ("lat", "latitude", "lat_deg")
-_LON = ("lon", "lng", "longitude", "lon_deg")
-_ALT = ("alt", "altitude", "alt_m")
-_TIME = tuple(
-    f"{name}{unit}"
-    for name in ("stamp", "timestamp", "t", "time")
-    for unit in ("", "_s", "_sec", "_ms", "_us", "_ns")
-    if f"{name}{unit}" != "stamp"
+_LAT = ("lat", "latitude", "lat_deg", "latitude_deg", "gps_lat", "gps_latitude")
+_LON = ("lon", "lng", "long", "longitude", "lon_deg", "longitude_deg", "gps_lon", "gps_lng",
+        "gps_longitude")  # fmt: skip
+_ALT = ("alt", "altitude", "alt_m", "altitude_m", "elevation", "ele", "height", "gps_alt")
+_TIME = (
+    *(
+        f"{name}{unit}"
+        for name in ("stamp", "timestamp", "t", "time")
+        for unit in ("", "_s", "_sec", "_ms", "_us", "_ns")
+        if f"{name}{unit}" != "stamp"
+    ),
+    *("datetime", "date_time", "utc", "time_utc", "utc_time", "gps_time", "unix_time", "epoch"),
 )
 _UNIT = re.compile(r"\s*[(\[]([^)\]]*)[)\]]\s*$")
 """A unit after a column name: ``Latitude (deg)``, ``time [s]``."""
