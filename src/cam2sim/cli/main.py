@@ -274,7 +274,10 @@ def import_(
     *,
     images: Annotated[
         Path,
-        typer.Option(help="Folder of .png/.jpg frames, or a video file (.mp4, .mov, .avi, .mkv)."),
+        typer.Option(
+            help="Folder of .png/.jpg frames, or a video file (.mp4, .mov, .avi, .mkv; a bare "
+            ".hevc/.h264 stream at --fps)."
+        ),
     ],
     poses: Annotated[
         Path | None,
@@ -282,7 +285,7 @@ def import_(
             help="CSV: timestamp,x,y[,z] or timestamp,lat,lon[,alt] (GPS), qx,qy,qz,qw or yaw "
             "(radians from x or east; a GPS CSV's heading: degrees from north; else the heading "
             "of travel)[, image]; KITTI's poses.txt; KITTI raw's oxts/ folder; a TUM trajectory "
-            "(SLAM); a GPS track (GPX, NMEA log)."
+            "(SLAM); a GPS track (GPX, NMEA log); a comma2k19 segment (its global_pose/)."
         ),
     ] = None,
     calibration: Annotated[
@@ -306,7 +309,10 @@ def import_(
     axis_convention: Annotated[
         AxisConvention, typer.Option(help="Where the pose frame's x axis points on the car.")
     ] = AxisConvention.X_FORWARD,
-    fps: Annotated[float, typer.Option(help="Frame rate when file names carry no time.")] = 30.0,
+    fps: Annotated[
+        float,
+        typer.Option(help="Frame rate when file names carry no time, or of a bare video stream."),
+    ] = 30.0,
     video_fps: Annotated[
         float, typer.Option(help="A video's frames kept a second (at most its own rate).")
     ] = 10.0,
@@ -321,7 +327,8 @@ def import_(
         list[str] | None,
         typer.Option(
             help="NAME=CSV: a signal (t,value) on the images' time base, e.g. "
-            "steering=steer.csv; repeatable."
+            "steering=steer.csv (or a comma2k19 processed_log/CAN/steering_angle/ folder); "
+            "repeatable."
         ),
     ] = None,
     rig: Annotated[

@@ -36,6 +36,7 @@ import numpy.typing as npt
 
 from cam2sim.core import frames
 from cam2sim.core.errors import RecordingError
+from cam2sim.recording.comma2k19 import global_pose_folder, read_global_pose
 from cam2sim.recording.gps_track import GpsTrack, is_nmea, read_gpx, read_nmea
 from cam2sim.recording.timestamps import UNIT_NS, is_time_of_day, iso_ns, stamp_ns_from_text
 
@@ -412,7 +413,8 @@ def read_pose_file(path: Path) -> PoseTable:
             names the file, the row or the columns found).
     """
     if path.is_dir():
-        return _read_oxts(path)
+        comma = global_pose_folder(path)
+        return _read_oxts(path) if comma is None else _from_comma(comma)
     if path.suffix.lower() == ".gpx":
         return _from_track(read_gpx(path), "gpx")
     try:
@@ -434,6 +436,18 @@ def read_pose_file(path: Path) -> PoseTable:
     if track is not None:
         return _from_track(track, "gpx" if lines[0].lstrip().startswith("<") else "nmea")
     return _read_csv(path, lines)
+
+
+def _from_comma(folder: Path) -> PoseTable:
+    """A comma2k19 segment's global pose: a geographic table with orientation, by time."""
+    poses = read_global_pose(folder)
+    notes = [f"comma2k19 global pose: {len(poses.stamp_ns)} frames (GNSS, IMU and vision fused)"]
+    if poses.quat is None:
+        notes.append("no frame_orientations: the heading comes from the motion")
+    return PoseTable(
+        poses.stamp_ns, poses.lat_lon_alt, poses.quat, None, geographic=True, kind="comma2k19",
+        notes=tuple(notes),
+    )  # fmt: skip
 
 
 def _from_track(track: GpsTrack, kind: str) -> PoseTable:

@@ -23,9 +23,14 @@ if TYPE_CHECKING:
 
     import numpy.typing as npt
 
-__all__ = ["VIDEO_SUFFIXES", "DecodedVideo", "decode_video", "is_video"]
+__all__ = ["RAW_STREAM_SUFFIXES", "VIDEO_SUFFIXES", "DecodedVideo", "decode_video", "is_video"]
 
-VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mts", ".ts")
+RAW_STREAM_SUFFIXES = (".hevc", ".h265", ".265", ".h264", ".264", ".mjpeg", ".mjpg")
+"""Bare video streams without a container (comma2k19's ``video.hevc``): they carry no times,
+and FFmpeg reads them at an assumed 25 frames a second."""
+VIDEO_SUFFIXES = (
+    ".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mts", ".ts", *RAW_STREAM_SUFFIXES,
+)  # fmt: skip
 
 
 def is_video(path: Path) -> bool:
@@ -117,13 +122,15 @@ def decode_video(
     max_fps: float = 10.0,
     fmt: Literal["png", "jpeg"] = "png",
     jpeg_quality: int = 95,
+    stream_fps: float | None = None,
     progress: ProgressCallback = no_progress,
 ) -> DecodedVideo:
     """Decode ``path``, keeping at most ``max_fps`` frames a second, into ``out_dir``.
 
     A frame is kept when at least ``1 / max_fps`` seconds passed since the last kept one
     (every frame of a video slower than ``max_fps``). The kept frames are encoded and written
-    on every CPU while the next ones decode.
+    on every CPU while the next ones decode. ``stream_fps``: the frames are this many a second
+    apart, whatever the file says (a bare stream, :data:`RAW_STREAM_SUFFIXES`).
 
     Raises:
         RecordingError: The file cannot be opened or holds no frame.
@@ -132,6 +139,9 @@ def decode_video(
 
     if max_fps <= 0:
         msg = f"--video-fps must be positive; got {max_fps}"
+        raise RecordingError(msg)
+    if stream_fps is not None and stream_fps <= 0:
+        msg = f"--fps must be positive; got {stream_fps}"
         raise RecordingError(msg)
     capture, fps, total = _open(path)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -147,7 +157,9 @@ def decode_video(
             if not ok:
                 break
             stamp = round(float(capture.get(cv2.CAP_PROP_POS_MSEC) or 0.0) * 1e6)
-            if stamp <= last:  # the container gives no (or no rising) times: index / fps
+            if stream_fps is not None:
+                stamp = round(decoded * 1e9 / stream_fps)
+            elif stamp <= last:  # the container gives no (or no rising) times: index / fps
                 if fps <= 0:
                     msg = (
                         f"{path}: its frames carry no times and it names no frame rate; "
@@ -172,4 +184,4 @@ def decode_video(
         msg = f"{path}: no frame could be decoded; check the file plays, or convert it"
         raise RecordingError(msg)
     t = np.asarray(stamps, dtype=np.int64)
-    return DecodedVideo(writer.files, t - t[0], fps, decoded)
+    return DecodedVideo(writer.files, t - t[0], stream_fps or fps, decoded)

@@ -62,6 +62,7 @@ from cam2sim.core.trajectory import (
 )
 from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
 from cam2sim.recording.calibration_file import CameraFile, camera_from_mapping, read_camera_text
+from cam2sim.recording.comma2k19 import is_log_signal, read_log_signal
 from cam2sim.recording.kitti_calibration import (
     KITTI_RAW_FILES,
     is_kitti_raw_calibration,
@@ -75,7 +76,7 @@ from cam2sim.recording.pose_file import (
     stamp_ns_from_text,
     table_stamps,
 )
-from cam2sim.recording.video import decode_video, is_video
+from cam2sim.recording.video import RAW_STREAM_SUFFIXES, decode_video, is_video
 from cam2sim.scenario.calibration import PosePoint, fit_pose_point
 from cam2sim.stages._runner import stage_run
 from cam2sim.stages.rig import RigSpec, read_rig, write_rig
@@ -284,12 +285,16 @@ def _write_signals(
 def _read_signal(name: str, path: Path) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
     """A signal CSV (``--signal NAME=CSV``): a time column and a value column, in time order.
 
+    Or a comma2k19 processed-log folder (``t`` and ``value`` numpy files, seconds).
+
     Time: ``stamp_ns``, ``timestamp``, ``t`` or ``time`` (seconds, on the images' time base);
     value: ``value``, a column named ``name``, or the only other column.
     """
     if not name.isidentifier():
         msg = f"--signal {name}={path}: the name must be a word (letters, digits, _), e.g. steering"
         raise RecordingError(msg)
+    if is_log_signal(path):  # comma2k19's processed_log/<group>/<signal>/ (t, value)
+        return read_log_signal(path)
     try:
         with path.open(newline="", encoding="utf-8") as handle:
             rows = [
@@ -819,13 +824,16 @@ def import_images(
     try:
         if video:
             shutil.rmtree(scratch, ignore_errors=True)
+            bare = images.suffix.lower() in RAW_STREAM_SUFFIXES
             decoded = decode_video(
                 images, scratch, max_fps=opts.video_fps, fmt=config.frames.format,
-                jpeg_quality=config.frames.jpeg_quality, progress=progress,
+                jpeg_quality=config.frames.jpeg_quality, stream_fps=opts.fps if bare else None,
+                progress=progress,
             )  # fmt: skip
             files, stamps = decoded.files, decoded.stamp_ns
+            clock = f"--fps {opts.fps:g} (a bare stream has no times)" if bare else "frame times"
             time_source = (
-                f"the video's frame times ({len(files)} of its {decoded.decoded} frames, at most "
+                f"the video's {clock} ({len(files)} of its {decoded.decoded} frames, at most "
                 f"{opts.video_fps:g} a second)"
             )
         else:

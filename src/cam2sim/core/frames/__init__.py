@@ -35,7 +35,9 @@ from cam2sim.core.frames.projection import (
     GridFrame,
     Wgs84Points,
     WorldFrame,
+    enu_from_ecef_rotation,
     utm_crs_for,
+    wgs84_from_ecef,
 )
 from cam2sim.core.frames.rotation import (
     EulerAngles,
@@ -73,6 +75,7 @@ __all__ = [
     "carla_to_world",
     "carla_yaw_deg_to_heading",
     "circular_mean",
+    "enu_from_ecef_rotation",
     "euler_from_quat",
     "heading_to_carla_yaw_deg",
     "interpolate_poses",
@@ -93,6 +96,7 @@ __all__ = [
     "slerp",
     "unwrap_angles",
     "utm_crs_for",
+    "wgs84_from_ecef",
     "world_to_carla",
     "wrap_angle",
     "yaw_from_quat",

@@ -118,6 +118,32 @@ class Wgs84Points:
     alt_m: npt.NDArray[np.float64]
 
 
+def wgs84_from_ecef(xyz: npt.ArrayLike) -> Wgs84Points:
+    """Geodetic coordinates of Earth-centred, Earth-fixed points (EPSG:4978, metres).
+
+    Raises:
+        ValueError: ``xyz`` is not ``(N, 3)`` finite metres near the Earth's surface.
+    """
+    pts = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    radius = np.linalg.norm(pts, axis=1)
+    if not np.all(np.isfinite(radius)) or np.any(np.abs(radius - 6.371e6) > 1e5):
+        msg = "ECEF positions must be metres from the Earth's centre (about 6,371 km)"
+        raise ValueError(msg)
+    lon, lat, alt = _transform("EPSG:4978", "EPSG:4979", pts[:, 0], pts[:, 1], pts[:, 2])
+    return Wgs84Points(lat_deg=lat, lon_deg=lon, alt_m=alt)
+
+
+def enu_from_ecef_rotation(
+    lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike
+) -> npt.NDArray[np.float64]:
+    """``(..., 3, 3)`` rotations taking ECEF vectors into the local east-north-up frame."""
+    lat, lon = np.radians(np.asarray(lat_deg, float)), np.radians(np.asarray(lon_deg, float))
+    sl, cl, sp, cp = np.sin(lon), np.cos(lon), np.sin(lat), np.cos(lat)
+    zero = np.zeros_like(sl)
+    rows = ((-sl, cl, zero), (-sp * cl, -sp * sl, cp), (cp * cl, cp * sl, sp))
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
 def utm_crs_for(lat_deg: float, lon_deg: float) -> str:
     """Return the WGS84 UTM CRS for a point: ``"EPSG:326NN"`` north, ``"EPSG:327NN"`` south.
 
