@@ -285,7 +285,8 @@ def import_(
             help="CSV: timestamp,x,y[,z] or timestamp,lat,lon[,alt] (GPS), qx,qy,qz,qw or yaw "
             "(radians from x or east; a GPS CSV's heading: degrees from north; else the heading "
             "of travel)[, image]; KITTI's poses.txt; KITTI raw's oxts/ folder; a TUM trajectory "
-            "(SLAM); a GPS track (GPX, NMEA log); a comma2k19 segment (its global_pose/)."
+            "(SLAM); a GPS track (GPX, NMEA log); a comma2k19 segment (its global_pose/); "
+            "'exif': the photos' own EXIF GPS tags."
         ),
     ] = None,
     calibration: Annotated[

@@ -63,6 +63,7 @@ from cam2sim.core.trajectory import (
 from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
 from cam2sim.recording.calibration_file import CameraFile, camera_from_mapping, read_camera_text
 from cam2sim.recording.comma2k19 import is_log_signal, read_log_signal
+from cam2sim.recording.exif_gps import has_exif_gps, read_exif_track
 from cam2sim.recording.kitti_calibration import (
     KITTI_RAW_FILES,
     is_kitti_raw_calibration,
@@ -818,7 +819,11 @@ def import_images(
     files = [] if video else _list_images(images)
     signals = {name: _read_signal(name, path) for name, path in opts.signals}
     rig = read_rig(opts.rig) if opts.rig is not None else []
-    table = read_pose_file(opts.poses) if opts.poses else None
+    exif = opts.poses is not None and str(opts.poses).lower() == EXIF_POSES
+    if exif and video:
+        msg = "--poses exif reads the GPS tags of photos; a video has none: give its GPS track"
+        raise RecordingError(msg)
+    table = _exif_poses(files) if exif else read_pose_file(opts.poses) if opts.poses else None
     ws, config, created = _open_workspace(Path(root), opts)
     scratch = ws.video_scratch_dir
     try:
@@ -836,14 +841,47 @@ def import_images(
                 f"the video's {clock} ({len(files)} of its {decoded.decoded} frames, at most "
                 f"{opts.video_fps:g} a second)"
             )
+        elif exif:
+            assert table is not None
+            stamps, time_source = table.stamp_ns.copy(), "the photos' EXIF times"
         else:
             stamps, time_source = stamps_from_names(files, fps=opts.fps)
-        stamps, notes = _start_time(stamps, time_source, table, opts.start)
+        stamps, notes = (
+            (stamps, ()) if exif else _start_time(stamps, time_source, table, opts.start)
+        )
+        if table is None and files and has_exif_gps(files[0]):
+            notes = (*notes, "the images carry EXIF GPS tags: import with --poses exif to use them")
         source = _Frames(images, files, stamps, time_source)
         inputs = _Inputs(table, signals, rig, (*(table.notes if table else ()), *notes))
         return _import(ws, config, created, source, inputs, opts, progress)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
+
+
+EXIF_POSES: Final = "exif"
+"""``--poses exif``: every photo's own EXIF GPS fix (:mod:`cam2sim.recording.exif_gps`)."""
+
+
+def _exif_poses(files: list[Path]) -> PoseTable:
+    """The photos' EXIF fixes as a pose table, each at its photo's time.
+
+    Raises:
+        RecordingError: A photo has no fix or time, or two photos share a time.
+    """
+    track = read_exif_track(files)
+    stamps = track.stamp_ns
+    same = np.flatnonzero(np.diff(np.sort(stamps)) == 0)
+    if same.size:
+        when = datetime.fromtimestamp(np.sort(stamps)[same[0]] / 1e9, tz=UTC).isoformat()
+        msg = (
+            f"{same.size + 1} photos share an EXIF time (first {when}): their times are whole "
+            "seconds; give the poses in a file (--poses), or name the photos by their times"
+        )
+        raise RecordingError(msg)
+    return PoseTable(
+        stamps, track.lat_lon_alt, None, None, geographic=True, kind="exif",
+        notes=(f"EXIF GPS: {len(stamps)} photos, each at its own fix",),
+    )  # fmt: skip
 
 
 def _start_time(
@@ -926,8 +964,9 @@ def _import(
         intr, mount = intrinsics_from_file(opts.calibration, _image_size(files[0]), images)
     elif opts.fov_deg is not None:
         intr = intrinsics_from_fov(opts.fov_deg, _image_size(files[0]) or (0, 0))
+    poses_file = None if opts.poses is None or str(opts.poses).lower() == EXIF_POSES else opts.poses
     extra_inputs = [
-        *(p for p in (opts.poses, opts.calibration, opts.rig) if p is not None),
+        *(p for p in (poses_file, opts.calibration, opts.rig) if p is not None),
         *(path for _, path in opts.signals),
     ]
     sources = [SourceRecord(path=str(p), fingerprint=_fingerprint(p)) for p in extra_inputs]
