@@ -13,7 +13,8 @@ from cam2sim.core.dataset import Calibration
 from cam2sim.core.errors import RecordingError
 from cam2sim.core.workspace import DatasetPaths
 from cam2sim.recording.calibration_file import model_named
-from cam2sim.stages.image_import import ImportOptions, import_images, intrinsics_from_file
+from cam2sim.recording.intrinsics import intrinsics_from_file
+from cam2sim.stages.image_import import ImportOptions, import_images
 
 K = np.array([[701.5, 0.0, 640.2], [0.0, 699.8, 359.7], [0.0, 0.0, 1.0]])
 D5 = [-0.281, 0.074, 0.0002, -0.0001, 0.01]

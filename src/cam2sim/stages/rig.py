@@ -151,7 +151,8 @@ def write_rig(
 
     ``keep`` says which of the front images were kept (numbered 0, 1, ... in order); each rig
     camera must have as many images as the front camera had before that. ``list_images`` and
-    ``intrinsics_from_file`` are the import's own readers (:mod:`cam2sim.stages.image_import`).
+    ``intrinsics_from_file`` are the import's own readers (:mod:`cam2sim.stages.image_import`,
+    :func:`cam2sim.recording.intrinsics.intrinsics_from_file`).
 
     Raises:
         RecordingError: A folder with another image count, another image size than its
