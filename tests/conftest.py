@@ -81,6 +81,19 @@ def _image(i: int, width: int, height: int) -> np.ndarray:
     return rng.integers(0, 256, size=(height, width, 3), dtype=np.uint8)
 
 
+def write_frames(
+    folder: Path, n: int, size: tuple[int, int] = (16, 12), name: str = "{i:06d}.png"
+) -> list[Path]:
+    """``n`` random frames of ``size`` (width, height) in a new ``folder``, named by ``name``."""
+    import cv2  # only the tests that write frames need it
+
+    folder.mkdir(parents=True)
+    files = [folder / name.format(i=i) for i in range(n)]
+    for i, path in enumerate(files):
+        assert cv2.imwrite(str(path), _image(i, *size))
+    return files
+
+
 def _cloud(i: int, n: int = 64) -> np.ndarray:
     rng = np.random.default_rng(1000 + i)
     pts = np.zeros(n, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")])

@@ -15,6 +15,7 @@ from cam2sim.core.workspace import DatasetPaths
 from cam2sim.recording.calibration_file import model_named
 from cam2sim.recording.intrinsics import intrinsics_from_file
 from cam2sim.stages.image_import import ImportOptions, import_images
+from conftest import write_frames
 
 K = np.array([[701.5, 0.0, 640.2], [0.0, 699.8, 359.7], [0.0, 0.0, 1.0]])
 D5 = [-0.281, 0.074, 0.0002, -0.0001, 0.01]
@@ -238,11 +239,7 @@ def test_malformed_or_unsupported_files_name_the_file_and_the_element(
 def test_import_takes_a_ros_calibration_for_resized_frames(tmp_path: Path) -> None:
     """End to end: 1280x720 calibration, frames saved at 320x180 (a quarter)."""
     images = tmp_path / "images"
-    images.mkdir()
-    rng = np.random.default_rng(0)
-    for i in range(3):
-        frame = rng.integers(0, 256, size=(180, 320, 3), dtype=np.uint8)
-        assert cv2.imwrite(str(images / f"{i}.png"), frame)
+    write_frames(images, 3, size=(320, 180))
     calib = tmp_path / "ost.yaml"
     calib.write_text(ROS_YAML)
     import_images(tmp_path / "ws", images, options=ImportOptions(calibration=calib, fps=10.0))

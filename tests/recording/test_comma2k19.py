@@ -17,6 +17,7 @@ from cam2sim.core.workspace import DatasetPaths
 from cam2sim.recording.comma2k19 import read_log_signal
 from cam2sim.recording.pose_file import read_pose_file
 from cam2sim.stages.image_import import ImportOptions, import_images
+from conftest import write_frames
 
 LAT, LON, H = 37.721, -122.4723, 31.6
 HEADING = np.radians(250.0)  # ENU yaw: west-south-west
@@ -108,11 +109,7 @@ def test_import_takes_the_segment_and_its_can_steering_as_they_come(
     for name in ("t", "value"):
         shutil.copyfile(comma / f"processed_log_CAN_steering_angle_{name}", can / name)
     images = tmp_path / "frames"
-    images.mkdir()
-    rng = np.random.default_rng(0)
-    for i in range(300):
-        frame = rng.integers(0, 256, size=(12, 16, 3), dtype=np.uint8)
-        assert cv2.imwrite(str(images / f"{i:06d}.png"), frame)
+    write_frames(images, 300)
     opts = ImportOptions(poses=segment, fps=5.0, signals=(("steering", can),))
     result = import_images(tmp_path / "ws", images, options=opts)
     assert result.info.world.georeferenced
