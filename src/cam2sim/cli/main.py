@@ -293,7 +293,8 @@ def import_(
         Path | None,
         typer.Option(
             help="JSON with K, distortion, width, height (or a Cam2Sim camera.json), a K.txt, "
-            "or KITTI raw's calibration folder."
+            "KITTI raw's calibration folder, or a tool's file as it is (ROS camera_info or "
+            "OpenCV YAML/XML, Kalibr camchain, COLMAP cameras.txt, nerfstudio transforms.json)."
         ),
     ] = None,
     fov: Annotated[
