@@ -142,7 +142,9 @@ class SplatStageOptions:
         chunk; from step 500 our densification grows each chunk (to 70-130k Gaussians; no
         growth past :data:`DEMO_CPU_MAX_GAUSSIANS`) (the thin lane markings and kerbs 10-30 m
         ahead, which DAVE-2 steers by, are what 40k Gaussians leave out: docs/benchmarks.md,
-        "Where the CPU splat's runs leave the recorded line").
+        "Where the CPU splat's runs leave the recorded line"). The 1,400 binds: 2,800 steps took
+        l-street's splat runs from 1.6x Real's Min-Fréchet to 1.02x at twice the time, which a
+        2-core demo cannot spend (docs/benchmarks.md, "The GPU suite's splats stopped short").
         """
         if cuda:
             train = TrainOptions(
