@@ -96,6 +96,12 @@ def _images_folder(root: Path) -> None:
         (root / "frames" / f"{k:06d}.png").write_bytes(b"not really")
 
 
+def _comma_segment(root: Path) -> None:
+    """A comma2k19 segment as comma ships it: video.hevc, global_pose/, processed_log/."""
+    (root / "segment" / "global_pose").mkdir(parents=True)
+    (root / "segment" / "video.hevc").write_bytes(b"not really")
+
+
 def _demo_out(root: Path) -> None:
     """A folder laid out as `cam2sim demo -o root/out` leaves it: the workspace in out/ws."""
     (root / "out").mkdir()
@@ -108,6 +114,12 @@ CASES = [
         _images_folder,
         lambda root: ["inspect", str(root / "frames")],
         ("no bag here", "holds 3 images", "cam2sim import WS --images"),
+    ),
+    Case(
+        "a comma2k19 segment where a bag is expected",
+        _comma_segment,
+        lambda root: ["run", "-o", str(root / "cw"), str(root / "segment")],
+        ("it is a comma2k19 segment", "--fps 20 --poses", "global_pose"),
     ),
     Case(
         "a demo's -o folder where its workspace is expected",

@@ -85,11 +85,18 @@ def _bag_paths(paths: Sequence[Path]) -> list[Path]:
             raise RecordingError(msg)
         if p.is_dir() and not _looks_like_a_bag(p):
             images = sum(1 for f in p.iterdir() if f.suffix.lower() in (".png", ".jpg", ".jpeg"))
-            hint = (
-                f"; it holds {images} images: import them with `cam2sim import WS --images {p}`"
-                if images
-                else "; pass a .bag or .mcap file, or a ROS2 bag folder (with metadata.yaml)"
-            )
+            video = next((f for f in sorted(p.iterdir()) if f.name.startswith("video.")), None)
+            if (p / "global_pose").is_dir() and video is not None:  # a comma2k19 segment
+                hint = (
+                    f"; it is a comma2k19 segment: import it with `cam2sim import WS --images "
+                    f"{video} --fps 20 --poses {p / 'global_pose'}` (docs/real-recordings.md)"
+                )
+            elif images:
+                hint = (
+                    f"; it holds {images} images: import them with `cam2sim import WS --images {p}`"
+                )
+            else:
+                hint = "; pass a .bag or .mcap file, or a ROS2 bag folder (with metadata.yaml)"
             msg = f"no bag here: {p} is a folder without a ROS2 bag's metadata.yaml{hint}"
             raise RecordingError(msg)
         out.append(p)
