@@ -16,6 +16,8 @@ from typer.testing import CliRunner, Result
 
 from cam2sim import __version__
 from cam2sim.cli.main import app
+from cam2sim.core.dataset import Calibration
+from cam2sim.core.workspace import Workspace
 from cam2sim.recording.bagwriter import BagWriter
 from cam2sim.recording.image import image_message_fields
 
@@ -325,3 +327,23 @@ def test_the_commands_are_listed_in_the_order_a_user_runs_them() -> None:
     assert listed[:4] == ["inspect", "init", "extract", "import"]
     assert listed.index("map") < listed.index("detect") < listed.index("scenario")
     assert listed.index("report") < listed.index("run") < listed.index("demo")
+
+
+def test_run_keeps_a_calibration_file_and_extract_uses_it(tmp_path: Path) -> None:
+    """`run --calibration` over the bag's camera_info (K 20 px): a 32x24 ROS camera_info YAML
+    of 60 px, scaled to the 16x12 frames, is what the dataset gets, and config.yaml keeps it."""
+    bag = write_bag(tmp_path / "bag")
+    calib = tmp_path / "ost.yaml"
+    calib.write_text(
+        "image_width: 32\nimage_height: 24\ncamera_matrix: {rows: 3, cols: 3, "
+        "data: [60.0, 0, 15.5, 0, 60.0, 11.5, 0, 0, 1]}\n"
+    )
+    ws = tmp_path / "ws"
+    result = invoke(
+        "run", str(bag), "-o", str(ws), "--calibration", str(calib), "--steps", "extract"
+    )
+    assert result.exit_code == 0, result.output
+    assert Workspace.open(ws).load_config().camera.calibration == str(calib.absolute())
+    camera = Calibration.load(ws / "dataset" / "calibration.json").camera
+    assert camera is not None
+    assert camera.K[0][0] == pytest.approx(30.0)

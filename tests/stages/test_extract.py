@@ -422,3 +422,27 @@ def test_dataset_json_is_schema_versioned(tmp_path: Path, reference_drive: Refer
         extract(ws)
     raw = json.loads(DatasetPaths(ws.dataset_dir).dataset_json.read_text())
     assert raw["schema_version"] == 1
+
+
+def test_extract_takes_a_tools_calibration_file_for_a_bag_without_camera_info(
+    tmp_path: Path, reference_drive: ReferenceDrive
+) -> None:
+    """`cam2sim run --calibration ost.yaml` keeps it as camera.calibration: a ROS camera_info
+    YAML for 64x48 frames, the bag's 16x12 frames (the same shape) get it scaled by a quarter."""
+    bag = write_drive_bag(tmp_path / "drive", "mcap", reference_drive, seconds=2)
+    calib = tmp_path / "ost.yaml"
+    calib.write_text(
+        "image_width: 64\nimage_height: 48\ncamera_matrix:\n  rows: 3\n  cols: 3\n"
+        "  data: [80.0, 0, 31.5, 0, 80.0, 23.5, 0, 0, 1]\ndistortion_model: plumb_bob\n"
+        "distortion_coefficients:\n  rows: 1\n  cols: 5\n  data: [-0.2, 0.05, 0, 0, 0]\n"
+    )
+    cfg = _config([bag.path]).model_copy(update={"camera": CameraConfig(calibration=str(calib))})
+    ws = Workspace.create(tmp_path / "ws", cfg)
+    extract(ws)
+    camera = Calibration.load(DatasetPaths(ws.dataset_dir).calibration_json).camera
+    assert camera is not None
+    assert (camera.width, camera.height) == (16, 12)
+    assert camera.K[0][0] == pytest.approx(20.0)
+    assert camera.K[0][2] == pytest.approx(7.5)  # (31.5 + 0.5) / 4 - 0.5
+    assert camera.distortion == (-0.2, 0.05, 0.0, 0.0, 0.0)
+    assert "ROS camera_info YAML" in camera.source

@@ -59,6 +59,17 @@ def _workspace(out: Path, bags: list[Path], config: Path | None) -> Workspace:
     return init_workspace(out, bags).workspace
 
 
+def _use_calibration(ws: Workspace, calibration: Path) -> None:
+    """Keep ``calibration`` in the workspace's config.yaml (extract reads it; a resume too)."""
+    cfg = ws.load_config()
+    camera = cfg.camera.model_copy(update={"calibration": str(calibration.absolute())})
+    save_config(
+        cfg.model_copy(update={"camera": camera}),
+        ws.config_path,
+        comment=f"camera.calibration from cam2sim run --calibration {calibration}",
+    )
+
+
 def _summary(result: PipelineResult) -> Table:
     table = Table(title="cam2sim run")
     table.add_column("step")
@@ -87,6 +98,15 @@ def run(
     osm: Annotated[
         Path | None,
         typer.Option(help="OSM file for the map (default: download from the Overpass API)."),
+    ] = None,
+    calibration: Annotated[
+        Path | None,
+        typer.Option(
+            exists=True,
+            help="The camera's calibration file as a tool wrote it (ROS camera_info or OpenCV "
+            "YAML, Kalibr, COLMAP cameras.txt, a K.txt...), for a bag without a camera_info "
+            "topic; kept in config.yaml as camera.calibration.",
+        ),
     ] = None,
     steps: StepsOption = None,
     skip: SkipOption = None,
@@ -186,6 +206,8 @@ def run(
         continue_on_error=continue_on_error,
     )
     ws = _workspace(out, list(bags or []), config)
+    if calibration is not None:
+        _use_calibration(ws, calibration)
     options = remember_inputs(ws, options)  # a resume needs no --osm again
     started = time.perf_counter()  # wall time: on a GPU, DAVE-2 trains beside the splat
     with progress_bars() as sink:

@@ -224,6 +224,12 @@ class CameraConfig(_Model):
     """Camera calibration: intrinsics (or topics.camera_info) and mount."""
 
     intrinsics: IntrinsicsConfig | None = None
+    calibration: str | None = pydantic.Field(
+        None,
+        description="a calibration file as a tool wrote it (ROS camera_info or OpenCV YAML, "
+        "Kalibr, COLMAP cameras.txt, a K.txt...), read by extract for the frames' size; "
+        "intrinsics, when given, come first, then this, then topics.camera_info",
+    )
     mount: MountConfig = MountConfig()
 
 

@@ -16,7 +16,7 @@ import warnings
 from collections import Counter
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from pathlib import Path  # noqa: TC003 - used at run time by dataclasses
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -54,6 +54,7 @@ from cam2sim.core.trajectory import (
 from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
 from cam2sim.recording.bag import BagMessage, Recording
 from cam2sim.recording.calibration_file import model_named
+from cam2sim.recording.intrinsics import intrinsics_from_file
 from cam2sim.recording.pointcloud import decode_pointcloud
 from cam2sim.recording.pose import (
     ORIENTATION_MSGTYPES,
@@ -355,16 +356,32 @@ def _read_trajectory(
 
 
 # -- calibration ----------------------------------------------------------------------------------
-def _intrinsics(config: Config, camera_info: Any) -> CameraIntrinsics | None:
+def _intrinsics(
+    config: Config, camera_info: Any, size: tuple[int, int] | None
+) -> CameraIntrinsics | None:
+    """The camera's intrinsics: from config.yaml, a calibration file or the topic.
+
+    ``camera.intrinsics``, else ``camera.calibration`` (fitted to the frames' ``size``), else
+    the ``camera_info`` topic's (:class:`~cam2sim.core.config.CameraConfig`).
+    """
     cfg = config.camera.intrinsics
     if cfg is not None:
         return CameraIntrinsics.from_camera(cfg.camera(), "config")
+    if config.camera.calibration is not None:
+        try:
+            return intrinsics_from_file(Path(config.camera.calibration), size)[0]
+        except RecordingError as err:
+            msg = f"camera.calibration in config.yaml: {err}"
+            raise RecordingError(msg) from None
     if camera_info is None:
         return None
     k = np.asarray(getattr(camera_info, "k", getattr(camera_info, "K", None)), dtype=float)
     d = np.asarray(getattr(camera_info, "d", getattr(camera_info, "D", ())), dtype=float)
     if k.size != 9 or not np.isfinite(k).all() or k[0] <= 0:
-        msg = "topics.camera_info has no valid K matrix; set camera.intrinsics in config.yaml"
+        msg = (
+            "topics.camera_info has no valid K matrix; give the camera's calibration file "
+            "(cam2sim run --calibration FILE) or set camera.intrinsics in config.yaml"
+        )
         raise RecordingError(msg)
     where = f"topics.camera_info {config.topics.camera_info}"
     model = model_named(where, camera_info.distortion_model) if d.any() else "plumb_bob"
@@ -373,7 +390,10 @@ def _intrinsics(config: Config, camera_info: Any) -> CameraIntrinsics | None:
             k, int(camera_info.width), int(camera_info.height), d.tolist(), distortion_model=model
         )
     except ConfigError as err:
-        msg = f"topics.camera_info: {err}; set camera.intrinsics in config.yaml"
+        msg = (
+            f"topics.camera_info: {err}; give the camera's calibration file (cam2sim run "
+            "--calibration FILE) or set camera.intrinsics in config.yaml"
+        )
         raise RecordingError(msg) from None
     return CameraIntrinsics.from_camera(camera, f"camera_info topic {config.topics.camera_info}")
 
@@ -660,7 +680,8 @@ def extract(
         msg = "topics.camera is not set in config.yaml; name the camera topic (cam2sim inspect)"
         raise ConfigError(msg)
     bag_paths = _bag_paths(ws, config)
-    sources = _fingerprints([p for p in bag_paths if p.exists()])
+    calibration = [Path(config.camera.calibration)] if config.camera.calibration else []
+    sources = _fingerprints([p for p in [*bag_paths, *calibration] if p.exists()])
     inputs_hash = _inputs_hash(config, sources)
     if not force and ws.is_up_to_date(STAGE, inputs_hash):
         logger.info("extract: dataset is up to date; skipping (use force to redo)")
@@ -707,11 +728,12 @@ def extract(
         cam, lidar, dropped, size = out.camera, out.lidar, out.dropped, out.frame_size
         _check_overlap(traj, cam, dropped["camera"], config.topics.camera)
         _write_tables(paths, traj, config, cam, lidar, lidar_mount, streams.signals)
-        intrinsics = _intrinsics(config, streams.camera_info)
+        intrinsics = _intrinsics(config, streams.camera_info, size)
         if intrinsics is None:
             warnings.warn(
-                "no camera intrinsics: set camera.intrinsics or topics.camera_info in config.yaml "
-                "(the splat stage can estimate them, other stages need them)",
+                "no camera intrinsics: give the camera's calibration file (cam2sim run "
+                "--calibration FILE), or set camera.intrinsics or topics.camera_info in "
+                "config.yaml (the splat stage can estimate them, other stages need them)",
                 stacklevel=2,
             )
         elif size is not None and (intrinsics.width, intrinsics.height) != size:
