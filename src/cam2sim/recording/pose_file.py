@@ -29,7 +29,8 @@ from __future__ import annotations
 import csv
 import re
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from datetime import UTC, datetime
+from typing import TYPE_CHECKING, Final
 
 import numpy as np
 import numpy.typing as npt
@@ -37,6 +38,7 @@ import numpy.typing as npt
 from cam2sim.core import frames
 from cam2sim.core.errors import RecordingError
 from cam2sim.recording.comma2k19 import global_pose_folder, read_global_pose
+from cam2sim.recording.exif_gps import read_exif_track
 from cam2sim.recording.gps_track import GpsTrack, is_nmea, read_gpx, read_nmea
 from cam2sim.recording.timestamps import UNIT_NS, is_time_of_day, iso_ns, stamp_ns_from_text
 
@@ -44,7 +46,15 @@ if TYPE_CHECKING:
     from collections.abc import Sequence
     from pathlib import Path
 
-__all__ = ["PoseTable", "first_column", "read_pose_file", "stamp_ns_from_text", "table_stamps"]
+__all__ = [
+    "EXIF_POSES",
+    "PoseTable",
+    "first_column",
+    "read_exif_poses",
+    "read_pose_file",
+    "stamp_ns_from_text",
+    "table_stamps",
+]
 
 _LAT = ("lat", "latitude", "lat_deg", "latitude_deg", "gps_lat", "gps_latitude")
 _LON = ("lon", "lng", "long", "longitude", "lon_deg", "longitude_deg", "gps_lon", "gps_lng",
@@ -448,6 +458,31 @@ def _from_comma(folder: Path) -> PoseTable:
         poses.stamp_ns, poses.lat_lon_alt, poses.quat, None, geographic=True, kind="comma2k19",
         notes=tuple(notes),
     )  # fmt: skip
+
+
+EXIF_POSES: Final = "exif"
+"""``--poses exif``: every photo's own EXIF GPS fix (:mod:`cam2sim.recording.exif_gps`)."""
+
+
+def read_exif_poses(files: list[Path]) -> PoseTable:
+    """The photos' EXIF fixes as a geographic pose table, row k the fix of photo k.
+
+    Raises:
+        RecordingError: A photo has no fix or time, or two photos share a time.
+    """
+    track = read_exif_track(files)
+    stamps = track.stamp_ns
+    shared = np.unique(stamps, return_counts=True)
+    if (shared[1] > 1).any():
+        first = int(shared[0][np.argmax(shared[1] > 1)])
+        when = datetime.fromtimestamp(first / 1e9, tz=UTC).isoformat()
+        msg = (
+            f"{int((stamps == first).sum())} photos share an EXIF time (first {when}): their "
+            "times are whole seconds; give the poses in a file (--poses), or name the photos by "
+            "their times"
+        )
+        raise RecordingError(msg)
+    return _from_track(track, "exif")
 
 
 def _from_track(track: GpsTrack, kind: str) -> PoseTable:

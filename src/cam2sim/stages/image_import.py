@@ -59,7 +59,7 @@ from cam2sim.core.trajectory import (
 )
 from cam2sim.core.workspace import DatasetPaths, Workspace, WorldFrameRecord, hash_inputs
 from cam2sim.recording.comma2k19 import is_log_signal, read_log_signal
-from cam2sim.recording.exif_gps import has_exif_gps, read_exif_track
+from cam2sim.recording.exif_gps import has_exif_gps
 from cam2sim.recording.intrinsics import (
     IDENTITY_OPTICAL,
     intrinsics_from_file,
@@ -67,8 +67,10 @@ from cam2sim.recording.intrinsics import (
 )
 from cam2sim.recording.pose import yaw_offset_quat
 from cam2sim.recording.pose_file import (
+    EXIF_POSES,
     PoseTable,
     first_column,
+    read_exif_poses,
     read_pose_file,
     stamp_ns_from_text,
     table_stamps,
@@ -590,6 +592,16 @@ class ImportOptions:
     video_fps: float = 10.0
     fov_deg: float | None = None
 
+    @property
+    def poses_file(self) -> Path | None:
+        """The pose file given, or None (no poses, or ``exif``: the photos' own tags)."""
+        return None if self.poses is None or self.exif_poses else self.poses
+
+    @property
+    def exif_poses(self) -> bool:
+        """Whether the poses are the photos' own EXIF GPS tags (``--poses exif``)."""
+        return self.poses is not None and str(self.poses).lower() == EXIF_POSES
+
 
 def _fingerprint(path: Path) -> str:
     """A file's fingerprint; a folder's (KITTI's OXTS) from its files' names and fingerprints."""
@@ -623,11 +635,12 @@ def import_images(
     files = [] if video else _list_images(images)
     signals = {name: _read_signal(name, path) for name, path in opts.signals}
     rig = read_rig(opts.rig) if opts.rig is not None else []
-    exif = opts.poses is not None and str(opts.poses).lower() == EXIF_POSES
+    exif = opts.exif_poses
     if exif and video:
         msg = "--poses exif reads the GPS tags of photos; a video has none: give its GPS track"
         raise RecordingError(msg)
-    table = _exif_poses(files) if exif else read_pose_file(opts.poses) if opts.poses else None
+    poses_file = opts.poses_file
+    table = read_exif_poses(files) if exif else read_pose_file(poses_file) if poses_file else None
     ws, config, created = _open_workspace(Path(root), opts)
     scratch = ws.video_scratch_dir
     try:
@@ -660,32 +673,6 @@ def import_images(
         return _import(ws, config, created, source, inputs, opts, progress)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
-
-
-EXIF_POSES: Final = "exif"
-"""``--poses exif``: every photo's own EXIF GPS fix (:mod:`cam2sim.recording.exif_gps`)."""
-
-
-def _exif_poses(files: list[Path]) -> PoseTable:
-    """The photos' EXIF fixes as a pose table, each at its photo's time.
-
-    Raises:
-        RecordingError: A photo has no fix or time, or two photos share a time.
-    """
-    track = read_exif_track(files)
-    stamps = track.stamp_ns
-    same = np.flatnonzero(np.diff(np.sort(stamps)) == 0)
-    if same.size:
-        when = datetime.fromtimestamp(np.sort(stamps)[same[0]] / 1e9, tz=UTC).isoformat()
-        msg = (
-            f"{same.size + 1} photos share an EXIF time (first {when}): their times are whole "
-            "seconds; give the poses in a file (--poses), or name the photos by their times"
-        )
-        raise RecordingError(msg)
-    return PoseTable(
-        stamps, track.lat_lon_alt, None, None, geographic=True, kind="exif",
-        notes=(f"EXIF GPS: {len(stamps)} photos, each at its own fix",),
-    )  # fmt: skip
 
 
 def _start_time(
@@ -768,9 +755,8 @@ def _import(
         intr, mount = intrinsics_from_file(opts.calibration, _image_size(files[0]), images)
     elif opts.fov_deg is not None:
         intr = intrinsics_from_fov(opts.fov_deg, _image_size(files[0]) or (0, 0))
-    poses_file = None if opts.poses is None or str(opts.poses).lower() == EXIF_POSES else opts.poses
     extra_inputs = [
-        *(p for p in (poses_file, opts.calibration, opts.rig) if p is not None),
+        *(p for p in (opts.poses_file, opts.calibration, opts.rig) if p is not None),
         *(path for _, path in opts.signals),
     ]
     sources = [SourceRecord(path=str(p), fingerprint=_fingerprint(p)) for p in extra_inputs]
