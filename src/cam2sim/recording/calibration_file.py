@@ -30,7 +30,7 @@ leaves it to the images.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Final, Literal
+from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 import numpy.typing as npt
@@ -40,11 +40,11 @@ from cam2sim.core.errors import RecordingError
 if TYPE_CHECKING:
     from pathlib import Path
 
+    from cam2sim.core.camera import DistortionModel
+
 __all__ = ["CameraFile", "camera_from_mapping", "model_named", "read_camera_text"]
 
-Model = Literal["plumb_bob", "equidistant"]
-
-_MODELS: Final[dict[str, Model]] = {
+_MODELS: Final[dict[str, DistortionModel]] = {
     "plumb_bob": "plumb_bob",
     "rational_polynomial": "plumb_bob",
     "radtan": "plumb_bob",
@@ -68,7 +68,7 @@ _MODELS: Final[dict[str, Model]] = {
 _PLUMB_BOB_LENGTHS: Final = (0, 4, 5, 8, 12, 14)
 """Coefficient counts OpenCV's polynomial model takes (k1, k2, p1, p2[, k3[, k4..k6[, ...]]])."""
 
-_COLMAP_MODELS: Final[dict[str, tuple[int, Model]]] = {
+_COLMAP_MODELS: Final[dict[str, tuple[int, DistortionModel]]] = {
     "SIMPLE_PINHOLE": (3, "plumb_bob"),
     "PINHOLE": (4, "plumb_bob"),
     "SIMPLE_RADIAL": (4, "plumb_bob"),
@@ -110,7 +110,7 @@ class CameraFile:
     width: int | None
     height: int | None
     distortion: tuple[float, ...]
-    model: Model
+    model: DistortionModel
     form: str
     notes: tuple[str, ...] = field(default=())
 
@@ -400,7 +400,7 @@ def _size(path: Path, data: dict[str, Any]) -> tuple[int | None, int | None]:
     return None, None
 
 
-def model_named(where: object, named: Any) -> Model:
+def model_named(where: object, named: Any) -> DistortionModel:
     """The distortion model a tool's name stands for (None: OpenCV's polynomial).
 
     Raises:
@@ -419,7 +419,7 @@ def model_named(where: object, named: Any) -> Model:
     return model
 
 
-def _checked(path: Path, coeffs: tuple[float, ...], model: Model) -> tuple[float, ...]:
+def _checked(path: Path, coeffs: tuple[float, ...], model: DistortionModel) -> tuple[float, ...]:
     """Coefficients in a count the model takes (all zero -> none)."""
     coeffs = tuple(float(c) for c in coeffs)
     if not any(coeffs):
