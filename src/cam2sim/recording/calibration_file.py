@@ -259,9 +259,7 @@ def _nerfstudio(path: Path, data: dict[str, Any]) -> CameraFile:
         raise RecordingError(msg)
     model = _MODELS[kind]
     names = ("k1", "k2", "k3", "k4") if model == "equidistant" else ("k1", "k2", "p1", "p2", "k3")
-    coeffs = tuple(float(data.get(n, 0.0)) for n in names)
-    if not any(coeffs):
-        coeffs = ()
+    coeffs = _checked(path, tuple(float(data.get(n, 0.0)) for n in names), model)
     return CameraFile(K, width, height, coeffs, model, "nerfstudio transforms.json")
 
 
@@ -288,19 +286,18 @@ def _colmap(path: Path, text: str) -> CameraFile | None:
         msg = f"{path}: a COLMAP {name} camera has {count} parameters, this one {len(p)}"
         raise RecordingError(msg)
     if name.startswith("SIMPLE") or name == "RADIAL":
-        fx = fy = p[0]
-        cx, cy, rest = p[1], p[2], p[3:]
-        coeffs = (*rest, *([0.0] * (4 - len(rest)))) if rest else ()
+        fx, cx, cy, *coeffs = p
+        fy = fx
     else:
-        fx, fy, cx, cy, *coeffs_list = p
-        coeffs = tuple(coeffs_list)
+        fx, fy, cx, cy, *coeffs = p
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     notes = (
         (f"{path.name}: took camera {rows[0][0]}, the first of {len(rows)}",)
         if len(rows) > 1
         else ()
     )
-    return CameraFile(K, width, height, tuple(coeffs), model, f"COLMAP cameras.txt ({name})", notes)
+    form = f"COLMAP cameras.txt ({name})"
+    return CameraFile(K, width, height, _checked(path, tuple(coeffs), model), model, form, notes)
 
 
 # -- parsing ------------------------------------------------------------------------------------
