@@ -113,26 +113,27 @@ def intrinsics_from_file(
     or smaller image of the same shape is scaled to it (the images were resized), one of
     another shape is refused when the dataset is written.
     """
-    if is_kitti_raw_calibration(Path(path)):
-        return _kitti_raw(Path(path), images)
-    if Path(path).is_dir():
+    path = Path(path)
+    if is_kitti_raw_calibration(path):
+        return _kitti_raw(path, images)
+    if path.is_dir():
         msg = (
             f"--calibration {path} is a folder without KITTI raw's "
             f"{', '.join(KITTI_RAW_FILES)}; give a calibration file or that folder"
         )
         raise RecordingError(msg)
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as err:
         msg = f"--calibration {path}: cannot read it as text ({err})"
         raise RecordingError(msg) from None
     try:
         raw: Any = json.loads(text)
     except json.JSONDecodeError as err:
-        intr = _text_K(Path(path), text, size)
+        intr = _text_K(path, text, size)
         if intr is not None:
             return intr, None
-        found = read_camera_text(Path(path), text)
+        found = read_camera_text(path, text)
         if found is None:
             msg = (
                 f"--calibration {path}: neither JSON ({err}) nor a plain 3x3 K matrix nor a "
@@ -140,7 +141,7 @@ def intrinsics_from_file(
                 "a camera.json, a K.txt or a tool's calibration file (docs/commands/import.md)"
             )
             raise RecordingError(msg) from None
-        return _from_camera_file(Path(path), found, size), None
+        return _from_camera_file(path, found, size), None
     if isinstance(raw, dict) and "camera_mount" in raw:
         calib = Calibration.model_validate(raw)
         if calib.camera is None:
@@ -148,15 +149,15 @@ def intrinsics_from_file(
             raise RecordingError(msg)
         return calib.camera, calib.camera_mount
     if isinstance(raw, dict) and isinstance(raw.get("camera"), dict):
-        return _cam2sim_camera(Path(path), raw["camera"])
-    found = camera_from_mapping(Path(path), raw, "JSON") if isinstance(raw, dict) else None
+        return _cam2sim_camera(path, raw["camera"])
+    found = camera_from_mapping(path, raw, "JSON") if isinstance(raw, dict) else None
     if found is None:
         msg = (
             f"{path}: expected K (3x3), width, height[, distortion] (or fx, fy, cx, cy, or a "
             "tool's calibration: docs/commands/import.md)"
         )
         raise RecordingError(msg)
-    return _from_camera_file(Path(path), found, size), None
+    return _from_camera_file(path, found, size), None
 
 
 def _cam2sim_camera(path: Path, cam: dict[str, Any]) -> tuple[CameraIntrinsics, MountRecord | None]:
