@@ -137,3 +137,41 @@ def test_a_shared_gpu_keeps_two_chunks_at_a_time(monkeypatch: pytest.MonkeyPatch
     monkeypatch.setenv(GPU_SHARERS_VARIABLE, "4")  # four benchmark worlds on one GPU
     assert train_module._default_slots("cuda:0", 5) == 2
     assert train_module._default_slots("cpu", 5) == 1
+
+
+def test_the_longest_chunks_train_first(tmp_path: Path) -> None:
+    from cam2sim.splat.parallel import largest_first
+    from cam2sim.splat.scene import SceneRecord
+
+    prep = make_prepared_scene(tmp_path / "ws", n_frames=10, chunks=((0, 3), (2, 10), (5, 10)))
+    scene = SceneRecord.load(prep / "scene.json")
+    lengths = {c.id: c.end_m - c.start_m for c in scene.chunks}
+    assert lengths[1] > lengths[2] > lengths[0]
+    assert largest_first(scene, (0, 1, 2)) == (1, 2, 0)
+    assert largest_first(scene, (0, 2)) == (2, 0)
+
+
+def test_a_slot_waits_for_the_longer_chunk_still_loading() -> None:
+    import threading
+
+    from cam2sim.splat.parallel import ChunkOutcomes, _Pool
+
+    outcomes = ChunkOutcomes((0, 1, 2), "in a test")
+    pool = _Pool((0, 1, 2), (), 2, outcomes, 10, lambda *_: None)
+    pool.go = {c: threading.Event() for c in (0, 1, 2)}
+    pool.ready = [2]  # the shortest chunk loaded first: its slot is not yet due
+    pool._grant()
+    assert pool.training == set()
+    pool.ready.append(1)
+    pool._grant()
+    assert pool.training == {1}
+    assert pool.go[1].is_set()
+    assert not pool.go[2].is_set()
+    pool.ready.append(0)
+    pool._grant()
+    assert pool.training == {0, 1}
+    outcomes.failed(1, "ended in a test")  # a slot frees: the shortest chunk may go
+    pool.training.discard(1)
+    pool._grant()
+    assert pool.training == {0, 2}
+    assert pool.ready == []

@@ -399,6 +399,31 @@ def test_the_demo_splat_stops_each_chunk_on_its_own_quality_not_on_a_clock(cuda:
     assert plateau_reached(flat, train.patience, train.min_gain_db, train.min_gain_ssim)
 
 
+def test_the_gpu_demo_splat_does_not_stop_a_still_gaining_chunk_on_a_noisy_dip() -> None:
+    from cam2sim.splat.stop import plateau_reached
+
+    train = SplatStageOptions.demo(cuda=True).train
+    assert train is not None
+    # Held-in curves as 12 chunks of four untuned streets trained them on an H100: 1.6 dB and
+    # 0.0255 SSIM per ln step (the SSIM trend under the minimum gain only near 5,000 steps),
+    # validations scattered by 0.26 dB and 0.0019 about the curve (benchmarks/plateau_rule.py).
+    rng = np.random.default_rng(7)
+    steps = np.arange(train.val_every, train.max_steps + 1, train.val_every, dtype=float)
+    patience = train.patience
+    early = 0
+    for _ in range(200):
+        psnr = 1.6 * np.log(steps) + rng.normal(0.0, 0.26, steps.size)
+        ssim = 0.0255 * np.log(steps) + rng.normal(0.0, 0.0019, steps.size)
+        history = list(zip(steps.tolist(), psnr.tolist(), ssim.tolist(), strict=True))
+        early += any(
+            s >= train.min_steps
+            and s < 4_000
+            and plateau_reached(history[: i + 1], patience, train.min_gain_db, train.min_gain_ssim)
+            for i, s in enumerate(steps)
+        )
+    assert early <= 4  # patience 3 stopped 43 of these 200 before 4,000 steps, patience 7 none
+
+
 @pytest.mark.parametrize("cuda", [False, True])
 @pytest.mark.parametrize("lidar", [False, True])
 def test_run_splat_preset_caps_steps_and_triangulates_without_lidar(

@@ -8,7 +8,8 @@ with two on an H100, 2 times on KITTI's full-size frames, little more with three
 
 Each chunk trains in its own spawned process (``torch.multiprocessing``, start method
 ``spawn``: CUDA cannot be forked), at most ``in_flight`` at a time (one more process loads its
-chunk meanwhile and waits for a slot, so start-up hides behind training), through the same
+chunk meanwhile and waits for a slot, so start-up hides behind training), the longest chunks
+first (:func:`largest_first`), through the same
 :func:`~cam2sim.splat.train.train_scene` call as a chunk trained alone, so a chunk's model does
 not depend on what trained beside it (in the one-process loop, gsplat's densification draws its
 splits from torch's global generator, which the chunks share). Workers send their progress (at
@@ -49,7 +50,13 @@ if TYPE_CHECKING:
     #: ``train_scene``'s signature: what a worker runs for its one chunk.
     SceneTrainer = Callable[..., SceneTrainResult]
 
-__all__ = ["CUDA_SLOT_RATES", "ChunkOutcomes", "cuda_slots", "train_chunks_in_processes"]
+__all__ = [
+    "CUDA_SLOT_RATES",
+    "ChunkOutcomes",
+    "cuda_slots",
+    "largest_first",
+    "train_chunks_in_processes",
+]
 
 CUDA_SLOT_RATES: Final = {1: 0.5, 2: 1.0, 3: 1.04}
 """Steps a second of k chunks training at once on one GPU, relative to two: one process leaves
@@ -209,6 +216,7 @@ class _Pool:
 
         self.context = tmp.get_context("spawn")
         self.messages: Any = self.context.Queue()
+        self.order = tuple(chunk_ids)
         self.waiting = list(chunk_ids)
         self.job = job
         self.in_flight = in_flight
@@ -254,11 +262,19 @@ class _Pool:
             logger.info("chunk %d: loading in worker process %d", chunk, process.pid)
 
     def _grant(self) -> None:
-        """Let ready workers train while fewer than ``in_flight`` do."""
-        while self.ready and len(self.training) < self.in_flight:
-            chunk = self.ready.pop(0)
-            self.training.add(chunk)
-            self.go[chunk].set()
+        """Let ready workers train, in the pool's order, at most ``in_flight`` at a time.
+
+        The slots belong to the first ``in_flight`` chunks of the order that have not finished:
+        a chunk that loads faster does not take the slot of a longer one still loading (a
+        street's smallest chunk, seeded first, used to train before its largest, which then
+        trained alone at the end).
+        """
+        pending = [c for c in self.order if c not in self.outcomes]
+        for chunk in pending[: self.in_flight]:
+            if chunk in self.ready:
+                self.ready.remove(chunk)
+                self.training.add(chunk)
+                self.go[chunk].set()
 
     def _read(self, *, block: bool) -> None:
         """Handle every message there is (waiting up to a poll interval for the first)."""
@@ -317,6 +333,24 @@ class _Pool:
             logger.warning("ending %d chunk worker process(es)", len(self.running))
         end_processes(self.running.values())
         self.running.clear()
+
+
+def largest_first(scene: SceneRecord, chunk_ids: tuple[int, ...]) -> tuple[int, ...]:
+    """``chunk_ids`` longest chunk first (metres of route, then frames; ties keep their order).
+
+    A chunk's step costs what its Gaussians cost, and they grow with the street it covers: the
+    longest chunks start first, so that the last round of slots holds the shortest (the
+    longest-processing-time rule). On Aguascalientes route 0 the 183-frame end chunk (149k
+    starting Gaussians) trained before the 524k-Gaussian first chunk, which then trained for
+    5.5 minutes after it (docs/benchmarks.md, "The GPU demo's preset on four untuned streets").
+    """
+    known = {c.id: c for c in scene.chunks}
+
+    def size(chunk: int) -> tuple[float, int]:
+        record = known.get(chunk)
+        return (record.end_m - record.start_m, len(record.frames)) if record else (0.0, 0)
+
+    return tuple(sorted(chunk_ids, key=size, reverse=True))
 
 
 def cuda_slots(n_chunks: int, gpu_gib: float) -> int:
@@ -398,7 +432,7 @@ def train_chunks_in_processes(
         options.device,
     )
     pool = _Pool(
-        chunk_ids,
+        largest_first(scene, chunk_ids),
         job,
         in_flight,
         outcomes,
