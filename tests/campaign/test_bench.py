@@ -85,6 +85,12 @@ def test_every_world_runs_the_whole_experiment(bench: tuple[Path, object]) -> No
         real = world.method("Real")
         assert real is not None
         assert (real.recorded, real.closed_loop_runs) == (1, 1)
+        for row in world.methods:  # each completed run's Min-Fréchet, for the ratio's interval
+            if row.min_frechet_m is None:
+                assert row.min_frechet_runs_m == []
+            else:
+                runs = row.min_frechet_runs_m
+                assert sum(runs) / len(runs) == pytest.approx(row.min_frechet_m)
         assert world.splat_steps
         assert set(world.splat_stopped) == {"max_steps"}
         assert world.splat_held_out_psnr_db is not None

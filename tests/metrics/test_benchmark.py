@@ -6,7 +6,13 @@ import math
 
 import pytest
 
-from cam2sim.metrics.benchmark import MethodRow, WorldResult, aggregate, wilson_interval
+from cam2sim.metrics.benchmark import (
+    MethodRow,
+    WorldResult,
+    aggregate,
+    ratio_interval,
+    wilson_interval,
+)
 
 
 def test_wilson_interval_matches_the_textbook_values() -> None:
@@ -85,3 +91,40 @@ def test_aggregate_counts_closed_loop_runs_and_judges_each_street() -> None:
     assert (agg.matched, agg.compared, agg.sim_failing) == (2, 4, 3)
     assert agg.verdict.startswith("splat indistinguishable from Real on 2 of 4 streets")
     assert agg.verdict.endswith("Sim fails on 3 of 4")
+
+
+def test_the_ratio_interval_holds_the_ratio_and_widens_with_the_spread_of_the_runs() -> None:
+    assert ratio_interval([0.2, 0.2, 0.2], [0.1, 0.1, 0.1, 0.1]) == pytest.approx((2.0, 2.0))
+    assert ratio_interval([0.2], [0.1, 0.1]) is None  # one run says nothing of the spread
+    assert ratio_interval([0.2, 0.3], [0.0, 0.1]) is None  # a Real mean of 0 has no ratio
+    tight = ratio_interval([0.24, 0.25, 0.26], [0.13, 0.14, 0.14, 0.13])
+    loose = ratio_interval([0.10, 0.21, 0.32], [0.04, 0.18, 0.04, 0.18])
+    assert tight is not None
+    assert loose is not None
+    assert tight[0] < 0.25 / 0.135 < tight[1]
+    assert tight[0] > 1.5  # over the line beyond doubt
+    assert loose[0] < 1.5 < loose[1]  # the runs cannot tell
+    assert loose[1] - loose[0] > 3 * (tight[1] - tight[0])
+    assert ratio_interval([0.10, 0.21, 0.32], [0.04, 0.18, 0.04, 0.18]) == loose  # seeded
+
+
+def test_the_verdict_counts_the_streets_over_the_line_beyond_doubt() -> None:
+    def world(label: str, splat: list[float], real: list[float]) -> WorldResult:
+        w = _world(label, (0, sum(real) / len(real)), (0, sum(splat) / len(splat)), (3, None))
+        rows = {"Real": real, "splat": splat}
+        methods = [m.model_copy(update={"min_frechet_runs_m": rows.get(m.method, [])})
+                   for m in w.methods]  # fmt: skip
+        return w.model_copy(update={"methods": methods})
+
+    agg = aggregate([
+        world("over", [0.24, 0.25, 0.26], [0.13, 0.14, 0.14, 0.13]),
+        world("unclear", [0.10, 0.21, 0.32], [0.04, 0.18, 0.04, 0.18]),
+        world("under", [0.10, 0.11, 0.10], [0.10, 0.12, 0.11, 0.10]),
+        _world("old", (0, 0.1), (0, 0.2), (3, None)),  # a result without its runs' values
+    ])  # fmt: skip
+    pairs = {p.label: p for p in agg.pairs}
+    assert pairs["over"].frechet_ratio_low is not None
+    assert pairs["over"].frechet_ratio_low > 1.5
+    assert pairs["old"].frechet_ratio_low is None
+    assert (agg.frechet_within, agg.frechet_over_beyond_doubt, agg.frechet_intervals) == (1, 1, 3)
+    assert agg.verdict.endswith("; Min-Fréchet over 1.5x beyond its 95 % interval on 1 of 3")

@@ -118,6 +118,11 @@ def _method_rows(ws: Workspace) -> tuple[list[MethodRow], DriveMetrics]:
             corridor_violation_pct=m.avg_corridor_violation_pct,
             jitter=m.avg_jitter,
             failure_types=dict(m.failure_types),
+            min_frechet_runs_m=[
+                r.min_frechet_m
+                for r in metrics.runs
+                if r.method == m.method and r.success and r.min_frechet_m is not None
+            ],
         )
         for m in metrics.methods
     ]

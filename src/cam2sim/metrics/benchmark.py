@@ -11,12 +11,15 @@ failures. :func:`aggregate` puts them together:
   streets;
 - **per street, splat against Real** (paired: same street, same seeds): the difference of the
   closed-loop failure rates (Real's recorded drive left out: it completes by construction) and
-  the ratio of the mean Min-Fréchet distances;
+  the ratio of the mean Min-Fréchet distances, with a 95 % bootstrap interval over the runs
+  (:func:`ratio_interval`): three runs a method leave the ratio uncertain, and the interval
+  says by how much;
 - **the verdict**: splat is *indistinguishable from Real* on a street when it fails no more
   often than Real's closed-loop runs there and its Min-Fréchet distance is at most
   :data:`FRECHET_RATIO_MAX` times Real's (or every run of both fails, so neither has one);
   *Sim fails* on a street when one of its runs fails. Where Sim does not fail, its
-  corridor violations and Min-Fréchet ratio are what separate it from Real.
+  corridor violations and Min-Fréchet ratio are what separate it from Real. The verdict also
+  counts the streets whose ratio is over the line beyond doubt (its whole interval above it).
 
 The Real group is what the behaviour table's is (``docs/metrics.md``): the recorded drive plus
 the closed-loop runs in the ground-truth world. Rates count the closed-loop runs alone, so each
@@ -41,6 +44,7 @@ __all__ = [
     "StreetPair",
     "WorldResult",
     "aggregate",
+    "ratio_interval",
     "wilson_interval",
 ]
 
@@ -70,6 +74,10 @@ class MethodRow(_Model):
     corridor_violation_pct: float | None
     jitter: float | None
     failure_types: dict[str, int] = pydantic.Field(default_factory=dict)
+    min_frechet_runs_m: list[float] = pydantic.Field(
+        default_factory=list,
+        description="Min-Fréchet of each run that completed (min_frechet_m is their mean)",
+    )
 
     @property
     def closed_loop_runs(self) -> int:
@@ -149,6 +157,8 @@ class StreetPair(_Model):
     sim_failures: str
     failure_rate_diff: float | None
     frechet_ratio: float | None
+    frechet_ratio_low: float | None = None
+    frechet_ratio_high: float | None = None
     splat_matches_real: bool | None
     sim_fails: bool | None
     sim_corridor_excess_pct: float | None
@@ -165,6 +175,8 @@ class Aggregate(_Model):
     compared: int
     sim_failing: int
     frechet_within: int
+    frechet_over_beyond_doubt: int = 0
+    frechet_intervals: int = 0
 
 
 def wilson_interval(failures: int, runs: int, z: float = 1.959964) -> tuple[float, float]:
@@ -180,6 +192,39 @@ def wilson_interval(failures: int, runs: int, z: float = 1.959964) -> tuple[floa
     centre = (p + z2 / (2 * runs)) / (1 + z2 / runs)
     half = z * math.sqrt(p * (1 - p) / runs + z2 / (4 * runs * runs)) / (1 + z2 / runs)
     return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def ratio_interval(
+    numerator: list[float],
+    denominator: list[float],
+    *,
+    level: float = 0.95,
+    draws: int = 4_000,
+    seed: int = 0,
+) -> tuple[float, float] | None:
+    """A bootstrap interval of ``mean(numerator) / mean(denominator)``.
+
+    Each side's runs are drawn again with replacement (``draws`` times, seeded, so the report
+    is the same on every machine) and the ratio's ``(1 - level) / 2`` and ``(1 + level) / 2``
+    quantiles are returned. With three or four runs a side the percentile bootstrap is, if
+    anything, too narrow: an interval wholly above a line says the ratio is over it; one that
+    straddles it says the runs cannot tell.
+
+    Returns:
+        ``(low, high)``, or None with fewer than two values on either side or a denominator
+        that can be zero.
+    """
+    import numpy as np  # noqa: PLC0415 -- lazy: the module is read by light tools
+
+    if len(numerator) < 2 or len(denominator) < 2 or min(denominator) <= 0:
+        return None
+    rng = np.random.default_rng(seed)
+    top = np.asarray(numerator, dtype=np.float64)
+    bottom = np.asarray(denominator, dtype=np.float64)
+    top_means = top[rng.integers(0, top.size, (draws, top.size))].mean(axis=1)
+    bottom_means = bottom[rng.integers(0, bottom.size, (draws, bottom.size))].mean(axis=1)
+    low, high = np.quantile(top_means / bottom_means, [(1 - level) / 2, (1 + level) / 2])
+    return float(low), float(high)
 
 
 def _mean(values: list[float]) -> float | None:
@@ -216,12 +261,14 @@ def _pair(world: WorldResult) -> StreetPair:
     real, splat, sim = (world.method(m) for m in METHODS)
     diff = ratio = excess = None
     matches = sim_fails = None
+    interval = None
     real_rate = None if real is None else real.closed_loop_rate
     splat_rate = None if splat is None else splat.closed_loop_rate
     if real is not None and splat is not None and real_rate is not None and splat_rate is not None:
         diff = splat_rate - real_rate
         if splat.min_frechet_m is not None and real.min_frechet_m:
             ratio = splat.min_frechet_m / real.min_frechet_m
+            interval = ratio_interval(splat.min_frechet_runs_m, real.min_frechet_runs_m)
         all_fail = splat.min_frechet_m is None and splat_rate == 1.0 and real_rate == 1.0
         close = ratio is not None and ratio <= FRECHET_RATIO_MAX
         matches = diff <= 0.0 and (close or all_fail)
@@ -237,6 +284,8 @@ def _pair(world: WorldResult) -> StreetPair:
         sim_failures=_count(sim),
         failure_rate_diff=diff,
         frechet_ratio=ratio,
+        frechet_ratio_low=None if interval is None else interval[0],
+        frechet_ratio_high=None if interval is None else interval[1],
         splat_matches_real=matches,
         sim_fails=sim_fails,
         sim_corridor_excess_pct=excess,
@@ -253,11 +302,19 @@ def aggregate(worlds: list[WorldResult]) -> Aggregate:
         p.frechet_ratio is not None and p.frechet_ratio <= FRECHET_RATIO_MAX for p in pairs
     )
     with_sim = sum(p.sim_fails is not None for p in pairs)
+    intervals = [p for p in pairs if p.frechet_ratio_low is not None]
+    over = sum(p.frechet_ratio_low is not None and p.frechet_ratio_low > FRECHET_RATIO_MAX
+               for p in pairs)  # fmt: skip
     verdict = (
         f"splat indistinguishable from Real on {matched} of {len(compared)} streets "
         f"(fails no more often, Min-Fréchet within {FRECHET_RATIO_MAX:g}x); "
         f"Sim fails on {sim_failing} of {with_sim}"
     )
+    if intervals:
+        verdict += (
+            f"; Min-Fréchet over {FRECHET_RATIO_MAX:g}x beyond its 95 % interval on {over} of "
+            f"{len(intervals)}"
+        )
     return Aggregate(
         streets=len(worlds),
         rates=[_rate(m, worlds) for m in METHODS],
@@ -267,4 +324,6 @@ def aggregate(worlds: list[WorldResult]) -> Aggregate:
         compared=len(compared),
         sim_failing=sim_failing,
         frechet_within=within,
+        frechet_over_beyond_doubt=over,
+        frechet_intervals=len(intervals),
     )

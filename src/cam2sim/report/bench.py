@@ -94,10 +94,12 @@ def bench_tables(
     )  # fmt: skip
     streets: tuple[list[str], list[list[object]]] = (
         ["street", "tuned", "Real fail", "splat fail", "Sim fail", "splat-Real rate",
-         "Fréchet splat/Real", "splat ~ Real", "Sim corridor excess %"],
+         "Fréchet splat/Real", "its 95% interval", "splat ~ Real", "Sim corridor excess %"],
         [
             [p.label, "yes" if p.tuned else "no", p.real_failures, p.splat_failures,
              p.sim_failures, fmt(p.failure_rate_diff, "+.2f"), fmt(p.frechet_ratio),
+             "-" if p.frechet_ratio_low is None or p.frechet_ratio_high is None
+             else f"{p.frechet_ratio_low:.2f}-{p.frechet_ratio_high:.2f}",
              {True: "yes", False: "NO", None: "-"}[p.splat_matches_real],
              fmt(p.sim_corridor_excess_pct, "+.1f")]
             for p in agg.pairs
