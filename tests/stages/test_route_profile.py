@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from cam2sim.metrics.benchmark import WorldResult
-from cam2sim.report.bench import steering_gap_peak
+from cam2sim.report.bench import steering_gain, steering_gap_peak
 from cam2sim.stages.route_profile import RouteProfile
 
 
@@ -40,6 +40,22 @@ def test_the_steering_gap_is_splat_minus_truth_and_its_peak_is_on_the_path() -> 
     assert peak is not None
     assert peak[0] == pytest.approx(0.9)
     assert peak[1] == 10.0
+    # On the path the splat steers (0.1, -1.4, 1.3) where the truth steers (0, -0.5, 1.0).
+    assert steering_gain(world) == pytest.approx((0.7 + 1.3) / 1.25)
+
+
+def test_the_steering_gain_is_one_where_the_policy_acts_alike_and_grows_with_harder_turns() -> None:
+    truth = [[0.0] * 4, [0.5, -2.0, 1.5, 0.0], [0.0] * 4]
+    profile = {"s_m": [0.0, 10.0, 20.0, 30.0], "offsets_m": [-1.0, 0.0, 1.0],
+               "steering_truth": truth}  # fmt: skip
+    same = WorldResult.model_construct(profile=profile | {"steering_splat": truth})
+    harder = [[1.1 * v for v in row] for row in truth]
+    bends = WorldResult.model_construct(profile=profile | {"steering_splat": harder})
+    assert steering_gain(same) == pytest.approx(1.0)
+    assert steering_gain(bends) == pytest.approx(1.1)
+    straight = {"s_m": [0.0], "offsets_m": [0.0], "steering_truth": [[0.0]],
+                "steering_splat": [[0.3]]}  # fmt: skip
+    assert steering_gain(WorldResult.model_construct(profile=straight)) is None
 
 
 def test_without_a_policy_the_profile_is_psnr_only() -> None:

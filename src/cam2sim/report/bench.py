@@ -129,7 +129,8 @@ def bench_tables(
     splat: tuple[list[str], list[list[object]]] = (
         ["street", "route m", "device", "steps a chunk", "stopped", "held-out PSNR",
          "held-out SSIM", "truth on path", "truth 1 m right", "truth 1 m left",
-         "profile min PSNR", "largest steering gap (at m)", "world s"],
+         "profile min PSNR", "largest steering gap (at m)", "steering gain splat/truth",
+         "world s"],
         [
             [w.label, fmt(w.route_m, ".0f"), w.splat_device or "-",
              "/".join(str(s) for s in w.splat_steps) or "-",
@@ -137,7 +138,8 @@ def bench_tables(
              fmt(w.splat_held_out_psnr_db, ".1f"), fmt(w.splat_held_out_ssim, ".3f"),
              fmt(w.splat_truth_psnr_db.get("on path"), ".1f"),
              fmt(_truth_at(w, "+1"), ".1f"), fmt(_truth_at(w, "-1"), ".1f"),
-             fmt(_profile_min(w), ".1f"), _gap_text(w), fmt(w.seconds, ".0f")]
+             fmt(_profile_min(w), ".1f"), _gap_text(w), fmt(steering_gain(w), ".3f"),
+             fmt(w.seconds, ".0f")]
             for w in results
         ],
     )  # fmt: skip
@@ -183,6 +185,23 @@ def steering_gap_peak(world: WorldResult) -> tuple[float, float] | None:
         if a is not None and b is not None
     ]
     return max(gaps) if gaps else None
+
+
+def steering_gain(world: WorldResult) -> float | None:
+    """How much harder the drives' policy steers on the splat view than on the truth's, on the path.
+
+    The least-squares slope through the origin of its splat steering on its truth steering at
+    the profile's stations: 1 is the same, 1.10 is 10 % harder (the bends weigh most, where it
+    steers most). On Aguascalientes route 0 DAVE-2 steered 3 % harder on the GPU splat and 13 %
+    on the CPU splat, in both of the route's bends (docs/benchmarks.md, "The GPU demo's preset
+    on four untuned streets").
+    """
+    truth, splat = _on_path(world, "steering_truth"), _on_path(world, "steering_splat")
+    if truth is None or splat is None:
+        return None
+    pairs = [(a, b) for a, b in zip(truth, splat, strict=True) if a is not None and b is not None]
+    weight = sum(a * a for a, _ in pairs)
+    return sum(a * b for a, b in pairs) / weight if weight > 0 else None
 
 
 def _gap_text(world: WorldResult) -> str:
