@@ -16,7 +16,8 @@
 # SUITE (default benchmarks/suites/streets-gpu.yaml) names the suite; its OSM files are looked for
 # in /tmp/osm by name. WORKERS=N (one-GPU machines) runs N worlds at a time on the local
 # pool, sharing the GPU, instead of Ray's one GPU a world; its start call then carries .c21/b
-# only. WATCH_S (default 560) is how long start and wait watch before returning.
+# only. Start and wait watch until the call has run WATCH_S seconds (default 560, counted
+# from the script's start, so the wheels' install of the start call is inside it), then return.
 # RESULTS="DIR..." (start): folders of earlier results (DIR/worlds/LABEL/result.json, as
 # docs/results/issue37-gpu-recheck/a) are put in place first, so the suite runs only the
 # worlds still missing and the report covers all (a suite split over one-GPU sessions).
@@ -37,8 +38,8 @@ MARKER=/tmp/.gpu_bench_setup
 source "$(dirname "$0")/gpu_phase.sh"
 export RAY_AUTH_MODE=disabled
 bench=/tmp/bench
-watch() { # until the bench process ends or WATCH_S passes: one line a minute
-  local until=$((SECONDS + ${WATCH_S:-560}))
+watch() { # until the bench process ends or the call has run WATCH_S seconds: one line a minute
+  local until=${WATCH_S:-560}
   while [ $SECONDS -lt $until ]; do
     done_n=$(ls $bench/worlds/*/result.json 2>/dev/null | wc -l)
     echo "$(date +%H:%M:%S) worlds with a result: $done_n; $(nvidia-smi --query-gpu=utilization.gpu --format=csv,noheader | tr '\n' ' ')"
@@ -47,7 +48,8 @@ watch() { # until the bench process ends or WATCH_S passes: one line a minute
       tail -n 30 /tmp/bench.log
       return 0
     fi
-    sleep 60
+    local left=$((until - SECONDS))
+    sleep $((left < 60 ? (left > 0 ? left : 1) : 60))
   done
 }
 case $PHASE in
