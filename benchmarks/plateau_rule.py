@@ -105,7 +105,8 @@ def main() -> None:
     if not gains:
         msg = "no chunk with 4 validations from step 1,000 in the logs given"
         raise SystemExit(msg)
-    shape = tuple(np.median(np.array(gains), axis=0).tolist())
+    median = np.median(np.array(gains), axis=0)
+    shape = (float(median[0]), float(median[1]))
     noise = (
         float(np.concatenate([r[0] for r in residuals]).std()),
         float(np.concatenate([r[1] for r in residuals]).std()),
@@ -118,7 +119,7 @@ def main() -> None:
     print("| patience (window, steps) | mean stop | 10th pct | stopped by 3,000 | at the cap |")
     print("| --- | --- | --- | --- | --- |")
     for patience in (int(p) for p in args.patience.split(",")):
-        stops = simulate(rng, shape, noise, patience, args, args.draws)  # type: ignore[arg-type]
+        stops = simulate(rng, shape, noise, patience, args, args.draws)
         print(
             f"| {patience} ({patience * args.val_every:,}) | {stops.mean():.0f} | "
             f"{np.percentile(stops, 10):.0f} | {np.mean(stops <= 3_000):.0%} | "

@@ -302,18 +302,17 @@ def aggregate(worlds: list[WorldResult]) -> Aggregate:
         p.frechet_ratio is not None and p.frechet_ratio <= FRECHET_RATIO_MAX for p in pairs
     )
     with_sim = sum(p.sim_fails is not None for p in pairs)
-    intervals = [p for p in pairs if p.frechet_ratio_low is not None]
-    over = sum(p.frechet_ratio_low is not None and p.frechet_ratio_low > FRECHET_RATIO_MAX
-               for p in pairs)  # fmt: skip
+    lows = [p.frechet_ratio_low for p in pairs if p.frechet_ratio_low is not None]
+    over = sum(low > FRECHET_RATIO_MAX for low in lows)
     verdict = (
         f"splat indistinguishable from Real on {matched} of {len(compared)} streets "
         f"(fails no more often, Min-Fréchet within {FRECHET_RATIO_MAX:g}x); "
         f"Sim fails on {sim_failing} of {with_sim}"
     )
-    if intervals:
+    if lows:
         verdict += (
             f"; Min-Fréchet over {FRECHET_RATIO_MAX:g}x beyond its 95 % interval on {over} of "
-            f"{len(intervals)}"
+            f"{len(lows)}"
         )
     return Aggregate(
         streets=len(worlds),
@@ -325,5 +324,5 @@ def aggregate(worlds: list[WorldResult]) -> Aggregate:
         sim_failing=sim_failing,
         frechet_within=within,
         frechet_over_beyond_doubt=over,
-        frechet_intervals=len(intervals),
+        frechet_intervals=len(lows),
     )

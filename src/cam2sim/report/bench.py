@@ -175,15 +175,7 @@ def _on_path(world: WorldResult, key: str) -> list[float | None] | None:
 
 def steering_gap_peak(world: WorldResult) -> tuple[float, float] | None:
     """The largest |splat - truth| steering of the drives' policy on the path, and where (m)."""
-    truth, splat = _on_path(world, "steering_truth"), _on_path(world, "steering_splat")
-    if truth is None or splat is None or not world.profile:
-        return None
-    stations: list[float] = world.profile["s_m"]  # type: ignore[assignment]
-    gaps = [
-        (abs(b - a), s)
-        for a, b, s in zip(truth, splat, stations, strict=True)
-        if a is not None and b is not None
-    ]
+    gaps = [(abs(b - a), s) for s, a, b in _steering_pairs(world)]
     return max(gaps) if gaps else None
 
 
@@ -196,12 +188,22 @@ def steering_gain(world: WorldResult) -> float | None:
     on the CPU splat, in both of the route's bends (docs/benchmarks.md, "The GPU demo's preset
     on four untuned streets").
     """
+    pairs = _steering_pairs(world)
+    weight = sum(a * a for _, a, _ in pairs)
+    return sum(a * b for _, a, b in pairs) / weight if weight > 0 else None
+
+
+def _steering_pairs(world: WorldResult) -> list[tuple[float, float, float]]:
+    """``(station m, truth steering, splat steering)`` on the path where both were asked."""
     truth, splat = _on_path(world, "steering_truth"), _on_path(world, "steering_splat")
-    if truth is None or splat is None:
-        return None
-    pairs = [(a, b) for a, b in zip(truth, splat, strict=True) if a is not None and b is not None]
-    weight = sum(a * a for a, _ in pairs)
-    return sum(a * b for a, b in pairs) / weight if weight > 0 else None
+    if truth is None or splat is None or not world.profile:
+        return []
+    stations: list[float] = world.profile["s_m"]  # type: ignore[assignment]
+    return [
+        (s, a, b)
+        for s, a, b in zip(stations, truth, splat, strict=True)
+        if a is not None and b is not None
+    ]
 
 
 def _gap_text(world: WorldResult) -> str:

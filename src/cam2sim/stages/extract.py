@@ -356,6 +356,12 @@ def _read_trajectory(
 
 
 # -- calibration ----------------------------------------------------------------------------------
+_CALIBRATION_HINT = (
+    "give the camera's calibration file (cam2sim run --calibration FILE) or set "
+    "camera.intrinsics in config.yaml"
+)
+
+
 def _intrinsics(
     config: Config, camera_info: Any, size: tuple[int, int] | None
 ) -> CameraIntrinsics | None:
@@ -378,10 +384,7 @@ def _intrinsics(
     k = np.asarray(getattr(camera_info, "k", getattr(camera_info, "K", None)), dtype=float)
     d = np.asarray(getattr(camera_info, "d", getattr(camera_info, "D", ())), dtype=float)
     if k.size != 9 or not np.isfinite(k).all() or k[0] <= 0:
-        msg = (
-            "topics.camera_info has no valid K matrix; give the camera's calibration file "
-            "(cam2sim run --calibration FILE) or set camera.intrinsics in config.yaml"
-        )
+        msg = f"topics.camera_info has no valid K matrix; {_CALIBRATION_HINT}"
         raise RecordingError(msg)
     where = f"topics.camera_info {config.topics.camera_info}"
     model = model_named(where, camera_info.distortion_model) if d.any() else "plumb_bob"
@@ -390,10 +393,7 @@ def _intrinsics(
             k, int(camera_info.width), int(camera_info.height), d.tolist(), distortion_model=model
         )
     except ConfigError as err:
-        msg = (
-            f"topics.camera_info: {err}; give the camera's calibration file (cam2sim run "
-            "--calibration FILE) or set camera.intrinsics in config.yaml"
-        )
+        msg = f"topics.camera_info: {err}; {_CALIBRATION_HINT}"
         raise RecordingError(msg) from None
     return CameraIntrinsics.from_camera(camera, f"camera_info topic {config.topics.camera_info}")
 
