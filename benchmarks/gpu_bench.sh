@@ -42,7 +42,7 @@ watch() { # until the bench process ends or the call has run WATCH_S seconds: on
   local until=${WATCH_S:-560}
   while [ $SECONDS -lt $until ]; do
     done_n=$(ls $bench/worlds/*/result.json 2>/dev/null | wc -l)
-    echo "$(date +%H:%M:%S) worlds with a result: $done_n; $(nvidia-smi --query-gpu=utilization.gpu --format=csv,noheader | tr '\n' ' ')"
+    echo "$(date +%H:%M:%S) worlds with a result: $done_n; $(nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader | tr '\n' ' ')"
     if ! pgrep -f "cam2sim bench" > /dev/null; then
       echo "the bench process has ended"
       tail -n 30 /tmp/bench.log
