@@ -23,6 +23,8 @@
 # worlds still missing and the report covers all (a suite split over one-GPU sessions).
 # Everything the suite reads lives in /tmp on the device: a carried folder that a later call does
 # not carry again is removed there, so .osm/ vanished under the first GPU suite's running worlds.
+# BENCH (default /tmp/bench) is the benchmark folder on the device: a second suite in the same
+# session gets its own (BENCH=/tmp/bench2 for its start, wait and collect).
 # The LPIPS weights do not fit the start call (the splats' LPIPS is then not computed; the
 # bench reads PSNR and SSIM only).
 case ${PHASE:?set PHASE to setup, start, wait or collect} in
@@ -37,7 +39,7 @@ esac
 MARKER=/tmp/.gpu_bench_setup
 source "$(dirname "$0")/gpu_phase.sh"
 export RAY_AUTH_MODE=disabled
-bench=/tmp/bench
+bench=${BENCH:-/tmp/bench}
 watch() { # until the bench process ends or the call has run WATCH_S seconds: one line a minute
   local until=${WATCH_S:-560}
   while [ $SECONDS -lt $until ]; do
@@ -45,7 +47,7 @@ watch() { # until the bench process ends or the call has run WATCH_S seconds: on
     echo "$(date +%H:%M:%S) worlds with a result: $done_n; $(nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader | tr '\n' ' ')"
     if ! pgrep -f "cam2sim bench" > /dev/null; then
       echo "the bench process has ended"
-      tail -n 30 /tmp/bench.log
+      tail -n 30 $bench.log
       return 0
     fi
     local left=$((until - SECONDS))
@@ -77,27 +79,28 @@ start)
   sed -E 's#osm: .*/([^/]+)$#osm: /tmp/osm/\1#' "$suite" > /tmp/suite.yaml
   grep -n "osm:" /tmp/suite.yaml
   setsid nohup python3 -m cam2sim bench /tmp/suite.yaml -o $bench "${pool[@]}" \
-    > /tmp/bench.log 2>&1 < /dev/null &
+    > $bench.log 2>&1 < /dev/null &
   sleep 5
   watch
   ;;
 wait) watch ;;
 collect)
-  tail -n 40 /tmp/bench.log
+  tail -n 40 $bench.log
   if ! pgrep -f "cam2sim bench" > /dev/null && [ ! -f $bench/report.html ]; then
     echo "no report yet" >&2
   fi
   if pgrep -f "cam2sim bench" > /dev/null; then # unfinished: a report over the worlds done
     python3 - << 'EOF'
+import os
 from pathlib import Path
 from cam2sim.metrics.benchmark import WorldResult, aggregate
 from cam2sim.report.bench import write_bench_report
-folder = Path("/tmp/bench")
+folder = Path(os.environ.get("BENCH", "/tmp/bench"))
 results = [WorldResult.load(p) for p in sorted(folder.glob("worlds/*/result.json"))]
 write_bench_report(folder, results, aggregate(results), name="streets-gpu (unfinished)")
 EOF
   fi
-  cp /tmp/bench.log "$out/bench.log"
+  cp $bench.log "$out/bench.log"
   cp $bench/report.html "$out/report.html" 2>/dev/null
   tar czf "$out/bench.tgz" -C $bench summary.md aggregate.json state.json tables \
     $(cd $bench && ls worlds/*/result.json logs/*.log 2>/dev/null)

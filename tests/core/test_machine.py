@@ -56,3 +56,25 @@ def test_thread_pools_keep_to_the_cpus_a_task_was_given(monkeypatch: pytest.Monk
     session = onnx_session(model.SerializeToString(), "a test")
     assert isinstance(session, ort.InferenceSession)
     assert session.get_session_options().intra_op_num_threads == 3
+
+
+def test_children_get_their_allotment_and_never_more_than_this_process(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from cam2sim.core.machine import children_allotted
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda _pid: set(range(16)), raising=False)
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    with children_allotted(4):
+        assert os.environ["OMP_NUM_THREADS"] == os.environ["OPENBLAS_NUM_THREADS"] == "4"
+    assert "OMP_NUM_THREADS" not in os.environ
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")  # this process was given 2 (a Ray task)
+    with children_allotted(4):
+        assert os.environ["OMP_NUM_THREADS"] == "2"
+    assert os.environ["OMP_NUM_THREADS"] == "2"
+    monkeypatch.setenv("MKL_NUM_THREADS", "9")
+    with pytest.raises(RuntimeError), children_allotted(0):
+        raise RuntimeError(os.environ["MKL_NUM_THREADS"])
+    assert os.environ["MKL_NUM_THREADS"] == "9"  # restored after an error too
+    with children_allotted(0):
+        assert os.environ["NUMBA_NUM_THREADS"] == "1"  # at least one

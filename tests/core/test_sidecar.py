@@ -78,3 +78,22 @@ def test_stop_ends_the_process_at_once() -> None:
     assert time.perf_counter() - started < 30.0
     with pytest.raises(StageError, match="stopped"):
         side.result()
+
+
+def _pools(*, progress: ProgressCallback) -> dict[str, object]:
+    del progress
+    import torch
+
+    return {"omp": os.environ.get("OMP_NUM_THREADS"), "torch": torch.get_num_threads()}
+
+
+def test_a_sidecar_given_cpus_sizes_its_pools_to_them(monkeypatch: pytest.MonkeyPatch) -> None:
+    pytest.importorskip("torch")
+    monkeypatch.setattr(os, "sched_getaffinity", lambda _pid: set(range(8)), raising=False)
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "7")
+    pools = Sidecar(_pools, (), name="pools", cpus=1).result()
+    assert pools == {"omp": "1", "torch": 1}  # its torch started with one thread
+    # This process's variables are as they were: absent stays absent, set keeps its value.
+    assert "OMP_NUM_THREADS" not in os.environ
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "7"

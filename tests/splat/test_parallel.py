@@ -157,7 +157,7 @@ def test_a_slot_waits_for_the_longer_chunk_still_loading() -> None:
     from cam2sim.splat.parallel import ChunkOutcomes, _Pool
 
     outcomes = ChunkOutcomes((0, 1, 2), "in a test")
-    pool = _Pool((0, 1, 2), (), 2, outcomes, 10, lambda *_: None)
+    pool = _Pool((0, 1, 2), (), 2, outcomes, 10, lambda *_: None, cpus=1)
     pool.go = {c: threading.Event() for c in (0, 1, 2)}
     pool.ready = [2]  # the shortest chunk loaded first: its slot is not yet due
     pool._grant()
@@ -175,3 +175,11 @@ def test_a_slot_waits_for_the_longer_chunk_still_loading() -> None:
     pool._grant()
     assert pool.training == {0, 2}
     assert pool.ready == []
+
+
+def test_gpu_workers_leave_cpus_to_the_process_and_dave2_beside_them() -> None:
+    from cam2sim.splat.parallel import worker_cpus
+
+    assert worker_cpus(16, 3, cuda=True) == 4  # three workers, and a share for the rest
+    assert worker_cpus(16, 2, cuda=False) == 8  # on the CPU the workers share every core
+    assert worker_cpus(2, 3, cuda=True) == 1

@@ -20,13 +20,19 @@ the 120 s safety cap after 570-2,327 of their 2,500 steps: docs/benchmarks.md).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
 
 __all__ = [
     "GPU_SHARERS_VARIABLE",
     "allot_cpus",
     "available_cpus",
+    "children_allotted",
     "gpu_sharers",
     "keep_to_allotment",
     "share_gpu",
@@ -59,6 +65,33 @@ def allot_cpus(cpus: int, gpu_sharers: int = 1) -> None:
     for name in _THREAD_VARIABLES:
         os.environ[name] = str(cpus)
     share_gpu(gpu_sharers)
+
+
+@contextlib.contextmanager
+def children_allotted(cpus: int) -> Iterator[None]:
+    """Allot ``cpus`` CPUs to the processes started inside the ``with`` block.
+
+    A spawned child's libraries size their thread pools when they load, from the variables
+    :func:`allot_cpus` sets, before any code of ours runs there; so they are set here while
+    the child starts and restored after (this process's own pools, already started, keep
+    their size). A smaller allotment of this process (a scheduler's above) caps ``cpus``.
+
+    Processes sharing a machine need this: a splat chunk's worker beside DAVE-2's training on a
+    16-core GPU machine, each with pools of 16 threads, took 25-32 s to seed its Gaussians
+    (4 s alone) while DAVE-2 took 35 s an epoch (0.5 s alone) (docs/benchmarks.md).
+    """
+    cpus = max(1, min(cpus, available_cpus()))
+    saved = {name: os.environ.get(name) for name in _THREAD_VARIABLES}
+    try:
+        for name in _THREAD_VARIABLES:
+            os.environ[name] = str(cpus)
+        yield
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 def share_gpu(sharers: int) -> None:

@@ -19,6 +19,7 @@ its arguments and value must pickle.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import logging.handlers
 import queue
@@ -29,6 +30,7 @@ import traceback
 from typing import TYPE_CHECKING, Any
 
 from cam2sim.core.errors import StageError
+from cam2sim.core.machine import children_allotted
 from cam2sim.core.progress import ProgressCallback, no_progress
 
 if TYPE_CHECKING:
@@ -104,6 +106,8 @@ class Sidecar:
         progress: Receives the function's progress here, from a reading thread: give one that
             may be called from another thread (or serialise it).
         name: The process's name (in ``ps`` and the logs).
+        cpus: CPU threads of its pools (:func:`~cam2sim.core.machine.children_allotted`);
+            None: this process's.
     """
 
     def __init__(
@@ -113,6 +117,7 @@ class Sidecar:
         *,
         progress: ProgressCallback = no_progress,
         name: str = "cam2sim-sidecar",
+        cpus: int | None = None,
     ) -> None:
         import multiprocessing  # noqa: PLC0415
 
@@ -128,7 +133,8 @@ class Sidecar:
             name=name,
             daemon=True,
         )
-        self._process.start()
+        with contextlib.nullcontext() if cpus is None else children_allotted(cpus):
+            self._process.start()
         logger.info("%s: started in process %d", name, self._process.pid)
         self._reader = threading.Thread(target=self._read, name=f"{name}-reader", daemon=True)
         self._reader.start()

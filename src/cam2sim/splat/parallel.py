@@ -26,6 +26,7 @@ before the first worker starts, so the workers load it instead of each compiling
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import queue
@@ -36,6 +37,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
 from cam2sim.core.errors import StageError
+from cam2sim.core.machine import available_cpus, children_allotted
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.sidecar import LogForwarder, end_processes
 from cam2sim.splat.raster import build_gsplat
@@ -56,6 +58,7 @@ __all__ = [
     "cuda_slots",
     "largest_first",
     "train_chunks_in_processes",
+    "worker_cpus",
 ]
 
 CUDA_SLOT_RATES: Final = {1: 0.5, 2: 1.0, 3: 1.04}
@@ -148,9 +151,9 @@ def _worker(  # noqa: PLR0913, PLR0917 -- a spawned process's whole job, positio
     pickles a module-level function by name) so that this module does not import the trainer
     that calls it.
 
-    ``settings`` is (log level, torch CPU threads or 0). After loading the chunk and its first
-    step (at the first progress report) it sends ``("ready", chunk, None)`` and waits for the
-    event ``go`` (a training slot). Sends ``("progress", chunk, steps)`` while training and
+    ``settings`` is (log level, CPU threads: :func:`worker_cpus`). After loading the chunk and
+    its first step (at the first progress report) it sends ``("ready", chunk, None)`` and waits
+    for the event ``go`` (a training slot). Sends ``("progress", chunk, steps)`` while training and
     ``("failed", chunk, text)`` on an error (``Type: message``, then the traceback).
     """
     entered = time.perf_counter()
@@ -163,8 +166,7 @@ def _worker(  # noqa: PLR0913, PLR0917 -- a spawned process's whole job, positio
         import torch  # noqa: PLC0415
 
         imported = time.perf_counter() - entered
-        if threads > 0:
-            torch.set_num_threads(threads)
+        torch.set_num_threads(threads)
         last = 0.0
         waited = False
 
@@ -211,9 +213,15 @@ class _Pool:
         outcomes: ChunkOutcomes,
         steps_per_chunk: int,
         progress: ProgressCallback,
+        *,
+        cpus: int | None,
     ) -> None:
         import torch.multiprocessing as tmp  # noqa: PLC0415
 
+        # Each worker's pools (:func:`worker_cpus`; None: as this process's). On the CPU only
+        # torch's is sized, in the worker: numba's compositing splits its tiles by its threads,
+        # and a chunk's model must not depend on whether it trained in a worker.
+        self.cpus = cpus
         self.context = tmp.get_context("spawn")
         self.messages: Any = self.context.Queue()
         self.order = tuple(chunk_ids)
@@ -257,7 +265,8 @@ class _Pool:
                 name=f"splat-chunk-{chunk:02d}",
                 daemon=True,
             )
-            process.start()
+            with contextlib.nullcontext() if self.cpus is None else children_allotted(self.cpus):
+                process.start()
             self.running[chunk] = process
             logger.info("chunk %d: loading in worker process %d", chunk, process.pid)
 
@@ -353,6 +362,18 @@ def largest_first(scene: SceneRecord, chunk_ids: tuple[int, ...]) -> tuple[int, 
     return tuple(sorted(chunk_ids, key=size, reverse=True))
 
 
+def worker_cpus(cpus: int, in_flight: int, *, cuda: bool) -> int:
+    """CPU threads of each chunk worker when ``in_flight`` train at once on ``cpus`` CPUs.
+
+    On the CPU the workers share the CPUs. On CUDA a worker's host loop keeps one core busy
+    and its pools are idle while it trains, but they start at one thread a core and spin on
+    every NumPy or torch call on the CPU (seeding its Gaussians): the workers and this process
+    (and DAVE-2's training beside it) take a share each (:func:`~cam2sim.core.machine.
+    children_allotted`).
+    """
+    return max(1, cpus // (in_flight + 1 if cuda else in_flight))
+
+
 def cuda_slots(n_chunks: int, gpu_gib: float) -> int:
     """How many of ``n_chunks`` equal chunks to train at once on one GPU of ``gpu_gib`` GiB.
 
@@ -414,22 +435,20 @@ def train_chunks_in_processes(
         StageError: Chunks failed (raised after the others finished, naming each).
         BackendUnavailableError: gsplat's CUDA extension does not build.
     """
-    import torch  # noqa: PLC0415
-
     start = time.perf_counter()
     if options.backend == "gsplat":
         build_gsplat()  # here, once, so spawned workers find it built
     worker_options = dataclasses.replace(options, concurrent_chunks=1)
     level = logging.getLogger("cam2sim").getEffectiveLevel()
-    # On the CPU the workers training at once share this process's threads.
-    threads = max(1, torch.get_num_threads() // in_flight) if options.device == "cpu" else 0
+    threads = worker_cpus(available_cpus(), in_flight, cuda=options.device != "cpu")
     job = (train, scene, Path(prep_dir), worker_options, Path(models_dir), (level, threads))
     outcomes = ChunkOutcomes(chunk_ids, "in worker processes")
     logger.info(
-        "training %d chunk(s) in worker processes, %d at a time, on %s",
+        "training %d chunk(s) in worker processes, %d at a time, on %s (%d CPU threads each)",
         len(chunk_ids),
         in_flight,
         options.device,
+        threads,
     )
     pool = _Pool(
         largest_first(scene, chunk_ids),
@@ -438,6 +457,7 @@ def train_chunks_in_processes(
         outcomes,
         options.max_steps,
         progress,
+        cpus=None if options.device == "cpu" else threads,
     )
     pool.run()
     hint = "see the log above for each traceback, fix the cause, and train again"

@@ -104,6 +104,10 @@ BESIDE_MIN_CPUS: Final = 8
 """Fewest CPUs on which ``cam2sim run`` trains DAVE-2 beside the splat by default (the splat's
 preparation, SIFT and triangulation, takes every core it has; DAVE-2 needs a few for its
 frames)."""
+BESIDE_SPLAT_CPUS: Final = 4
+"""CPUs the ads step leaves the splat step when it trains beside it: the host loops of up to
+three chunk workers training on the GPU, and this process (DAVE-2 with a thread a core beside
+them took 35 s an epoch where it takes 0.5 s alone: docs/benchmarks.md)."""
 
 
 def replay_stride(samples: int, cameras: Sequence[str], *, cuda: bool) -> int:
@@ -700,7 +704,11 @@ def run_pipeline(
             else:
                 if name == "splat" and _ads_beside_splat(opts):
                     beside = Sidecar(
-                        _step_in_process, (str(ws.root), opts, "ads"), progress=report, name="ads"
+                        _step_in_process,
+                        (str(ws.root), opts, "ads"),
+                        progress=report,
+                        name="ads",
+                        cpus=_ads_beside_cpus(),
                     )
                 outcomes.append(_run_step(name, handlers[name]))
             logger.info("step %s: %s", name, outcomes[-1].state)
@@ -738,6 +746,16 @@ def _ads_beside_splat(opts: PipelineOptions) -> bool:
     from cam2sim.splat.raster import has_cuda  # noqa: PLC0415 -- lazy: imports torch
 
     return available_cpus() >= BESIDE_MIN_CPUS and has_cuda()
+
+
+def _ads_beside_cpus() -> int | None:
+    """CPU threads of the ads step beside the splat (None: this process's).
+
+    All but :data:`BESIDE_SPLAT_CPUS`; below :data:`BESIDE_MIN_CPUS` (where only the option put
+    it beside) this process's.
+    """
+    cpus = available_cpus()
+    return cpus - BESIDE_SPLAT_CPUS if cpus >= BESIDE_MIN_CPUS else None
 
 
 def _step_in_process(
