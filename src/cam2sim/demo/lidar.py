@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 import numpy as np
 
@@ -155,12 +155,20 @@ def _ground_hits(
     return out
 
 
+_CORNER_SIGNS: Final = np.array(
+    [[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], dtype=float
+)
+"""The eight corners of a box, as signs of its half sizes."""
+
+
 def _angular_window(
-    box: SceneBox, T_world_sensor: Pose, lidar: LidarModel
+    box: SceneBox, T_sensor_world: Pose, lidar: LidarModel
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]] | None:
-    """Beam rows and azimuth columns whose rays may hit ``box`` (``None`` when none can)."""
-    signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], dtype=float)
-    half = 0.5 * np.asarray(box.size) * signs
+    """Beam rows and azimuth columns whose rays may hit ``box`` (``None`` when none can).
+
+    ``T_sensor_world``: the sensor pose's inverse (computed once a scan, not once a box).
+    """
+    half = 0.5 * np.asarray(box.size) * _CORNER_SIGNS
     c, s = math.cos(box.yaw), math.sin(box.yaw)
     corners = np.stack(
         [
@@ -170,11 +178,11 @@ def _angular_window(
         ],
         axis=-1,
     )
-    local = T_world_sensor.inverse().apply(corners)
+    local = T_sensor_world.apply(corners)
     dist = np.linalg.norm(local, axis=-1)
     if dist.min() > lidar.max_range_m + max(box.size):
         return None
-    centre = T_world_sensor.inverse().apply(np.asarray(box.center))
+    centre = T_sensor_world.apply(np.asarray(box.center))
     az = np.arctan2(local[:, 1], local[:, 0])
     rel = np.angle(np.exp(1j * (az - math.atan2(centre[1], centre[0]))))
     step = 2.0 * math.pi / lidar.azimuths
@@ -245,8 +253,9 @@ def scan_scene(
     label = np.full(t_best.shape, LABEL_GROUND, dtype=np.int32)
     objects = [(box, LABEL_STRUCTURE) for box in scene.structures]
     objects += [(part, k) for k, car in enumerate(scene.cars) for part in _car_parts(car)]
+    T_sensor_world = T_world_sensor.inverse()
     for box, tag in objects:  # one vectorised slab test per box, over its angular window
-        window = _angular_window(box, T_world_sensor, lidar)
+        window = _angular_window(box, T_sensor_world, lidar)
         if window is None:
             continue
         rows, cols = window

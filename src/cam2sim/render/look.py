@@ -147,56 +147,67 @@ def photographic_look(
     tex = _textures(seed)
     h, w = labels.shape
     img = rgb.astype(np.float32) / 255.0
-    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    pix = np.stack([u, v, np.ones_like(u)], axis=-1)
+    pix, vignette = _pixel_grid(h, w)
     rays = pix @ (T_world_cam[:3, :3] @ np.linalg.inv(K)).T
     rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    road = labels == Label.ROAD
+    walk = labels == Label.SIDEWALK
+    verge = labels == Label.BACKGROUND
+    ground = road | walk | verge
+    # Everything below is computed per pixel on the pixels of its class only (the ground's
+    # textures, the facades' plaster, the sky): the same values as over the whole frame.
+    g_rays = rays[ground]
     cam = T_world_cam[:3, 3]
-    down = rays[..., 2] < -1e-3
+    down = g_rays[:, 2] < -1e-3
     # Range to the ground plane (floored: a camera at or below the road sees it at 1 mm).
-    dist = np.where(down, np.maximum(-cam[2] / np.where(down, rays[..., 2], -1.0), 1e-3), 1e3)
-    gx = cam[0] + dist * rays[..., 0]
-    gy = cam[1] + dist * rays[..., 1]
+    dist = np.where(down, np.maximum(-cam[2] / np.where(down, g_rays[:, 2], -1.0), 1e-3), 1e3)
+    g_x = cam[0] + dist * g_rays[:, 0]
+    g_y = cam[1] + dist * g_rays[:, 1]
     near = np.clip(10.0 / dist, 0.15, 1.0).astype(np.float32)  # fine grain fades with range
     # Ground seen by one pixel, metres: its angular size times the range, stretched by the
     # grazing angle (the long axis of the pixel's footprint on the road).
     focal = 0.5 * (K[0, 0] + K[1, 1])
-    footprint = dist / (focal * np.maximum(np.abs(rays[..., 2]), 0.02))
+    g_foot = dist / (focal * np.maximum(np.abs(g_rays[:, 2]), 0.02))
+    grain = _filtered(tex.fine, g_x / _GRAIN_M, g_y / _GRAIN_M, g_foot / _GRAIN_M) * near
+    patches = _filtered(tex.coarse, g_x / _PATCH_M, g_y / _PATCH_M, g_foot / _PATCH_M)
+    is_road, is_walk, is_verge = road[ground], walk[ground], verge[ground]
 
-    road = labels == Label.ROAD
-    walk = labels == Label.SIDEWALK
-    verge = labels == Label.BACKGROUND
-    ground = road | walk | verge  # textures are looked up only where they are drawn
-    grain = np.zeros((h, w), np.float32)
-    patches = np.zeros((h, w), np.float32)
-    g_x, g_y, g_foot = gx[ground], gy[ground], footprint[ground]
-    grain[ground] = _filtered(tex.fine, g_x / _GRAIN_M, g_y / _GRAIN_M, g_foot / _GRAIN_M)
-    grain *= near
-    patches[ground] = _filtered(tex.coarse, g_x / _PATCH_M, g_y / _PATCH_M, g_foot / _PATCH_M)
-    asphalt = 1.0 + 0.15 * grain + 0.12 * patches
-    img[road] *= (asphalt[road, None] * np.array([1.03, 1.0, 0.96], np.float32)).astype(np.float32)
+    asphalt = 1.0 + 0.15 * grain[is_road] + 0.12 * patches[is_road]
+    img[road] *= (asphalt[:, None] * np.array([1.03, 1.0, 0.96], np.float32)).astype(np.float32)
 
-    fx, fy = np.abs((gx / 0.4) % 1.0 - 0.5), np.abs((gy / 0.4) % 1.0 - 0.5)
+    w_x, w_y, w_foot = g_x[is_walk], g_y[is_walk], g_foot[is_walk]
+    fx, fy = np.abs((w_x / 0.4) % 1.0 - 0.5), np.abs((w_y / 0.4) % 1.0 - 0.5)
     joints = np.where(np.maximum(fx, fy) > 0.46, 0.75, 1.0)
     # Joints thinner than a pixel blend into their average shade (8 % of a 0.4 m slab each way).
-    blend = np.clip(footprint / (0.08 * 0.4), 0.0, 1.0)
+    blend = np.clip(w_foot / (0.08 * 0.4), 0.0, 1.0)
     joints = (1.0 - blend) * joints + blend * (1.0 - 0.25 * (1.0 - 0.92**2))
-    paving = joints * (1.0 + 0.08 * grain)
-    img[walk] *= paving[walk, None].astype(np.float32)
+    paving = joints * (1.0 + 0.08 * grain[is_walk])
+    img[walk] *= paving[:, None].astype(np.float32)
 
-    grass = 1.0 + 0.35 * grain + 0.15 * patches
-    img[verge] = (np.array([0.33, 0.40, 0.22], np.float32) * grass[verge, None]).astype(np.float32)
+    grass = 1.0 + 0.35 * grain[is_verge] + 0.15 * patches[is_verge]
+    img[verge] = (np.array([0.33, 0.40, 0.22], np.float32) * grass[:, None]).astype(np.float32)
 
     facade = labels == Label.BUILDING
-    shade = img[..., :].mean(axis=-1, keepdims=True) / (138.0 / 255.0)
-    plaster = np.array([0.80, 0.70, 0.57], np.float32) * shade
-    img[facade] = 0.3 * img[facade] + 0.7 * plaster[facade]
+    walls = img[facade]
+    shade = walls.mean(axis=-1, keepdims=True) / (138.0 / 255.0)
+    img[facade] = 0.3 * walls + 0.7 * (np.array([0.80, 0.70, 0.57], np.float32) * shade)
 
     sky = labels == Label.SKY
-    img[sky] = _sky(rays, tex)[sky].astype(np.float32)
-    img = _lens_and_sensor(img, u, v, rng)
+    img[sky] = _sky(rays[sky], tex).astype(np.float32)
+    img = _lens_and_sensor(img, vignette, rng)
     out: npt.NDArray[np.uint8] = np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
     return out
+
+
+@functools.lru_cache(maxsize=8)
+def _pixel_grid(h: int, w: int) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float32]]:
+    """Each pixel's ``(u, v, 1)`` (``(h, w, 3)``), and the vignetting (``(h, w, 1)``); read-only."""
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    pix = np.stack([u, v, np.ones_like(u)], axis=-1)
+    r2 = ((u - w / 2) / (w / 2)) ** 2 + ((v - h / 2) / (h / 2)) ** 2
+    vignette = (1.0 - 0.18 * r2)[..., None].astype(np.float32)
+    pix.flags.writeable = vignette.flags.writeable = False
+    return pix, vignette
 
 
 def _sky(rays: npt.NDArray[np.float64], tex: _Textures) -> npt.NDArray[np.float64]:
@@ -216,20 +227,17 @@ def _sky(rays: npt.NDArray[np.float64], tex: _Textures) -> npt.NDArray[np.float6
 
 def _lens_and_sensor(
     img: npt.NDArray[np.float32],
-    u: npt.NDArray[np.float64],
-    v: npt.NDArray[np.float64],
+    vignette: npt.NDArray[np.float32],
     rng: np.random.Generator | None,
 ) -> npt.NDArray[np.float32]:
     """Lens and sensor: blur, warm grade with a soft S-curve, vignetting, noise (``rng``)."""
     import cv2  # noqa: PLC0415
 
-    h, w = img.shape[:2]
     img = np.asarray(cv2.GaussianBlur(img, (0, 0), 0.6), np.float32)
     img = np.clip(img * 1.05, 0.0, 1.0) ** 0.9
     img = 0.5 + (img - 0.5) * 1.12
     img *= np.array([1.05, 1.0, 0.93], np.float32)
-    r2 = ((u - w / 2) / (w / 2)) ** 2 + ((v - h / 2) / (h / 2)) ** 2
-    img *= (1.0 - 0.18 * r2)[..., None].astype(np.float32)
+    img *= vignette
     if rng is not None:
         img += rng.normal(0.0, 0.015, img.shape).astype(np.float32)
     return img
