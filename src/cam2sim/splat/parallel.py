@@ -368,8 +368,8 @@ def worker_cpus(cpus: int, in_flight: int, *, cuda: bool) -> int:
     On the CPU the workers share the CPUs. On CUDA a worker's host loop keeps one core busy
     and its pools are idle while it trains, but they start at one thread a core and spin on
     every NumPy or torch call on the CPU (seeding its Gaussians): the workers and this process
-    (and DAVE-2's training beside it) take a share each (:func:`~cam2sim.core.machine.
-    children_allotted`).
+    (and DAVE-2's training beside it) take a share each
+    (:func:`~cam2sim.core.machine.children_allotted`).
     """
     return max(1, cpus // (in_flight + 1 if cuda else in_flight))
 
