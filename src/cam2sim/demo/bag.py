@@ -130,8 +130,8 @@ def write_bag(path: Path, world: DemoWorld, *, seed: int, progress: ProgressCall
             pending.append(event)
             while len(pending) > 4 * workers:  # a bounded window of frames in flight
                 _write(bag, street, pending.popleft(), steer)
-                if kind == "camera":
-                    progress("demo frames", i + 1, len(cam_t))
+            if kind == "camera":
+                progress("demo frames", i + 1, len(cam_t))  # rendered
         while pending:
             _write(bag, street, pending.popleft(), steer)
     progress("demo frames", len(cam_t), len(cam_t))
