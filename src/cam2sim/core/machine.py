@@ -68,8 +68,8 @@ def allot_cpus(cpus: int, gpu_sharers: int = 1) -> None:
 
 
 @contextlib.contextmanager
-def children_allotted(cpus: int) -> Iterator[None]:
-    """Allot ``cpus`` CPUs to the processes started inside the ``with`` block.
+def children_allotted(cpus: int | None) -> Iterator[None]:
+    """Allot ``cpus`` CPUs to the processes started inside the ``with`` block (None: as this one).
 
     A spawned child's libraries size their thread pools when they load, from the variables
     :func:`allot_cpus` sets, before any code of ours runs there; so they are set here while
@@ -80,6 +80,9 @@ def children_allotted(cpus: int) -> Iterator[None]:
     16-core GPU machine, each with pools of 16 threads, took 25-32 s to seed its Gaussians
     (4 s alone) while DAVE-2 took 35 s an epoch (0.5 s alone) (docs/benchmarks.md).
     """
+    if cpus is None:
+        yield
+        return
     cpus = max(1, min(cpus, available_cpus()))
     saved = {name: os.environ.get(name) for name in _THREAD_VARIABLES}
     try:

@@ -19,7 +19,6 @@ its arguments and value must pickle.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import logging.handlers
 import queue
@@ -133,7 +132,7 @@ class Sidecar:
             name=name,
             daemon=True,
         )
-        with contextlib.nullcontext() if cpus is None else children_allotted(cpus):
+        with children_allotted(cpus):
             self._process.start()
         logger.info("%s: started in process %d", name, self._process.pid)
         self._reader = threading.Thread(target=self._read, name=f"{name}-reader", daemon=True)

@@ -111,6 +111,7 @@ def write_bag(path: Path, world: DemoWorld, *, seed: int, progress: ProgressCall
     scene = world.lidar_scene()
     lidar = LidarModel(beams=LIDAR_BEAMS, azimuths=LIDAR_AZIMUTHS)
     camera = demo_camera()
+    k = camera.K()
     pending: collections.deque[_Event] = collections.deque()
     workers = available_cpus()
     with (
@@ -126,7 +127,7 @@ def write_bag(path: Path, world: DemoWorld, *, seed: int, progress: ProgressCall
             elif kind == "camera":
                 pose_cam = street.camera_pose(event.station)
                 frame = renderer.render(pose_cam, camera)
-                event = replace(event, job=pool.submit(_look, frame, pose_cam, camera.K(), seed))
+                event = replace(event, job=pool.submit(_look, frame, pose_cam, k, seed))
             pending.append(event)
             while len(pending) > 4 * workers:  # a bounded window of frames in flight
                 _write(bag, street, pending.popleft(), steer)

@@ -26,7 +26,6 @@ before the first worker starts, so the workers load it instead of each compiling
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import logging
 import queue
@@ -265,7 +264,7 @@ class _Pool:
                 name=f"splat-chunk-{chunk:02d}",
                 daemon=True,
             )
-            with contextlib.nullcontext() if self.cpus is None else children_allotted(self.cpus):
+            with children_allotted(self.cpus):
                 process.start()
             self.running[chunk] = process
             logger.info("chunk %d: loading in worker process %d", chunk, process.pid)
