@@ -97,7 +97,9 @@ from cam2sim.metrics.benchmark import WorldResult, aggregate
 from cam2sim.report.bench import write_bench_report
 folder = Path(os.environ.get("BENCH", "/tmp/bench"))
 results = [WorldResult.load(p) for p in sorted(folder.glob("worlds/*/result.json"))]
-write_bench_report(folder, results, aggregate(results), name="streets-gpu (unfinished)")
+import yaml
+name = yaml.safe_load(Path("/tmp/suite.yaml").read_text())["name"]
+write_bench_report(folder, results, aggregate(results), name=f"{name} (unfinished)")
 EOF
   fi
   cp $bench.log "$out/bench.log"
