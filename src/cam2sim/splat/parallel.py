@@ -16,6 +16,8 @@ splits from torch's global generator, which the chunks share). Workers send thei
 most every 0.1 s), log records and their result or failure through one queue; the parent adds
 up the steps for the progress callback, re-emits the log records, and, once all chunks have
 finished, raises one :class:`~cam2sim.core.errors.StageError` naming every chunk that failed
+(a chunk whose worker ran out of GPU memory, taken by the processes beside it, first trains
+again from its start with a slot fewer: :data:`OUT_OF_MEMORY_RETRIES`)
 (:class:`ChunkOutcomes`, shared with the Ray path of :mod:`cam2sim.splat.distributed`). Ctrl-C
 (or any error in the parent) terminates the workers; workers ignore SIGINT themselves so the
 parent decides.
@@ -53,10 +55,14 @@ if TYPE_CHECKING:
 
 __all__ = [
     "CUDA_SLOT_RATES",
+    "OUT_OF_MEMORY_RETRIES",
+    "SHARED_GPU_WORKER_GIB",
     "ChunkOutcomes",
     "cuda_slots",
     "largest_first",
+    "shared_gpu_slots",
     "train_chunks_in_processes",
+    "wait_for_memory",
     "worker_cpus",
 ]
 
@@ -71,9 +77,24 @@ MIN_GIB_FOR_THREE: Final = 40.0
 """Three chunks at a time only on a GPU with at least this much memory (a worker of a real
 chunk of 2M Gaussians at 1242x375 peaks at a few GiB; a 24 GiB card keeps two)."""
 
+SHARED_GPU_WORKER_GIB: Final = 16.0
+"""GPU memory a CUDA chunk worker of the demo's preset may hold, in GiB: the slots of a GPU that
+other processes share (:func:`shared_gpu_slots`) come from it, and a chunk that ran out of
+memory waits for this much to be free (:func:`wait_for_memory`). Five benchmark worlds on one
+H100 (80 GB), two chunks training at a time in each, held 4-17.5 GiB a worker (0.4-1.2M
+Gaussians), and two worlds' chunks ran out of memory (docs/benchmarks.md, "Five worlds on one
+H100")."""
+
+OUT_OF_MEMORY_RETRIES: Final = 2
+"""Times a chunk whose worker ran out of GPU memory trains again from its start (with one slot
+fewer, so it waits for a chunk beside it to end) before it counts as failed: the memory was
+taken by processes beside it, which end."""
+
 logger = logging.getLogger(__name__)
 
 _PROGRESS_SECONDS = 0.1  # a worker reports its step count at most this often
+_MEMORY_WAIT_S = 300.0  # a retried chunk's worker waits at most this long for free GPU memory
+_MEMORY_POLL_S = 5.0
 _POLL_SECONDS = 0.5  # the parent checks for dead workers this often
 
 
@@ -140,7 +161,7 @@ def _worker(  # noqa: PLR0913, PLR0917 -- a spawned process's whole job, positio
     prep_dir: Path,
     options: TrainOptions,
     models_dir: Path,
-    settings: tuple[int, int],
+    settings: tuple[int, int, float],
     messages: Any,
     go: Any,
 ) -> None:
@@ -150,14 +171,15 @@ def _worker(  # noqa: PLR0913, PLR0917 -- a spawned process's whole job, positio
     pickles a module-level function by name) so that this module does not import the trainer
     that calls it.
 
-    ``settings`` is (log level, CPU threads: :func:`worker_cpus`). After loading the chunk and
+    ``settings`` is (log level, CPU threads: :func:`worker_cpus`, GiB of GPU memory to wait for
+    before it loads: a retry after running out of memory, else 0). After loading the chunk and
     its first step (at the first progress report) it sends ``("ready", chunk, None)`` and waits
     for the event ``go`` (a training slot). Sends ``("progress", chunk, steps)`` while training and
     ``("failed", chunk, text)`` on an error (``Type: message``, then the traceback).
     """
     entered = time.perf_counter()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which ends us
-    level, threads = settings
+    level, threads, wait_gib = settings
     root = logging.getLogger()
     root.handlers[:] = [LogForwarder(messages, chunk)]
     root.setLevel(level)
@@ -166,6 +188,15 @@ def _worker(  # noqa: PLR0913, PLR0917 -- a spawned process's whole job, positio
 
         imported = time.perf_counter() - entered
         torch.set_num_threads(threads)
+        if wait_gib > 0 and options.device.startswith("cuda"):
+            device = torch.device(options.device)
+            waited_s = wait_for_memory(
+                lambda: int(torch.cuda.mem_get_info(device)[0]), wait_gib * 2**30
+            )
+            logger.info(
+                "chunk %d: waited %.0f s for %.0f GiB of free GPU memory before training again",
+                chunk, waited_s, wait_gib,
+            )  # fmt: skip
         last = 0.0
         waited = False
 
@@ -239,6 +270,8 @@ class _Pool:
         self.steps_per_chunk = steps_per_chunk
         self.progress = progress
         self.reported = -1
+        self.retries = dict.fromkeys(chunk_ids, 0)
+        self.restarting: set[int] = set()  # out of GPU memory: trains again once its worker ends
 
     def run(self) -> None:
         try:
@@ -258,9 +291,11 @@ class _Pool:
         while self.waiting and len(self.running) < self.in_flight + self.ahead:
             chunk = self.waiting.pop(0)
             self.go[chunk] = self.context.Event()
+            wait_gib = SHARED_GPU_WORKER_GIB if self.retries[chunk] else 0.0
+            *job, settings = self.job
             process = self.context.Process(
                 target=_worker,
-                args=(chunk, *self.job, self.messages, self.go[chunk]),
+                args=(chunk, *job, (*settings, wait_gib), self.messages, self.go[chunk]),
                 name=f"splat-chunk-{chunk:02d}",
                 daemon=True,
             )
@@ -279,7 +314,7 @@ class _Pool:
         """
         pending = [c for c in self.order if c not in self.outcomes]
         for chunk in pending[: self.in_flight]:
-            if chunk in self.ready:
+            if chunk in self.ready and len(self.training) < self.in_flight:
                 self.ready.remove(chunk)
                 self.training.add(chunk)
                 self.go[chunk].set()
@@ -306,13 +341,39 @@ class _Pool:
                 self.outcomes.succeeded(chunk, *payload)
                 self.steps[chunk] = self.steps_per_chunk
             elif kind == "failed":
-                self.outcomes.failed(chunk, str(payload))
-                self.steps[chunk] = self.steps_per_chunk
+                self._failed(chunk, str(payload))
         self._report()
+
+    def _failed(self, chunk: int, why: str) -> None:
+        """Record ``chunk``'s failure, or, out of GPU memory, let it train again (one slot fewer).
+
+        The memory was held by the processes beside it (this street's other chunks, other
+        streets' on a shared GPU); with a slot fewer it waits for one of this street's to end,
+        so a street is not lost to a moment's crowding (five benchmark worlds on one H100 lost
+        two streets' splats, each after minutes of training their other chunks).
+        """
+        if _out_of_memory(why) and self.retries[chunk] < OUT_OF_MEMORY_RETRIES:
+            self.retries[chunk] += 1
+            self.restarting.add(chunk)
+            self.steps[chunk] = 0
+            self.in_flight = max(1, self.in_flight - 1)
+            logger.warning(
+                "chunk %d ran out of GPU memory (%s); it trains again from its start, "
+                "%d chunk(s) at a time from now (retry %d of %d)",
+                chunk, why.splitlines()[0][:200], self.in_flight, self.retries[chunk],
+                OUT_OF_MEMORY_RETRIES,
+            )  # fmt: skip
+            return
+        self.outcomes.failed(chunk, why)
+        self.steps[chunk] = self.steps_per_chunk
 
     def _reap(self) -> None:
         """Join finished workers; a worker that died without a word failed."""
         for chunk, process in list(self.running.items()):
+            if chunk in self.restarting:
+                if not process.is_alive():
+                    self._restart(chunk, process)
+                continue
             if chunk not in self.outcomes and not process.is_alive():
                 self._read(block=False)  # its last messages were flushed before it exited
                 if chunk not in self.outcomes:
@@ -330,6 +391,17 @@ class _Pool:
                 self._grant()
         self._report()
 
+    def _restart(self, chunk: int, process: Any) -> None:
+        """Put ``chunk``, whose worker ran out of GPU memory and has ended, back to be started."""
+        process.join()
+        process.close()
+        del self.running[chunk]
+        self.training.discard(chunk)
+        if chunk in self.ready:
+            self.ready.remove(chunk)
+        self.restarting.discard(chunk)
+        self.waiting.insert(0, chunk)
+
     def _report(self) -> None:
         done = sum(self.steps.values())
         if done != self.reported:
@@ -341,6 +413,33 @@ class _Pool:
             logger.warning("ending %d chunk worker process(es)", len(self.running))
         end_processes(self.running.values())
         self.running.clear()
+
+
+def wait_for_memory(
+    free_bytes: Callable[[], int],
+    need_bytes: float,
+    *,
+    timeout_s: float = _MEMORY_WAIT_S,
+    poll_s: float = _MEMORY_POLL_S,
+    sleep: Callable[[float], None] = time.sleep,
+    clock: Callable[[], float] = time.monotonic,
+) -> float:
+    """Wait until ``free_bytes()`` reaches ``need_bytes`` or ``timeout_s`` passed; seconds waited.
+
+    A chunk that ran out of GPU memory waits so before it loads again: the memory was held by
+    processes beside it, which free it as their chunks end (minutes), and a retry into the same
+    crowd would fail the same way.
+    """
+    start = clock()
+    while free_bytes() < need_bytes and clock() - start < timeout_s:
+        sleep(poll_s)
+    return clock() - start
+
+
+def _out_of_memory(why: str) -> bool:
+    """Whether a worker's failure text (``Type: message``, traceback) is CUDA out of memory."""
+    first = why.splitlines()[0] if why else ""
+    return first.startswith("OutOfMemoryError") or "CUDA out of memory" in first
 
 
 def largest_first(scene: SceneRecord, chunk_ids: tuple[int, ...]) -> tuple[int, ...]:
@@ -399,6 +498,17 @@ def cuda_slots(n_chunks: int, gpu_gib: float) -> int:
 
     candidates = range(1, min(most, n) + 1)
     return min(candidates, key=lambda k: (round(makespan(k), 6), k))
+
+
+def shared_gpu_slots(n_chunks: int, gpu_gib: float, sharers: int) -> int:
+    """Chunks to train at once on a GPU of ``gpu_gib`` GiB that ``sharers`` processes share.
+
+    Two where each sharer's part of the memory holds two workers of
+    :data:`SHARED_GPU_WORKER_GIB` (a chunk left alone does not leave a shared GPU idle), else
+    one: the sharers' workers together must fit the card.
+    """
+    fits = int(gpu_gib / max(1, sharers) // SHARED_GPU_WORKER_GIB)
+    return max(1, min(2, n_chunks, fits))
 
 
 def train_chunks_in_processes(

@@ -24,7 +24,7 @@ from cam2sim.core.errors import StageError
 from cam2sim.core.machine import gpu_sharers
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.splat.chunk_trainer import STREET_SCALE_M, ChunkTrainer
-from cam2sim.splat.parallel import cuda_slots, train_chunks_in_processes
+from cam2sim.splat.parallel import cuda_slots, shared_gpu_slots, train_chunks_in_processes
 from cam2sim.splat.raster import build_gsplat, resolve_backend, resolve_device
 from cam2sim.splat.scene import SceneRecord, load_points
 from cam2sim.splat.stop import time_share
@@ -93,17 +93,17 @@ def train_chunk(
 def _default_slots(device: str, n_chunks: int) -> int:
     """Chunks at a time when the options leave it open.
 
-    :func:`cuda_slots` on a GPU of its own; 2 on a GPU other processes share
-    (:func:`~cam2sim.core.machine.gpu_sharers`: a chunk left alone does not leave it idle
-    there); 1 on the CPU.
+    :func:`cuda_slots` on a GPU of its own; on a GPU other processes share
+    (:func:`~cam2sim.core.machine.gpu_sharers`) 2 or 1, as its memory allows
+    (:func:`~cam2sim.splat.parallel.shared_gpu_slots`); 1 on the CPU.
     """
     if not device.startswith("cuda"):
         return 1
-    if gpu_sharers() > 1:
-        return min(2, n_chunks)
     import torch  # noqa: PLC0415
 
     gib = torch.cuda.get_device_properties(device).total_memory / 2**30
+    if gpu_sharers() > 1:
+        return shared_gpu_slots(n_chunks, gib, gpu_sharers())
     return cuda_slots(n_chunks, gib)
 
 

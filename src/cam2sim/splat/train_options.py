@@ -252,7 +252,8 @@ class TrainOptions:
         concurrent_chunks: Chunks trained at a time by :func:`train_scene`, each in its own
             worker process on the one device; 1 = all in one interleaved loop in this process;
             None = 2 or 3 on CUDA (processes overlap on one GPU; how many by the chunks and the
-            GPU's memory: :func:`cam2sim.splat.parallel.cuda_slots`), 1 elsewhere.
+            GPU's memory: :func:`cam2sim.splat.parallel.cuda_slots`; on a GPU other processes
+            share 2 or 1: :func:`~cam2sim.splat.parallel.shared_gpu_slots`), 1 elsewhere.
         time_budget_s: Seconds of training for all the chunks of one call (their steps and
             validations; not loading them, nor gsplat's one-time build), shared out by
             :func:`time_share`; each chunk fits its step cap to its share (module doc).
