@@ -291,3 +291,31 @@ def test_a_retried_chunk_waits_for_free_gpu_memory_at_most_its_timeout() -> None
     crowded = wait_for_memory(lambda: 1, 16, timeout_s=60.0, poll_s=5.0, sleep=sleep, clock=clock)
     assert crowded == 60.0  # never enough: it goes on at the timeout (and may fail, named)
     assert wait_for_memory(lambda: 32, 16, sleep=sleep, clock=clock) == 0.0
+
+
+def test_a_crowded_shared_gpu_trains_its_chunks_one_by_one_in_workers(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # One slot must not mean the interleaved loop, which holds every chunk's Gaussians at once.
+    import types
+
+    from cam2sim.core.machine import GPU_SHARERS_VARIABLE
+    from cam2sim.splat import train as train_module
+
+    prep = make_prepared_scene(tmp_path / "ws", **TINY)  # type: ignore[arg-type]
+    card = types.SimpleNamespace(total_memory=int(79.2 * 2**30))
+    monkeypatch.setattr(torch.cuda, "get_device_properties", lambda _device: card)
+    monkeypatch.setattr(train_module, "resolve_device", lambda _device: "cuda:0")
+    monkeypatch.setattr(train_module, "resolve_backend", lambda _backend, _device: "gsplat")
+    monkeypatch.setenv(GPU_SHARERS_VARIABLE, "5")
+    calls: list[dict[str, object]] = []
+
+    def record(*args: object, **kwargs: object) -> str:
+        calls.append({"chunks": args[3], "device": args[4].device, **kwargs})  # type: ignore[attr-defined]
+        return "trained in workers"
+
+    monkeypatch.setattr(train_module, "train_chunks_in_processes", record)
+    assert train_scene(prep, options=_options()) == "trained in workers"  # type: ignore[comparison-overlap]
+    assert calls[0]["in_flight"] == 1
+    assert calls[0]["chunks"] == (0, 1, 2)
+    assert calls[0]["device"] == "cuda:0"

@@ -118,8 +118,9 @@ def train_scene(
 ) -> SceneTrainResult:
     """Train every chunk (or ``chunk_ids``) of a prepared scene side by side on one device.
 
-    With ``options.concurrent_chunks`` above 1 (on CUDA by default 2 or 3:
-    :func:`~cam2sim.splat.parallel.cuda_slots`) and several chunks, each
+    With ``options.concurrent_chunks`` above 1, or left open on CUDA (2 or 3 at a time:
+    :func:`~cam2sim.splat.parallel.cuda_slots`; 1 or 2 on a shared GPU:
+    :func:`~cam2sim.splat.parallel.shared_gpu_slots`), and several chunks, each
     chunk trains in its own worker process, that many at a time
     (:func:`cam2sim.splat.parallel.train_chunks_in_processes`); a worker trains its chunk
     exactly as this function trains one chunk alone. Otherwise one step of each unfinished
@@ -158,7 +159,11 @@ def train_scene(
     device = resolve_device(options.device)
     backend = resolve_backend(options.backend, device)
     in_flight = options.concurrent_chunks or _default_slots(device, len(wanted))
-    if in_flight > 1 and len(wanted) > 1:
+    # Left open on CUDA, chunks train in worker processes even one at a time (a shared GPU's
+    # slot rule may give one): a worker holds one chunk's Gaussians, the interleaved loop below
+    # all of a street's at once, and the next chunk loads while one trains.
+    one_by_one = options.concurrent_chunks is None and device.startswith("cuda")
+    if len(wanted) > 1 and (in_flight > 1 or one_by_one):
         slots = min(in_flight, len(wanted))
         return train_chunks_in_processes(
             train_scene,
