@@ -98,8 +98,15 @@ from cam2sim.report.bench import write_bench_report
 folder = Path(os.environ.get("BENCH", "/tmp/bench"))
 results = [WorldResult.load(p) for p in sorted(folder.glob("worlds/*/result.json"))]
 import yaml
+from cam2sim.campaign.state import CampaignState
 name = yaml.safe_load(Path("/tmp/suite.yaml").read_text())["name"]
-write_bench_report(folder, results, aggregate(results), name=f"{name} (unfinished)")
+state = CampaignState.load_or_new(folder / "state.json", name)
+done = {r.label for r in results}
+missing = {r.workspace: r.error or r.status for r in state.runs.values() if r.workspace not in done}
+for world in sorted(p.name for p in folder.glob("worlds/*")):  # started, not yet ended
+    if world not in done and world not in missing:
+        missing[world] = "still running when the report was made"
+write_bench_report(folder, results, aggregate(results), missing=missing, name=f"{name} (unfinished)")
 EOF
   fi
   cp $bench.log "$out/bench.log"
