@@ -224,6 +224,12 @@ def _worker(  # noqa: PLR0913, PLR0917 -- a spawned process's whole job, positio
             progress=report,
             scene=scene,
         )
+        if options.device.startswith("cuda"):  # what SHARED_GPU_WORKER_GIB must cover
+            logger.info(
+                "chunk %d: GPU memory at its peak %.1f GiB allocated, %.1f GiB held by torch",
+                chunk, torch.cuda.max_memory_allocated(options.device) / 2**30,
+                torch.cuda.max_memory_reserved(options.device) / 2**30,
+            )  # fmt: skip
         messages.put(("done", chunk, (trained.chunks[0], trained.peak_memory_bytes)))
     except Exception as err:  # noqa: BLE001 -- goes to the parent with the chunk id
         messages.put(("failed", chunk, f"{type(err).__name__}: {err}\n{traceback.format_exc()}"))
