@@ -1,0 +1,64 @@
+"""Each street's latest GPU result in one benchmark report: `docs/results/issue37-latest`.
+
+The 14-street GPU suite has been run in parts over several one-GPU sessions since its third whole
+run (the presets changed between them). This takes, for each street, the result of its latest
+run (the runs named below, later ones overriding earlier), copies them into one benchmark folder
+and writes the bench report over them (`summary.md`, `tables/`, `aggregate.json`; the HTML
+report only with `--html`: its embedded figures weigh 1.5 MB), with `SOURCES.md` saying which
+run each street's result comes from. The presets are mixed: the report says so in its title.
+
+    PYTHONPATH=src python benchmarks/latest_results.py [--html]
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+from pathlib import Path
+
+from cam2sim.metrics.benchmark import WorldResult, aggregate
+from cam2sim.report.bench import write_bench_report
+
+RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
+
+#: (result files, which run), oldest first: a later run's street overrides an earlier one's.
+RUNS = (
+    ("issue37-gpu-suite-3/worlds/*/result.json", "third suite run, 2,500-step preset"),
+    ("issue37-gpu-preset/worlds/*/result.json", "2,500-5,000-step preset, 4 worlds on an H100"),
+    ("issue37-steps-check/result.json", "5,000 steps a chunk, alone on an H100"),
+    ("issue37-preset-check/worlds/*/result.json", "the fixed preset, alone on an H100"),
+    ("issue37-preset-alone/worlds/*/result.json", "the fixed preset and threads, alone on an H100"),
+    ("issue37-preset-3/worlds/*/result.json", "the fixed preset, 5 worlds on an H100"),
+)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--html", action="store_true", help="keep the HTML report too")
+    parser.add_argument("-o", "--out", type=Path, default=RESULTS / "issue37-latest")
+    args = parser.parse_args()
+    latest: dict[str, tuple[Path, str]] = {}
+    for pattern, run in RUNS:
+        for path in sorted(RESULTS.glob(pattern)):
+            folder = path.relative_to(RESULTS).parts[0]
+            latest[WorldResult.load(path).label] = (path, f"{run} (docs/results/{folder})")
+    if args.out.exists():
+        shutil.rmtree(args.out)
+    results = []
+    for label, (path, _run) in sorted(latest.items()):
+        (args.out / "worlds" / label).mkdir(parents=True)
+        shutil.copy(path, args.out / "worlds" / label / "result.json")
+        results.append(WorldResult.load(path))
+    name = "streets-gpu: each street's latest run (mixed presets)"
+    report = write_bench_report(args.out, results, aggregate(results), name=name)
+    if not args.html:
+        report.unlink()
+    lines = [f"- {label}: {run}\n" for label, (_path, run) in sorted(latest.items())]
+    (args.out / "SOURCES.md").write_text(
+        "# Which run each street's result comes from\n\n" + "".join(lines)
+    )
+    print((args.out / "summary.md").read_text().split("\n## ")[0])
+
+
+if __name__ == "__main__":
+    main()
