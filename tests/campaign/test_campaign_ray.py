@@ -141,3 +141,44 @@ def test_a_killed_worker_is_retried_once_and_then_reported(tmp_path: Path, local
     assert retried.ran == 1
     assert [r.status for r in retried.rows if r.policy == "constant:14"] == ["crashed"]
     assert sorted(p for p in runs.iterdir() if not p.name.startswith(".")) == finished
+
+
+def _out_of_memory_once(
+    scene: object, chunk_id: int, prep_dir: str, options: object, models: str
+) -> object:
+    """The Ray task of a chunk, except that chunk 1 runs out of GPU memory on its first try."""
+    import torch
+
+    from cam2sim.splat import distributed
+
+    marker = Path(models).parent / f"oom-{chunk_id}"
+    if chunk_id == 1 and not marker.exists():
+        marker.parent.mkdir(parents=True, exist_ok=True)
+        marker.touch()
+        msg = "CUDA out of memory. Tried to allocate 102.00 MiB"
+        raise torch.OutOfMemoryError(msg)
+    result = distributed.train_chunk(
+        scene, chunk_id, Path(prep_dir), options, models_dir=Path(models)
+    )
+    return result, None
+
+
+def test_a_chunk_out_of_gpu_memory_on_ray_trains_again(
+    tmp_path: Path, local_ray: None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    pytest.importorskip("torch")
+    import sys
+
+    monkeypatch.syspath_prepend(str(Path(__file__).parents[1] / "splat"))
+    from test_train import fast_options, make_prepared_scene
+
+    from cam2sim.splat import distributed
+
+    # This module is not importable in Ray's workers: send the task by value.
+    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    monkeypatch.setattr(distributed, "_train_one", _out_of_memory_once)
+    prep = make_prepared_scene(tmp_path / "ws", n_frames=6, chunks=((0, 4), (2, 6)), size=(32, 24))
+    options = fast_options(max_steps=4, min_steps=4, val_every=2, sky_points=20)
+    result = distributed.train_scene_on_ray(prep, options=options)
+    assert [(c.chunk_id, c.steps) for c in result.chunks] == [(0, 4), (1, 4)]
+    assert (tmp_path / "ws" / "splat" / "oom-1").is_file()  # it did run out once

@@ -26,8 +26,10 @@ lost or preempted). Safe: a campaign run writes only its own new folder, built u
 temporary name and renamed when complete, and a splat chunk writes its model atomically, so a
 killed attempt leaves nothing a second one reads. An exception raised inside a task is its
 outcome (a failed run, a failed chunk) and is not retried: runs are seeded, it would fail the
-same way. A task whose worker dies again is reported (a campaign run as ``crashed``), as the
-campaigns' local pool does (it retries the runs of a broken pool one by one)."""
+same way; except a splat chunk's CUDA out of memory (the memory of a GPU that fractional tasks
+share was taken by the others: :mod:`cam2sim.splat.distributed`). A task whose worker dies
+again is reported (a campaign run as ``crashed``), as the campaigns' local pool does (it
+retries the runs of a broken pool one by one)."""
 
 
 def import_ray() -> Any:

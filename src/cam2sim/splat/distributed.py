@@ -5,7 +5,8 @@ calling :func:`cam2sim.splat.train.train_chunk`, so the models folder is what
 :func:`cam2sim.splat.train.train_scene` writes (``WS/splat/models/chunk_XX.pt`` and its
 ``.json``). Ray gives each task its GPU (``CUDA_VISIBLE_DEVICES``), so ``device: auto`` trains on
 it. The workspace must sit on a file system every node sees at the same path. A chunk that
-fails does not stop the others; the stage fails afterwards, naming it.
+fails does not stop the others; the stage fails afterwards, naming it. A chunk that ran out of
+GPU memory (tasks given fractions of one GPU) trains once more, as one whose worker died.
 
 One chunk per GPU trains each model alone, as :func:`train_scene`'s worker processes on one GPU
 do. Failures are collected and reported as there (:class:`cam2sim.splat.parallel.ChunkOutcomes`).
@@ -93,10 +94,17 @@ def train_scene_on_ray(
             msg = f"the Ray cluster at {address} has {have:g} GPUs, a chunk needs {gpus:g}; "
             msg += "add GPU nodes, or train on CPU workers with --device cpu"
             raise StageError(msg)
-        # A chunk whose worker or node died trains once more (its model is written atomically,
-        # so nothing half-written is read); a chunk that fails (diverges) is reported.
+        # A chunk whose worker or node died, or that ran out of GPU memory (a GPU shared by
+        # fractional tasks), trains once more (Ray counts both alike; its model is written
+        # atomically, so nothing half-written is read); one that fails otherwise (diverges) is
+        # reported.
+        import torch  # noqa: PLC0415 -- the exception type Ray retries on
+
         task = ray.remote(_train_one).options(
-            num_gpus=gpus, num_cpus=1, max_retries=LOST_WORKER_RETRIES
+            num_gpus=gpus,
+            num_cpus=1,
+            max_retries=LOST_WORKER_RETRIES,
+            retry_exceptions=[torch.OutOfMemoryError],
         )
         if options is not None and options.time_budget_s is not None:
             # Each chunk's share of the budget: as many run at once as the cluster has room for.
