@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 from pathlib import Path
 
@@ -85,3 +86,52 @@ def test_the_stage_scores_against_the_truth_only_where_a_truth_world_exists(
     with _truth_reference(ws, options, sfm, notes) as truth:
         assert truth is None
     assert notes == ["not scored against the ground truth: the scene's scale is unknown (SfM)"]
+
+
+def test_a_failed_training_resumes_from_the_chunks_it_finished(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    pytest.importorskip("torch")
+    from cam2sim.splat.prepare import PrepareOptions
+    from cam2sim.splat.train_options import TrainOptions, chunk_result_path
+    from cam2sim.stages.splat import SplatStageOptions, run_splat
+
+    ws = _workspace(tmp_path / "ws", lidar=True)
+    ws.record_stage("extract", state="done", started=dt.datetime.now(dt.UTC), inputs_hash="x")
+    options = SplatStageOptions(
+        prepare=PrepareOptions(chunk_length_m=3.0, overlap_m=0.5, triangulate=False),
+        train=TrainOptions(
+            device="cpu", max_steps=6, min_steps=6, val_every=3, downscale=2, sky_points=20
+        ),
+        evaluate=False,
+    )
+    first = run_splat(ws, options=options)
+    assert first.trained is not None
+    ids = [c.chunk_id for c in first.trained.chunks]
+    assert len(ids) >= 2
+    models = ws.splat_files.models_dir
+    # As after a run in which the last chunk failed: its model and result are missing, and
+    # the stage is not done.
+    last = ids[-1]
+    (models / f"chunk_{last:02d}.pt").unlink()
+    (models / f"chunk_{last:02d}.json").unlink()
+    chunk_result_path(models, last).unlink()
+    ws.record_stage("splat", state="failed", started=dt.datetime.now(dt.UTC), inputs_hash="y")
+    written = {c: (models / f"chunk_{c:02d}.pt").stat().st_mtime_ns for c in ids[:-1]}
+    with caplog.at_level("INFO", logger="cam2sim.stages.splat"):
+        again = run_splat(ws, options=options)
+    assert again.trained is not None
+    assert again.trained.chunks == (*first.trained.chunks[:-1], again.trained.chunks[-1])
+    assert again.trained.chunks[-1].chunk_id == last
+    assert (models / f"chunk_{last:02d}.pt").is_file()
+    assert {c: (models / f"chunk_{c:02d}.pt").stat().st_mtime_ns for c in ids[:-1]} == written
+    assert f"training [{last}]" in caplog.text
+    # Other options are another training: nothing is kept.
+    changed = dataclasses.replace(options, train=dataclasses.replace(options.train, max_steps=7))
+    third = run_splat(ws, options=changed)
+    assert third.trained is not None
+    assert [c.steps for c in third.trained.chunks] == [7] * len(ids)
+    # force trains every chunk again although the inputs are the same.
+    forced = run_splat(ws, options=changed, force=True)
+    assert forced.trained is not None
+    assert all(c.model_path.stat().st_mtime_ns > written[ids[0]] for c in forced.trained.chunks)

@@ -556,7 +556,10 @@ class SplatPaths:
 
     @property
     def models_dir(self) -> Path:
-        """One model per chunk, ``chunk_XX.pt`` with its ``chunk_XX.json`` header."""
+        """One model per chunk, ``chunk_XX.pt`` with its ``chunk_XX.json`` header.
+
+        ``results/`` keeps each trained chunk's training result (a failed training resumes).
+        """
         return self.root / "models"
 
     @property

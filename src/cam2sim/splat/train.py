@@ -35,6 +35,7 @@ from cam2sim.splat.train_options import (
     SceneTrainResult,
     TrainOptions,
     TrainResult,
+    chunk_result_path,
     resolve_options,
 )
 
@@ -217,7 +218,8 @@ def _train_in_turn(
             trainer.step()
             done_steps += 1
             if trainer.done:
-                results[trainer.chunk.id] = trainer.save(models_dir)
+                results[trainer.chunk.id] = result = trainer.save(models_dir)
+                result.save(chunk_result_path(models_dir, trainer.chunk.id))
                 active.remove(trainer)
                 done_steps += max_steps - trainer.step_no
         progress("splat steps", done_steps, cap)

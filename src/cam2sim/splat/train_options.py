@@ -6,10 +6,13 @@ page; :mod:`cam2sim.splat.train` re-exports every name.
 
 from __future__ import annotations
 
+import dataclasses
+import json
 from dataclasses import dataclass, field, replace
-from pathlib import Path  # noqa: TC003 - a dataclass field's type
-from typing import TYPE_CHECKING, Final, Literal
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Final, Literal
 
+from cam2sim.core.files import write_text_atomic
 from cam2sim.splat.raster import GSPLAT_TILE
 from cam2sim.splat.robust import RobustLoss
 
@@ -22,6 +25,7 @@ __all__ = [
     "MCMC_MIN_STEPS",
     "MCMC_REFINE_STOP",
     "REFINE_STOP",
+    "RESULTS_DIR",
     "DensifyOptions",
     "DensifyStrategy",
     "LearningRates",
@@ -29,6 +33,7 @@ __all__ = [
     "Stop",
     "TrainOptions",
     "TrainResult",
+    "chunk_result_path",
     "resolve_options",
 ]
 
@@ -434,6 +439,34 @@ class TrainResult:
     pose_correction: tuple[float, float, float, float] | None = None
     densify_strategy: str = ""
     non_finite_steps: int = 0
+
+    def save(self, path: Path) -> None:
+        """Write this result as JSON, atomically (beside its model: :func:`chunk_result_path`)."""
+        data = dataclasses.asdict(self) | {"model_path": str(self.model_path)}
+        write_text_atomic(Path(path), json.dumps(data, indent=1) + "\n")
+
+    @classmethod
+    def load(cls, path: Path) -> TrainResult:
+        """Read a result :meth:`save` wrote."""
+        data: dict[str, Any] = json.loads(Path(path).read_text(encoding="utf-8"))
+        data["model_path"] = Path(data["model_path"])
+        data["val_history"] = tuple(tuple(v) for v in data["val_history"])
+        if data.get("pose_correction") is not None:
+            data["pose_correction"] = tuple(data["pose_correction"])
+        return cls(**data)
+
+
+RESULTS_DIR: Final = "results"
+"""Folder of the models folder that keeps each trained chunk's :class:`TrainResult`."""
+
+
+def chunk_result_path(models_dir: Path, chunk_id: int) -> Path:
+    """Where chunk ``chunk_id``'s :class:`TrainResult` is kept (``models_dir/results/``).
+
+    Written as soon as the chunk's model is, so a stage that fails or is interrupted after some
+    chunks finished resumes from them (:func:`cam2sim.stages.splat.run_splat`).
+    """
+    return Path(models_dir) / RESULTS_DIR / f"chunk_{chunk_id:02d}.json"
 
 
 @dataclass(frozen=True)

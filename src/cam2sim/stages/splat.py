@@ -12,13 +12,16 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import hashlib
 import logging
+import shutil
 import time
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Final
 
 from cam2sim.core.dataset import Calibration, DatasetInfo, RigCamera
 from cam2sim.core.errors import Cam2SimError, StageError
+from cam2sim.core.files import write_text_atomic
 from cam2sim.core.machine import gpu_sharers
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.workspace import Workspace, dataset_paths, hash_inputs
@@ -31,7 +34,13 @@ from cam2sim.splat.prepare import PrepareOptions, prepare_scene
 from cam2sim.splat.render import RenderOptions, SplatRenderer
 from cam2sim.splat.scene import SceneRecord
 from cam2sim.splat.train import TrainOptions, train_scene
-from cam2sim.splat.train_options import DensifyOptions, LearningRates
+from cam2sim.splat.train_options import (
+    RESULTS_DIR,
+    DensifyOptions,
+    LearningRates,
+    SceneTrainResult,
+    TrainResult,
+)
 from cam2sim.stages._runner import stage_run
 from cam2sim.stages.cameras import ground_height_at
 from cam2sim.stages.rig import rig_offset
@@ -45,7 +54,6 @@ if TYPE_CHECKING:
 
     from cam2sim.splat.evaluate import SplatEval
     from cam2sim.splat.scores import RigScore
-    from cam2sim.splat.train import SceneTrainResult
 
 __all__ = ["SplatResult", "SplatStageOptions", "run_splat"]
 
@@ -291,9 +299,8 @@ def run_splat(
                 progress=report, scene=scene,
             )  # fmt: skip
         elif "train" in opts.steps:
-            trained = train_scene(
-                prep_dir, options=opts.train, models_dir=models_dir, progress=report, scene=scene
-            )
+            kept = _trained_before(models_dir, _training_key(inputs, prep_dir), force=force)
+            trained = _train_rest(prep_dir, models_dir, scene, opts.train, kept, report)
         if "train" in opts.steps:
             lap("train")
         if opts.evaluate and "evaluate" in opts.steps:
@@ -319,6 +326,72 @@ def run_splat(
                 evaluation.save(ws.splat_files.eval_json)
             lap("evaluate")
     return SplatResult(prep_dir, models_dir, trained, evaluation, seconds)
+
+
+def _training_key(inputs: str, prep_dir: Path) -> str:
+    """What a chunk's model depends on: the stage's inputs and the prepared scene and points."""
+    files = {
+        name: hashlib.sha256((prep_dir / name).read_bytes()).hexdigest()
+        for name in ("scene.json", "points.npz")
+        if (prep_dir / name).is_file()
+    }
+    return hash_inputs({"stage": inputs, "prep": files})
+
+
+def _trained_before(models_dir: Path, key: str, *, force: bool) -> dict[int, TrainResult]:
+    """Chunks that a failed or interrupted training of the same ``key`` finished, by id.
+
+    Each chunk's result is kept beside its model as soon as it is written
+    (:func:`~cam2sim.splat.train_options.chunk_result_path`), under ``results/inputs.txt``
+    naming what they were trained from. Another key (or ``force``) starts a new training: the
+    kept results are removed and the key written.
+    """
+    results = models_dir / RESULTS_DIR
+    marker = results / "inputs.txt"
+    if not force and marker.is_file() and marker.read_text(encoding="utf-8") == key:
+        kept = {}
+        for path in sorted(results.glob("chunk_*.json")):
+            result = TrainResult.load(path)
+            if result.model_path.is_file():
+                kept[result.chunk_id] = result
+        return kept
+    shutil.rmtree(results, ignore_errors=True)
+    results.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(marker, key)
+    return {}
+
+
+def _train_rest(
+    prep_dir: Path,
+    models_dir: Path,
+    scene: SceneRecord,
+    options: TrainOptions | None,
+    kept: dict[int, TrainResult],
+    progress: ProgressCallback,
+) -> SceneTrainResult:
+    """Train the chunks not in ``kept``; the results of all, by chunk id.
+
+    A splat stage that failed after some chunks finished (a chunk out of memory, a diverged
+    one, Ctrl-C) keeps those on the next run: five benchmark worlds on one H100 trained their
+    other chunks for up to 12 minutes after one ran out of memory, all of it trained again on
+    a resume before.
+    """
+    missing = tuple(c.id for c in scene.chunks if c.id not in kept)
+    if kept:
+        logger.info(
+            "splat: chunk(s) %s trained before from the same inputs are kept; training %s",
+            sorted(kept), list(missing) or "none",
+        )  # fmt: skip
+    if not missing:
+        return SceneTrainResult(
+            chunks=tuple(kept[c] for c in sorted(kept)), seconds=0.0, peak_memory_bytes=None
+        )
+    new = train_scene(
+        prep_dir, options=options, chunk_ids=missing, models_dir=models_dir, progress=progress,
+        scene=scene,
+    )  # fmt: skip
+    chunks = sorted((*kept.values(), *new.chunks), key=lambda r: r.chunk_id)
+    return dataclasses.replace(new, chunks=tuple(chunks))
 
 
 def _rig_views(ws: Workspace) -> list[RigView]:
