@@ -186,3 +186,21 @@ def test_a_chunk_out_of_gpu_memory_on_ray_trains_again(
     result = distributed.train_scene_on_ray(prep, options=options)
     assert [(c.chunk_id, c.steps) for c in result.chunks] == [(0, 4), (1, 4)]
     assert (tmp_path / "ws" / "splat" / "oom-1").is_file()  # it did run out once
+
+
+def test_ray_trains_only_the_chunks_asked_for(
+    tmp_path: Path, local_ray: None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # What a splat stage resuming on Ray asks for: the chunks an earlier training did not finish.
+    pytest.importorskip("torch")
+    monkeypatch.syspath_prepend(str(Path(__file__).parents[1] / "splat"))
+    from test_train import fast_options, make_prepared_scene
+
+    from cam2sim.splat.distributed import train_scene_on_ray
+
+    prep = make_prepared_scene(tmp_path / "ws", n_frames=6, chunks=((0, 4), (2, 6)), size=(32, 24))
+    options = fast_options(max_steps=4, min_steps=4, val_every=2, sky_points=20)
+    result = train_scene_on_ray(prep, options=options, chunk_ids=(1,))
+    assert [c.chunk_id for c in result.chunks] == [1]
+    models = tmp_path / "ws" / "splat" / "models"
+    assert sorted(p.name for p in models.glob("chunk_*")) == ["chunk_01.json", "chunk_01.pt"]

@@ -57,6 +57,7 @@ def train_scene_on_ray(
     progress: ProgressCallback = no_progress,
     scene: SceneRecord | None = None,
     gpus_per_chunk: float | None = None,
+    chunk_ids: tuple[int, ...] | None = None,
 ) -> SceneTrainResult:
     """Train every chunk of a prepared scene, one Ray task (and ``gpus_per_chunk`` GPUs) each.
 
@@ -68,6 +69,7 @@ def train_scene_on_ray(
         progress: Called with ``("splat chunks", done, chunks)``.
         scene: The scene record, if already loaded.
         gpus_per_chunk: GPUs a task asks for; None: 1, or 0 with ``device="cpu"``.
+        chunk_ids: Chunks to train; None = all.
 
     Returns:
         Per-chunk results and totals (peak memory: the largest of one chunk's GPU).
@@ -81,7 +83,7 @@ def train_scene_on_ray(
     prep_dir = Path(prep_dir).resolve()
     models = prep_dir.parent / "models" if models_dir is None else Path(models_dir).resolve()
     scene = SceneRecord.load(prep_dir / "scene.json") if scene is None else scene
-    ids = sorted(c.id for c in scene.chunks)
+    ids = sorted(c.id for c in scene.chunks if chunk_ids is None or c.id in chunk_ids)
     if not ids:
         msg = f"{prep_dir / 'scene.json'} has no chunks; run `cam2sim splat WS` to prepare it"
         raise StageError(msg)

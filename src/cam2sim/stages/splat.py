@@ -293,15 +293,12 @@ def run_splat(
             msg = f"{prep_dir} holds no prepared scene; run `cam2sim splat {ws.root}` fully"
             raise StageError(msg)
         scene = SceneRecord.load(prep_dir / "scene.json")
-        if "train" in opts.steps and ray is not None:
-            trained = train_scene_on_ray(
-                prep_dir, address=ray, options=opts.train, models_dir=models_dir,
-                progress=report, scene=scene,
-            )  # fmt: skip
-        elif "train" in opts.steps:
-            kept = _trained_before(models_dir, _training_key(inputs, prep_dir), force=force)
-            trained = _train_rest(prep_dir, models_dir, scene, opts.train, kept, report)
         if "train" in opts.steps:
+            kept = _trained_before(models_dir, _training_key(inputs, prep_dir), force=force)
+            train = (
+                train_scene if ray is None else functools.partial(train_scene_on_ray, address=ray)
+            )
+            trained = _train_rest(train, prep_dir, models_dir, scene, opts.train, kept, report)
             lap("train")
         if opts.evaluate and "evaluate" in opts.steps:
             notes: list[str] = []
@@ -362,6 +359,7 @@ def _trained_before(models_dir: Path, key: str, *, force: bool) -> dict[int, Tra
 
 
 def _train_rest(
+    train: Callable[..., SceneTrainResult],
     prep_dir: Path,
     models_dir: Path,
     scene: SceneRecord,
@@ -369,7 +367,7 @@ def _train_rest(
     kept: dict[int, TrainResult],
     progress: ProgressCallback,
 ) -> SceneTrainResult:
-    """Train the chunks not in ``kept``; the results of all, by chunk id.
+    """Train the chunks not in ``kept`` with ``train`` (here or on Ray); all results, by chunk id.
 
     A splat stage that failed after some chunks finished (a chunk out of memory, a diverged
     one, Ctrl-C) keeps those on the next run: five benchmark worlds on one H100 trained their
@@ -386,7 +384,7 @@ def _train_rest(
         return SceneTrainResult(
             chunks=tuple(kept[c] for c in sorted(kept)), seconds=0.0, peak_memory_bytes=None
         )
-    new = train_scene(
+    new = train(
         prep_dir, options=options, chunk_ids=missing, models_dir=models_dir, progress=progress,
         scene=scene,
     )  # fmt: skip
