@@ -190,12 +190,12 @@ def _worker(  # noqa: PLR0913, PLR0917 -- a spawned process's whole job, positio
         torch.set_num_threads(threads)
         if wait_gib > 0 and options.device.startswith("cuda"):
             device = torch.device(options.device)
-            waited_s = wait_for_memory(
-                lambda: int(torch.cuda.mem_get_info(device)[0]), wait_gib * 2**30
-            )
+            # At most half the card: a small one never has 16 GiB free.
+            need = min(wait_gib * 2**30, torch.cuda.get_device_properties(device).total_memory / 2)
+            waited_s = wait_for_memory(lambda: int(torch.cuda.mem_get_info(device)[0]), need)
             logger.info(
-                "chunk %d: waited %.0f s for %.0f GiB of free GPU memory before training again",
-                chunk, waited_s, wait_gib,
+                "chunk %d: waited %.0f s for %.1f GiB of free GPU memory before training again",
+                chunk, waited_s, need / 2**30,
             )  # fmt: skip
         last = 0.0
         waited = False
