@@ -80,10 +80,10 @@ chunk of 2M Gaussians at 1242x375 peaks at a few GiB; a 24 GiB card keeps two)."
 SHARED_GPU_WORKER_GIB: Final = 16.0
 """GPU memory a CUDA chunk worker of the demo's preset may hold, in GiB: the slots of a GPU that
 other processes share (:func:`shared_gpu_slots`) come from it, and a chunk that ran out of
-memory waits for this much to be free (:func:`wait_for_memory`). Five benchmark worlds on one
-H100 (80 GB), two chunks training at a time in each, held 4-17.5 GiB a worker (0.4-1.2M
-Gaussians), and two worlds' chunks ran out of memory (docs/benchmarks.md, "Five worlds on one
-H100")."""
+memory waits for this much to be free (at most half the card: :func:`wait_for_memory`). Five
+benchmark worlds on one H100 (80 GB), two chunks training at a time in each, held 4-17.5 GiB a
+worker (0.4-1.2M Gaussians), and two worlds' chunks ran out of memory (docs/benchmarks.md, "Five
+worlds on one H100")."""
 
 OUT_OF_MEMORY_RETRIES: Final = 2
 """Times a chunk whose worker ran out of GPU memory trains again from its start (with one slot
