@@ -126,6 +126,23 @@ def test_a_failed_training_resumes_from_the_chunks_it_finished(
     assert (models / f"chunk_{last:02d}.pt").is_file()
     assert {c: (models / f"chunk_{c:02d}.pt").stat().st_mtime_ns for c in ids[:-1]} == written
     assert f"training [{last}]" in caplog.text
+    # A workspace moved elsewhere resumes the same way, from its models where they are now.
+    moved = tmp_path / "moved"
+    ws.root.rename(moved)
+    from cam2sim.core.workspace import Workspace
+
+    ws = Workspace.open(moved)
+    models = ws.splat_files.models_dir
+    (models / f"chunk_{last:02d}.pt").unlink()
+    ws.record_stage("splat", state="failed", started=dt.datetime.now(dt.UTC), inputs_hash="y")
+    before_move = {c: (models / f"chunk_{c:02d}.pt").stat().st_mtime_ns for c in ids[:-1]}
+    after_move = run_splat(ws, options=options)
+    assert {c: (models / f"chunk_{c:02d}.pt").stat().st_mtime_ns for c in ids[:-1]} == before_move
+    assert after_move.trained is not None
+    assert [c.model_path for c in after_move.trained.chunks] == [
+        models / f"chunk_{c:02d}.pt" for c in ids
+    ]
+    written = {c: (models / f"chunk_{c:02d}.pt").stat().st_mtime_ns for c in ids[:-1]}
     # Other options are another training: nothing is kept.
     changed = dataclasses.replace(options, train=dataclasses.replace(options.train, max_steps=7))
     third = run_splat(ws, options=changed)

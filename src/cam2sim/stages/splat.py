@@ -349,8 +349,9 @@ def _trained_before(models_dir: Path, key: str, *, force: bool) -> dict[int, Tra
         kept = {}
         for path in sorted(results.glob("chunk_*.json")):
             result = TrainResult.load(path)
-            if result.model_path.is_file():
-                kept[result.chunk_id] = result
+            model = models_dir / result.model_path.name  # where it is now (a moved workspace)
+            if model.is_file():
+                kept[result.chunk_id] = dataclasses.replace(result, model_path=model)
         return kept
     shutil.rmtree(results, ignore_errors=True)
     results.mkdir(parents=True, exist_ok=True)
