@@ -360,8 +360,7 @@ class _Pool:
         """
         if _out_of_memory(why) and self.retries[chunk] < OUT_OF_MEMORY_RETRIES:
             self.retries[chunk] += 1
-            self.restarting.add(chunk)
-            self.steps[chunk] = 0
+            self.restarting.add(chunk)  # its steps stay counted: the progress never goes back
             self.in_flight = max(1, self.in_flight - 1)
             logger.warning(
                 "chunk %d ran out of GPU memory (%s); it trains again from its start, "
