@@ -16,7 +16,9 @@
 # SUITE (default benchmarks/suites/streets-gpu.yaml) names the suite; its OSM files are looked for
 # in /tmp/osm by name. WORKERS=N (one-GPU machines) runs N worlds at a time on the local
 # pool, sharing the GPU, instead of Ray's one GPU a world; its start call then carries .c21/b
-# only. Start and wait watch until the call has run WATCH_S seconds (default 560, counted
+# only. The worlds share the GPU's memory too: each trains as many splat chunks at a time as its
+# share holds (one each for three or more worlds on an H100; five worlds with two each ran it
+# out of memory, docs/benchmarks.md "Five worlds on one H100"). Start and wait watch until the call has run WATCH_S seconds (default 560, counted
 # from the script's start, so the wheels' install of the start call is inside it), then return.
 # RESULTS="DIR..." (start): folders of earlier results (DIR/worlds/LABEL/result.json, as
 # docs/results/issue37-gpu-recheck/a) are put in place first, so the suite runs only the
