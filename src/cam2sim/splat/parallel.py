@@ -387,23 +387,22 @@ class _Pool:
                     self.outcomes.failed(chunk, why)
                     self.steps[chunk] = self.steps_per_chunk
             if chunk in self.outcomes:
-                process.join()
-                process.close()
-                del self.running[chunk]
-                self.training.discard(chunk)
-                if chunk in self.ready:
-                    self.ready.remove(chunk)
+                self._release(chunk, process)
                 self._grant()
         self._report()
 
-    def _restart(self, chunk: int, process: Any) -> None:
-        """Put ``chunk``, whose worker ran out of GPU memory and has ended, back to be started."""
+    def _release(self, chunk: int, process: Any) -> None:
+        """Join ``chunk``'s ended worker and free its place (running, ready, training)."""
         process.join()
         process.close()
         del self.running[chunk]
         self.training.discard(chunk)
         if chunk in self.ready:
             self.ready.remove(chunk)
+
+    def _restart(self, chunk: int, process: Any) -> None:
+        """Put ``chunk``, whose worker ran out of GPU memory and has ended, back to be started."""
+        self._release(chunk, process)
         self.restarting.discard(chunk)
         self.waiting.insert(0, chunk)
 
