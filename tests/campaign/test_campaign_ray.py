@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import campaign_helpers
 import pytest
@@ -33,6 +33,20 @@ def local_ray() -> Iterator[None]:
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     yield
     ray.shutdown()
+
+
+def _two_chunk_street(
+    root: Path, monkeypatch: pytest.MonkeyPatch, **changes: object
+) -> tuple[Path, Any]:
+    """The small synthetic street of the training tests (tests/splat/test_train.py), two chunks
+    of 4 frames: its prepared folder and fast options of 4 steps (``changes`` on top)."""
+    pytest.importorskip("torch")
+    monkeypatch.syspath_prepend(str(Path(__file__).parents[1] / "splat"))
+    from test_train import fast_options, make_prepared_scene
+
+    prep = make_prepared_scene(root / "ws", n_frames=6, chunks=((0, 4), (2, 6)), size=(32, 24))
+    base: dict[str, Any] = {"max_steps": 4, "min_steps": 4, "val_every": 2, "sky_points": 20}
+    return prep, fast_options(**(base | changes))
 
 
 @needs_egl
@@ -67,17 +81,9 @@ def test_ray_and_the_local_pool_give_identical_metrics(tmp_path: Path, local_ray
 def test_splat_chunks_train_as_ray_tasks_into_the_same_models_folder(
     tmp_path: Path, local_ray: None, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    pytest.importorskip("torch")
-    # The small synthetic street of the training tests (tests/splat/test_train.py).
-    monkeypatch.syspath_prepend(str(Path(__file__).parents[1] / "splat"))
-    from test_train import fast_options, make_prepared_scene
-
+    prep, options = _two_chunk_street(tmp_path, monkeypatch, time_budget_s=600.0)
     from cam2sim.splat.distributed import train_scene_on_ray
 
-    prep = make_prepared_scene(tmp_path / "ws", n_frames=6, chunks=((0, 4), (2, 6)), size=(32, 24))
-    options = fast_options(
-        max_steps=4, min_steps=4, val_every=2, sky_points=20, time_budget_s=600.0
-    )
     seen: list[tuple[int, int | None]] = []
     result = train_scene_on_ray(
         prep, options=options, progress=lambda _task, done, total: seen.append((done, total))
@@ -99,16 +105,11 @@ def test_splat_chunks_train_as_ray_tasks_into_the_same_models_folder(
 def test_a_failing_chunk_on_ray_is_named_after_the_others_are_saved(
     tmp_path: Path, local_ray: None, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    pytest.importorskip("torch")
-    monkeypatch.syspath_prepend(str(Path(__file__).parents[1] / "splat"))
-    from test_train import fast_options, make_prepared_scene
-
+    prep, options = _two_chunk_street(tmp_path, monkeypatch)
     from cam2sim.core.errors import StageError
     from cam2sim.splat.distributed import train_scene_on_ray
 
-    prep = make_prepared_scene(tmp_path / "ws", n_frames=6, chunks=((0, 4), (2, 6)), size=(32, 24))
     (prep / "images" / "000005.png").write_bytes(b"broken")  # a frame of chunk 1 only
-    options = fast_options(max_steps=4, min_steps=4, val_every=2, sky_points=20)
     with pytest.raises(StageError, match=r"1 of 2 chunks failed on Ray \(chunk 1: .*000005.png"):
         train_scene_on_ray(prep, options=options)
     models = tmp_path / "ws" / "splat" / "models"
@@ -170,19 +171,14 @@ def _out_of_memory_once(
 def test_a_chunk_out_of_gpu_memory_on_ray_trains_again(
     tmp_path: Path, local_ray: None, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    pytest.importorskip("torch")
     import sys
 
-    monkeypatch.syspath_prepend(str(Path(__file__).parents[1] / "splat"))
-    from test_train import fast_options, make_prepared_scene
-
+    prep, options = _two_chunk_street(tmp_path, monkeypatch)
     from cam2sim.splat import distributed
 
     # This module is not importable in Ray's workers: send the task by value.
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
     monkeypatch.setattr(distributed, "_train_one", _out_of_memory_once)
-    prep = make_prepared_scene(tmp_path / "ws", n_frames=6, chunks=((0, 4), (2, 6)), size=(32, 24))
-    options = fast_options(max_steps=4, min_steps=4, val_every=2, sky_points=20)
     result = distributed.train_scene_on_ray(prep, options=options)
     assert [(c.chunk_id, c.steps) for c in result.chunks] == [(0, 4), (1, 4)]
     assert (tmp_path / "ws" / "splat" / "oom-1").is_file()  # it did run out once
@@ -192,14 +188,9 @@ def test_ray_trains_only_the_chunks_asked_for(
     tmp_path: Path, local_ray: None, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # What a splat stage resuming on Ray asks for: the chunks an earlier training did not finish.
-    pytest.importorskip("torch")
-    monkeypatch.syspath_prepend(str(Path(__file__).parents[1] / "splat"))
-    from test_train import fast_options, make_prepared_scene
-
+    prep, options = _two_chunk_street(tmp_path, monkeypatch)
     from cam2sim.splat.distributed import train_scene_on_ray
 
-    prep = make_prepared_scene(tmp_path / "ws", n_frames=6, chunks=((0, 4), (2, 6)), size=(32, 24))
-    options = fast_options(max_steps=4, min_steps=4, val_every=2, sky_points=20)
     result = train_scene_on_ray(prep, options=options, chunk_ids=(1,))
     assert [c.chunk_id for c in result.chunks] == [1]
     models = tmp_path / "ws" / "splat" / "models"
