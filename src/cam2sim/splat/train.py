@@ -103,9 +103,8 @@ def _default_slots(device: str, n_chunks: int) -> int:
     import torch  # noqa: PLC0415
 
     gib = torch.cuda.get_device_properties(device).total_memory / 2**30
-    if gpu_sharers() > 1:
-        return shared_gpu_slots(n_chunks, gib, gpu_sharers())
-    return cuda_slots(n_chunks, gib)
+    sharers = gpu_sharers()
+    return shared_gpu_slots(n_chunks, gib, sharers) if sharers > 1 else cuda_slots(n_chunks, gib)
 
 
 def train_scene(
