@@ -344,6 +344,48 @@ def test_the_drive_step_runs_cameras_side_by_side_with_the_same_results(
     assert trajectories[1] == trajectories[2]  # seeded runs: the processes change nothing
 
 
+@pytest.mark.skipif(not has_egl(), reason="no headless OpenGL (EGL) here")
+def test_the_runs_that_need_no_splat_drive_beside_it_with_the_same_results(
+    tmp_path: Path, recording: tuple[Path, Path]
+) -> None:
+    """On a GPU machine the raster (and truth) runs drive while the splat trains, after DAVE-2."""
+    from cam2sim.ads.train_options import TrainOptions as AdsOptions
+    from cam2sim.stages.pipeline import EARLY_DRIVES
+
+    bag, osm = recording
+    ads = AdsOptions(epochs=1, batch_size=16, device="cpu", workers=1)
+    trajectories = {}
+    for beside in (True, False):
+        ws = Workspace.create(tmp_path / f"ws-{beside}", _config(bag))
+        options = _fast(
+            osm,
+            steps=(*FAST, "splat", "ads"),
+            cameras=("raster", "none"),
+            runs=2,
+            ads=ads,
+            splat_on_cpu=False,  # no GPU here: the splat step only waits for DAVE-2's process
+            ads_beside_splat=beside,
+        )
+        result = run_pipeline(ws, options=options)
+        assert result.outcome("drive").state == "done", result.outcomes
+        runs = ws.stage_record("drive").runs  # type: ignore[union-attr]
+        assert [r.split("-")[-2:] for r in runs] == [
+            ["raster", "s0"], ["raster", "s1"], ["none", "s0"], ["none", "s1"]
+        ]  # fmt: skip
+        early = ws.stage_record(EARLY_DRIVES)
+        if beside:  # the raster runs were driven beside the splat and taken by the drive step
+            assert early is not None
+            assert list(early.runs) == list(runs[:2])
+            assert "2 run(s) of raster driven beside the splat" in result.outcome("ads").message
+        else:
+            assert early is None
+        trajectories[beside] = [
+            (ws.runs_dir / r / "trajectory.csv").read_text(encoding="utf-8") for r in runs
+        ]
+        assert len(list(ws.runs_dir.glob("*-drive-*"))) == 4  # no run driven twice
+    assert trajectories[True] == trajectories[False]
+
+
 def test_run_varies_its_runs_unless_told_not_to(
     tmp_path: Path, recording: tuple[Path, Path]
 ) -> None:

@@ -14,7 +14,10 @@ it when read (:meth:`~cam2sim.core.workspace.Workspace.read_manifest`).
 On a GPU machine the ads step (DAVE-2) trains in its own process while the splat step runs
 (:class:`~cam2sim.core.sidecar.Sidecar`; ``PipelineOptions.ads_beside_splat``): neither reads
 what the other writes, and the splat's preparation leaves the GPU idle for minutes. Its outcome
-is taken where the ads step stands in the order, so the summary reads the same.
+is taken where the ads step stands in the order, so the summary reads the same. After DAVE-2
+that process also drives the runs of the cameras that need no splat (truth, raster:
+:data:`EARLY_CAMERAS`, recorded as :data:`EARLY_DRIVES`); the drive step takes them and drives
+the splat camera's.
 """
 
 from __future__ import annotations
@@ -108,6 +111,14 @@ BESIDE_SPLAT_CPUS: Final = 4
 """CPUs the ads step leaves the splat step when it trains beside it: the host loops of up to
 three chunk workers training on the GPU, and this process (DAVE-2 with a thread a core beside
 them took 35 s an epoch where it takes 0.5 s alone: docs/benchmarks.md)."""
+
+
+EARLY_CAMERAS: Final = frozenset({"truth", "raster"})
+"""Cameras whose closed-loop runs need no splat: where DAVE-2 trains beside the splat, they
+drive there after it while the splat still trains (:meth:`_Pipeline.drive_early`)."""
+
+EARLY_DRIVES: Final = "drive_early"
+"""The manifest's record of the runs driven beside the splat (their inputs and run ids)."""
 
 
 def replay_stride(samples: int, cameras: Sequence[str], *, cuda: bool) -> int:
@@ -561,55 +572,94 @@ class _Pipeline:
             return self.options.judge
         return default_judge(self.ws)
 
-    def drive(self, step: _Step) -> None:
-        self._require_motion("closed-loop drives follow the recorded route")
+    def _drive_jobs(self, cameras: Sequence[CameraName]) -> list[DriveOptions]:
+        """One job a closed-loop run of ``cameras`` (camera and seed, in that order).
+
+        The seeded runs do not depend on each other. The first run of each camera keeps its
+        frames for the report (unless all do).
+        """
         policy = self._policy()
-        recorded_speed, speed_note = self._recorded_speed()
-        all_opts = [
+        recorded_speed, _ = self._recorded_speed()
+        keep_first = self.options.report_frames
+        return [
             DriveOptions(
                 policy=policy,
                 camera=cam,
-                runs=self.options.runs,
+                runs=1,
+                seed=r,
                 steering_noise_std=self.options.steering_noise_std,
                 variation=self.options.run_variation,
                 recorded_speed=recorded_speed,
                 judge=self._judge(),
-                save_frames=self.options.save_frames,
+                save_frames=self.options.save_frames or (keep_first and r == 0),
             )
-            for cam in self._drive_cameras()
+            for cam in cameras
+            for r in range(self.options.runs)
         ]
-        model = Path(policy)
-        inputs = hash_inputs(
+
+    def _drive_inputs(self, jobs: Sequence[DriveOptions]) -> str:
+        """What ``jobs``' runs depend on: a new digest makes new runs."""
+        model = Path(self._policy())
+        cameras = tuple(dict.fromkeys(j.camera for j in jobs))
+        return hash_inputs(
             {
                 "scenario": self.ws.done_inputs_hash("scenario"),
-                "options": [repr(o) for o in all_opts],
+                "options": [repr(j) for j in jobs],
                 # A retrained model at the same path makes new runs.
                 "model": file_fingerprint(model) if model.is_file() else None,
-                **self._camera_inputs(self._drive_cameras()),
+                **self._camera_inputs(cameras),
             }
         )
+
+    def _drive_runs(self, jobs: Sequence[DriveOptions]) -> list[str]:
+        """Drive ``jobs`` (in processes where the CPUs allow); their run ids in the jobs' order."""
+        workers = self.options.drive_workers or default_drive_workers(len(jobs))
+        if workers > 1 and len(jobs) > 1:
+            return _drives_in_processes(self.ws.root, jobs, workers, self.progress)
+        return [
+            r.run_id for opts in jobs for r in drive(self.ws, options=opts, progress=self.progress)
+        ]
+
+    def _early_cameras(self) -> tuple[CameraName, ...]:
+        """The drive cameras that need no splat: their runs can go while the splat trains."""
+        return tuple(c for c in self._drive_cameras() if c in EARLY_CAMERAS)
+
+    def drive_early(self) -> str:
+        """Drive the runs of :meth:`_early_cameras` (beside the splat): what was driven.
+
+        Recorded as :data:`EARLY_DRIVES` (inputs and run ids), where the drive step takes them
+        from when its own jobs for those cameras are the same.
+        """
+        jobs = self._drive_jobs(self._early_cameras())
+        if not jobs:
+            return ""
+        inputs = self._drive_inputs(jobs)
+        if self._runs_current(EARLY_DRIVES, inputs) is None:
+            started = dt.datetime.now(dt.UTC)
+            runs = self._drive_runs(jobs)
+            self.ws.record_stage(
+                EARLY_DRIVES, state="done", started=started, inputs_hash=inputs, runs=tuple(runs)
+            )
+        cams = ", ".join(dict.fromkeys(j.camera for j in jobs))
+        return f"{len(jobs)} run(s) of {cams} driven beside the splat"
+
+    def drive(self, step: _Step) -> None:
+        self._require_motion("closed-loop drives follow the recorded route")
+        policy = self._policy()
+        _, speed_note = self._recorded_speed()
+        jobs = self._drive_jobs(self._drive_cameras())
+        inputs = self._drive_inputs(jobs)
         runs = self._runs_current("drive", inputs)
         if runs is None:
             started = dt.datetime.now(dt.UTC)
-            # One job a run (camera and seed): the seeded runs do not depend on each other.
-            # The first run of each camera keeps its frames for the report (unless all do).
-            keep_first = self.options.report_frames
-            jobs = [
-                dataclasses.replace(
-                    o, runs=1, seed=o.seed + r, save_frames=o.save_frames or (keep_first and r == 0)
-                )
-                for o in all_opts
-                for r in range(o.runs)
-            ]
-            workers = self.options.drive_workers or default_drive_workers(len(jobs))
-            if workers > 1 and len(jobs) > 1:
-                runs = _drives_in_processes(self.ws.root, jobs, workers, self.progress)
-            else:
-                runs = [
-                    r.run_id
-                    for opts in jobs
-                    for r in drive(self.ws, options=opts, progress=self.progress)
-                ]
+            early = [j for j in jobs if j.camera in EARLY_CAMERAS]
+            made = self._runs_current(EARLY_DRIVES, self._drive_inputs(early)) if early else None
+            if made is None or len(made) != len(early):
+                runs = self._drive_runs(jobs)
+            else:  # the early cameras' runs were driven beside the splat: the rest now
+                rest = iter(self._drive_runs([j for j in jobs if j.camera not in EARLY_CAMERAS]))
+                done = iter(made)
+                runs = [next(done) if j.camera in EARLY_CAMERAS else next(rest) for j in jobs]
             self.ws.record_stage(
                 "drive", state="done", started=started, inputs_hash=inputs, runs=tuple(runs)
             )
@@ -704,8 +754,8 @@ def run_pipeline(
             else:
                 if name == "splat" and _ads_beside_splat(opts):
                     beside = Sidecar(
-                        _step_in_process,
-                        (str(ws.root), opts, "ads"),
+                        _ads_and_early_drives,
+                        (str(ws.root), opts),
                         progress=report,
                         name="ads",
                         cpus=_ads_beside_cpus(),
@@ -758,14 +808,28 @@ def _ads_beside_cpus() -> int | None:
     return cpus - BESIDE_SPLAT_CPUS if cpus >= BESIDE_MIN_CPUS else None
 
 
-def _step_in_process(
-    root: str, options: PipelineOptions, name: str, *, progress: ProgressCallback
+def _ads_and_early_drives(
+    root: str, options: PipelineOptions, *, progress: ProgressCallback
 ) -> StepOutcome:
-    """Step ``name`` of the workspace at ``root``, in a :class:`Sidecar` process: its outcome."""
+    """The ads step of the workspace at ``root`` in a :class:`Sidecar` process: its outcome.
+
+    Then, if the drive step is wanted, the runs of the cameras that need no splat
+    (:meth:`_Pipeline.drive_early`): on a GPU machine they took 20-30 s of a world after the
+    splat (nine runs, four processes) while DAVE-2 had finished minutes before it. Where they
+    fail, the drive step drives them.
+    """
     from cam2sim.core.workspace import Workspace  # noqa: PLC0415
 
     pipe = _Pipeline(Workspace.open(Path(root)), options, progress)
-    return _run_step(name, _handlers(pipe)[name])
+    outcome = _run_step("ads", pipe.ads)
+    if outcome.state not in {"done", "up_to_date"} or not options.wants("drive"):
+        return outcome
+    try:
+        note = pipe.drive_early()
+    except Exception as err:  # noqa: BLE001 -- the drive step drives them after the splat
+        logger.warning("the runs beside the splat were not driven (%s); the drive step will", err)
+        return outcome
+    return dataclasses.replace(outcome, message="; ".join(m for m in (outcome.message, note) if m))
 
 
 def _joined(beside: Sidecar) -> StepOutcome:
