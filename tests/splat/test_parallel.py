@@ -319,25 +319,3 @@ def test_a_crowded_shared_gpu_trains_its_chunks_one_by_one_in_workers(
     assert calls[0]["in_flight"] == 1
     assert calls[0]["chunks"] == (0, 1, 2)
     assert calls[0]["device"] == "cuda:0"
-
-
-@pytest.mark.parametrize(
-    ("device", "before", "after"),
-    [
-        ("cuda:0", None, "expandable_segments:True"),
-        ("cuda", "max_split_size_mb:64", "max_split_size_mb:64"),  # the user's is kept
-        ("cpu", None, None),
-    ],
-)
-def test_cuda_workers_grow_their_memory_in_place(
-    monkeypatch: pytest.MonkeyPatch, device: str, before: str | None, after: str | None
-) -> None:
-    import os
-
-    from cam2sim.splat.parallel import set_cuda_allocator
-
-    monkeypatch.setenv("PYTORCH_CUDA_ALLOC_CONF", before or "")  # restored after the test
-    if before is None:
-        monkeypatch.delenv("PYTORCH_CUDA_ALLOC_CONF")
-    set_cuda_allocator(device)
-    assert os.environ.get("PYTORCH_CUDA_ALLOC_CONF") == after

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import os
 import queue
 import signal
 import time
@@ -55,14 +54,12 @@ if TYPE_CHECKING:
     SceneTrainer = Callable[..., SceneTrainResult]
 
 __all__ = [
-    "CUDA_ALLOCATOR_SETTINGS",
     "CUDA_SLOT_RATES",
     "OUT_OF_MEMORY_RETRIES",
     "SHARED_GPU_WORKER_GIB",
     "ChunkOutcomes",
     "cuda_slots",
     "largest_first",
-    "set_cuda_allocator",
     "shared_gpu_slots",
     "train_chunks_in_processes",
     "wait_for_memory",
@@ -87,13 +84,6 @@ memory waits for this much to be free (at most half the card: :func:`wait_for_me
 benchmark worlds on one H100 (80 GB), two chunks training at a time in each, held 4-17.5 GiB a
 worker (0.4-1.2M Gaussians), and two worlds' chunks ran out of memory (docs/benchmarks.md, "Five
 worlds on one H100")."""
-
-CUDA_ALLOCATOR_SETTINGS: Final = "expandable_segments:True"
-"""``PYTORCH_CUDA_ALLOC_CONF`` of a CUDA chunk worker, unless the user set one. A chunk's
-Gaussians are reallocated at a new size at every densification, and torch's caching allocator
-keeps each old block for a size that never comes again: five benchmark worlds' workers held up
-to 17.5 GiB each on one H100. Expandable segments grow one mapping in place instead (PyTorch's
-CUDA semantics notes); the workers log what they allocated and held at their peak."""
 
 OUT_OF_MEMORY_RETRIES: Final = 2
 """Times a chunk whose worker ran out of GPU memory trains again from its start (with one slot
@@ -194,7 +184,6 @@ def _worker(  # noqa: PLR0913, PLR0917 -- a spawned process's whole job, positio
     root.handlers[:] = [LogForwarder(messages, chunk)]
     root.setLevel(level)
     try:
-        set_cuda_allocator(options.device)
         import torch  # noqa: PLC0415
 
         imported = time.perf_counter() - entered
@@ -244,15 +233,6 @@ def _worker(  # noqa: PLR0913, PLR0917 -- a spawned process's whole job, positio
         messages.put(("done", chunk, (trained.chunks[0], trained.peak_memory_bytes)))
     except Exception as err:  # noqa: BLE001 -- goes to the parent with the chunk id
         messages.put(("failed", chunk, f"{type(err).__name__}: {err}\n{traceback.format_exc()}"))
-
-
-def set_cuda_allocator(device: str) -> None:
-    """Give this process :data:`CUDA_ALLOCATOR_SETTINGS` if it trains on CUDA (before torch loads).
-
-    A ``PYTORCH_CUDA_ALLOC_CONF`` the user set is kept.
-    """
-    if device.startswith("cuda"):
-        os.environ.setdefault("PYTORCH_CUDA_ALLOC_CONF", CUDA_ALLOCATOR_SETTINGS)
 
 
 # ----------------------------------------------------------------------------------- parent
