@@ -35,6 +35,7 @@ from cam2sim.stages.pipeline import (
     PipelineResult,
     run_pipeline,
 )
+from cam2sim.splat.raster import has_cuda
 from cam2sim.stages.splat import SplatStageOptions
 from conftest import has_egl
 
@@ -345,6 +346,7 @@ def test_the_drive_step_runs_cameras_side_by_side_with_the_same_results(
 
 
 @pytest.mark.skipif(not has_egl(), reason="no headless OpenGL (EGL) here")
+@pytest.mark.skipif(has_cuda(), reason="the splat step would train on the GPU")
 def test_the_runs_that_need_no_splat_drive_beside_it_with_the_same_results(
     tmp_path: Path, recording: tuple[Path, Path]
 ) -> None:
