@@ -28,6 +28,7 @@ from cam2sim.core.workspace import Workspace
 from cam2sim.demo.lidar import LidarModel, scan_scene
 from cam2sim.map.convert import has_carla
 from cam2sim.recording.bagwriter import BagWriter
+from cam2sim.splat.raster import has_cuda
 from cam2sim.splat.train_options import TrainOptions
 from cam2sim.stages.pipeline import (
     STEPS,
@@ -35,7 +36,6 @@ from cam2sim.stages.pipeline import (
     PipelineResult,
     run_pipeline,
 )
-from cam2sim.splat.raster import has_cuda
 from cam2sim.stages.splat import SplatStageOptions
 from conftest import has_egl
 
