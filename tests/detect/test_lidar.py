@@ -278,6 +278,34 @@ def test_synthetic_scan_is_seeded_and_counts_its_rays() -> None:
     assert a.car_hits(len(scene.cars)).sum() == np.count_nonzero(a.labels >= 0)
 
 
+@pytest.mark.parametrize(
+    "xyz_rpy",
+    [
+        ([3.0, -0.5, 1.9], [0.0, 0.02, 0.7]),  # mid-street, tilted
+        ([0.0, 4.6, 1.2], [0.0, 0.0, -1.3]),  # beside a parked car, looking across the street
+        ([-50.0, 0.0, 1.8], [0.0, -0.05, math.pi]),  # at the street's end, facing out
+    ],
+)
+def test_the_angular_windows_drop_no_hit(
+    monkeypatch: pytest.MonkeyPatch, xyz_rpy: tuple[list[float], list[float]]
+) -> None:
+    """A scan equals one whose every ray is tested against every box (no window, no range cut)."""
+    from cam2sim.demo import lidar as lidar_module
+
+    scene = parked_street(seed=5, ground=Ground(slope=(0.03, -0.02)), perpendicular_fraction=0.3)
+    pose = Pose.from_xyz_rpy(*xyz_rpy)
+    model = LidarModel(beams=16, azimuths=720)
+    windowed = scan_scene(scene, pose, lidar=model, seed=2)
+    everything = (np.arange(model.beams), np.arange(model.azimuths))
+    monkeypatch.setattr(
+        lidar_module, "_angular_windows", lambda boxes, *_: [everything] * len(boxes)
+    )
+    brute = scan_scene(scene, pose, lidar=model, seed=2)
+    assert np.array_equal(windowed.labels, brute.labels)
+    assert np.array_equal(windowed.points, brute.points)
+    assert np.count_nonzero(windowed.labels >= 0) > 50  # cars were hit
+
+
 # -- a real nuScenes sweep --------------------------------------------------------------------
 
 CAR, OTHER_VEHICLES = 0, (1, 2, 3, 4)  # car; truck, trailer, bus, construction vehicle
