@@ -104,6 +104,7 @@ def write_bag(path: Path, world: DemoWorld, *, seed: int, progress: ProgressCall
     cam_t = np.arange(0.05, duration, 1.0 / CAMERA_HZ)
     lidar_t = np.arange(0.02, duration, 1.0 / LIDAR_HZ)
     steer = _steering(street, odom_t)
+    odom_xy, odom_heading = street.drive_points(street.speed_mps * odom_t)  # all at once
     times = [(float(t), 0, "odom", i) for i, t in enumerate(odom_t)]
     times += [(float(t), 1, "lidar", i) for i, t in enumerate(lidar_t)]
     times += [(float(t), 2, "camera", i) for i, t in enumerate(cam_t)]
@@ -130,11 +131,11 @@ def write_bag(path: Path, world: DemoWorld, *, seed: int, progress: ProgressCall
                 event = replace(event, job=pool.submit(_look, frame, pose_cam, k, seed))
             pending.append(event)
             while len(pending) > 4 * workers:  # a bounded window of frames in flight
-                _write(bag, street, pending.popleft(), steer)
+                _write(bag, street, pending.popleft(), (odom_xy, odom_heading, steer))
             if kind == "camera":
                 progress("demo frames", i + 1, len(cam_t))  # rendered
         while pending:
-            _write(bag, street, pending.popleft(), steer)
+            _write(bag, street, pending.popleft(), (odom_xy, odom_heading, steer))
     progress("demo frames", len(cam_t), len(cam_t))
     return len(cam_t)
 
@@ -164,16 +165,25 @@ def _look(
 
 
 def _write(
-    bag: BagWriter, street: DemoStreet, event: _Event, steer: npt.NDArray[np.float64]
+    bag: BagWriter,
+    street: DemoStreet,
+    event: _Event,
+    odometry: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]],
 ) -> None:
-    """Write ``event``'s messages (waiting for its job)."""
+    """Write ``event``'s messages (waiting for its job).
+
+    ``odometry``: every odometry time's position, heading and steering, computed at once.
+    """
     stamp = event.stamp
     if event.kind == "odom":
-        xy, heading = street.drive_points([event.station])
+        xy, heading, steer = odometry
         pose = {
-            "position": {"x": street.origin[0] + xy[0, 0], "y": street.origin[1] + xy[0, 1]},
+            "position": {
+                "x": street.origin[0] + xy[event.index, 0],
+                "y": street.origin[1] + xy[event.index, 1],
+            },
             # The reference car's axes: x to the left, so yaw = heading + 90 degrees.
-            "orientation": _quat_z(float(heading[0]) + math.pi / 2.0),
+            "orientation": _quat_z(float(heading[event.index]) + math.pi / 2.0),
         }
         odom = {
             "header": {"stamp": stamp, "frame_id": "utm"},
