@@ -6,6 +6,7 @@ import logging
 import os
 import threading
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import pytest
@@ -78,6 +79,55 @@ def test_stop_ends_the_process_at_once() -> None:
     assert time.perf_counter() - started < 30.0
     with pytest.raises(StageError, match="stopped"):
         side.result()
+
+
+def _pool_of_sleepers(pids_file: str, *, progress: ProgressCallback) -> None:
+    """Start a process pool of two sleeping workers, write their pids, wait for them."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = [pool.submit(time.sleep, 60.0) for _ in range(2)]
+        while len(multiprocessing.active_children()) < 2:
+            time.sleep(0.05)
+        pids = " ".join(str(c.pid) for c in multiprocessing.active_children())
+        Path(pids_file).write_text(pids, encoding="utf-8")
+        progress("pool", 1, 2)
+        for future in futures:
+            future.result()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return Path(f"/proc/{pid}").exists() and "Z" not in _state(pid)
+
+
+def _state(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[1].split()[0]
+    except (FileNotFoundError, IndexError):
+        return "Z"
+
+
+def test_stop_ends_the_processes_the_sidecar_started(tmp_path: Path) -> None:
+    """A sidecar that runs a process pool (not a daemon, so it may) takes its workers along."""
+    pids_file = tmp_path / "pids"
+    side = Sidecar(_pool_of_sleepers, (str(pids_file),), name="pool", daemon=False)
+    deadline = time.perf_counter() + 60.0
+    while not pids_file.is_file() and time.perf_counter() < deadline:
+        time.sleep(0.1)
+    time.sleep(0.2)  # the file is whole
+    workers = [int(p) for p in pids_file.read_text(encoding="utf-8").split()]
+    assert len(workers) == 2
+    assert all(_alive(pid) for pid in workers)
+    side.stop()
+    deadline = time.perf_counter() + 15.0
+    while any(_alive(pid) for pid in workers) and time.perf_counter() < deadline:
+        time.sleep(0.1)
+    assert not any(_alive(pid) for pid in workers)  # no worker left sleeping on
 
 
 def _pools(*, progress: ProgressCallback) -> dict[str, object]:

@@ -367,6 +367,7 @@ def test_the_runs_that_need_no_splat_drive_beside_it_with_the_same_results(
             ads=ads,
             splat_on_cpu=False,  # no GPU here: the splat step only waits for DAVE-2's process
             ads_beside_splat=beside,
+            drive_workers=2,  # processes started by DAVE-2's process, as on a GPU machine
         )
         result = run_pipeline(ws, options=options)
         assert result.outcome("drive").state == "done", result.outcomes

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import logging.handlers
+import os
 import queue
 import signal
 import threading
@@ -73,9 +74,23 @@ def end_processes(processes: Iterable[Any]) -> None:
             process.join()
 
 
+def _end_with_children(signum: int, frame: object) -> None:
+    """SIGTERM (:meth:`Sidecar.stop`): end the processes this one started, then this one.
+
+    Its pool's workers would otherwise live on: they ignore Ctrl-C as it does, and wait for
+    work from a queue they hold both ends of.
+    """
+    del frame
+    import multiprocessing  # noqa: PLC0415
+
+    end_processes(multiprocessing.active_children())
+    os._exit(128 + signum)
+
+
 def _main(target: Callable[..., Any], args: tuple[Any, ...], messages: Any, level: int) -> None:
     """The spawned process: run ``target(*args, progress=...)``; send its value or error."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the caller, which stops us
+    signal.signal(signal.SIGTERM, _end_with_children)
     root = logging.getLogger()
     root.handlers[:] = [LogForwarder(messages)]
     root.setLevel(level)
@@ -107,6 +122,9 @@ class Sidecar:
         name: The process's name (in ``ps`` and the logs).
         cpus: CPU threads of its pools (:func:`~cam2sim.core.machine.children_allotted`);
             None: this process's.
+        daemon: Start it as a daemon process (ended with this one); a daemon process may
+            start no processes of its own, so a function that does (a pool) needs False.
+            :meth:`stop` ends it either way.
     """
 
     def __init__(
@@ -117,6 +135,7 @@ class Sidecar:
         progress: ProgressCallback = no_progress,
         name: str = "cam2sim-sidecar",
         cpus: int | None = None,
+        daemon: bool = True,
     ) -> None:
         import multiprocessing  # noqa: PLC0415
 
@@ -130,7 +149,7 @@ class Sidecar:
             target=_main,
             args=(target, args, self._messages, logging.getLogger().getEffectiveLevel()),
             name=name,
-            daemon=True,
+            daemon=daemon,
         )
         with children_allotted(cpus):
             self._process.start()

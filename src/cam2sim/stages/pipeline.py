@@ -759,6 +759,7 @@ def run_pipeline(
                         progress=report,
                         name="ads",
                         cpus=_ads_beside_cpus(),
+                        daemon=False,  # its drives may run in processes of their own
                     )
                 outcomes.append(_run_step(name, handlers[name]))
             logger.info("step %s: %s", name, outcomes[-1].state)
