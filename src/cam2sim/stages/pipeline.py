@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any, Final, Literal
 from cam2sim.core.dataset import NO_INTRINSICS_HINT, Calibration, DatasetInfo
 from cam2sim.core.errors import ConfigError, StageError
 from cam2sim.core.files import file_fingerprint, write_text_atomic
-from cam2sim.core.machine import available_cpus
+from cam2sim.core.machine import available_cpus, children_allotted
 from cam2sim.core.progress import ProgressCallback, no_progress, serialized
 from cam2sim.core.sidecar import Sidecar
 from cam2sim.core.workspace import StepState, dataset_paths, hash_inputs, run_paths
@@ -917,13 +917,20 @@ def _drive_camera(root: str, options: DriveOptions) -> list[str]:
 def _drives_in_processes(
     root: Path, all_opts: Sequence[DriveOptions], workers: int, report: ProgressCallback
 ) -> list[str]:
-    """Every job's runs, ``workers`` jobs at a time; run ids in the jobs' order."""
+    """Every job's runs, ``workers`` jobs at a time; run ids in the jobs' order.
+
+    Each process gets its share of this one's CPUs (its thread pools sized to it): beside the
+    splat's chunk workers (:func:`_ads_and_early_drives`) a pool of a process's every CPU in
+    each run would contend with them.
+    """
     import multiprocessing  # noqa: PLC0415
     from concurrent.futures import ProcessPoolExecutor  # noqa: PLC0415
 
     context = multiprocessing.get_context("spawn")
+    share = max(1, available_cpus() // workers)
     with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
-        futures = [pool.submit(_drive_camera, str(root), opts) for opts in all_opts]
+        with children_allotted(share):  # the workers start at the submits
+            futures = [pool.submit(_drive_camera, str(root), opts) for opts in all_opts]
         done: list[list[str]] = []
         for k, future in enumerate(futures):
             done.append(future.result())
