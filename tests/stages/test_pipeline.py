@@ -324,6 +324,20 @@ def test_a_recording_without_steering_gets_it_from_its_poses(
     np.testing.assert_allclose(table["value"], 0.0, atol=1e-6)  # the street is straight
 
 
+def _two_runs_of_raster_and_none(ws: Workspace, result: PipelineResult) -> list[str]:
+    """The drive step's runs, checked done and in job order (camera, then seed)."""
+    assert result.outcome("drive").state == "done", result.outcomes
+    runs = list(ws.stage_record("drive").runs)  # type: ignore[union-attr]
+    assert [r.split("-")[-2:] for r in runs] == [
+        ["raster", "s0"], ["raster", "s1"], ["none", "s0"], ["none", "s1"]
+    ]  # fmt: skip
+    return runs
+
+
+def _trajectories(ws: Workspace, runs: list[str]) -> list[str]:
+    return [(ws.runs_dir / r / "trajectory.csv").read_text(encoding="utf-8") for r in runs]
+
+
 @pytest.mark.skipif(not has_egl(), reason="no headless OpenGL (EGL) here")
 def test_the_drive_step_runs_cameras_side_by_side_with_the_same_results(
     tmp_path: Path, recording: tuple[Path, Path]
@@ -334,14 +348,8 @@ def test_the_drive_step_runs_cameras_side_by_side_with_the_same_results(
         ws = Workspace.create(tmp_path / f"ws{workers}", _config(bag))
         options = _fast(osm, cameras=("raster", "none"), runs=2, drive_workers=workers)
         result = run_pipeline(ws, options=options)
-        assert result.outcome("drive").state == "done", result.outcomes
-        runs = ws.stage_record("drive").runs  # type: ignore[union-attr]
-        assert [r.split("-")[-2:] for r in runs] == [
-            ["raster", "s0"], ["raster", "s1"], ["none", "s0"], ["none", "s1"]
-        ]  # fmt: skip
-        trajectories[workers] = [
-            (ws.runs_dir / r / "trajectory.csv").read_text(encoding="utf-8") for r in runs
-        ]
+        runs = _two_runs_of_raster_and_none(ws, result)
+        trajectories[workers] = _trajectories(ws, runs)
     assert trajectories[1] == trajectories[2]  # seeded runs: the processes change nothing
 
 
@@ -370,11 +378,7 @@ def test_the_runs_that_need_no_splat_drive_beside_it_with_the_same_results(
             drive_workers=2,  # processes started by DAVE-2's process, as on a GPU machine
         )
         result = run_pipeline(ws, options=options)
-        assert result.outcome("drive").state == "done", result.outcomes
-        runs = ws.stage_record("drive").runs  # type: ignore[union-attr]
-        assert [r.split("-")[-2:] for r in runs] == [
-            ["raster", "s0"], ["raster", "s1"], ["none", "s0"], ["none", "s1"]
-        ]  # fmt: skip
+        runs = _two_runs_of_raster_and_none(ws, result)
         early = ws.stage_record(EARLY_DRIVES)
         if beside:  # the raster runs were driven beside the splat and taken by the drive step
             assert early is not None
@@ -382,9 +386,7 @@ def test_the_runs_that_need_no_splat_drive_beside_it_with_the_same_results(
             assert "2 run(s) of raster driven beside the splat" in result.outcome("ads").message
         else:
             assert early is None
-        trajectories[beside] = [
-            (ws.runs_dir / r / "trajectory.csv").read_text(encoding="utf-8") for r in runs
-        ]
+        trajectories[beside] = _trajectories(ws, runs)
         assert len(list(ws.runs_dir.glob("*-drive-*"))) == 4  # no run driven twice
     assert trajectories[True] == trajectories[False]
 
