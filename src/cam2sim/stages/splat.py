@@ -12,7 +12,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
-import hashlib
 import logging
 import shutil
 import time
@@ -21,7 +20,7 @@ from typing import TYPE_CHECKING, Final
 
 from cam2sim.core.dataset import Calibration, DatasetInfo, RigCamera
 from cam2sim.core.errors import Cam2SimError, StageError
-from cam2sim.core.files import write_text_atomic
+from cam2sim.core.files import file_fingerprint, write_text_atomic
 from cam2sim.core.machine import gpu_sharers
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.workspace import Workspace, dataset_paths, hash_inputs
@@ -328,7 +327,7 @@ def run_splat(
 def _training_key(inputs: str, prep_dir: Path) -> str:
     """What a chunk's model depends on: the stage's inputs and the prepared scene and points."""
     files = {
-        name: hashlib.sha256((prep_dir / name).read_bytes()).hexdigest()
+        name: file_fingerprint(prep_dir / name)
         for name in ("scene.json", "points.npz")
         if (prep_dir / name).is_file()
     }
