@@ -9,12 +9,17 @@ others train or load; this is the work alone.
 Run from the repository root::
 
     python benchmarks/splat_seeding.py WS
+    python benchmarks/splat_seeding.py WS --prepare   # time the preparation too, every time
+
+``--prepare`` prepares again even when a prepared scene is there and prints the SHA-256 of its
+points (``points.npz``): a change to the preparation that must not change the points keeps it.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import time
 from pathlib import Path
 
@@ -28,14 +33,16 @@ from cam2sim.stages.splat import SplatStageOptions
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("workspace", type=Path)
+    parser.add_argument("--prepare", action="store_true", help="prepare again and time it")
     args = parser.parse_args()
     ws = Workspace.open(args.workspace)
     preset = SplatStageOptions.demo(cuda=True)
     prep = ws.root / "splat" / "prep"
-    if not (prep / "scene.json").exists():
+    if args.prepare or not (prep / "scene.json").exists():
         started = time.perf_counter()
         prepare_scene(ws, options=preset.prepare)
-        print(f"prepared {prep} in {time.perf_counter() - started:.1f} s")
+        digest = hashlib.sha256((prep / "points.npz").read_bytes()).hexdigest()[:16]
+        print(f"prepared {prep} in {time.perf_counter() - started:.1f} s; points {digest}")
     scene = SceneRecord.load(prep / "scene.json")
     points = load_points(prep / "points.npz")[:2]
     assert preset.train is not None

@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any, Final, Self
 import numpy as np
 
 from cam2sim.core.errors import BackendUnavailableError
+from cam2sim.core.grid import grid_cells
 from cam2sim.core.labels import Palette
 from cam2sim.render.meshes import (
     BuildingFootprint,
@@ -246,8 +247,8 @@ def _tiled(
     tri = mesh.positions.reshape(n_tri, 3, 3)
     centroid = tri.mean(axis=1)
     key = np.floor(centroid[:, :2] / tile_m).astype(np.int64)
-    _, tile_of, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    order = np.argsort(tile_of.ravel(), kind="stable")
+    tile_of, counts = grid_cells(key)
+    order = np.argsort(tile_of, kind="stable")
     vert_order = (order[:, None] * 3 + np.arange(3)[None, :]).ravel()
     sorted_mesh = Mesh(
         mesh.positions[vert_order], mesh.colours[vert_order], mesh.labels[vert_order]

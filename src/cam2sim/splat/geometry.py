@@ -12,6 +12,7 @@ import numpy.typing as npt
 
 from cam2sim.core import frames as fr
 from cam2sim.core.camera import DistortionModel, PinholeCamera
+from cam2sim.core.grid import grid_cells
 from cam2sim.splat.scene import ChunkRecord
 
 if TYPE_CHECKING:
@@ -175,8 +176,7 @@ def voxel_downsample(
     if p.shape[0] == 0:
         return p, c.astype(np.uint8)
     keys = np.floor(p / voxel_m).astype(np.int64)
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.ravel()
+    inverse, counts = grid_cells(keys)
     m = counts.shape[0]
     out_p = np.stack([np.bincount(inverse, p[:, i], minlength=m) for i in range(3)], 1)
     out_c = np.stack([np.bincount(inverse, c[:, i].astype(np.float64), m) for i in range(3)], 1)
