@@ -381,6 +381,9 @@ def test_the_runs_that_need_no_splat_drive_beside_it_with_the_same_results(
         runs = _two_runs_of_raster_and_none(ws, result)
         early = ws.stage_record(EARLY_DRIVES)
         if beside:  # the raster runs were driven beside the splat and taken by the drive step
+            for step in ("detect", "scenario"):  # so were detect and the scenario, before it
+                assert "ran beside the splat" in result.outcome(step).message
+            assert [o.name for o in result.outcomes] == list(STEPS)
             assert early is not None
             assert list(early.runs) == list(runs[:2])
             assert "2 run(s) of raster driven beside the splat" in result.outcome("ads").message
@@ -389,6 +392,31 @@ def test_the_runs_that_need_no_splat_drive_beside_it_with_the_same_results(
         trajectories[beside] = _trajectories(ws, runs)
         assert len(list(ws.runs_dir.glob("*-drive-*"))) == 4  # no run driven twice
     assert trajectories[True] == trajectories[False]
+
+
+@pytest.mark.skipif(has_cuda(), reason="the splat step would train on the GPU")
+def test_a_detect_failing_beside_the_splat_stops_the_steps_after_it(
+    tmp_path: Path, recording: tuple[Path, Path]
+) -> None:
+    bag, osm = recording
+    ws = Workspace.create(tmp_path / "ws", _config(bag))
+    options = _fast(
+        osm,
+        steps=(*FAST, "splat", "ads"),
+        detect_model=str(tmp_path / "nope.onnx"),
+        splat_on_cpu=False,
+        ads_beside_splat=True,
+    )
+    result = run_pipeline(ws, options=options)
+    states = _states(result)
+    assert states["detect"] == "failed"
+    assert "nope.onnx" in result.outcome("detect").message
+    assert states["splat"] == "not_applicable"  # it ran (here: no GPU) while detect failed
+    for step in ("scenario", "ads", "replay", "drive", "evaluate"):
+        assert states[step] == "skipped"
+        assert result.outcome(step).message == "detect failed"
+    assert [o.name for o in result.outcomes] == list(STEPS)
+    assert ws.read_manifest().steps["detect"].state == "failed"
 
 
 def test_run_varies_its_runs_unless_told_not_to(

@@ -13,11 +13,14 @@ it when read (:meth:`~cam2sim.core.workspace.Workspace.read_manifest`).
 
 On a GPU machine the ads step (DAVE-2) trains in its own process while the splat step runs
 (:class:`~cam2sim.core.sidecar.Sidecar`; ``PipelineOptions.ads_beside_splat``): neither reads
-what the other writes, and the splat's preparation leaves the GPU idle for minutes. Its outcome
-is taken where the ads step stands in the order, so the summary reads the same. After DAVE-2
-that process also drives the runs of the cameras that need no splat (truth, raster:
-:data:`EARLY_CAMERAS`, recorded as :data:`EARLY_DRIVES`); the drive step takes them and drives
-the splat camera's.
+what the other writes, and the splat's preparation leaves the GPU idle for minutes. The detect
+and scenario steps run there first (the splat reads neither), so the splat starts right after
+the map (:data:`BESIDE_SPLAT_STEPS`). Their outcomes are taken where the ads step stands in the
+order, and listed in the usual order, so the summary reads the same; a detect or scenario that
+fails there stops the steps after the ads step (the splat has trained by then, and is kept for
+the next run). After DAVE-2 that process also drives the runs of the cameras that need no splat
+(truth, raster: :data:`EARLY_CAMERAS`, recorded as :data:`EARLY_DRIVES`); the drive step takes
+them and drives the splat camera's.
 """
 
 from __future__ import annotations
@@ -116,6 +119,12 @@ them took 35 s an epoch where it takes 0.5 s alone: docs/benchmarks.md)."""
 EARLY_CAMERAS: Final = frozenset({"truth", "raster"})
 """Cameras whose closed-loop runs need no splat: where DAVE-2 trains beside the splat, they
 drive there after it while the splat still trains (:meth:`_Pipeline.drive_early`)."""
+
+BESIDE_SPLAT_STEPS: Final = ("detect", "scenario", "ads")
+"""The steps that run in the process beside the splat where DAVE-2 trains there: the splat
+reads none of their results, and their outcomes are taken where the ads step stands."""
+
+NOT_SELECTED: Final = "not selected"
 
 EARLY_DRIVES: Final = "drive_early"
 """The manifest's record of the runs driven beside the splat (their inputs and run ids)."""
@@ -739,38 +748,52 @@ def run_pipeline(
     outcomes: list[StepOutcome] = []
     stopped: str | None = None
     beside: Sidecar | None = None
+    side: tuple[str, ...] = BESIDE_SPLAT_STEPS if _ads_beside_splat(opts) else ()
+
+    def finish(outcome: StepOutcome) -> None:
+        nonlocal stopped
+        outcomes.append(outcome)
+        if outcome.message == NOT_SELECTED:
+            return
+        logger.info("step %s: %s", outcome.name, outcome.state)
+        pipe.record(outcome)
+        if outcome.state == "failed" and not opts.continue_on_error:
+            stopped = stopped or outcome.name
+
     try:
         for i, name in enumerate(STEPS):
             report("pipeline", i, len(STEPS))
-            if beside is not None and name == "ads":
-                outcomes.append(_joined(beside))
-                beside = None
-            elif not opts.wants(name):
-                outcomes.append(StepOutcome(name, "skipped", 0.0, "not selected"))
-                continue
-            elif stopped is not None:
-                outcomes.append(StepOutcome(name, "skipped", 0.0, f"{stopped} failed"))
-                continue
-            else:
-                if name == "splat" and _ads_beside_splat(opts):
+            if name in side:  # run in the process beside the splat; outcomes at the last
+                if name == side[0] and stopped is None:
                     beside = Sidecar(
-                        _ads_and_early_drives,
+                        _beside_splat,
                         (str(ws.root), opts),
                         progress=report,
                         name="ads",
                         cpus=_ads_beside_cpus(),
                         daemon=False,  # its drives may run in processes of their own
                     )
-                outcomes.append(_run_step(name, handlers[name]))
-            logger.info("step %s: %s", name, outcomes[-1].state)
-            pipe.record(outcomes[-1])
-            if outcomes[-1].state == "failed" and not opts.continue_on_error:
-                stopped = stopped or name
+                if name == side[-1]:
+                    joined = _joined(beside, side) if beside is not None else None
+                    beside = None
+                    for n, outcome in zip(side, joined or [None] * len(side), strict=True):
+                        finish(outcome or _skipped(n, opts, stopped))
+            elif not opts.wants(name) or stopped is not None:
+                finish(_skipped(name, opts, stopped))
+            else:
+                finish(_run_step(name, handlers[name]))
     finally:
         if beside is not None:  # interrupted (or failed) before the ads step joined it
             beside.stop()
     report("pipeline", len(STEPS), len(STEPS))
-    return PipelineResult(tuple(outcomes), pipe.report)
+    ordered = sorted(outcomes, key=lambda o: STEPS.index(o.name))
+    return PipelineResult(tuple(ordered), pipe.report)
+
+
+def _skipped(name: str, opts: PipelineOptions, stopped: str | None) -> StepOutcome:
+    """A step not run: not selected, or after a failed one."""
+    why = NOT_SELECTED if not opts.wants(name) else f"{stopped} failed"
+    return StepOutcome(name, "skipped", 0.0, why)
 
 
 def _handlers(pipe: _Pipeline) -> dict[str, Callable[[_Step], None]]:
@@ -809,22 +832,39 @@ def _ads_beside_cpus() -> int | None:
     return cpus - BESIDE_SPLAT_CPUS if cpus >= BESIDE_MIN_CPUS else None
 
 
-def _ads_and_early_drives(
+def _beside_splat(
     root: str, options: PipelineOptions, *, progress: ProgressCallback
-) -> StepOutcome:
-    """The ads step of the workspace at ``root`` in a :class:`Sidecar` process: its outcome.
+) -> tuple[StepOutcome, ...]:
+    """The :data:`BESIDE_SPLAT_STEPS` of the workspace at ``root`` in a :class:`Sidecar` process.
 
-    Then, if the drive step is wanted, the runs of the cameras that need no splat
-    (:meth:`_Pipeline.drive_early`): on a GPU machine they took 20-30 s of a world after the
-    splat (nine runs, four processes) while DAVE-2 had finished minutes before it. Where they
-    fail, the drive step drives them.
+    Detect and scenario (the splat reads neither: 8 s of Munich route 1's world on a GPU
+    machine, before the splat started), then the ads step and, if the drive step is wanted, the
+    runs of the cameras that need no splat (:meth:`_Pipeline.drive_early`): on a GPU machine
+    they took 20-30 s of a world after the splat (nine runs, four processes) while DAVE-2 had
+    finished minutes before it. Where those fail, the drive step drives them. A failed step
+    skips the ones after it here as in the main process (unless ``continue_on_error``).
     """
     from cam2sim.core.workspace import Workspace  # noqa: PLC0415
 
     pipe = _Pipeline(Workspace.open(Path(root)), options, progress)
-    outcome = _run_step("ads", pipe.ads)
-    if outcome.state not in {"done", "up_to_date"} or not options.wants("drive"):
-        return outcome
+    handlers = {"detect": pipe.detect, "scenario": pipe.scenario, "ads": pipe.ads}
+    outcomes: list[StepOutcome] = []
+    stopped: str | None = None
+    for name in BESIDE_SPLAT_STEPS:
+        if not options.wants(name) or stopped is not None:
+            outcomes.append(_skipped(name, options, stopped))
+            continue
+        outcome = _run_step(name, handlers[name])
+        if name == "ads" and outcome.state in {"done", "up_to_date"} and options.wants("drive"):
+            outcome = _with_early_drives(pipe, outcome)
+        outcomes.append(outcome)
+        if outcome.state == "failed" and not options.continue_on_error:
+            stopped = name
+    return tuple(outcomes)
+
+
+def _with_early_drives(pipe: _Pipeline, outcome: StepOutcome) -> StepOutcome:
+    """The ads step's ``outcome`` after the runs that need no splat drove (or not: logged)."""
     try:
         note = pipe.drive_early()
     except Exception as err:  # noqa: BLE001 -- the drive step drives them after the splat
@@ -833,16 +873,25 @@ def _ads_and_early_drives(
     return dataclasses.replace(outcome, message="; ".join(m for m in (outcome.message, note) if m))
 
 
-def _joined(beside: Sidecar) -> StepOutcome:
-    """The outcome of the step that ran beside the splat (its seconds: its own wall time)."""
+def _joined(beside: Sidecar, steps: tuple[str, ...]) -> tuple[StepOutcome, ...]:
+    """The outcomes of the ``steps`` that ran beside the splat (seconds: their own wall time)."""
     try:
-        outcome: StepOutcome = beside.result()
-    except StageError as err:
-        return StepOutcome(beside.name, "failed", 0.0, str(err))
-    if outcome.state != "done":
-        return outcome
-    note = "trained beside the splat"
-    return dataclasses.replace(outcome, message="; ".join(m for m in (outcome.message, note) if m))
+        outcomes: tuple[StepOutcome, ...] = beside.result()
+    except StageError as err:  # the process itself failed (its steps' errors are outcomes)
+        why = f"the process beside the splat failed: {err}"
+        return tuple(StepOutcome(name, "failed", 0.0, why) for name in steps)
+    notes = {"ads": "trained beside the splat"}
+    return tuple(
+        dataclasses.replace(
+            o,
+            message="; ".join(
+                m for m in (o.message, notes.get(o.name, "ran beside the splat")) if m
+            ),
+        )
+        if o.state == "done"
+        else o
+        for o in outcomes
+    )
 
 
 RUN_INPUTS: Final = "run_inputs.json"
@@ -920,7 +969,7 @@ def _drives_in_processes(
     """Every job's runs, ``workers`` jobs at a time; run ids in the jobs' order.
 
     Each process gets its share of this one's CPUs (its thread pools sized to it): beside the
-    splat's chunk workers (:func:`_ads_and_early_drives`) a pool of a process's every CPU in
+    splat's chunk workers (:func:`_beside_splat`) a pool of a process's every CPU in
     each run would contend with them.
     """
     import multiprocessing  # noqa: PLC0415
