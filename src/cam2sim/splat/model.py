@@ -515,7 +515,7 @@ def visible_points(
     """
     seen = np.zeros(len(xyz), dtype=bool)
     todo = np.arange(len(xyz))
-    points = np.asarray(xyz)
+    points = np.asarray(xyz, dtype=np.float64)  # converted once, not in every view
     newly = 0
     for f in frames:
         u, v, front = project_points(points, f.T(), f.K(), min_depth=1e-3)
