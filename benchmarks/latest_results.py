@@ -29,6 +29,10 @@ RUNS = (
     ("issue37-preset-check/worlds/*/result.json", "the fixed preset, alone on an H100"),
     ("issue37-preset-alone/worlds/*/result.json", "the fixed preset and threads, alone on an H100"),
     ("issue37-preset-3/worlds/*/result.json", "the fixed preset, 5 worlds on an H100"),
+    (
+        "issue37-alone/worlds/*/result.json",
+        "the fixed preset, detect and scenario beside the splat, alone on an H100",
+    ),
 )
 
 
