@@ -201,18 +201,18 @@ _downloads_lock = threading.Lock()
 
 def _download(folder: Path, timeout_s: float) -> Future[Path]:
     """The download into ``folder``: running, done, or failed less than RETRY_AFTER_S ago."""
+    key = folder.resolve()
     with _downloads_lock:
-        started, future = _downloads.get(folder.resolve(), (0.0, None))
+        started, future = _downloads.get(key, (0.0, None))
         if future is None or _stale(future, started, folder / LPIPS_SDIST):
             future = Future()
-            _downloads[folder.resolve()] = (time.monotonic(), future)
-            thread = threading.Thread(
+            _downloads[key] = (time.monotonic(), future)
+            threading.Thread(
                 target=_run_download,
                 args=(folder, timeout_s, future),
                 name="cam2sim-lpips-download",
                 daemon=True,
-            )
-            thread.start()
+            ).start()
     return future
 
 

@@ -124,8 +124,6 @@ BESIDE_SPLAT_STEPS: Final = ("detect", "scenario", "ads")
 """The steps that run in the process beside the splat where DAVE-2 trains there: the splat
 reads none of their results, and their outcomes are taken where the ads step stands."""
 
-NOT_SELECTED: Final = "not selected"
-
 EARLY_DRIVES: Final = "drive_early"
 """The manifest's record of the runs driven beside the splat (their inputs and run ids)."""
 
@@ -753,7 +751,7 @@ def run_pipeline(
     def finish(outcome: StepOutcome) -> None:
         nonlocal stopped
         outcomes.append(outcome)
-        if outcome.message == NOT_SELECTED:
+        if not opts.wants(outcome.name):
             return
         logger.info("step %s: %s", outcome.name, outcome.state)
         pipe.record(outcome)
@@ -774,10 +772,12 @@ def run_pipeline(
                         daemon=False,  # its drives may run in processes of their own
                     )
                 if name == side[-1]:
-                    joined = _joined(beside, side) if beside is not None else None
-                    beside = None
-                    for n, outcome in zip(side, joined or [None] * len(side), strict=True):
-                        finish(outcome or _skipped(n, opts, stopped))
+                    if beside is None:  # a step before them failed: they never started
+                        joined = tuple(_skipped(n, opts, stopped) for n in side)
+                    else:
+                        joined, beside = _joined(beside, side, opts), None
+                    for outcome in joined:
+                        finish(outcome)
             elif not opts.wants(name) or stopped is not None:
                 finish(_skipped(name, opts, stopped))
             else:
@@ -792,7 +792,7 @@ def run_pipeline(
 
 def _skipped(name: str, opts: PipelineOptions, stopped: str | None) -> StepOutcome:
     """A step not run: not selected, or after a failed one."""
-    why = NOT_SELECTED if not opts.wants(name) else f"{stopped} failed"
+    why = "not selected" if not opts.wants(name) else f"{stopped} failed"
     return StepOutcome(name, "skipped", 0.0, why)
 
 
@@ -847,7 +847,7 @@ def _beside_splat(
     from cam2sim.core.workspace import Workspace  # noqa: PLC0415
 
     pipe = _Pipeline(Workspace.open(Path(root)), options, progress)
-    handlers = {"detect": pipe.detect, "scenario": pipe.scenario, "ads": pipe.ads}
+    handlers = _handlers(pipe)
     outcomes: list[StepOutcome] = []
     stopped: str | None = None
     for name in BESIDE_SPLAT_STEPS:
@@ -873,13 +873,20 @@ def _with_early_drives(pipe: _Pipeline, outcome: StepOutcome) -> StepOutcome:
     return dataclasses.replace(outcome, message="; ".join(m for m in (outcome.message, note) if m))
 
 
-def _joined(beside: Sidecar, steps: tuple[str, ...]) -> tuple[StepOutcome, ...]:
+def _joined(
+    beside: Sidecar, steps: tuple[str, ...], opts: PipelineOptions
+) -> tuple[StepOutcome, ...]:
     """The outcomes of the ``steps`` that ran beside the splat (seconds: their own wall time)."""
     try:
         outcomes: tuple[StepOutcome, ...] = beside.result()
     except StageError as err:  # the process itself failed (its steps' errors are outcomes)
         why = f"the process beside the splat failed: {err}"
-        return tuple(StepOutcome(name, "failed", 0.0, why) for name in steps)
+        return tuple(
+            StepOutcome(name, "failed", 0.0, why)
+            if opts.wants(name)
+            else _skipped(name, opts, None)
+            for name in steps
+        )
     notes = {"ads": "trained beside the splat"}
     return tuple(
         dataclasses.replace(
