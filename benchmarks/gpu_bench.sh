@@ -11,6 +11,9 @@
 #   PHASE=wait bash benchmarks/gpu_bench.sh         # carry .gl: watch it (repeat as needed)
 #   PHASE=collect bash benchmarks/gpu_bench.sh      # pack what is there into $OUT (also when
 #                                                   # unfinished: the report covers the worlds done)
+#   PHASE=slots WORLD=munich-r2 bash benchmarks/gpu_bench.sh  # after it: a finished world's
+#                 # prepared scene trained again at LEVELS (default 1,3) chunks at a time, 5,000
+#                 # steps each, phases timed: benchmarks/splat_concurrency.py, into $OUT/slots.json
 #
 # Build the carried folders here first: `bash benchmarks/carry_kit.sh demo ray osm`.
 # SUITE (default benchmarks/suites/streets-gpu.yaml) names the suite; its OSM files are looked for
@@ -27,14 +30,16 @@
 # not carry again is removed there, so .osm/ vanished under the first GPU suite's running worlds.
 # BENCH (default /tmp/bench) is the benchmark folder on the device: a second suite in the same
 # session gets its own (BENCH=/tmp/bench2 for its start, wait and collect).
+# CAM2SIM_SPLAT_PROFILE=1 on the start call times each training step's phases (host and device,
+# cam2sim.splat.profiling); collect packs each chunk's result (phase_ms) with the worlds'.
 # The LPIPS weights do not fit the start call (the splats' LPIPS is then not computed; the
 # bench reads PSNR and SSIM only).
-case ${PHASE:?set PHASE to setup, start, wait or collect} in
+case ${PHASE:?set PHASE to setup, start, wait, collect or slots} in
 setup) WHEELS=.c21/a ;;
 start) WHEELS=.c21/b ;;
-wait | collect) WHEELS= ;;
+wait | collect | slots) WHEELS= ;;
 *)
-  echo "PHASE=$PHASE: use setup, start, wait or collect" >&2
+  echo "PHASE=$PHASE: use setup, start, wait, collect or slots" >&2
   exit 2
   ;;
 esac
@@ -86,6 +91,13 @@ start)
   watch
   ;;
 wait) watch ;;
+slots)
+  pkill -f "cam2sim bench" && sleep 5 # the GPU to itself
+  steps=${STEPS:-5000}
+  python3 benchmarks/splat_gpu.py --prep "$bench/worlds/${WORLD:?name a finished world}/ws/splat/prep" \
+    --concurrency "${LEVELS:-1,3}" --max-steps "$steps" --min-steps "$steps" --set val_every=250 \
+    --set profile=true --out "$out/slots.json"
+  ;;
 collect)
   tail -n 40 $bench.log
   if ! pgrep -f "cam2sim bench" > /dev/null && [ ! -f $bench/report.html ]; then
@@ -114,7 +126,8 @@ EOF
   cp $bench.log "$out/bench.log"
   cp $bench/report.html "$out/report.html" 2>/dev/null
   tar czf "$out/bench.tgz" -C $bench summary.md aggregate.json state.json tables \
-    $(cd $bench && ls worlds/*/result.json logs/*.log 2>/dev/null)
+    $(cd $bench && ls worlds/*/result.json logs/*.log 2>/dev/null) \
+    $(cd $bench && find worlds -path '*/models/results/chunk_*.json' 2>/dev/null)
   ls -la "$out"
   ;;
 esac

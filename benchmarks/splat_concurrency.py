@@ -4,7 +4,8 @@ Run through ``benchmarks/splat_gpu.py --concurrency 1,2,3`` (see its doc): the s
 or with ``--replicate-chunk K`` one chunk K times (ids 0..K-1, same frames, own seeds), trained
 at each level: 1 = one interleaved loop in this process, N > 1 = N worker processes at a time.
 Per level: wall time, combined ms/step (all steps over the wall time, and in the steady state
-between 20 % and 80 % of the steps), each chunk's ms/step. No evaluation.
+between 20 % and 80 % of the steps), each chunk's ms/step (and, with ``--set profile=true``,
+its host and device milliseconds a step by phase). No evaluation.
 """
 
 from __future__ import annotations
@@ -110,6 +111,7 @@ def run_concurrency(
                     "ms_per_step": 1e3 * c.train_seconds / max(1, c.steps),
                     "n_gaussians": c.n_gaussians,
                     "best_val_psnr_db": c.best_val_psnr_db,
+                    "phase_ms": c.phase_ms,  # with --set profile=true
                 }
                 for c in trained.chunks
             ],
