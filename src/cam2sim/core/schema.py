@@ -7,8 +7,9 @@ malformed file with a message naming the file and the offending element.
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
-from typing import ClassVar, Self
+from typing import ClassVar, Final, Self
 
 import pydantic
 
@@ -18,12 +19,29 @@ from cam2sim.core.files import read_json, write_text_atomic
 __all__ = ["Artifact", "format_validation_error"]
 
 
+MAX_LISTED: Final = 12
+"""Distinct problems a validation message lists before it counts the rest."""
+
+
 def format_validation_error(err: pydantic.ValidationError, *, source: str) -> str:
-    """Return a one-paragraph message listing every invalid element of ``source``."""
-    parts = []
+    """Return a one-paragraph message listing every invalid element of ``source``.
+
+    Problems that differ only in list indices are one entry, with how often they occur (a
+    prepared scene of 365 frames written by another cam2sim version has the same unknown field
+    in every frame: one line, not 365); past :data:`MAX_LISTED` entries the rest are counted.
+    """
+    groups: dict[tuple[str, str], list[str]] = {}
     for item in err.errors():
         where = ".".join(str(p) for p in item["loc"]) or "<root>"
-        parts.append(f"{where}: {item['msg']}")
+        shape = ".".join("*" if isinstance(p, int) else str(p) for p in item["loc"])
+        groups.setdefault((shape, item["msg"]), []).append(where)
+    parts = []
+    for (_, message), places in itertools.islice(groups.items(), MAX_LISTED):
+        more = len(places) - 1
+        also = f" (and {more} more like it, the last at {places[-1]})" if more else ""
+        parts.append(f"{places[0]}: {message}{also}")
+    if len(groups) > MAX_LISTED:
+        parts.append(f"{len(groups) - MAX_LISTED} more kinds of problem")
     return f"{source}: " + "; ".join(parts)
 
 
@@ -64,5 +82,6 @@ class Artifact(pydantic.BaseModel):
         try:
             return cls.model_validate(raw)
         except pydantic.ValidationError as err:
-            msg = format_validation_error(err, source=str(path))
+            where = format_validation_error(err, source=str(path))
+            msg = f"{where}. It does not match this cam2sim's {cls.__name__}: {cls.BROKEN_FIX}"
             raise WorkspaceError(msg) from None
