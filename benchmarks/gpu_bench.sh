@@ -14,6 +14,7 @@
 #   PHASE=slots WORLD=munich-r2 bash benchmarks/gpu_bench.sh  # after it: a finished world's
 #                 # prepared scene trained again at LEVELS (default 1,3) chunks at a time, 5,000
 #                 # steps each, phases timed: benchmarks/splat_concurrency.py, into $OUT/slots.json
+#                 # (PREP=DIR: a prepared scene put on the machine instead of a world's)
 #
 # Build the carried folders here first: `bash benchmarks/carry_kit.sh demo ray osm`.
 # SUITE (default benchmarks/suites/streets-gpu.yaml) names the suite; its OSM files are looked for
@@ -94,7 +95,8 @@ wait) watch ;;
 slots)
   pkill -f "cam2sim bench" && sleep 5 # the GPU to itself
   steps=${STEPS:-5000}
-  python3 benchmarks/splat_gpu.py --prep "$bench/worlds/${WORLD:?name a finished world}/ws/splat/prep" \
+  prep=${PREP:-$bench/worlds/${WORLD:?name a finished world, or PREP a prepared scene}/ws/splat/prep}
+  python3 benchmarks/splat_gpu.py --prep "$prep" \
     --concurrency "${LEVELS:-1,3}" --max-steps "$steps" --min-steps "$steps" --set val_every=250 \
     --set profile=true --out "$out/slots.json"
   ;;
