@@ -82,6 +82,6 @@ class Artifact(pydantic.BaseModel):
         try:
             return cls.model_validate(raw)
         except pydantic.ValidationError as err:
-            where = format_validation_error(err, source=str(path))
-            msg = f"{where}. It does not match this cam2sim's {cls.__name__}: {cls.BROKEN_FIX}"
+            problems = format_validation_error(err, source=str(path))
+            msg = f"{problems}. It does not match this cam2sim's {cls.__name__}: {cls.BROKEN_FIX}"
             raise WorkspaceError(msg) from None
