@@ -81,6 +81,10 @@ def test_picks_run_some_routes_under_the_names_and_ids_of_the_larger_suite(
         ("worlds:\n  - builtin: paper\n    picks: [1]\n", "go with `osm:`"),
         ("worlds: []\n", "worlds"),
         ("seeds: 0\nworlds:\n  - builtin: paper\n", "seeds"),
+        (
+            "worlds:\n  - builtin: paper\nsettings:\n  splat_init_points: 0\n",
+            "settings.splat_init_points",
+        ),
     ],
 )
 def test_a_bad_suite_says_which_key_and_what_to_do(tmp_path: Path, text: str, needle: str) -> None:
@@ -100,3 +104,35 @@ def test_a_missing_map_is_named_with_its_resolved_path(tmp_path: Path) -> None:
 def test_a_missing_suite_file_says_what_to_write(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="benchmark suite"):
         load_suite(tmp_path / "none.yaml")
+
+
+def test_the_splat_settings_change_the_preset_and_the_world_ids(tmp_path: Path) -> None:
+    from cam2sim.campaign.bench import splat_options
+    from cam2sim.stages.splat import SplatStageOptions
+
+    thinned = SUITE + "settings:\n  splat_init_points: 250000\n"
+    plain = expand_suite(load_suite(_suite(tmp_path / "a")), tmp_path / "a")
+    specs = expand_suite(load_suite(_suite(tmp_path / "b", thinned)), tmp_path / "b")
+    assert [s.label for s in specs] == [s.label for s in plain]
+    # Another experiment: a run of the thinned suite never resumes a plain one's worlds.
+    assert not {s.spec_id for s in plain} & {s.spec_id for s in specs}
+    preset = SplatStageOptions.demo(cuda=True).train
+    assert preset is not None
+    assert preset.max_init_points is None  # the GPU preset starts from every point
+    train = splat_options(specs[0].settings, cuda=True).train
+    assert train is not None
+    assert train.max_init_points == 250_000
+    assert (train.min_steps, train.max_steps, train.time_budget_s) == (
+        preset.min_steps,
+        preset.max_steps,
+        preset.time_budget_s,
+    )
+    both = splat_options(specs[0].settings.model_copy(update={"splat_steps": 40}), cuda=False)
+    assert both.train is not None
+    assert (both.train.min_steps, both.train.max_steps, both.train.max_init_points) == (
+        40,
+        40,
+        250_000,
+    )
+    assert both.train.time_budget_s is None
+    assert both.prepare == SplatStageOptions.demo(cuda=False).prepare

@@ -40,11 +40,12 @@ if TYPE_CHECKING:
     from collections.abc import Mapping
 
     from cam2sim.campaign.executors import Executor
-    from cam2sim.campaign.suite import WorldSpec
+    from cam2sim.campaign.suite import SuiteSettings, WorldSpec
     from cam2sim.core.workspace import RunPaths, Workspace
     from cam2sim.metrics.benchmark import Aggregate
     from cam2sim.metrics.drive_quality import DriveMetrics, RunMetrics
     from cam2sim.stages.experiment import Experiment
+    from cam2sim.stages.splat import SplatStageOptions
 
 __all__ = ["BenchResult", "bench_folder", "execute_world", "run_bench", "world_result"]
 
@@ -266,7 +267,6 @@ def _run_world(spec: WorldSpec, out: Path) -> str:
         WorldSource,
         run_experiment,
     )
-    from cam2sim.stages.splat import SplatStageOptions  # noqa: PLC0415
 
     started = time.perf_counter()
     source = WorldSource(
@@ -277,17 +277,10 @@ def _run_world(spec: WorldSpec, out: Path) -> str:
     )
     settings = spec.settings
     splat = None
-    if settings.splat_steps is not None:  # a fixed step count instead of the preset's
+    if settings.splat_steps is not None or settings.splat_init_points is not None:
         import torch  # noqa: PLC0415
 
-        splat = SplatStageOptions.demo(cuda=bool(torch.cuda.is_available()))
-        steps = settings.splat_steps
-        assert splat.train is not None  # the preset sets it
-        train = dataclasses.replace(
-            splat.train, max_steps=steps, min_steps=steps, val_every=max(1, steps // 2),
-            time_budget_s=None,
-        )  # fmt: skip
-        splat = dataclasses.replace(splat, train=train)
+        splat = splat_options(settings, cuda=bool(torch.cuda.is_available()))
     # The workspace's own HTML report is left out: the benchmark's report is what is read, and
     # encoding the kept frames' videos took 30-45 s a world (`cam2sim report WS` writes it).
     # For the same reason DAVE-2 is not validated: the network that drives is the same one,
@@ -303,6 +296,29 @@ def _run_world(spec: WorldSpec, out: Path) -> str:
     result = world_result(spec, done, time.perf_counter() - started)
     result.save(out / RESULT)
     return spec.label
+
+
+def splat_options(settings: SuiteSettings, *, cuda: bool) -> SplatStageOptions:
+    """The demo's splat preset for the device (``cuda``) with the suite's splat settings.
+
+    ``splat_steps``: that many steps a chunk, no plateau and no time budget;
+    ``splat_init_points``: each chunk starts from about that many of its points, thinned with
+    the distance from its cameras (``TrainOptions.max_init_points``).
+    """
+    from cam2sim.stages.splat import SplatStageOptions  # noqa: PLC0415
+
+    splat = SplatStageOptions.demo(cuda=cuda)
+    assert splat.train is not None  # the preset sets it
+    train = splat.train
+    if settings.splat_steps is not None:  # a fixed step count instead of the preset's
+        steps = settings.splat_steps
+        train = dataclasses.replace(
+            train, max_steps=steps, min_steps=steps, val_every=max(1, steps // 2),
+            time_budget_s=None,
+        )  # fmt: skip
+    if settings.splat_init_points is not None:
+        train = dataclasses.replace(train, max_init_points=settings.splat_init_points)
+    return dataclasses.replace(splat, train=train)
 
 
 def execute_world(spec: WorldSpec, log_path: str, timeout_s: float | None) -> RunOutcome:

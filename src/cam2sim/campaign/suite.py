@@ -106,6 +106,12 @@ class SuiteSettings(_Model):
     splat_steps: int | None = pydantic.Field(
         None, ge=1, description="splat training steps a chunk (null: the demo's preset)"
     )
+    splat_init_points: int | None = pydantic.Field(
+        None,
+        ge=1,
+        description="start each splat chunk from about this many of its points, thinned with "
+        "the distance from its cameras (null: the preset's; on CUDA every point)",
+    )
     save_frames: bool = pydantic.Field(
         default=True, description="keep the closed-loop runs' frames (the failure pictures)"
     )
