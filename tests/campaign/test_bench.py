@@ -92,6 +92,10 @@ def test_every_world_runs_the_whole_experiment(bench: tuple[Path, object]) -> No
                 runs = row.min_frechet_runs_m
                 assert sum(runs) / len(runs) == pytest.approx(row.min_frechet_m)
         assert world.splat_steps
+        # Each chunk's street Gaussians at its start and end (what a training step costs).
+        assert len(world.splat_gaussians) == len(world.splat_start_gaussians)
+        assert len(world.splat_gaussians) == len(world.splat_steps)
+        assert all(n > 0 for n in world.splat_start_gaussians)
         assert set(world.splat_stopped) == {"max_steps"}
         assert world.splat_held_out_psnr_db is not None
         # The splat against the truth every 10 m, on the path and 1 m to each side.
@@ -142,6 +146,8 @@ def test_the_aggregate_table_holds_counts_and_wilson_intervals(
 def test_the_report_shows_the_verdict_the_streets_and_the_world_that_failed(
     bench: tuple[Path, object],
 ) -> None:
+    from cam2sim.metrics.benchmark import WorldResult
+
     root, result = bench
     page = (root / "out" / "report.html").read_text(encoding="utf-8")
     assert result.aggregate.verdict in page  # type: ignore[attr-defined]
@@ -152,6 +158,11 @@ def test_the_report_shows_the_verdict_the_streets_and_the_world_that_failed(
     assert page.count("data:image/png;base64") >= 3  # the rates and two route profiles
     summary = (root / "out" / "summary.md").read_text(encoding="utf-8")
     assert "## Worlds without a result" in summary
+    with (root / "out" / "tables" / "splat.csv").open(encoding="utf-8") as f:
+        counts = {r["street"]: r["Gaussians a chunk k"] for r in csv.DictReader(f)}
+    for label in ("l-street", "street-r0"):  # thousands, start-end, a chunk each
+        world = WorldResult.load(root / "out" / "worlds" / label / "result.json")
+        assert counts[label].count("-") == len(world.splat_steps)
     assert "Streets not used while tuning (1)" in summary
 
 

@@ -47,7 +47,14 @@ if TYPE_CHECKING:
     from cam2sim.stages.experiment import Experiment
     from cam2sim.stages.splat import SplatStageOptions
 
-__all__ = ["BenchResult", "bench_folder", "execute_world", "run_bench", "world_result"]
+__all__ = [
+    "BenchResult",
+    "bench_folder",
+    "execute_world",
+    "run_bench",
+    "splat_options",
+    "world_result",
+]
 
 logger = logging.getLogger(__name__)
 TASK = "benchmark worlds"
@@ -200,12 +207,17 @@ def _failures(ws: Workspace, metrics: DriveMetrics, labels: Mapping[str, str]) -
 def _splat_facts(ws: Workspace) -> dict[str, object]:
     from cam2sim.splat.chunk_header import ChunkHeader  # noqa: PLC0415
     from cam2sim.splat.evaluate import SplatEval  # noqa: PLC0415
+    from cam2sim.splat.train_options import TrainResult, chunk_result_path  # noqa: PLC0415
 
     facts: dict[str, object] = {}
     headers = sorted(ws.splat_files.models_dir.glob("chunk_*.json"))
     chunks = [ChunkHeader.load(h) for h in headers]
     facts["splat_steps"] = [c.steps for c in chunks]
     facts["splat_stopped"] = [str(c.stopped) for c in chunks]
+    facts["splat_gaussians"] = [c.n_gaussians for c in chunks]
+    results = [chunk_result_path(ws.splat_files.models_dir, c.chunk_id) for c in chunks]
+    if all(r.is_file() for r in results):  # the starting counts are in the training results
+        facts["splat_start_gaussians"] = [TrainResult.load(r).n_initial_gaussians for r in results]
     facts["splat_device"] = chunks[0].backend if chunks else None
     path = ws.splat_files.eval_json
     if path.is_file():

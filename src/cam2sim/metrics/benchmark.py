@@ -120,6 +120,12 @@ class WorldResult(Artifact):
     splat_device: str | None = None
     splat_steps: list[int] = pydantic.Field(default_factory=list)
     splat_stopped: list[str] = pydantic.Field(default_factory=list)
+    splat_start_gaussians: list[int] = pydantic.Field(
+        default_factory=list, description="each chunk's street Gaussians when it started"
+    )
+    splat_gaussians: list[int] = pydantic.Field(
+        default_factory=list, description="each chunk's street Gaussians when it stopped"
+    )
     splat_held_out_psnr_db: float | None = None
     splat_held_out_ssim: float | None = None
     splat_truth_psnr_db: dict[str, float | None] = pydantic.Field(default_factory=dict)

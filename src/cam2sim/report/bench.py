@@ -127,14 +127,15 @@ def bench_tables(
         ],
     )  # fmt: skip
     splat: tuple[list[str], list[list[object]]] = (
-        ["street", "route m", "device", "steps a chunk", "stopped", "held-out PSNR",
+        ["street", "route m", "device", "steps a chunk", "stopped", "Gaussians a chunk k",
+         "held-out PSNR",
          "held-out SSIM", "truth on path", "truth 1 m right", "truth 1 m left",
          "profile min PSNR", "largest steering gap (at m)", "steering gain splat/truth",
          "world s"],
         [
             [w.label, fmt(w.route_m, ".0f"), w.splat_device or "-",
              "/".join(str(s) for s in w.splat_steps) or "-",
-             "/".join(sorted(set(w.splat_stopped))) or "-",
+             "/".join(sorted(set(w.splat_stopped))) or "-", _gaussians_text(w),
              fmt(w.splat_held_out_psnr_db, ".1f"), fmt(w.splat_held_out_ssim, ".3f"),
              fmt(w.splat_truth_psnr_db.get("on path"), ".1f"),
              fmt(_truth_at(w, "+1"), ".1f"), fmt(_truth_at(w, "-1"), ".1f"),
@@ -204,6 +205,17 @@ def _steering_pairs(world: WorldResult) -> list[tuple[float, float, float]]:
         for s, a, b in zip(stations, truth, splat, strict=True)
         if a is not None and b is not None
     ]
+
+
+def _gaussians_text(world: WorldResult) -> str:
+    """Each chunk's street Gaussians in thousands, ``start-end`` where the start is known."""
+    ends = world.splat_gaussians
+    if not ends:
+        return "-"
+    starts = world.splat_start_gaussians
+    if len(starts) != len(ends):
+        return "/".join(f"{e / 1e3:.0f}" for e in ends)
+    return "/".join(f"{s / 1e3:.0f}-{e / 1e3:.0f}" for s, e in zip(starts, ends, strict=True))
 
 
 def _gap_text(world: WorldResult) -> str:

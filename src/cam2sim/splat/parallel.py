@@ -74,7 +74,7 @@ docs/benchmarks.md, "KITTI 03 on one GPU", seventh and eighth runs). More than t
 measured. On the GPU demo's street chunks (320x200 views, 0.1-0.7M Gaussians) one chunk already
 fills an H100: one process taking a step of each chunk in turn and three worker processes at a
 time trained the same 6,000 steps in 101 and 102 s (docs/benchmarks.md, "Five untuned streets
-alone on an H100"); two at a time there cost nothing and overlap the next chunk's loading."""
+alone on an H100"); more at a time gain little there, and overlap the next chunk's loading."""
 
 MIN_GIB_FOR_THREE: Final = 40.0
 """Three chunks at a time only on a GPU with at least this much memory (a worker of a real
