@@ -15,6 +15,10 @@
 #                 # prepared scene trained again at LEVELS (default 1,3) chunks at a time, 5,000
 #                 # steps each, phases timed: benchmarks/splat_concurrency.py, into $OUT/slots.json
 #                 # (PREP=DIR: a prepared scene put on the machine instead of a world's)
+#   PHASE=cost WORLD=munich-r2 [CHUNKS="0 1"] bash benchmarks/gpu_bench.sh  # a finished world's
+#                 # trained chunks: tile/Gaussian pairs a view by depth and screen radius, and
+#                 # the render and backward time at 8x8 tiles (benchmarks/splat_raster_cost.py),
+#                 # into $OUT/cost-WORLD-CHUNK.json
 #
 # Build the carried folders here first: `bash benchmarks/carry_kit.sh demo ray osm`.
 # SUITE (default benchmarks/suites/streets-gpu.yaml) names the suite; its OSM files are looked for
@@ -35,12 +39,12 @@
 # cam2sim.splat.profiling); collect packs each chunk's result (phase_ms) with the worlds'.
 # The LPIPS weights do not fit the start call (the splats' LPIPS is then not computed; the
 # bench reads PSNR and SSIM only).
-case ${PHASE:?set PHASE to setup, start, wait, collect or slots} in
+case ${PHASE:?set PHASE to setup, start, wait, collect, slots or cost} in
 setup) WHEELS=.c21/a ;;
 start) WHEELS=.c21/b ;;
-wait | collect | slots) WHEELS= ;;
+wait | collect | slots | cost) WHEELS= ;;
 *)
-  echo "PHASE=$PHASE: use setup, start, wait, collect or slots" >&2
+  echo "PHASE=$PHASE: use setup, start, wait, collect, slots or cost" >&2
   exit 2
   ;;
 esac
@@ -99,6 +103,14 @@ slots)
   python3 benchmarks/splat_gpu.py --prep "$prep" \
     --concurrency "${LEVELS:-1,3}" --max-steps "$steps" --min-steps "$steps" --set val_every=250 \
     --set profile=true --out "$out/slots.json"
+  ;;
+cost)
+  ws=$bench/worlds/${WORLD:?name a finished world}/ws
+  for chunk in ${CHUNKS:-0}; do
+    python3 benchmarks/splat_raster_cost.py --prep "$ws/splat/prep" \
+      --model "$ws/splat/models/chunk_$(printf %02d "$chunk").pt" --tiles 8 --views 32 \
+      --out "$out/cost-$WORLD-$chunk.json" || exit 1
+  done
   ;;
 collect)
   tail -n 40 $bench.log
