@@ -41,14 +41,12 @@ def tile_pairs(means2d: Any, radii: Any, width: int, height: int, tile: int) -> 
     """Tiles each Gaussian's box covers (0 for culled ones), as gsplat's intersection counts."""
     import torch  # noqa: PLC0415
 
+    from cam2sim.splat.raster_torch import tile_boxes  # noqa: PLC0415
+
     tiles_x, tiles_y = -(-width // tile), -(-height // tile)
+    x0, x1, y0, y1 = tile_boxes(means2d, radii, tiles_x, tiles_y, tile)
     visible = (radii > 0).all(dim=-1)
-    r = radii.to(means2d.dtype)
-    lo = torch.floor((means2d - r) / tile).to(torch.int64)
-    hi = torch.ceil((means2d + r) / tile).to(torch.int64)
-    w = hi[:, 0].clamp(0, tiles_x) - lo[:, 0].clamp(0, tiles_x)
-    h = hi[:, 1].clamp(0, tiles_y) - lo[:, 1].clamp(0, tiles_y)
-    return torch.where(visible, w.clamp(min=0) * h.clamp(min=0), 0)
+    return torch.where(visible, (x1 - x0).clamp(min=0) * (y1 - y0).clamp(min=0), 0)
 
 
 def chunk_cost(trainer: ChunkTrainer, n_views: int, tile: int) -> dict[str, Any]:

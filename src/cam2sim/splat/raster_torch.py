@@ -59,6 +59,7 @@ __all__ = [
     "rgb_from_sh",
     "row_window",
     "sh_basis",
+    "tile_boxes",
 ]
 
 TILE_SIZE: Final = 16
@@ -303,6 +304,31 @@ def rgb_from_sh(coeffs: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.
 # ------------------------------------------------------------------------- tiles, composite
 
 
+def tile_boxes(
+    means2d: torch.Tensor,
+    radii: torch.Tensor,
+    tiles_x: int,
+    tiles_y: int,
+    tile_size: int = TILE_SIZE,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The tiles each Gaussian's box covers: ``(x0, x1, y0, y1)``, int64, ends exclusive.
+
+    Args:
+        means2d: ``[N, 2]`` centres, pixels.
+        radii: ``[N, 2]`` box half-extents, pixels.
+        tiles_x: Tiles per row (the box is clipped to the image's tiles).
+        tiles_y: Tile rows.
+        tile_size: Tile side, pixels.
+    """
+    centre = means2d / tile_size
+    extent = radii.to(means2d.dtype) / tile_size
+    lo = torch.floor(centre - extent).to(torch.int64)
+    hi = torch.ceil(centre + extent).to(torch.int64)
+    x0, x1 = lo[:, 0].clamp(0, tiles_x), hi[:, 0].clamp(0, tiles_x)
+    y0, y1 = lo[:, 1].clamp(0, tiles_y), hi[:, 1].clamp(0, tiles_y)
+    return x0, x1, y0, y1
+
+
 def _tile_intersections(
     means2d: torch.Tensor,
     radii: torch.Tensor,
@@ -322,12 +348,7 @@ def _tile_intersections(
     with torch.no_grad():
         device = means2d.device
         visible = torch.nonzero((radii > 0).all(dim=-1)).flatten()
-        centre = means2d[visible] / TILE_SIZE
-        extent = radii[visible].to(means2d.dtype) / TILE_SIZE
-        lo = torch.floor(centre - extent).to(torch.int64)
-        hi = torch.ceil(centre + extent).to(torch.int64)
-        x0, x1 = lo[:, 0].clamp(0, tiles_x), hi[:, 0].clamp(0, tiles_x)
-        y0, y1 = lo[:, 1].clamp(0, tiles_y), hi[:, 1].clamp(0, tiles_y)
+        x0, x1, y0, y1 = tile_boxes(means2d[visible], radii[visible], tiles_x, tiles_y)
         w = x1 - x0
         counts = w * (y1 - y0)
         total = int(counts.sum())
