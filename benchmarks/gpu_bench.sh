@@ -70,6 +70,9 @@ case $PHASE in
 setup)
   python3 -c "from cam2sim.splat.raster import build_gsplat; build_gsplat()" || exit 1
   mkdir -p /tmp/osm && cp .osm/* /tmp/osm/ || exit 1
+  python3 -c "import lzma, pathlib
+for p in pathlib.Path('/tmp/osm').glob('*.osm.xz'):
+    p.with_suffix('').write_bytes(lzma.decompress(p.read_bytes())); p.unlink()" || exit 1
   touch "$MARKER" || exit 1
   ;;
 start)
