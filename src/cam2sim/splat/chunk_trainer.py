@@ -281,9 +281,8 @@ class ChunkTrainer:
             "sh0": lr.sh0,
             "shN": lr.sh_rest,
         }
-        fused = self.device.startswith("cuda")  # one kernel per step instead of about ten
         self.optimizers: dict[str, torch.optim.Optimizer] = {
-            name: torch.optim.Adam([p], lr=rates[name], eps=1e-15, fused=fused)
+            name: torch.optim.Adam([p], lr=rates[name], eps=1e-15, fused=True)
             for name, p in self.street.params.items()
         }
         # The sky's parameters share one optimizer (a group each): fewer optimizer calls per step.
@@ -297,17 +296,17 @@ class ChunkTrainer:
         self.appearance.requires_grad = self.options.appearance
         self.extra_optimizers: list[torch.optim.Optimizer] = []
         if sky_groups:
-            self.extra_optimizers.append(torch.optim.Adam(sky_groups, eps=1e-15, fused=fused))
+            self.extra_optimizers.append(torch.optim.Adam(sky_groups, eps=1e-15, fused=True))
         if self.options.appearance:
             self.extra_optimizers.append(
-                torch.optim.Adam([self.appearance], lr=lr.appearance, fused=fused)
+                torch.optim.Adam([self.appearance], lr=lr.appearance, fused=True)
             )
         self.pose_delta: torch.nn.Parameter | None = None
         if lr.poses > 0:
             zeros = torch.zeros(len(self.views.frames), 6, device=self.device)
             self.pose_delta = torch.nn.Parameter(zeros)
             self.extra_optimizers.append(
-                torch.optim.Adam([self.pose_delta], lr=lr.poses, weight_decay=1e-6, fused=fused)
+                torch.optim.Adam([self.pose_delta], lr=lr.poses, weight_decay=1e-6, fused=True)
             )
         self.means = MeansDecay.over(rates["means"], self.options.max_steps)
         self.non_finite_steps = torch.zeros((), dtype=torch.int64, device=self.device)

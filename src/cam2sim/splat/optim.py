@@ -6,7 +6,9 @@ parameters and their optimizer state by name), about eight per chunk. Calling ea
 :func:`adam_step` runs the same update for all of them with one step-counter increment and one
 ``torch._fused_adam_`` call per distinct ``(lr, betas, eps)``: the arithmetic of
 ``Adam(fused=True).step()``, with the optimizers' own state tensors (``step``, ``exp_avg``,
-``exp_avg_sq``), so densification and checkpoints see the usual layout.
+``exp_avg_sq``), so densification and checkpoints see the usual layout. On the CPU as on CUDA:
+there torch's fused kernel took the optimizer phase of a 40,000-Gaussian step from 8 to 2 ms
+(2 cores; ``benchmarks/splat_cpu_step.py``), against the unfused per-tensor loop.
 
 With ``finite=True`` (the trainer's setting) a step whose gradients hold a NaN or inf value is
 skipped, as mixed-precision training skips one. One such value, stepped into a Gaussian, makes
@@ -164,7 +166,8 @@ def adam_step(
 
     With ``finite`` a step whose gradients hold a NaN or inf value leaves the fused optimizers'
     parameters and moments as they were (their ``found_inf``, as mixed-precision training
-    skips a step), the other optimizers (the CPU's, unfused) get those values as zero, and
+    skips a step), the other optimizers (those it cannot fuse: the poses', with weight decay) get
+    those values as zero, and
     ``non_finite_steps`` (a scalar tensor, if given) counts the step; all without a host
     synchronisation.
     """
