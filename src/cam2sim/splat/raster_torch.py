@@ -52,7 +52,6 @@ __all__ = [
     "TILE_SIZE",
     "TRANSMITTANCE_MIN",
     "Projection",
-    "covariances_from_quats_scales",
     "project_gaussians",
     "quats_to_rotmats",
     "rasterization",
@@ -117,12 +116,6 @@ def quats_to_rotmats(quats: torch.Tensor) -> torch.Tensor:
         1 - 2 * (x * x + y * y),
     )
     return torch.stack(rows, dim=-1).reshape((*quats.shape[:-1], 3, 3))
-
-
-def covariances_from_quats_scales(quats: torch.Tensor, scales: torch.Tensor) -> torch.Tensor:
-    """Return ``[..., 3, 3]`` covariances ``(R S)(R S)^T`` of quaternions and scales (std devs)."""
-    m = quats_to_rotmats(quats) * scales[..., None, :]
-    return m @ m.transpose(-1, -2)
 
 
 @dataclass(frozen=True)
