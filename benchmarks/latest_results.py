@@ -33,6 +33,10 @@ RUNS = (
         "issue37-alone/worlds/*/result.json",
         "the fixed preset, detect and scenario beside the splat, alone on an H100",
     ),
+    (
+        "issue37-alone-thinned/worlds/*/result.json",
+        "the fixed preset from 250,000 points a chunk (the GPU preset since), alone on an H100",
+    ),
 )
 
 

@@ -110,7 +110,7 @@ def test_the_splat_settings_change_the_preset_and_the_world_ids(tmp_path: Path) 
     from cam2sim.campaign.bench import splat_options
     from cam2sim.stages.splat import SplatStageOptions
 
-    thinned = SUITE + "settings:\n  splat_init_points: 250000\n"
+    thinned = SUITE + "settings:\n  splat_init_points: 150000\n"
     plain = expand_suite(load_suite(_suite(tmp_path / "a")), tmp_path / "a")
     specs = expand_suite(load_suite(_suite(tmp_path / "b", thinned)), tmp_path / "b")
     assert [s.label for s in specs] == [s.label for s in plain]
@@ -118,10 +118,10 @@ def test_the_splat_settings_change_the_preset_and_the_world_ids(tmp_path: Path) 
     assert not {s.spec_id for s in plain} & {s.spec_id for s in specs}
     preset = SplatStageOptions.demo(cuda=True).train
     assert preset is not None
-    assert preset.max_init_points is None  # the GPU preset starts from every point
+    assert preset.max_init_points == 250_000  # the GPU preset's thinned start
     train = splat_options(specs[0].settings, cuda=True).train
     assert train is not None
-    assert train.max_init_points == 250_000
+    assert train.max_init_points == 150_000
     assert (train.min_steps, train.max_steps, train.time_budget_s) == (
         preset.min_steps,
         preset.max_steps,
@@ -132,7 +132,7 @@ def test_the_splat_settings_change_the_preset_and_the_world_ids(tmp_path: Path) 
     assert (both.train.min_steps, both.train.max_steps, both.train.max_init_points) == (
         40,
         40,
-        250_000,
+        150_000,
     )
     assert both.train.time_budget_s is None
     assert both.prepare == SplatStageOptions.demo(cuda=False).prepare

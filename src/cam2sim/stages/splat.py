@@ -86,6 +86,17 @@ steps. The held-in PSNR and SSIM of a validation scatter about a chunk's curve b
 streets stopped at 3,250-4,750 steps on a dip although their fitted SSIM trend stayed above the
 minimum until 4,500-5,500 (``benchmarks/plateau_rule.py``; docs/benchmarks.md, "The GPU demo's
 preset on four untuned streets")."""
+DEMO_GPU_INIT_POINTS: Final = 250_000
+"""About this many starting points a chunk of the demo's CUDA splat (``max_init_points``: far
+points thinned, the road within about 20 m of the path kept whole; a chunk with fewer keeps
+them all). Seeded with every LiDAR voxel its views see, a chunk of a long straight street
+started from up to 0.6M Gaussians, three quarters of a view's tile pairs beyond 50 m, and the
+device-bound steps paid for them. From 250,000, on the five untuned streets of
+``streets-gpu-alone-thinned.yaml`` alone on an H100: the splats' training 1,314 -> 1,139 s in
+all (Munich route 2 373 -> 291 s, chunk 0 55 -> 34 ms a step, 1.03M -> 0.71M Gaussians at the
+end), held-out PSNR within 0.3 dB and SSIM within 0.001 of the full start, Real 0/15,
+splat 0/15, Sim 12/15, splat within 1.5x of Real's Min-Fréchet on 5 of 5 as before
+(docs/benchmarks.md, "Five untuned streets alone on an H100, the far points thinned")."""
 DEMO_GPU_SPLAT_BUDGET_S: Final = 300.0
 """A safety cap on each chunk's training seconds on a GPU of its own, far above what the
 preset's steps take (5,000 steps in about 145 s with three chunks of a street sharing an
@@ -152,8 +163,9 @@ class SplatStageOptions:
 
         ``cuda``: gsplat at full size with densification, :data:`DEMO_GPU_SPLAT_STEPS` steps a
         chunk (the plateau trend over :data:`DEMO_GPU_PLATEAU_PATIENCE` validations), from LiDAR
-        points on a 0.2 m grid, at most :data:`DEMO_GPU_SPLAT_BUDGET_S` seconds a chunk (times
-        the processes sharing the GPU: :func:`~cam2sim.core.machine.gpu_sharers`).
+        points on a 0.2 m grid (about :data:`DEMO_GPU_INIT_POINTS` a chunk), at most
+        :data:`DEMO_GPU_SPLAT_BUDGET_S` seconds a chunk (times the processes sharing the GPU:
+        :func:`~cam2sim.core.machine.gpu_sharers`).
         CPU: a frame every 0.5 m, 40k LiDAR points, nearly opaque starting Gaussians,
         700-1,400 steps a chunk at half size, at most :data:`DEMO_CPU_SPLAT_BUDGET_S` seconds a
         chunk; from step 500 our densification grows each chunk (to 70-130k Gaussians; no
@@ -169,6 +181,7 @@ class SplatStageOptions:
                 val_every=250, patience=DEMO_GPU_PLATEAU_PATIENCE,
                 min_gain_db=0.5, min_gain_ssim=0.005,
                 time_budget_s=DEMO_GPU_SPLAT_BUDGET_S * gpu_sharers(), budget_per_chunk=True,
+                max_init_points=DEMO_GPU_INIT_POINTS,
             )  # fmt: skip
             return cls(prepare=PrepareOptions(triangulate=False, lidar_voxel_m=0.2), train=train)
         prepare = PrepareOptions(spacing_m=0.5, triangulate=False, lidar_voxel_m=0.25)
