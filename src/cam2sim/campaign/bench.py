@@ -289,7 +289,10 @@ def _run_world(spec: WorldSpec, out: Path) -> str:
     )
     settings = spec.settings
     splat = None
-    if settings.splat_steps is not None or settings.splat_init_points is not None:
+    if any(
+        v is not None
+        for v in (settings.splat_steps, settings.splat_init_points, settings.splat_max_gaussians)
+    ):
         import torch  # noqa: PLC0415
 
         splat = splat_options(settings, cuda=bool(torch.cuda.is_available()))
@@ -315,7 +318,9 @@ def splat_options(settings: SuiteSettings, *, cuda: bool) -> SplatStageOptions:
 
     ``splat_steps``: that many steps a chunk, no plateau and no time budget;
     ``splat_init_points``: each chunk starts from about that many of its points, thinned with
-    the distance from its cameras (``TrainOptions.max_init_points``).
+    the distance from its cameras (``TrainOptions.max_init_points``);
+    ``splat_max_gaussians``: no more densification of a chunk once it has that many Gaussians
+    (``DensifyOptions.max_gaussians``).
     """
     from cam2sim.stages.splat import SplatStageOptions  # noqa: PLC0415
 
@@ -330,6 +335,9 @@ def splat_options(settings: SuiteSettings, *, cuda: bool) -> SplatStageOptions:
         )  # fmt: skip
     if settings.splat_init_points is not None:
         train = dataclasses.replace(train, max_init_points=settings.splat_init_points)
+    if settings.splat_max_gaussians is not None:
+        densify = dataclasses.replace(train.densify, max_gaussians=settings.splat_max_gaussians)
+        train = dataclasses.replace(train, densify=densify)
     return dataclasses.replace(splat, train=train)
 
 

@@ -112,6 +112,12 @@ class SuiteSettings(_Model):
         description="start each splat chunk from about this many of its points, thinned with "
         "the distance from its cameras (null: the preset's, 40,000 on a CPU, 250,000 on CUDA)",
     )
+    splat_max_gaussians: int | None = pydantic.Field(
+        None,
+        ge=1,
+        description="no more densification of a splat chunk once it has this many Gaussians "
+        "(null: the preset's, 120,000 on a CPU, 6 million on CUDA)",
+    )
     save_frames: bool = pydantic.Field(
         default=True, description="keep the closed-loop runs' frames (the failure pictures)"
     )
