@@ -71,70 +71,117 @@ def tile_locals(
     return ox, oy, local, rows, row_len
 
 
+@_jit_serial
+def _columns(local: Any, k: int) -> tuple[int, int]:
+    """The tile columns ``[lo, hi]`` whose pixel centres may lie in Gaussian ``k``'s extent.
+
+    A superset by at most float rounding: the kernels test each centre against the extent
+    again, as a loop over every column would.
+    """
+    lo = max(0, int(np.ceil(local[k, 6] - np.float32(0.5))))
+    hi = min(_TILE - 1, int(np.floor(local[k, 7] - np.float32(0.5))))
+    return lo, hi
+
+
 @_jit
 def forward(  # noqa: PLR0913, PLR0917 -- flat arrays are what numba takes
     means2d: Any, conics: Any, opac: Any, colors: Any, starts: Any, ids: Any,
     tiles_x: int, n_tiles: int, out_rgb: Any, out_t: Any, out_last: Any,
 ) -> None:  # fmt: skip
+    """Front to back, a tile row at a time: each Gaussian of the row over the columns it covers.
+
+    Each pixel meets the same Gaussians in the same order, with the same arithmetic (its
+    transmittance in float64), as a loop over the row's Gaussians for every pixel would, so the
+    images are the same bit for bit; a Gaussian's extent is found once for the 16 pixels of a
+    row instead of tested at each (about a third less time on the demo's views). The row ends
+    once all 16 pixels have run out of transmittance.
+    """
     d = colors.shape[1]
     for tile in numba.prange(n_tiles):
-        s0, s1 = starts[tile], starts[tile + 1]
-        if s0 == s1:
-            continue
-        ox, oy, local, rows, row_len = tile_locals(
-            means2d, conics, opac, ids, s0, s1, tile, tiles_x
-        )
-        n = s1 - s0
-        acc = np.zeros(d, np.float32)
-        for ly in range(_TILE):
-            py = oy + ly + np.float32(0.5)
-            for lx in range(_TILE):
-                px = ox + lx + np.float32(0.5)
+        acc = np.zeros((_TILE, d), np.float32)
+        trans = np.ones(_TILE, np.float64)
+        last = np.zeros(_TILE, np.int32)
+        done = np.zeros(_TILE, np.bool_)
+        _forward_tile(
+            means2d, conics, opac, colors, starts, ids, tile, tiles_x, out_rgb, out_t,
+            out_last, acc, trans, last, done,
+        )  # fmt: skip
+
+
+@_jit_serial
+def _forward_tile(  # noqa: PLR0913, PLR0917
+    means2d: Any, conics: Any, opac: Any, colors: Any, starts: Any, ids: Any, tile: int,
+    tiles_x: int, out_rgb: Any, out_t: Any, out_last: Any, acc: Any, trans: Any, last: Any,
+    done: Any,
+) -> None:  # fmt: skip
+    """One tile of :func:`forward`, with its thread's row buffers."""
+    d = colors.shape[1]
+    s0, s1 = starts[tile], starts[tile + 1]
+    if s0 == s1:
+        return
+    ox, oy, local, rows, row_len = tile_locals(means2d, conics, opac, ids, s0, s1, tile, tiles_x)
+    n = s1 - s0
+    for ly in range(_TILE):
+        py = oy + ly + np.float32(0.5)
+        acc[:, :] = 0.0
+        trans[:] = 1.0
+        last[:] = n
+        done[:] = False
+        n_done = 0
+        for r in range(row_len[ly]):
+            k = rows[ly, r]
+            lo, hi = _columns(local, k)
+            ca, cb, cc, o = local[k, 2], local[k, 3], local[k, 4], local[k, 5]
+            dy = local[k, 1] - py
+            g = ids[s0 + k]
+            for lx in range(lo, hi + 1):
                 fx = lx + np.float32(0.5)
-                t = np.float32(1.0)
-                acc[:] = 0.0
-                last = n
-                for r in range(row_len[ly]):
-                    k = rows[ly, r]
-                    if fx < local[k, 6] or fx > local[k, 7]:
-                        continue
-                    dx = local[k, 0] - px
-                    dy = local[k, 1] - py
-                    sigma = (
-                        np.float32(0.5) * (local[k, 2] * dx * dx + local[k, 4] * dy * dy)
-                        + local[k, 3] * dx * dy
-                    )
-                    if sigma < 0.0 or sigma > _SIGMA_MAX:
-                        continue
-                    alpha = min(np.float32(_ALPHA_MAX), local[k, 5] * np.exp(-sigma))
-                    if alpha < _ALPHA_MIN:
-                        continue
-                    nt = t * (np.float32(1.0) - alpha)
-                    if nt <= _T_MIN:
-                        last = k
-                        break
-                    w = alpha * t
-                    g = ids[s0 + k]
-                    for c in range(d):
-                        acc[c] += colors[g, c] * w
-                    t = nt
-                y, x = oy + ly, ox + lx
+                if done[lx] or fx < local[k, 6] or fx > local[k, 7]:
+                    continue
+                dx = local[k, 0] - (ox + fx)
+                sigma = np.float32(0.5) * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                if sigma < 0.0 or sigma > _SIGMA_MAX:
+                    continue
+                alpha = min(np.float32(_ALPHA_MAX), o * np.exp(-sigma))
+                if alpha < _ALPHA_MIN:
+                    continue
+                t = trans[lx]
+                nt = t * (np.float32(1.0) - alpha)
+                if nt <= _T_MIN:
+                    last[lx] = k
+                    done[lx] = True
+                    n_done += 1
+                    continue
+                w = alpha * t
                 for c in range(d):
-                    out_rgb[y, x, c] = acc[c]
-                out_t[y, x] = t
-                out_last[y, x] = last
+                    acc[lx, c] += colors[g, c] * w
+                trans[lx] = nt
+            if n_done == _TILE:
+                break
+        y = oy + ly
+        for lx in range(_TILE):
+            for c in range(d):
+                out_rgb[y, ox + lx, c] = acc[lx, c]
+            out_t[y, ox + lx] = trans[lx]
+            out_last[y, ox + lx] = last[lx]
 
 
 @_jit
-def backward(  # noqa: PLR0913, PLR0917 -- one pixel's chain rule, kept inline
+def backward(  # noqa: PLR0912, PLR0913, PLR0915, PLR0917 -- the chain rule, kept inline
     means2d: Any, conics: Any, opac: Any, colors: Any, starts: Any, ids: Any,
     tiles_x: int, n_tiles: int, out_t: Any, out_last: Any, g_rgb: Any, g_acc: Any,
     v_means: Any, v_conics: Any, v_opac: Any, v_colors: Any,
 ) -> None:  # fmt: skip
+    """Back to front from each pixel's stop, a tile row at a time, as :func:`forward` runs.
+
+    A Gaussian's gradients gather over the pixels of a row in the order a loop pixel by pixel
+    adds them (rows, then columns), so the sums are the same bit for bit.
+    """
     d = colors.shape[1]
     groups = v_means.shape[0]
     for grp in numba.prange(groups):
-        buf = np.zeros(d, np.float32)
+        buf = np.zeros((_TILE, d), np.float32)
+        trans = np.zeros(_TILE, np.float64)
         for tile in range(grp, n_tiles, groups):
             s0, s1 = starts[tile], starts[tile + 1]
             if s0 == s1:
@@ -145,40 +192,43 @@ def backward(  # noqa: PLR0913, PLR0917 -- one pixel's chain rule, kept inline
             for ly in range(_TILE):
                 y = oy + ly
                 py = y + np.float32(0.5)
+                buf[:, :] = 0.0
+                top = 0
                 for lx in range(_TILE):
-                    x = ox + lx
-                    px = x + np.float32(0.5)
-                    fx = lx + np.float32(0.5)
-                    t_final = out_t[y, x]
-                    t = t_final
-                    ga = g_acc[y, x]
-                    last = out_last[y, x]
-                    buf[:] = 0.0
-                    for r in range(row_len[ly] - 1, -1, -1):
-                        k = rows[ly, r]
-                        if k >= last or fx < local[k, 6] or fx > local[k, 7]:
+                    trans[lx] = out_t[y, ox + lx]
+                    top = max(top, out_last[y, ox + lx])
+                for r in range(row_len[ly] - 1, -1, -1):
+                    k = rows[ly, r]
+                    if k >= top:
+                        continue  # behind every pixel's stop
+                    lo, hi = _columns(local, k)
+                    ca, cb, cc, o = local[k, 2], local[k, 3], local[k, 4], local[k, 5]
+                    dy = local[k, 1] - py
+                    g = ids[s0 + k]
+                    for lx in range(lo, hi + 1):
+                        x = ox + lx
+                        fx = lx + np.float32(0.5)
+                        if k >= out_last[y, x] or fx < local[k, 6] or fx > local[k, 7]:
                             continue
-                        dx = local[k, 0] - px
-                        dy = local[k, 1] - py
-                        ca, cb, cc = local[k, 2], local[k, 3], local[k, 4]
+                        dx = local[k, 0] - (x + np.float32(0.5))
                         sigma = np.float32(0.5) * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
                         if sigma < 0.0 or sigma > _SIGMA_MAX:
                             continue
                         vis = np.exp(-sigma)
-                        raw = local[k, 5] * vis
+                        raw = o * vis
                         alpha = min(np.float32(_ALPHA_MAX), raw)
                         if alpha < _ALPHA_MIN:
                             continue
-                        g = ids[s0 + k]
                         ra = np.float32(1.0) / (np.float32(1.0) - alpha)
-                        t = t * ra  # transmittance in front of this Gaussian
+                        t = trans[lx] * ra  # transmittance in front of this Gaussian
+                        trans[lx] = t
                         w = alpha * t
-                        v_alpha = ga * t_final * ra
+                        v_alpha = g_acc[y, x] * out_t[y, x] * ra
                         for c in range(d):
                             gc = g_rgb[y, x, c]
                             v_colors[grp, g, c] += w * gc
-                            v_alpha += (colors[g, c] * t - buf[c] * ra) * gc
-                            buf[c] += colors[g, c] * w
+                            v_alpha += (colors[g, c] * t - buf[lx, c] * ra) * gc
+                            buf[lx, c] += colors[g, c] * w
                         if raw > _ALPHA_MAX:
                             continue  # clamped: no gradient through alpha
                         v_opac[grp, g] += vis * v_alpha

@@ -8,7 +8,8 @@ backward pass (about 0.6 s of a 0.9 s step on the demo's 160x100 views with 40k 
 
 This module composites the same way gsplat's CUDA kernels do, per pixel and front to back,
 stopping where the transmittance runs out, and computes the gradients in a second pass back to
-front from the forward pass's final transmittance and stop position (no per-element storage):
+front from the forward pass's final transmittance and stop position (no per-element storage);
+the kernels take a tile row at a time, each Gaussian over the columns it covers:
 
 - forward: ``alpha = min(0.999, o exp(-sigma))`` with ``sigma = a dx^2 / 2 + b dx dy +
   c dy^2 / 2`` (``dx = mean - pixel centre``), alphas below 1/255 skipped, a pixel ends before
