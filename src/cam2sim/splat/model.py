@@ -34,6 +34,7 @@ import torch
 from cam2sim.core.camera import project_points
 from cam2sim.core.errors import WorkspaceError
 from cam2sim.core.files import write_bytes_atomic
+from cam2sim.splat import sh_cpu
 from cam2sim.splat.chunk_header import ChunkHeader, ViewRecord, outliers_path
 from cam2sim.splat.raster_torch import SH_C0, quats_to_rotmats, rgb_from_sh
 
@@ -189,12 +190,16 @@ class GaussianModel:
 
         ``backend="gsplat"`` evaluates the SH with gsplat's CUDA kernel (one launch forward and
         one backward instead of about a hundred small torch operations); ``"torch"`` uses
-        :func:`cam2sim.splat.raster_torch.rgb_from_sh`. Both compute the same function.
+        its CPU counterpart for float32 on the CPU (:mod:`cam2sim.splat.sh_cpu`), else
+        :func:`cam2sim.splat.raster_torch.rgb_from_sh`. All compute the same function.
         """
         degree = min(degree, self.sh_degree)
         means = self.params["means"]
-        coeffs = torch.cat((self.params["sh0"], self.params["shN"]), dim=1)
         dirs = means[None, :, :] - campos[:, None, :]
+        sh0, shn = self.params["sh0"], self.params["shN"]
+        if backend == "torch" and sh_cpu.applies(dirs, sh0, shn):
+            return sh_cpu.colors(sh0, shn, dirs, degree)
+        coeffs = torch.cat((sh0, shn), dim=1)
         shs = coeffs[None].expand(campos.shape[0], -1, -1, -1)
         if backend == "gsplat":
             from gsplat import spherical_harmonics  # noqa: PLC0415

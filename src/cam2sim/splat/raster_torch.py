@@ -518,6 +518,10 @@ def _view_colours(
             raise ValueError(msg)
         campos = torch.linalg.inv(viewmats)[:, :3, 3]
         dirs = means[None, :, :] - campos[:, None, :]
+        from cam2sim.splat import sh_cpu  # noqa: PLC0415 -- lazy: the compiled path
+
+        if sh_cpu.applies(dirs, colors):
+            return sh_cpu.colors(colors[:, :1], colors[:, 1:], dirs, sh_degree)
         return rgb_from_sh(colors[None].expand(n_cams, -1, -1, -1), dirs, sh_degree)
     if colors.ndim == 2 and colors.shape[0] == n:
         return colors[None].expand(n_cams, -1, -1)
