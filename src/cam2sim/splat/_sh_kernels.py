@@ -11,24 +11,8 @@ from typing import Any, Final
 import numba
 import numpy as np
 
-_C0: Final = 0.28209479177387814
-_C1: Final = 0.4886025119029199
-_C2: Final = (
-    1.0925484305920792,
-    -1.0925484305920792,
-    0.31539156525252005,
-    -1.0925484305920792,
-    0.5462742152960396,
-)
-_C3: Final = (
-    -0.5900435899266435,
-    2.890611442640554,
-    -0.4570457994644658,
-    0.3731763325901154,
-    -0.4570457994644658,
-    1.445305721320277,
-    -0.5900435899266435,
-)
+from cam2sim.splat.sh_constants import SH_C0, SH_C1, SH_C2, SH_C3
+
 _EPS: Final = 1e-12
 """``torch.nn.functional.normalize``'s floor on the norm."""
 
@@ -42,29 +26,29 @@ _jit_serial = numba.njit(cache=True, nogil=True)
 @_jit_serial
 def basis(x: float, y: float, z: float, degree: int, out: Any) -> None:
     """The ``(degree + 1) ** 2`` basis values at the unit direction ``(x, y, z)`` into ``out``."""
-    out[0] = _C0
+    out[0] = SH_C0
     if degree < 1:
         return
-    out[1] = -_C1 * y
-    out[2] = _C1 * z
-    out[3] = -_C1 * x
+    out[1] = -SH_C1 * y
+    out[2] = SH_C1 * z
+    out[3] = -SH_C1 * x
     if degree < 2:
         return
     xx, yy, zz = x * x, y * y, z * z
-    out[4] = _C2[0] * x * y
-    out[5] = _C2[1] * y * z
-    out[6] = _C2[2] * (2.0 * zz - xx - yy)
-    out[7] = _C2[3] * x * z
-    out[8] = _C2[4] * (xx - yy)
+    out[4] = SH_C2[0] * x * y
+    out[5] = SH_C2[1] * y * z
+    out[6] = SH_C2[2] * (2.0 * zz - xx - yy)
+    out[7] = SH_C2[3] * x * z
+    out[8] = SH_C2[4] * (xx - yy)
     if degree < 3:
         return
-    out[9] = _C3[0] * y * (3.0 * xx - yy)
-    out[10] = _C3[1] * x * y * z
-    out[11] = _C3[2] * y * (4.0 * zz - xx - yy)
-    out[12] = _C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy)
-    out[13] = _C3[4] * x * (4.0 * zz - xx - yy)
-    out[14] = _C3[5] * z * (xx - yy)
-    out[15] = _C3[6] * x * (xx - 3.0 * yy)
+    out[9] = SH_C3[0] * y * (3.0 * xx - yy)
+    out[10] = SH_C3[1] * x * y * z
+    out[11] = SH_C3[2] * y * (4.0 * zz - xx - yy)
+    out[12] = SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy)
+    out[13] = SH_C3[4] * x * (4.0 * zz - xx - yy)
+    out[14] = SH_C3[5] * z * (xx - yy)
+    out[15] = SH_C3[6] * x * (xx - 3.0 * yy)
 
 
 @_jit_serial
@@ -72,18 +56,18 @@ def basis_grad(x: float, y: float, z: float, degree: int, v_b: Any, out: Any) ->
     """``sum_k v_b[k] d basis_k / d(x, y, z)`` into ``out[0:3]`` (the polynomials' gradients)."""
     gx = gy = gz = 0.0
     if degree >= 1:
-        gx -= _C1 * v_b[3]
-        gy -= _C1 * v_b[1]
-        gz += _C1 * v_b[2]
+        gx -= SH_C1 * v_b[3]
+        gy -= SH_C1 * v_b[1]
+        gz += SH_C1 * v_b[2]
     if degree >= 2:
-        c2 = _C2
+        c2 = SH_C2
         gx += c2[0] * y * v_b[4] - 2.0 * c2[2] * x * v_b[6] + c2[3] * z * v_b[7]
         gx += 2.0 * c2[4] * x * v_b[8]
         gy += c2[0] * x * v_b[4] + c2[1] * z * v_b[5] - 2.0 * c2[2] * y * v_b[6]
         gy -= 2.0 * c2[4] * y * v_b[8]
         gz += c2[1] * y * v_b[5] + 4.0 * c2[2] * z * v_b[6] + c2[3] * x * v_b[7]
     if degree >= 3:
-        c3 = _C3
+        c3 = SH_C3
         xx, yy, zz = x * x, y * y, z * z
         gx += 6.0 * c3[0] * x * y * v_b[9] + c3[1] * y * z * v_b[10]
         gx += -2.0 * c3[2] * x * y * v_b[11] - 6.0 * c3[3] * x * z * v_b[12]

@@ -41,6 +41,7 @@ from torch.nn import functional as tnf
 
 from cam2sim.splat import raster_cpu
 from cam2sim.splat.raster_output import RasterOutput, row_window
+from cam2sim.splat.sh_constants import SH_C0, SH_C1, SH_C2, SH_C3
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -49,6 +50,9 @@ __all__ = [
     "ALPHA_MAX",
     "ALPHA_THRESHOLD",
     "SH_C0",
+    "SH_C1",
+    "SH_C2",
+    "SH_C3",
     "TILE_SIZE",
     "TRANSMITTANCE_MIN",
     "Projection",
@@ -75,27 +79,6 @@ TRANSMITTANCE_MIN: Final = 1e-4
 
 _EXTEND: Final = 3.33
 _MAX_ELEMENTS: Final = 1 << 22
-
-SH_C0: Final = 0.28209479177387814
-"""Degree-0 real SH basis constant: ``rgb = SH_C0 * sh0 + 0.5``."""
-
-_SH_C1: Final = 0.4886025119029199
-_SH_C2: Final = (
-    1.0925484305920792,
-    -1.0925484305920792,
-    0.31539156525252005,
-    -1.0925484305920792,
-    0.5462742152960396,
-)
-_SH_C3: Final = (
-    -0.5900435899266435,
-    2.890611442640554,
-    -0.4570457994644658,
-    0.3731763325901154,
-    -0.4570457994644658,
-    1.445305721320277,
-    -0.5900435899266435,
-)
 
 
 # ---------------------------------------------------------------------------------- geometry
@@ -253,10 +236,10 @@ def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
     x, y, z = dirs.unbind(-1)
     out = [torch.full_like(x, SH_C0)]
     if degree >= 1:
-        out += [-_SH_C1 * y, _SH_C1 * z, -_SH_C1 * x]
+        out += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
     if degree >= 2:
         xx, yy, zz = x * x, y * y, z * z
-        c2 = _SH_C2
+        c2 = SH_C2
         out += [
             c2[0] * x * y,
             c2[1] * y * z,
@@ -265,7 +248,7 @@ def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
             c2[4] * (xx - yy),
         ]
     if degree >= 3:
-        c3 = _SH_C3
+        c3 = SH_C3
         out += [
             c3[0] * y * (3 * xx - yy),
             c3[1] * x * y * z,
