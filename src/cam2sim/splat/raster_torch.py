@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any, Final, Literal
 import torch
 from torch.nn import functional as tnf
 
-from cam2sim.splat import raster_cpu
+from cam2sim.splat import raster_cpu, sh_cpu
 from cam2sim.splat.raster_output import RasterOutput, row_window
 from cam2sim.splat.sh_constants import SH_C0, SH_C1, SH_C2, SH_C3
 
@@ -501,8 +501,6 @@ def _view_colours(
             raise ValueError(msg)
         campos = torch.linalg.inv(viewmats)[:, :3, 3]
         dirs = means[None, :, :] - campos[:, None, :]
-        from cam2sim.splat import sh_cpu  # noqa: PLC0415 -- lazy: the compiled path
-
         if sh_cpu.applies(dirs, colors):
             return sh_cpu.colors(colors[:, :1], colors[:, 1:], dirs, sh_degree)
         return rgb_from_sh(colors[None].expand(n_cams, -1, -1, -1), dirs, sh_degree)
