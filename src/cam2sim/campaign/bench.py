@@ -319,8 +319,8 @@ def splat_options(settings: SuiteSettings, *, cuda: bool) -> SplatStageOptions:
     ``splat_steps``: that many steps a chunk, no plateau and no time budget;
     ``splat_init_points``: each chunk starts from about that many of its points, thinned with
     the distance from its cameras (``TrainOptions.max_init_points``);
-    ``splat_max_gaussians``: no more densification of a chunk once it has that many Gaussians
-    (``DensifyOptions.max_gaussians``).
+    ``splat_max_gaussians``: no more growth of a chunk once it has that many Gaussians, pruning
+    goes on (``DensifyOptions.max_gaussians``).
     """
     from cam2sim.stages.splat import SplatStageOptions  # noqa: PLC0415
 

@@ -115,8 +115,8 @@ class SuiteSettings(_Model):
     splat_max_gaussians: int | None = pydantic.Field(
         None,
         ge=1,
-        description="no more densification of a splat chunk once it has this many Gaussians "
-        "(null: the preset's, 120,000 on a CPU, 6 million on CUDA)",
+        description="no more growth of a splat chunk once it has this many Gaussians, pruning "
+        "goes on (null: the preset's, 120,000 on a CPU, 6 million on CUDA)",
     )
     save_frames: bool = pydantic.Field(
         default=True, description="keep the closed-loop runs' frames (the failure pictures)"

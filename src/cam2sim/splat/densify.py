@@ -141,12 +141,15 @@ class Densifier:
         if step >= opts.refine_stop_at or out.means2d.grad is None:
             return
         if self.strategy is not None:
-            if len(model) < opts.max_gaussians:
+            # At the cap no statistics are gathered and nothing grows, but pruning goes on:
+            # the opacity resets still come, and what they leave transparent must go.
+            growing = len(model) < opts.max_gaussians
+            if growing:
                 self._accumulate(out, n_street, len(model))
-                pause = int(getattr(self.strategy, "pause_refine_after_reset", 0))
-                due = step > opts.refine_start and step % opts.refine_every == 0
-                if due and step % opts.reset_every >= pause:
-                    self._gsplat_refine(step, model, optimizers)
+            pause = int(getattr(self.strategy, "pause_refine_after_reset", 0))
+            due = step > opts.refine_start and step % opts.refine_every == 0
+            if due and step % opts.reset_every >= pause:
+                self._gsplat_refine(step, model, optimizers, grow=growing)
         else:
             self._accumulate(out, n_street, len(model))
             due = step > opts.refine_start and step % opts.refine_every == 0
@@ -288,19 +291,30 @@ class Densifier:
         self.state["count"] += weight.sum(dim=0)
 
     def _gsplat_refine(
-        self, step: int, model: GaussianModel, optimizers: dict[str, torch.optim.Optimizer]
+        self,
+        step: int,
+        model: GaussianModel,
+        optimizers: dict[str, torch.optim.Optimizer],
+        *,
+        grow: bool = True,
     ) -> None:
-        """``DefaultStrategy``'s grow and prune on the statistics gathered here."""
+        """``DefaultStrategy``'s grow and prune on the statistics gathered here.
+
+        ``grow=False`` (the model is at ``max_gaussians``): prune only.
+        """
         strategy = self.strategy
-        if self.state["grad2d"] is None:
+        gathered = self.state["grad2d"] is not None
+        if grow and not gathered:
             return
         n_before = len(model)
-        strategy._grow_gs(model.params, optimizers, self.state, step)  # noqa: SLF001
+        if grow:
+            strategy._grow_gs(model.params, optimizers, self.state, step)  # noqa: SLF001
         strategy._prune_gs(model.params, optimizers, self.state, step)  # noqa: SLF001
-        self.state["grad2d"].zero_()
-        self.state["count"].zero_()
-        if getattr(strategy, "refine_scale2d_stop_iter", 0) > 0:
-            self.state["radii"].zero_()
+        if gathered:
+            self.state["grad2d"].zero_()
+            self.state["count"].zero_()
+            if getattr(strategy, "refine_scale2d_stop_iter", 0) > 0:
+                self.state["radii"].zero_()
         _log.debug("step %d: %d -> %d Gaussians", step, n_before, len(model))
 
     def _refine(

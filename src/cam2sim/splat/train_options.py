@@ -138,8 +138,8 @@ class DensifyOptions:
         prune_scale3d: Gaussians larger than this (times scene scale) are removed after the
             first reset.
         max_gaussians: No growth once the street model has this many Gaussians (the refinement
-            that crosses it can overshoot by what it grows; with gsplat's ``DefaultStrategy``
-            no refinement at all from then on, pruning included).
+            that crosses it can overshoot by what it grows); pruning goes on, and growth
+            resumes if pruning takes the model below it.
         mcmc_cap: With ``strategy="mcmc"``: the number of street Gaussians the model grows to
             (by 5 % every ``refine_every`` steps).
         mcmc_opacity_reg: With ``strategy="mcmc"``: weight of the mean opacity in the loss
