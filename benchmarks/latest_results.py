@@ -35,7 +35,14 @@ RUNS = (
     ),
     (
         "issue37-alone-thinned/worlds/*/result.json",
-        "the fixed preset from 250,000 points a chunk (the GPU preset since), alone on an H100",
+        "the fixed preset from 250,000 points a chunk, alone on an H100",
+    ),
+    (
+        "issue37-capped/worlds/*/result.json",
+        (
+            "the fixed preset from 250,000 points a chunk, growth stopped at 400,000"
+            " (the GPU preset since), alone on an H100"
+        ),
     ),
 )
 

@@ -116,7 +116,7 @@ class SuiteSettings(_Model):
         None,
         ge=1,
         description="no more growth of a splat chunk once it has this many Gaussians, pruning "
-        "goes on (null: the preset's, 120,000 on a CPU, 6 million on CUDA)",
+        "goes on (null: the preset's, 120,000 on a CPU, 400,000 on CUDA)",
     )
     save_frames: bool = pydantic.Field(
         default=True, description="keep the closed-loop runs' frames (the failure pictures)"

@@ -97,6 +97,16 @@ all (Munich route 2 373 -> 291 s, chunk 0 55 -> 34 ms a step, 1.03M -> 0.71M Gau
 end), held-out PSNR within 0.3 dB and SSIM within 0.001 of the full start, Real 0/15,
 splat 0/15, Sim 12/15, splat within 1.5x of Real's Min-Fréchet on 5 of 5 as before
 (docs/benchmarks.md, "Five untuned streets alone on an H100, the far points thinned")."""
+DEMO_GPU_MAX_GAUSSIANS: Final = 400_000
+"""No more growth of a chunk of the demo's CUDA splat once it has this many Gaussians (pruning
+goes on). From :data:`DEMO_GPU_INIT_POINTS` the 3DGS growth rule took a long street's chunks to
+0.69-0.75M by 5,000 steps, and a step's device time grows about linearly with the Gaussians.
+Capped, Munich route 2 alone on an H100 (the street it was chosen on): its splat 291 -> 220 s,
+the world 351 -> 271 s, held-out PSNR 31.69 -> 31.70 dB, SSIM 0.906 -> 0.905, the chunks on
+their plateau at 4,250-4,750 steps instead of 5,000, splat runs 0/3 at 0.03 m Min-Fréchet
+(Real 0.09); Munich route 3 (not used to choose it): the world in 193 s, 30.8 dB and 0.903
+(30.6 and 0.900 on the older preset), splat 0/3, Sim 3/3 (docs/benchmarks.md, "A cap of 400,000
+Gaussians a chunk on the GPU")."""
 DEMO_GPU_SPLAT_BUDGET_S: Final = 300.0
 """A safety cap on each chunk's training seconds on a GPU of its own, far above what the
 preset's steps take (5,000 steps in about 145 s with three chunks of a street sharing an
@@ -163,7 +173,8 @@ class SplatStageOptions:
 
         ``cuda``: gsplat at full size with densification, :data:`DEMO_GPU_SPLAT_STEPS` steps a
         chunk (the plateau trend over :data:`DEMO_GPU_PLATEAU_PATIENCE` validations), from LiDAR
-        points on a 0.2 m grid (about :data:`DEMO_GPU_INIT_POINTS` a chunk), at most
+        points on a 0.2 m grid (about :data:`DEMO_GPU_INIT_POINTS` a chunk, growing to at most
+        :data:`DEMO_GPU_MAX_GAUSSIANS`), at most
         :data:`DEMO_GPU_SPLAT_BUDGET_S` seconds a chunk (times the processes sharing the GPU:
         :func:`~cam2sim.core.machine.gpu_sharers`).
         CPU: a frame every 0.5 m, 40k LiDAR points, nearly opaque starting Gaussians,
@@ -182,6 +193,7 @@ class SplatStageOptions:
                 min_gain_db=0.5, min_gain_ssim=0.005,
                 time_budget_s=DEMO_GPU_SPLAT_BUDGET_S * gpu_sharers(), budget_per_chunk=True,
                 max_init_points=DEMO_GPU_INIT_POINTS,
+                densify=DensifyOptions(max_gaussians=DEMO_GPU_MAX_GAUSSIANS),
             )  # fmt: skip
             return cls(prepare=PrepareOptions(triangulate=False, lidar_voxel_m=0.2), train=train)
         prepare = PrepareOptions(spacing_m=0.5, triangulate=False, lidar_voxel_m=0.25)
