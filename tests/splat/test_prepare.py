@@ -83,12 +83,43 @@ def test_chunks_by_distance_overlap_and_cover_every_frame() -> None:
     counts = np.zeros(len(s), int)
     for c in chunks:
         counts[c.frames] += 1
-        assert c.end_m - c.start_m <= 150.0 + 1e-9
+        # Three of equal length: the 10 m past three 150 m steps absorbed, not a fourth chunk.
+        assert c.end_m - c.start_m == pytest.approx((400.0 + 2 * 30.0) / 3)
+    assert len(chunks) == 3
     assert counts.min() == 1
     assert counts.max() == 2
     for a, b in itertools.pairwise(chunks):
         shared = s[sorted(set(a.frames) & set(b.frames))]
         assert shared.max() - shared.min() == pytest.approx(30.0, abs=0.5)
+
+
+@pytest.mark.parametrize(
+    ("route_m", "n_chunks"),
+    [
+        (150.0, 1),
+        (180.0, 1),
+        (181.0, 2),
+        (184.0, 2),
+        (300.0, 2),
+        (301.0, 3),
+        (390.7, 3),
+        (700.0, 6),
+    ],
+)
+def test_chunks_by_distance_are_equal_and_none_lies_inside_another(
+    route_m: float, n_chunks: int
+) -> None:
+    s = np.linspace(0.0, route_m, int(route_m * 2) + 1)
+    positions = np.stack([s, np.zeros_like(s), np.zeros_like(s)], 1)
+    chunks = chunks_by_distance(s, positions, chunk_length_m=150.0, overlap_m=30.0)
+    assert len(chunks) == n_chunks
+    lengths = [c.end_m - c.start_m for c in chunks]
+    assert np.allclose(lengths, lengths[0])
+    assert lengths[0] <= 150.0 + 30.0 / n_chunks + 1e-9  # a remainder up to the overlap absorbed
+    assert chunks[-1].end_m == pytest.approx(route_m)
+    for a, b in itertools.pairwise(chunks):
+        assert a.end_m - b.start_m == pytest.approx(30.0)  # the overlap as asked
+        assert b.end_m - a.end_m >= 0.4 * 150.0  # each chunk adds a good part of its own
 
 
 def test_chunks_by_distance_short_route_is_one_chunk() -> None:
@@ -331,7 +362,7 @@ def test_prepare_scene_writes_a_valid_scene(tmp_path: Path) -> None:
         assert (sky[-HOOD_ROWS:] == 0).all()
         assert (f.fx, f.fy, f.cx, f.cy, f.width, f.height) == (170.0, 170.0, 120.0, 90.0, W, H)
     # Chunks of 3 m with 1 m overlap over 6 m: [0, 3], [2, 5], [4, 6]; every frame in one or two.
-    assert [(c.start_m, c.end_m) for c in scene.chunks] == [(0.0, 3.0), (2.0, 5.0), (4.0, 6.0)]
+    assert [(c.start_m, c.end_m) for c in scene.chunks] == [(0.0, 3.5), (2.5, 6.0)]  # equal
     assert all(1 <= len(f.chunks) <= 2 for f in scene.frames)
     expected = camera_poses(np.array([[3.0, 0.0, 0.0]]), np.array([[0.0, 0, 0, 1]]), LEFT_CAMERA)
     assert np.allclose(scene.frames[6].T(), expected[0])
@@ -451,7 +482,7 @@ def test_prepare_scene_without_intrinsics_aligns_sfm_to_the_recorded_poses(tmp_p
     scene = prepare_scene(ws, options=opts)
     assert scene.pose_source == "sfm"
     assert not scene.scale_ambiguous
-    assert len(scene.chunks) == 3
+    assert len(scene.chunks) == 2  # two of 3.5 m (the 6 m route, 3 m at most, 1 m shared)
     recorded = camera_poses(
         np.array([[f.progress_m, 0.0, 0.0] for f in scene.frames]),
         np.tile([0.0, 0.0, 0.0, 1.0], (len(scene.frames), 1)),

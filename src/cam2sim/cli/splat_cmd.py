@@ -64,7 +64,9 @@ def splat(
     workspace: Annotated[Path, typer.Argument(help="The workspace folder.")],
     *,
     spacing: Annotated[float, typer.Option(help="Select a frame every N metres.")] = 0.5,
-    chunk_length: Annotated[float, typer.Option(help="Route chunk length, metres.")] = 150.0,
+    chunk_length: Annotated[
+        float, typer.Option(help="Longest route chunk, metres (the chunks are cut equal).")
+    ] = 150.0,
     overlap: Annotated[
         float | None, typer.Option(help="Chunk overlap, metres (default min(30, length/4)).")
     ] = None,

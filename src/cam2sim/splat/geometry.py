@@ -86,17 +86,23 @@ def chunks_by_distance(
     chunk_length_m: float,
     overlap_m: float,
 ) -> list[ChunkRecord]:
-    """Split a route into overlapping chunks by distance travelled.
+    """Split a route into overlapping chunks of equal length by distance travelled.
 
-    Chunk ``k`` spans ``[k * step, k * step + chunk_length_m]`` with
-    ``step = chunk_length_m - overlap_m``; the last one ends at the end of the route. A frame
-    belongs to every chunk whose span contains it: one or two (``overlap_m`` is less than half a
-    chunk). Chunks without frames (a gap in the recording) are dropped.
+    The route is cut into as few chunks as keep each at most ``chunk_length_m`` long, a
+    remainder of up to ``overlap_m`` absorbed: ``n = 1 + ceil((length - chunk_length_m -
+    overlap_m) / (chunk_length_m - overlap_m))`` (at least 1). All ``n`` get the same length
+    ``(length + (n - 1) * overlap_m) / n`` (at most ``chunk_length_m + overlap_m / n``), and
+    consecutive ones overlap by ``overlap_m``. Cut at a fixed length instead, a route 0.7 m
+    longer than three steps got a fourth chunk of 30 m lying wholly inside the third, trained
+    for as many steps as the others on a fifth of their frames (Munich route 0, 391 m), and a
+    184 m route a 150 m chunk and a 64 m one. A frame belongs to every chunk whose span contains
+    it: one or two (``overlap_m`` is less than half a chunk). Chunks without frames (a gap in
+    the recording) are dropped.
 
     Args:
         progress_m: ``(N,)`` non-decreasing distance travelled at each frame, metres.
         positions: ``(N, 3)`` camera positions (for each chunk's centre), metres.
-        chunk_length_m: Chunk length, metres.
+        chunk_length_m: Longest chunk, metres (but for the absorbed remainder).
         overlap_m: Overlap, metres, ``0 <= overlap_m < chunk_length_m / 2``.
 
     Returns:
@@ -112,10 +118,12 @@ def chunks_by_distance(
         msg += f"{chunk_length_m!r}, {overlap_m!r}"
         raise ValueError(msg)
     start, total = float(s[0]), float(s[-1])
+    length = total - start
     step = chunk_length_m - overlap_m
-    n = 1 + max(0, math.ceil((total - start - chunk_length_m) / step - 1e-9))
-    starts = start + step * np.arange(n)
-    ends = np.minimum(starts + chunk_length_m, total)
+    n = 1 + max(0, math.ceil((length - chunk_length_m - overlap_m) / step - 1e-9))
+    each = (length + (n - 1) * overlap_m) / n
+    starts = start + (each - overlap_m) * np.arange(n)
+    ends = np.minimum(starts + each, total)
     ends[-1] = total
     member = (s[None, :] >= starts[:, None] - 1e-9) & (s[None, :] <= ends[:, None] + 1e-9)
     chunks: list[ChunkRecord] = []

@@ -12,7 +12,8 @@ The prepared scene is the contract described in :mod:`cam2sim.splat.scene`. Step
 4. **Sky masks**: SegFormer when a model is given, else the classical heuristic
    (:mod:`cam2sim.splat.masks`).
 5. **Camera poses** ``T_world_cam = T_world_body (poses.csv) o T_body_camera (calibration)``.
-6. **Chunks** along the route by distance (``chunk_length_m`` with ``overlap_m``); a frame
+6. **Chunks** of equal length along the route by distance (at most ``chunk_length_m``,
+   ``overlap_m`` shared by neighbours; :func:`chunks_by_distance`); a frame
    belongs to one or two chunks. Every ``held_out_every``-th frame is held out for evaluation,
    from the middle of each interval (:func:`is_held_out`): never the first frame, where every
    closed-loop run starts.
@@ -136,7 +137,9 @@ class PrepareOptions:
         detect_hood: Detect the hood when neither rows nor polygon are given.
         segformer: SegFormer model (local folder or hub id) for sky masks; None = classical.
         device: torch device for SegFormer.
-        chunk_length_m: Length of a route chunk, metres.
+        chunk_length_m: Longest route chunk, metres: the route is cut into as few chunks of
+            equal length as keep each within it, a remainder up to ``overlap_m`` absorbed
+            (:func:`chunks_by_distance`).
         overlap_m: Overlap of consecutive chunks, metres (less than half a chunk).
         held_out_every: Every n-th selected frame is held out for evaluation (0 = none), from
             the middle of each interval (:func:`is_held_out`).
