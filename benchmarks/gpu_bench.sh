@@ -31,6 +31,10 @@
 # RESULTS="DIR..." (start): folders of earlier results (DIR/worlds/LABEL/result.json, as
 # docs/results/issue37-gpu-recheck/a) are put in place first, so the suite runs only the
 # worlds still missing and the report covers all (a suite split over one-GPU sessions).
+# A machine can be taken back mid-call ("taken back for other work"), and /tmp with it: a
+# multi-world suite watched over several calls then loses every world it finished. Where that
+# matters, run a world a call, starting and collecting in the same call (the one-world suites
+# streets-gpu-capped-munich-r2.yaml and -r3.yaml show how), and give the next call RESULTS.
 # Everything the suite reads lives in /tmp on the device: a carried folder that a later call does
 # not carry again is removed there, so .osm/ vanished under the first GPU suite's running worlds.
 # BENCH (default /tmp/bench) is the benchmark folder on the device: a second suite in the same
