@@ -44,6 +44,10 @@ RUNS = (
             " (the GPU preset since), alone on an H100"
         ),
     ),
+    (
+        "issue37-equal/worlds/*/result.json",
+        "the GPU preset with splat chunks of equal length, a world a call, alone on an H100",
+    ),
 )
 
 
