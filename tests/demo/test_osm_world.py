@@ -174,6 +174,46 @@ def test_an_extract_without_drivable_roads_says_what_it_has(tmp_path: Path) -> N
         osm_demo_world(_osm(tmp_path, nodes + way))
 
 
+def _straight_way(
+    way_id: int, first_node: int, n: int, lon0: float, highway: str, gap_m: float
+) -> str:
+    """``n`` nodes ``gap_m`` apart eastwards at 48 N from ``lon0``, joined by one way."""
+    step = gap_m / (111_320.0 * math.cos(math.radians(48.0)))
+    ids = range(first_node, first_node + n)
+    nodes = "".join(
+        f"<node id='{i}' lat='48.0' lon='{lon0 + k * step:.7f}' version='1'/>"
+        for k, i in enumerate(ids)
+    )
+    refs = "".join(f"<nd ref='{i}'/>" for i in ids)
+    tags = f"<tag k='highway' v='{highway}'/><tag k='lanes' v='2'/>"
+    return nodes + f"<way id='{way_id}' version='1'>{refs}{tags}</way>"
+
+
+def test_an_extract_of_main_roads_gives_a_route_on_them_and_says_so(tmp_path: Path) -> None:
+    # A residential stub of 50 m (too short for a route) and a primary road of 400 m.
+    stub = _straight_way(20, 100, 2, 11.01, "residential", 50.0)
+    path = _osm(tmp_path, stub + _straight_way(10, 1, 5, 11.0, "primary", 100.0))
+    plan = osm_demo_world(path)
+    assert any(n.startswith("no route on residential/unclassified/tertiary") for n in plan.notes)
+    assert plan.world.street.length_m == pytest.approx(400.0, abs=5.0)
+    assert plan.world.street.lane_markings  # main roads are marked
+    # Without the primary road the stub alone is refused, the message naming what was tried.
+    with pytest.raises(StageError, match="no drivable path of 100 m or more on residential"):
+        osm_demo_world(_osm(tmp_path, stub))
+
+
+def test_a_real_junction_of_main_roads_gives_routes(tmp_path: Path) -> None:
+    from cam2sim.demo.osm_world import count_routes
+
+    path = _real("moosacher_lerchenauer.osm")  # primary and secondary roads only
+    plan = osm_demo_world(path)
+    assert any("may use living_street/secondary/primary" in n for n in plan.notes)
+    assert plan.world.street.length_m >= 300.0
+    assert len(count_routes(path, 3)) >= 2
+    # An extract with residential routes keeps to them.
+    assert not any("no route on" in n for n in osm_demo_world(_real("munich.osm")).notes)
+
+
 def test_an_extract_of_only_deletes_is_refused(tmp_path: Path) -> None:
     body = "<node id='1' lat='48.0' lon='11.0' action='delete' version='1'/>"
     with pytest.raises(StageError):

@@ -8,17 +8,21 @@
   ``highway=residential|unclassified|tertiary`` ways (both directions open, no U-turns, no loop
   around a block narrower than 60 m), with at least two bends, preferring about 350 m near the
   middle of the extract; without such a path, the one with most bends and closest to that
-  length, or without any of 300 m the longest, saying so in the world's notes. Every corner of
+  length, or without any of 300 m the longest, saying so in the world's notes. Where the
+  extract has no such path of 100 m at all (an extract of main roads or of one junction),
+  ``living_street``, ``secondary`` and ``primary`` ways are taken too (:data:`MAIN_ROADS`), the
+  notes saying so; the street is still the demo's two-lane one. Every corner of
   the way geometry is rounded by the largest arc that fits
   (:meth:`~cam2sim.demo.route.PiecewiseRoute.from_polyline`, at least 26 m: a corner sharper
   than that is not drivable at the demo's speed and its paths are skipped).
 * **The street** (:class:`~cam2sim.demo.world.DemoStreet`): the cross-section from the tags of
   the way the route follows longest (``width`` / ``lanes`` give the lane width, kept within
-  3.0-4.0 m, else 3.5 m; lane markings when ``lanes`` is tagged or the road is tertiary and
-  ``lane_markings`` is not ``no``); parked cars where ``parking:lane:*`` / ``parking:*`` allow
-  them, nowhere where they forbid them, at the demo's seeded density where the tags say nothing,
-  and never within 10 m of a junction; 25 km/h, or ``maxspeed`` when lower. The local frame is
-  the UTM grid of the route's start (:class:`~cam2sim.core.frames.GridFrame`).
+  3.0-4.0 m, else 3.5 m; lane markings when ``lanes`` is tagged or the road is tertiary or a
+  main road and ``lane_markings`` is not ``no``); parked cars where ``parking:lane:*`` /
+  ``parking:*`` allow them, nowhere where they forbid them, at the demo's seeded density where
+  the tags say nothing, and never within 10 m of a junction; 25 km/h, or ``maxspeed`` when
+  lower. The local frame is the UTM grid of the route's start
+  (:class:`~cam2sim.core.frames.GridFrame`).
 * **The buildings**: the extract's real footprints (``building=*``, heights from ``height`` or
   ``building:levels``) within 60 m of the street, except those the drawn street runs into; plain
   facades where the street has none within 25 m (as the built-in streets have).
@@ -40,7 +44,7 @@ import re
 from collections import Counter
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Final
+from typing import TYPE_CHECKING, Final, TypeVar
 
 import numpy as np
 
@@ -52,7 +56,7 @@ from cam2sim.map.buildings import building_footprints
 from cam2sim.map.osm import BBox, read_osm
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator, Mapping, Sequence
+    from collections.abc import Callable, Iterator, Mapping, Sequence
 
     import numpy.typing as npt
 
@@ -60,6 +64,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "DRIVABLE",
+    "MAIN_ROADS",
     "OsmRoute",
     "OsmWorldPlan",
     "count_routes",
@@ -70,9 +75,13 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
+_T = TypeVar("_T")
 
 DRIVABLE: Final = ("residential", "unclassified", "tertiary")
-"""The ``highway`` values a demo route may use."""
+"""The ``highway`` values a demo route uses."""
+MAIN_ROADS: Final = ("living_street", "secondary", "primary")
+"""Taken too where the extract has no path on :data:`DRIVABLE` roads alone (an extract of main
+roads, or of a junction): the route then says so in its notes."""
 ROUTE_MIN_M: Final = 300.0
 ROUTE_SHORTEST_M: Final = 100.0
 """The shortest route taken when an extract has no path of :data:`ROUTE_MIN_M`."""
@@ -114,6 +123,7 @@ class _Graph:
 
     osm: OsmData
     frame: GridFrame
+    kinds: tuple[str, ...]  # the highway values of its ways
     ways: tuple[int, ...]  # indices into osm.ways
     xy: npt.NDArray[np.float64]  # (N, 2) node positions, local frame
     node_ids: npt.NDArray[np.int64]  # (N,) OSM ids
@@ -169,17 +179,17 @@ def _oneway(tags: Mapping[str, str]) -> int:
     return 0
 
 
-def _graph(osm: OsmData) -> _Graph:
+def _graph(osm: OsmData, kinds: tuple[str, ...] = DRIVABLE) -> _Graph:
     ways = tuple(
         k
         for k, w in enumerate(osm.ways)
-        if w.tags.get("highway") in DRIVABLE and w.tags.get("area") != "yes" and len(w.refs) > 1
+        if w.tags.get("highway") in kinds and w.tags.get("area") != "yes" and len(w.refs) > 1
     )
     if not ways:
         found = Counter(w.tags["highway"] for w in osm.ways if "highway" in w.tags)
         have = ", ".join(f"{k} ({n})" for k, n in found.most_common(8)) or "no highway at all"
         msg = (
-            f"{osm.source} has no drivable road for the demo (highway={'/'.join(DRIVABLE)}); it "
+            f"{osm.source} has no drivable road for the demo (highway={'/'.join(kinds)}); it "
             f"has: {have}. Export an area with residential streets"
         )
         raise StageError(msg)
@@ -211,6 +221,7 @@ def _graph(osm: OsmData) -> _Graph:
     return _Graph(
         osm=osm,
         frame=frame,
+        kinds=kinds,
         ways=ways,
         xy=xy,
         node_ids=osm.node_id[used],
@@ -346,7 +357,7 @@ def _route_notes(route: OsmRoute) -> list[str]:
 def _no_route(graph: _Graph, seen: int) -> StageError:
     msg = (
         f"{graph.osm.source} has no drivable path of {ROUTE_SHORTEST_M:.0f} m or more on "
-        f"{'/'.join(DRIVABLE)} roads with corners of {MIN_RADIUS_M:.0f} m radius or more "
+        f"{'/'.join(graph.kinds)} roads with corners of {MIN_RADIUS_M:.0f} m radius or more "
         f"({seen} paths tried); give --route LAT,LON LAT,LON or a larger extract"
     )
     return StageError(msg)
@@ -419,6 +430,31 @@ def pick_routes(graph: _Graph, count: int) -> list[tuple[OsmRoute, list[str]]]:
     return picked
 
 
+def _on_roads(osm: OsmData, find: Callable[[_Graph], _T]) -> tuple[_Graph, _T, list[str]]:
+    """``find`` on the graph of :data:`DRIVABLE` roads, else on one with :data:`MAIN_ROADS` too.
+
+    The wider graph is tried only where the first has no road or ``find`` finds nothing on it
+    (a :class:`StageError` or :class:`ConfigError`) and the extract has main roads; its error,
+    which names every road kind tried, is the one raised when that fails too.
+
+    Returns:
+        The graph used, what ``find`` returned on it, and a note when it is the wider one.
+    """
+    try:
+        graph = _graph(osm)
+        return graph, find(graph), []
+    except (StageError, ConfigError):
+        if not any(w.tags.get("highway") in MAIN_ROADS for w in osm.ways):
+            raise
+    graph = _graph(osm, DRIVABLE + MAIN_ROADS)
+    found = find(graph)
+    note = (
+        f"no route on {'/'.join(DRIVABLE)} roads alone: the route may use "
+        f"{'/'.join(MAIN_ROADS)} roads too, drawn as the demo's two-lane street"
+    )
+    return graph, found, [note]
+
+
 def count_routes(path: Path, wanted: int) -> list[str]:
     """The distinct demo routes of the OSM file ``path``, up to ``wanted``: one line each.
 
@@ -427,9 +463,9 @@ def count_routes(path: Path, wanted: int) -> list[str]:
     Raises:
         StageError: The file cannot be read or holds no drivable path.
     """
-    graph = _graph(read_osm(Path(path)))
+    graph, routes, _ = _on_roads(read_osm(Path(path)), lambda g: pick_routes(g, wanted))
     lines = []
-    for route, _ in pick_routes(graph, wanted):
+    for route, _ in routes:
         ll = graph.frame.to_wgs84(route.xy[[0, -1]])
         lines.append(
             f"{route.route.length_m:.0f} m, {route.bends} bends, from "
@@ -466,7 +502,7 @@ def _snap(graph: _Graph, lat: float, lon: float, text: str) -> int:
     if off > _ROUTE_SNAP_M:
         msg = (
             f"--route point {text} is {off:.0f} m from the nearest drivable road of "
-            f"{graph.osm.source} ({'/'.join(DRIVABLE)}); give a point on such a road"
+            f"{graph.osm.source} ({'/'.join(graph.kinds)}); give a point on such a road"
         )
         raise ConfigError(msg)
     return int(np.argmin(np.hypot(*(graph.xy - p).T)))
@@ -560,7 +596,7 @@ def _street(
     if limit is not None and limit / 3.6 < speed:
         speed = max(limit, 15.0) / 3.6
     markings = main.get("lane_markings") != "no" and (
-        "lanes" in main or main.get("highway") == "tertiary"
+        "lanes" in main or main.get("highway") in {"tertiary", "secondary", "primary"}
     )
     # Parking: per segment of the path, on the route's left and right.
     scale = route.route.length_m / max(float(seg.sum()), 1e-9)
@@ -696,11 +732,10 @@ def osm_demo_world(
         msg = f"--route takes two points LAT,LON LAT,LON, got {len(route)}"
         raise ConfigError(msg)
     osm = read_osm(path)
-    graph = _graph(osm)
     if route:
-        picked, notes = route_between(graph, *route)
+        graph, (picked, notes), wider = _on_roads(osm, lambda g: route_between(g, *route))
     elif pick:
-        routes = pick_routes(graph, pick + 1)
+        graph, routes, wider = _on_roads(osm, lambda g: pick_routes(g, pick + 1))
         if len(routes) <= pick:
             msg = (
                 f"{path} has {len(routes)} distinct drivable route(s) for the demo, not "
@@ -709,7 +744,8 @@ def osm_demo_world(
             raise StageError(msg)
         picked, notes = routes[pick]
     else:
-        picked, notes = pick_route(graph)
+        graph, (picked, notes), wider = _on_roads(osm, pick_route)
+    notes = [*wider, *notes]
     # The local frame: the UTM grid with its origin at the route's start.
     shift = np.round(picked.xy[0])
     frame = replace(
