@@ -249,3 +249,19 @@ def test_a_picked_route_builds_its_own_world_and_too_many_are_refused() -> None:
     assert first.route.nodes != second.route.nodes
     with pytest.raises(StageError, match=r"distinct drivable route\(s\).*ask for fewer"):
         osm_demo_world(path, pick=5)
+
+
+def test_a_picked_route_cut_at_400_m_is_built_as_picked() -> None:
+    from cam2sim.demo.osm_world import PICK_CUT_M, _graph, pick_routes
+    from cam2sim.map.osm import read_osm
+
+    # West-Oakland's fourth route runs on past 400 m: picked cut there, it was built cut at
+    # 500 m instead (452 m where 389 m were picked).
+    path = _real("West-Oakland.osm.bz2")
+    picked, _ = pick_routes(_graph(read_osm(path)), 4)[3]
+    kept = float(np.hypot(*np.diff(picked.xy, axis=0).T).sum())
+    assert kept == pytest.approx(PICK_CUT_M, abs=0.01)  # the path was cut
+    plan = osm_demo_world(path, pick=3)
+    assert plan.route.route.length_m == pytest.approx(picked.route.length_m, abs=0.01)
+    assert plan.route.nodes == picked.nodes
+    assert plan.world.street.length_m < PICK_CUT_M

@@ -752,7 +752,11 @@ def osm_demo_world(
         graph.frame, origin=(graph.frame.origin[0] + shift[0], graph.frame.origin[1] + shift[1])
     )
     graph = replace(graph, frame=frame, xy=graph.xy - shift)
-    moved = _route_of(graph, list(picked.nodes), list(picked.ways), list(picked.forward))
+    # The same path moved, cut where it was picked (400 m; 500 between two given points): its
+    # nodes run on to the end of the segment that holds the cut.
+    kept_m = float(np.hypot(*np.diff(picked.xy, axis=0).T).sum())
+    nodes, ways, forward = list(picked.nodes), list(picked.ways), list(picked.forward)
+    moved = _route_of(graph, nodes, ways, forward, cut_m=kept_m + 1e-6)
     assert moved is not None  # the same path, moved
     picked = moved
     street, street_notes = _street(graph, picked, _world_name(path, route, pick), path.name)
