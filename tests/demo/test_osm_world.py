@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cam2sim.core.errors import ConfigError, StageError
-from cam2sim.demo.osm_world import MIN_RADIUS_M, ROUTE_MAX_M, osm_demo_world
+from cam2sim.demo.osm_world import MIN_RADIUS_M, PICK_CUT_M, osm_demo_world
 from cam2sim.demo.route import PiecewiseRoute
 
 OSM_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "osm"
@@ -84,7 +84,7 @@ def test_real_extracts_give_a_drivable_route_with_two_bends(name: str, crs: str)
     plan = osm_demo_world(_real(name))
     street = plan.world.street
     assert street.crs == crs
-    assert 295.0 <= street.length_m <= ROUTE_MAX_M
+    assert 295.0 <= street.length_m <= PICK_CUT_M + 5.0  # picked paths are cut at 400 m
     assert len(street.route.bend_turns()) >= 2
     assert all(abs(k) <= 1 / MIN_RADIUS_M + 1e-9 for _, k in plan.route.route.pieces)
     # The street's reference line follows the OSM way; the car drives half a lane right of it.
@@ -252,7 +252,7 @@ def test_a_picked_route_builds_its_own_world_and_too_many_are_refused() -> None:
 
 
 def test_a_picked_route_cut_at_400_m_is_built_as_picked() -> None:
-    from cam2sim.demo.osm_world import PICK_CUT_M, _graph, pick_routes
+    from cam2sim.demo.osm_world import _graph, pick_routes
     from cam2sim.map.osm import read_osm
 
     # West-Oakland's fourth route runs on past 400 m: picked cut there, it was built cut at

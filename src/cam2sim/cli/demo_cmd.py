@@ -51,7 +51,7 @@ def demo(
             metavar="LAT,LON LAT,LON",
             help=(
                 "With --osm: drive the shortest road path between these two points (else a "
-                "300-500 m route with two bends is picked)."
+                "300-400 m route with two bends is picked)."
             ),
         ),
     ] = None,

@@ -345,7 +345,7 @@ def _best_route(
 
 def _route_notes(route: OsmRoute) -> list[str]:
     length = route.route.length_m
-    span = f"{ROUTE_MIN_M:.0f}-{ROUTE_MAX_M:.0f} m"
+    span = f"{ROUTE_MIN_M:.0f}-{PICK_CUT_M:.0f} m"
     if length < ROUTE_MIN_M - 5.0:
         note = f"no drivable path of {span} here: took the longest, "
         return [note + f"{length:.0f} m with {route.bends} bends"]
