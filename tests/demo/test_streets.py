@@ -35,6 +35,9 @@ def test_the_paper_street_is_the_papers() -> None:
     assert world.truth_world().lane_markings is False
     assert L_STREET.lane_markings
     assert demo_world(0).truth_world().lane_markings
+    # The truth world says what it is (the report's inputs show it).
+    noted = world.truth_world(notes=("built-in",))
+    assert (noted.title, noted.notes) == (street.title, ("built-in",))
 
 
 def test_parked_cars_narrow_the_lane_but_leave_the_recorded_car_room() -> None:

@@ -21,7 +21,13 @@ from cam2sim.scenario.synthetic import StreetSpec
 from cam2sim.splat.evaluate import SplatEval
 from cam2sim.stages.evaluate import EvaluateOptions, evaluate_workspace
 from cam2sim.stages.runs import DriveOptions, ReplayOptions, drive, replay
-from conftest import has_egl, launch_chromium, playwright_with_chromium, street_workspace
+from conftest import (
+    has_egl,
+    launch_chromium,
+    playwright_with_chromium,
+    street_workspace,
+    truth_workspace,
+)
 
 #: Where the Chromium test keeps its full-page screenshot (CI uploads ``test-artifacts/``).
 SCREENSHOT_ENV = "CAM2SIM_REPORT_SCREENSHOT"
@@ -421,6 +427,27 @@ def test_an_imported_workspace_names_its_images_as_its_input(tmp_path: Path) -> 
     html = write_report(Workspace.open(tmp_path / "ws")).read_text(encoding="utf-8")
     assert f"<td>imported</td><td>{tmp_path / 'frames'}</td>" in html
     assert "recording bags" not in html
+
+
+def test_the_ground_truth_worlds_title_and_notes_are_inputs(tmp_path: Path) -> None:
+    from cam2sim.render.truth import TruthWorld, truth_world_path
+
+    ws = truth_workspace(tmp_path / "ws", StreetSpec(length_m=30.0, radius_m=60.0))
+    html = write_report(ws).read_text(encoding="utf-8")
+    assert "ground-truth world" not in html  # a world without a title says nothing
+    path = truth_world_path(ws.root)
+    notes = ("no route on residential roads alone: <main roads> too", "route picked among 25")
+    titled = TruthWorld.load(path).model_copy(
+        update={"title": "Lerchenauer Straße", "notes": notes}
+    )
+    titled.save(path)
+    assert TruthWorld.load(path).notes == notes  # written and read back
+    html = write_report(ws).read_text(encoding="utf-8")
+    assert "<td>ground-truth world</td><td>Lerchenauer Straße</td>" in html
+    assert (
+        "<td>world note</td><td>no route on residential roads alone: &lt;main roads&gt; too" in html
+    )
+    assert html.count("<td>world note</td>") == 2
 
 
 def test_frame_clips_are_written_without_ffmpegs_codec_warning(

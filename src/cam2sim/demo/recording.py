@@ -29,6 +29,8 @@ from cam2sim.demo.world import (
 )
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from cam2sim.core.progress import ProgressCallback
 
 __all__ = ["DemoRecording", "build_demo_recording", "load_demo_recording", "recorded_street"]
@@ -125,12 +127,14 @@ def build_demo_recording(
     seed: int = 0,
     street: DemoStreet = L_STREET,
     world: DemoWorld | None = None,
+    notes: Sequence[str] = (),
     progress: ProgressCallback | None = None,
 ) -> DemoRecording:
     """Write the demo's OSM file, bag, config and ground truth of ``street`` into ``out_dir``.
 
     ``world`` (a world on ``street`` built elsewhere, e.g. from a real OSM file by
-    :func:`~cam2sim.demo.osm_world.osm_demo_world`) replaces :func:`demo_world`'s.
+    :func:`~cam2sim.demo.osm_world.osm_demo_world`) replaces :func:`demo_world`'s; ``notes``
+    (how it was made) go into the ground-truth world with the street's title.
 
     Every file is written atomically, and ``demo.json`` last: a folder with it is complete
     (:func:`load_demo_recording` reads it back).
@@ -160,7 +164,7 @@ def build_demo_recording(
         "buildings": [{"xy": [list(p) for p in b.xy], "levels": b.levels} for b in world.buildings],
     }
     write_text_atomic(truth, json.dumps(data, indent=1) + "\n")
-    world.truth_world(seed=seed).save(root / _TRUTH_WORLD)
+    world.truth_world(seed=seed, notes=notes).save(root / _TRUTH_WORLD)
     duration = street.duration_s
     meta = {
         "version": _VERSION,

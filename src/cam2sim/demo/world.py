@@ -68,6 +68,7 @@ from cam2sim.render.truth import TruthBuilding, TruthCar, TruthLook, TruthWorld
 from cam2sim.scenario.synthetic import lane_section_xml
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
     from pathlib import Path
 
     import numpy.typing as npt
@@ -354,8 +355,11 @@ class DemoWorld:
         """The scene the LiDAR scans: flat ground, car boxes, building boxes."""
         return self.truth_world().lidar_scene()
 
-    def truth_world(self, *, seed: int = 0) -> TruthWorld:
-        """The world as the workspace's ground truth (the truth camera's world, UTM 32N)."""
+    def truth_world(self, *, seed: int = 0, notes: Sequence[str] = ()) -> TruthWorld:
+        """The world as the workspace's ground truth (the truth camera's world, UTM 32N).
+
+        ``notes`` say how the world was made (they go into the report with its title).
+        """
         return TruthWorld(
             crs=self.street.crs,
             origin=self.street.origin,
@@ -364,6 +368,8 @@ class DemoWorld:
             buildings=tuple(TruthBuilding(xy=b.xy, height_m=b.height_m) for b in self.buildings),
             look=TruthLook(kind="photographic", seed=seed),
             lane_markings=self.street.lane_markings,
+            title=self.street.title,
+            notes=tuple(notes),
         )
 
     def raster_scene(self) -> RasterScene:

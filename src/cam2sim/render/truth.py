@@ -110,6 +110,8 @@ class TruthWorld(Artifact):
         buildings: Buildings.
         look: The camera's look (and the seed of its textures and noise).
         lane_markings: Whether the roadway has markings between its driving lanes.
+        title: What the world is, in a line (the demo's street title; empty when not given).
+        notes: How it was made (a route picked from an OSM extract: which, and what it lacks).
     """
 
     crs: str
@@ -119,6 +121,8 @@ class TruthWorld(Artifact):
     buildings: tuple[TruthBuilding, ...] = ()
     look: TruthLook = TruthLook()
     lane_markings: bool = True
+    title: str = ""
+    notes: tuple[str, ...] = ()
 
     def lidar_scene(self) -> StreetScene:
         """The scene a ray-cast LiDAR scans: flat ground, car boxes, building boxes.

@@ -234,6 +234,12 @@ def _summary(ctx: ReportContext) -> str:
     )
     parts = [intro]
     inputs = _inputs(ctx, manifest)
+    if ctx.ws.truth_world_json.is_file():  # a demo's or a benchmark's world: what it is
+        from cam2sim.render.truth import TruthWorld  # noqa: PLC0415 -- lazy: numpy
+
+        world = TruthWorld.load(ctx.ws.truth_world_json)
+        inputs += [("ground-truth world", world.title)] if world.title else []
+        inputs += [("world note", note) for note in world.notes]
     if ctx.scenario is not None:
         sc = ctx.scenario
         inputs += [

@@ -230,6 +230,7 @@ def run_experiment(
             seed=opts.seed,
             street=street,
             world=world,
+            notes=notes,
             progress=sink,
         )
         built_s = time.perf_counter() - started
