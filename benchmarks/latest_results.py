@@ -16,8 +16,8 @@ import argparse
 import shutil
 from pathlib import Path
 
-from cam2sim.metrics.benchmark import WorldResult, aggregate
-from cam2sim.report.bench import write_bench_report
+from cam2sim.metrics.benchmark import WorldResult
+from merge_bench import write_report  # this folder's: one report over the results
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
 
@@ -56,27 +56,25 @@ def main() -> None:
     parser.add_argument("--html", action="store_true", help="keep the HTML report too")
     parser.add_argument("-o", "--out", type=Path, default=RESULTS / "issue37-latest")
     args = parser.parse_args()
-    latest: dict[str, tuple[Path, str]] = {}
+    latest: dict[str, tuple[Path, WorldResult, str]] = {}
     for pattern, run in RUNS:
         for path in sorted(RESULTS.glob(pattern)):
             folder = path.relative_to(RESULTS).parts[0]
-            latest[WorldResult.load(path).label] = (path, f"{run} (docs/results/{folder})")
+            result = WorldResult.load(path)
+            latest[result.label] = (path, result, f"{run} (docs/results/{folder})")
     if args.out.exists():
         shutil.rmtree(args.out)
-    results = []
-    for label, (path, _run) in sorted(latest.items()):
+    for label, (path, _result, _run) in sorted(latest.items()):
         (args.out / "worlds" / label).mkdir(parents=True)
         shutil.copy(path, args.out / "worlds" / label / "result.json")
-        results.append(WorldResult.load(path))
+    results = [result for _label, (_path, result, _run) in sorted(latest.items())]
     name = "streets-gpu: each street's latest run (mixed presets)"
-    report = write_bench_report(args.out, results, aggregate(results), name=name)
-    if not args.html:
-        report.unlink()
-    lines = [f"- {label}: {run}\n" for label, (_path, run) in sorted(latest.items())]
+    headline = write_report(args.out, results, name, html=args.html)
+    lines = [f"- {label}: {run}\n" for label, (_path, _result, run) in sorted(latest.items())]
     (args.out / "SOURCES.md").write_text(
         "# Which run each street's result comes from\n\n" + "".join(lines)
     )
-    print((args.out / "summary.md").read_text().split("\n## ")[0])
+    print(headline)
 
 
 if __name__ == "__main__":

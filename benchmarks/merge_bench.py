@@ -18,6 +18,18 @@ from cam2sim.metrics.benchmark import WorldResult, aggregate
 from cam2sim.report.bench import write_bench_report
 
 
+def write_report(out: Path, results: list[WorldResult], name: str, *, html: bool) -> str:
+    """The bench report over ``results`` into ``out`` (the HTML page only with ``html``).
+
+    Returns:
+        The summary's headline (its text before the first section).
+    """
+    report = write_bench_report(out, results, aggregate(results), name=name)
+    if not html:
+        report.unlink()
+    return (out / "summary.md").read_text().split("\n## ")[0]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folders", type=Path, nargs="+", help="benchmark folders (worlds/*/)")
@@ -42,10 +54,7 @@ def main() -> None:
     if not results:
         parser.error("no worlds/*/result.json in the folders given")
     ordered = [results[label] for label in sorted(results)]
-    report = write_bench_report(args.out, ordered, aggregate(ordered), name=args.name)
-    if not args.html:
-        report.unlink()
-    print((args.out / "summary.md").read_text().split("\n## ")[0])
+    print(write_report(args.out, ordered, args.name, html=args.html))
 
 
 if __name__ == "__main__":
