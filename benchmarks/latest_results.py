@@ -48,6 +48,10 @@ RUNS = (
         "issue37-equal/worlds/*/result.json",
         "the GPU preset with splat chunks of equal length, a world a call, alone on an H100",
     ),
+    (
+        "issue37-picked/worlds/*/result.json",
+        "the GPU preset, routes driven as picked (300-400 m), a world a call, alone on an H100",
+    ),
 )
 
 
