@@ -72,10 +72,13 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
 
 
 def test_every_world_runs_the_whole_experiment(bench: tuple[Path, object]) -> None:
+    from cam2sim.campaign.suite import expand_suite, load_suite
     from cam2sim.metrics.benchmark import WorldResult
     from cam2sim.report.bench import steering_gap_peak
 
     root, result = bench
+    specs = {s.label: s for s in expand_suite(load_suite(root / "suite.yaml"), root)}
+    assert specs["l-street"].run_seed != specs["street-r0"].run_seed
     assert (result.worlds, result.ran, result.failed) == (3, 3, 1)  # type: ignore[attr-defined]
     labels = [w.label for w in result.results]  # type: ignore[attr-defined]
     assert labels == ["l-street", "street-r0"]
@@ -116,6 +119,10 @@ def test_every_world_runs_the_whole_experiment(bench: tuple[Path, object]) -> No
             assert (root / "out" / "worlds" / label / failure.image).is_file()
             assert failure.views == ["splat", "truth", "raster"]
         assert world.tuned == (label == "l-street")
+        # Each street's closed-loop runs are seeded from its label (all cameras alike).
+        drives = (root / "out" / "worlds" / label / "ws" / "runs").glob("*-drive-*/run.json")
+        seeds = {json.loads(p.read_text())["seed"] for p in drives}
+        assert seeds == {specs[label].run_seed}
         assert "recording" in world.step_seconds
         assert "report" not in world.step_seconds  # the world's own report is left out
 

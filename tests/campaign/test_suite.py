@@ -142,3 +142,25 @@ def test_the_splat_settings_change_the_preset_and_the_world_ids(tmp_path: Path) 
     assert train.densify.max_gaussians == 300_000
     assert train.densify.strategy == preset.densify.strategy  # only the cap differs
     assert both.prepare == SplatStageOptions.demo(cuda=False).prepare
+
+
+def test_each_world_draws_its_own_runs_unless_the_suite_shares_the_seeds(tmp_path: Path) -> None:
+    from cam2sim.stages.variation import DEMO_RUN_VARIATION
+
+    specs = expand_suite(load_suite(_suite(tmp_path / "a")), tmp_path / "a")
+    seeds = [s.run_seed for s in specs]
+    assert len(set(seeds)) == len(seeds)  # no two streets run the same draws
+    # The seed comes from the label alone: the same on another machine, from another folder.
+    again = expand_suite(load_suite(_suite(tmp_path / "b")), tmp_path / "b")
+    assert [s.run_seed for s in again] == seeds
+    # Their start offsets differ from street to street, as repeated drives of different
+    # streets would (with seeds 0, 1, 2 everywhere, every street drew the same three).
+    starts = {round(DEMO_RUN_VARIATION.draw(seed).lateral_m, 6) for seed in seeds}
+    assert len(starts) == len(seeds)
+    shared = expand_suite(
+        load_suite(_suite(tmp_path / "c", SUITE + "settings:\n  run_seeds: shared\n")),
+        tmp_path / "c",
+    )
+    assert [s.run_seed for s in shared] == [0] * len(shared)
+    # Another experiment: shared seeds never resume a per-world suite's worlds.
+    assert not {s.spec_id for s in shared} & {s.spec_id for s in specs}

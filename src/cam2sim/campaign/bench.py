@@ -301,7 +301,7 @@ def _run_world(spec: WorldSpec, out: Path) -> str:
     # For the same reason DAVE-2 is not validated: the network that drives is the same one,
     # trained in about half the time (the demo's validated run is for its report).
     options = ExperimentOptions(
-        runs=spec.seeds, splat=splat, ads_epochs=settings.ads_epochs,
+        runs=spec.seeds, run_seed=spec.run_seed, splat=splat, ads_epochs=settings.ads_epochs,
         save_frames=settings.save_frames, skip=("report",), ads_validate=False,
     )  # fmt: skip
     done = run_experiment(out, source, options)

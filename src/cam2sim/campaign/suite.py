@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import zlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -124,6 +125,13 @@ class SuiteSettings(_Model):
     profile_every_m: float = pydantic.Field(
         10.0, gt=0, description="the splat against the truth every this many metres of route"
     )
+    run_seeds: Literal["per-world", "shared"] = pydantic.Field(
+        "per-world",
+        description="per-world: each world's runs are seeded from its label, so the streets' "
+        "start offsets, speeds and steering noise are independent draws; shared: every world "
+        "runs seeds 0 .. seeds-1 (the same draws on every street, as every suite run before "
+        "this setting)",
+    )
 
 
 class Suite(_Model):
@@ -174,6 +182,18 @@ class WorldSpec:
         content["settings"] = self.settings.model_dump(mode="json")
         digest = hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()[:10]
         return f"{self.label}-{digest}"
+
+    @property
+    def run_seed(self) -> int:
+        """Seed of the world's first closed-loop run (its runs: this, this + 1, ...).
+
+        With ``run_seeds: per-world`` a number below 10**6 from the label (CRC-32, the same on
+        every machine and run), so two streets never share their runs' draws, and the Real
+        column's spread on one street is not a copy of another's; ``shared``: 0.
+        """
+        if self.settings.run_seeds == "shared":
+            return 0
+        return zlib.crc32(self.label.encode()) % 1_000_000
 
     @property
     def needs_gpu(self) -> bool:

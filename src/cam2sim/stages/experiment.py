@@ -113,7 +113,9 @@ class ExperimentOptions:
     """How the experiment runs on a world.
 
     Attributes:
-        runs: Closed-loop runs per camera (seeds 0 .. runs-1).
+        runs: Closed-loop runs per camera (seeds ``run_seed`` .. ``run_seed + runs - 1``).
+        run_seed: Seed of the first closed-loop run (its start offset, speed and steering
+            noise); the demo's is 0, a benchmark world's comes from its label.
         seed: Seed of the world (parked cars, facades) and its recording's noise.
         steps: Pipeline steps (:data:`~cam2sim.stages.pipeline.STEPS`).
         skip: Steps not to run.
@@ -127,6 +129,7 @@ class ExperimentOptions:
     """
 
     runs: int = 3
+    run_seed: int = 0
     seed: int = 0
     steps: tuple[str, ...] = STEPS
     skip: tuple[str, ...] = ()
@@ -168,6 +171,7 @@ def experiment_pipeline_options(
         steps=options.steps,
         skip=options.skip,
         runs=options.runs,
+        run_seed=options.run_seed,
         replay_every=6,  # 20 Hz camera: 76 replayed frames on the default street
         steering_noise_std=DEMO_STEERING_NOISE,
         # Runs differ as a driver's repeated drives do: start pose and speed.

@@ -155,7 +155,12 @@ class PipelineOptions:
             models exist, plus (drive only) ``truth`` when the workspace has a ground-truth world
             (``WS/truth/world.json``; its runs are real-world runs). ``("none",)`` renders
             nothing (fast; pure-pursuit only).
-        runs: Drive runs per camera (seeds 0, 1, ...).
+        runs: Drive runs per camera (seeds ``run_seed``, ``run_seed + 1``, ...).
+        run_seed: Seed of each camera's first drive run: what its start offset, speed and
+            steering noise are drawn from (the same seed, the same draw, for every camera: runs
+            of one seed are paired). A benchmark gives each street its own
+            (:attr:`~cam2sim.campaign.suite.WorldSpec.run_seed`), so that the streets' runs are
+            independent draws.
         replay_every: Replay every n-th recorded frame (the report's frames and the image
             quality are computed on them). None: every frame, except with the splat camera
             and no CUDA, where every n-th keeps the replay within
@@ -212,6 +217,7 @@ class PipelineOptions:
     policy: str | None = None
     cameras: tuple[CameraName, ...] | None = None
     runs: int = 3
+    run_seed: int = 0
     replay_every: int | None = None
     steering_noise_std: float = 0.0
     run_variation: RunVariation | None = None
@@ -593,7 +599,7 @@ class _Pipeline:
                 policy=policy,
                 camera=cam,
                 runs=1,
-                seed=r,
+                seed=self.options.run_seed + r,
                 steering_noise_std=self.options.steering_noise_std,
                 variation=self.options.run_variation,
                 recorded_speed=recorded_speed,
