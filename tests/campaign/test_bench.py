@@ -123,6 +123,8 @@ def test_every_world_runs_the_whole_experiment(bench: tuple[Path, object]) -> No
         drives = (root / "out" / "worlds" / label / "ws" / "runs").glob("*-drive-*/run.json")
         seeds = {json.loads(p.read_text())["seed"] for p in drives}
         assert seeds == {specs[label].run_seed}
+        # The result names the world that made it (a changed suite runs it again).
+        assert (world.spec_id, world.run_seed) == (specs[label].spec_id, specs[label].run_seed)
         assert "recording" in world.step_seconds
         assert "report" not in world.step_seconds  # the world's own report is left out
 

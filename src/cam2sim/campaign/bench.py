@@ -37,7 +37,7 @@ from cam2sim.core.progress import ProgressCallback, no_progress
 from cam2sim.metrics.benchmark import FailureRow, MethodRow, WorldResult, aggregate
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping
+    from collections.abc import Mapping, Sequence
 
     from cam2sim.campaign.executors import Executor
     from cam2sim.campaign.suite import SuiteSettings, WorldSpec
@@ -259,6 +259,8 @@ def world_result(spec: WorldSpec, done: Experiment, seconds: float) -> WorldResu
         source = f"{spec.osm}, route {spec.route[0]} to {spec.route[1]}"
     return WorldResult(
         label=spec.label,
+        spec_id=spec.spec_id,
+        run_seed=spec.run_seed,
         title=done.title,
         tuned=spec.tuned,
         source=source,
@@ -351,6 +353,29 @@ def execute_world(spec: WorldSpec, log_path: str, timeout_s: float | None) -> Ru
 # -- the suite --------------------------------------------------------------------------------
 
 
+def _set_aside_stale(folder: Path, specs: Sequence[WorldSpec]) -> None:
+    """Rename each result another version of its world made, so that the world runs again.
+
+    A world's folder is named by its label; its ``result.json`` counts as done only when it
+    was made by the same world (its ``spec_id``: route, seeds, settings). One made by another
+    (the suite's settings or seeds changed since) becomes ``result.OTHER-HASH.json``, kept
+    beside the new one. Results written before ids were recorded count as done, as before.
+    """
+    for spec in specs:
+        path = _world_dir(folder, spec) / RESULT
+        if not path.is_file():
+            continue
+        made_by = WorldResult.load(path).spec_id
+        if made_by and made_by != spec.spec_id:
+            kept = path.with_name(f"result.{made_by.rsplit('-', 1)[-1]}.json")
+            path.replace(kept)
+            logger.warning(
+                "world %s: its result was made by another version of it (%s, not %s): kept as "
+                "%s, the world runs again",
+                spec.label, made_by, spec.spec_id, kept.name,
+            )  # fmt: skip
+
+
 def run_bench(
     suite_path: Path,
     *,
@@ -374,6 +399,7 @@ def run_bench(
     with campaign_lock(folder):
         state_path = folder / "state.json"
         state = CampaignState.load_or_new(state_path, suite.name or suite_path.stem)
+        _set_aside_stale(folder, specs)
         todo = [
             s
             for s in specs

@@ -110,6 +110,12 @@ class WorldResult(Artifact):
     """``BENCH/worlds/<label>/result.json``: one street of the suite, all its figures."""
 
     label: str
+    spec_id: str = pydantic.Field(
+        "",
+        description="the suite world's id (label and a hash of what it ran: its route, seeds, "
+        "settings); empty in results written before it was recorded",
+    )
+    run_seed: int | None = pydantic.Field(None, description="seed of the world's first run")
     title: str
     tuned: bool
     source: str
