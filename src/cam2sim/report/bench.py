@@ -41,7 +41,8 @@ COLOURS = METHOD_COLOURS
 _GLOSSARY = (
     "Real: the recorded drive plus DAVE-2's closed-loop runs in the ground-truth world (the "
     "truth camera); splat: DAVE-2 driving on the splat's images; Sim: on the simulator's raster "
-    "images. Runs of each method differ by seed (start pose, speed, steering noise)."
+    "images. Runs of each method differ by seed (start pose, speed, steering noise); the runs "
+    "of one seed are the same draw for every method (each result.json names its first seed)."
 )
 _CSS = """
 body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1100px;color:#222}
