@@ -55,6 +55,13 @@ RUNS = (
 )
 
 
+def _seeds(result: WorldResult) -> str:
+    """Which runs the street drew: its own seeds, or the ones every street shared before."""
+    if result.run_seed is None:
+        return "seeds 0-2, the same on every street (before commit e6e2692)"
+    return f"its own seeds from {result.run_seed}"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--html", action="store_true", help="keep the HTML report too")
@@ -74,7 +81,10 @@ def main() -> None:
     results = [result for _label, (_path, result, _run) in sorted(latest.items())]
     name = "streets-gpu: each street's latest run (mixed presets)"
     headline = write_report(args.out, results, name, html=args.html)
-    lines = [f"- {label}: {run}\n" for label, (_path, _result, run) in sorted(latest.items())]
+    lines = [
+        f"- {label}: {run}; {_seeds(result)}\n"
+        for label, (_path, result, run) in sorted(latest.items())
+    ]
     (args.out / "SOURCES.md").write_text(
         "# Which run each street's result comes from\n\n" + "".join(lines)
     )
