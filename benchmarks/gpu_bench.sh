@@ -30,7 +30,9 @@
 # from the script's start, so the wheels' install of the start call is inside it), then return.
 # RESULTS="DIR..." (start): folders of earlier results (DIR/worlds/LABEL/result.json, as
 # docs/results/issue37-gpu-recheck/a) are put in place first, so the suite runs only the
-# worlds still missing and the report covers all (a suite split over one-GPU sessions).
+# worlds still missing and the report covers all (a suite split over one-GPU sessions). A
+# result another version of its world made (other settings or seeds: its spec_id differs) is
+# set aside as result.HASH.json and that world runs again.
 # A machine can be taken back mid-call ("taken back for other work"), and /tmp with it: a
 # multi-world suite watched over several calls then loses every world it finished. Where that
 # matters, run a world a call, starting and collecting in the same call (the one-world suites
