@@ -40,7 +40,8 @@
 # Everything the suite reads lives in /tmp on the device: a carried folder that a later call does
 # not carry again is removed there, so .osm/ vanished under the first GPU suite's running worlds.
 # ENTRY=i (start) runs the suite's i-th world entry alone (streets-gpu-equal.yaml: one world a
-# call from one suite).
+# call from one suite); ENTRY=i,j,... keeps those entries (with WORKERS=2, two worlds at a time
+# sharing the GPU and its 16 cores: twice the worlds a session, each world's time then shared).
 # BENCH (default /tmp/bench) is the benchmark folder on the device: a second suite in the same
 # session gets its own (BENCH=/tmp/bench2 for its start, wait and collect).
 # CAM2SIM_SPLAT_PROFILE=1 on the start call times each training step's phases (host and device,
@@ -100,9 +101,10 @@ start)
   [ -n "$RESULTS" ] && echo "worlds with a result already: $(ls $bench/worlds/*/result.json | wc -l)"
   suite=${SUITE:-benchmarks/suites/streets-gpu.yaml}
   sed -E 's#osm: .*/([^/]+)$#osm: /tmp/osm/\1#' "$suite" > /tmp/suite.yaml
-  if [ -n "$ENTRY" ]; then # the suite's ENTRY-th world entry alone
+  if [ -n "$ENTRY" ]; then # the suite's ENTRY-th world entry alone (or entries i,j,...)
     python3 -c "import sys, yaml
-s = yaml.safe_load(open('/tmp/suite.yaml')); s['worlds'] = [s['worlds'][int(sys.argv[1])]]
+s = yaml.safe_load(open('/tmp/suite.yaml'))
+s['worlds'] = [s['worlds'][int(i)] for i in sys.argv[1].split(',')]
 yaml.safe_dump(s, open('/tmp/suite.yaml', 'w'), sort_keys=False)" "$ENTRY" || exit 1
   fi
   grep -n "osm:" /tmp/suite.yaml

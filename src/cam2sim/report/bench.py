@@ -46,7 +46,8 @@ _GLOSSARY = (
 )
 _CSS = """
 body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1100px;color:#222}
-table{border-collapse:collapse;margin:.6em 0}td,th{border:1px solid #ccc;padding:3px 8px;
+table{border-collapse:collapse;margin:.6em 0;font-size:.9em;display:block;max-width:100%;
+overflow-x:auto}td,th{border:1px solid #ccc;padding:3px 8px;
 text-align:right}th{background:#f2f2f2}td:first-child,th:first-child{text-align:left}
 caption{text-align:left;font-weight:600;padding:.3em 0}.verdict{font-size:1.2em;
 font-weight:600;background:#f6f6e8;padding:.6em;border-left:4px solid #996}
