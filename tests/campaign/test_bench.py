@@ -71,7 +71,7 @@ def bench(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
     return root, result
 
 
-def test_every_world_runs_the_whole_experiment(bench: tuple[Path, object]) -> None:
+def test_every_world_runs_the_whole_experiment(bench: tuple[Path, object]) -> None:  # noqa: PLR0915
     from cam2sim.campaign.suite import expand_suite, load_suite
     from cam2sim.metrics.benchmark import WorldResult
     from cam2sim.report.bench import steering_gap_peak
@@ -94,6 +94,13 @@ def test_every_world_runs_the_whole_experiment(bench: tuple[Path, object]) -> No
             else:
                 runs = row.min_frechet_runs_m
                 assert sum(runs) / len(runs) == pytest.approx(row.min_frechet_m)
+            # Every completed closed-loop run but Real's is measured against its Real twin.
+            twins = row.twin_frechet_runs_m
+            if row.method == "Real":
+                assert twins == []
+            else:
+                assert len(twins) == len(row.min_frechet_runs_m)
+                assert all(t >= 0.0 for t in twins)
         assert world.splat_steps
         # Each chunk's street Gaussians at its start and end (what a training step costs).
         assert len(world.splat_gaussians) == len(world.splat_start_gaussians)

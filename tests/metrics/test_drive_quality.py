@@ -182,6 +182,36 @@ def test_one_recorded_drive_gives_a_corridor_of_the_half_width_asked_for(
         DriveOptions(single_drive_half_width_m=-0.1)
 
 
+def test_a_run_is_measured_against_the_real_run_of_its_own_seed() -> None:
+    """Min-Fréchet takes the nearest Real run; the twin distance the one of the same start."""
+    base = _route()
+    n = _left_normal(base)
+    recorded = _run("real/recorded", base, real=True)
+    twins = [
+        _run(f"real/s{seed}", base + off * n, real=True, seed=seed)
+        for seed, off in ((7, 0.5), (8, -0.5))
+    ]
+    # Seed 7's splat run ends up 0.1 m right of the recording; its twin (seed 7) was 0.5 m
+    # left, so the camera moved it 0.6 m although the nearest Real run is 0.1 m away.
+    splat = _run("splat/s7", base - 0.1 * n, real=False, method="splat", seed=7)
+    orphan = _run("splat/s9", base - 0.1 * n, real=False, method="splat", seed=9)
+    ev = evaluate_drives([recorded, *twins], [splat, orphan])
+    runs = {r.name: r for r in ev.metrics.runs}
+    # (discrete Fréchet on points 0.5 m apart: within a few centimetres of the offsets)
+    near, twin = runs["splat/s7"].min_frechet_m, runs["splat/s7"].twin_frechet_m
+    assert runs["splat/s7"].min_frechet_vs == "real/recorded"
+    assert runs["splat/s7"].twin == "real/s7"
+    assert near is not None
+    assert twin is not None
+    assert near < 0.25
+    assert twin == pytest.approx(0.6, abs=0.1)
+    assert twin > near + 0.3
+    assert runs["splat/s9"].twin_frechet_m is None  # no Real run of its seed
+    assert runs["real/s7"].twin_frechet_m is None  # Real runs have no twin but themselves
+    (summary,) = (m for m in ev.metrics.methods if m.method == "splat")
+    assert summary.avg_twin_frechet_m == pytest.approx(twin)
+
+
 def test_a_run_stopping_within_the_end_tolerance_is_not_metres_from_the_recording() -> None:
     """A simulated run ends within the route's end tolerance (3 m), a recorded drive at its
     last pose: two completed runs are compared up to where the first stopped. A failed run is

@@ -131,6 +131,11 @@ def _method_rows(ws: Workspace) -> tuple[list[MethodRow], DriveMetrics]:
                 for r in metrics.runs
                 if r.method == m.method and r.success and r.min_frechet_m is not None
             ],
+            twin_frechet_runs_m=[
+                r.twin_frechet_m
+                for r in metrics.runs
+                if r.method == m.method and r.success and r.twin_frechet_m is not None
+            ],
         )
         for m in metrics.methods
     ]

@@ -78,6 +78,14 @@ class MethodRow(_Model):
         default_factory=list,
         description="Min-Fréchet of each run that completed (min_frechet_m is their mean)",
     )
+    twin_frechet_runs_m: list[float] = pydantic.Field(
+        default_factory=list,
+        description=(
+            "Fréchet distance of each completed closed-loop run to the Real run of its seed "
+            "(its twin: the same drawn start, the truth world's camera); empty for Real and "
+            "for results made before it was measured"
+        ),
+    )
 
     @property
     def closed_loop_runs(self) -> int:
@@ -171,6 +179,13 @@ class StreetPair(_Model):
     frechet_ratio: float | None
     frechet_ratio_low: float | None = None
     frechet_ratio_high: float | None = None
+    splat_twin_frechet_m: float | None = pydantic.Field(
+        None,
+        description=(
+            "mean Fréchet distance of the splat runs to their Real twins (same seed, same "
+            "start: what the splat's images alone changed), metres"
+        ),
+    )
     splat_matches_real: bool | None
     sim_fails: bool | None
     sim_corridor_excess_pct: float | None
@@ -298,6 +313,11 @@ def _pair(world: WorldResult) -> StreetPair:
         frechet_ratio=ratio,
         frechet_ratio_low=None if interval is None else interval[0],
         frechet_ratio_high=None if interval is None else interval[1],
+        splat_twin_frechet_m=(
+            _mean(splat.twin_frechet_runs_m)
+            if splat is not None and splat.twin_frechet_runs_m
+            else None
+        ),
         splat_matches_real=matches,
         sim_fails=sim_fails,
         sim_corridor_excess_pct=excess,

@@ -85,6 +85,8 @@ class DriveRun:
         source: File or folder it came from.
         splat_quality: The splat's quality along the run (``run.json``'s ``splat_quality``,
             runs with the splat camera); None for other runs and older run folders.
+        seed: The drive's seed (``run.json``), None where unknown (recorded drives): runs of
+            one seed start from the same drawn pose whatever their camera.
     """
 
     name: str
@@ -99,6 +101,7 @@ class DriveRun:
     events: tuple[RunEvent, ...] = ()
     source: str = ""
     splat_quality: SplatPathQuality | None = None
+    seed: int | None = None
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -201,6 +204,7 @@ def load_run_dir(path: Path, *, method: str | None = None) -> DriveRun:
         events=tuple(events),
         source=str(path),
         splat_quality=_splat_quality(path, meta),
+        seed=meta.seed,
     )
 
 

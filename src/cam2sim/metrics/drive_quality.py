@@ -119,6 +119,15 @@ class RunMetrics(pydantic.BaseModel):
     success: bool
     min_frechet_m: float | None = None
     min_frechet_vs: str | None = None
+    twin_frechet_m: float | None = pydantic.Field(
+        None,
+        description=(
+            "Fréchet distance to the closed-loop real run of the same seed (its twin: the same "
+            "drawn start and speed, only the camera differs); None for real runs and runs "
+            "without a twin"
+        ),
+    )
+    twin: str | None = None
     corridor_violation_pct: float | None = None
     mean_excess_m: float | None = None
     mean_excess_when_out_m: float | None = None
@@ -146,6 +155,7 @@ class MethodSummary(pydantic.BaseModel):
     completion_min: float
     completion_max: float
     avg_min_frechet_m: float | None
+    avg_twin_frechet_m: float | None = None
     avg_corridor_violation_pct: float | None
     avg_mean_excess_m: float | None
     avg_mean_excess_when_out_m: float | None
@@ -352,6 +362,42 @@ def _completion(p: _Projected, seg: Segment) -> float:
     return float(np.clip((p.max_progress - seg.start_m) / seg.length_m, 0.0, 1.0))
 
 
+def _pair_frechet(
+    p: _Projected,
+    o: _Projected,
+    mine: npt.NDArray[np.float64],
+    seg: Segment,
+    opts: DriveOptions,
+    cache: dict[tuple[str, str], float],
+) -> float | None:
+    """Fréchet distance of ``p`` (its segment points ``mine``) and ``o``, or None.
+
+    None where either has fewer than two points in the segment.
+    Two runs that both completed are compared up to where the first stopped: a simulated run
+    ends within the route's end tolerance, a recorded drive at its last pose, and the metres
+    between are no difference in driving.
+    """
+    end = seg.end_m
+    both = _completion(p, seg) >= opts.success_threshold
+    if both and _completion(o, seg) >= opts.success_threshold:
+        end = min(end, p.max_progress, o.max_progress)
+    theirs = _segment_points(o, seg.start_m, end)
+    mine_cut = mine if end >= seg.end_m else _segment_points(p, seg.start_m, end)
+    if theirs.shape[0] < 2 or mine_cut.shape[0] < 2:
+        return None
+    key = (min(p.run.name, o.run.name), max(p.run.name, o.run.name))
+    if key not in cache:
+        cache[key] = _frechet(mine_cut, theirs, opts)
+    return cache[key]
+
+
+def _twin(p: _Projected, real: Sequence[_Projected]) -> _Projected | None:
+    """The closed-loop real run of ``p``'s seed (the same drawn start), if there is one."""
+    if p.run.real or p.run.seed is None:
+        return None
+    return next((o for o in real if o.run.seed == p.run.seed), None)
+
+
 def _run_metrics(
     p: _Projected,
     others: Sequence[_Projected],
@@ -360,6 +406,7 @@ def _run_metrics(
     ref: ReferencePath,
     opts: DriveOptions,
     cache: dict[tuple[str, str], float],
+    twin: _Projected | None = None,
 ) -> RunMetrics:
     run = p.run
     completion = _completion(p, seg)
@@ -369,23 +416,14 @@ def _run_metrics(
     best, best_vs = None, None
     if mine.shape[0] >= 2:
         for o in others:
-            # Two runs that both completed are compared up to where the first stopped: a
-            # simulated run ends within the route's end tolerance, a recorded drive at its last
-            # pose, and the metres between are no difference in driving.
-            end = seg.end_m
-            if success and _completion(o, seg) >= opts.success_threshold:
-                end = min(end, p.max_progress, o.max_progress)
-            theirs = _segment_points(o, seg.start_m, end)
-            mine_cut = mine if end >= seg.end_m else _segment_points(p, seg.start_m, end)
-            if theirs.shape[0] >= 2 and mine_cut.shape[0] >= 2:
-                key = (min(run.name, o.run.name), max(run.name, o.run.name))
-                if key not in cache:
-                    cache[key] = _frechet(mine_cut, theirs, opts)
-                d = cache[key]
-                if best is None or d < best:
-                    best, best_vs = d, o.run.name
+            d = _pair_frechet(p, o, mine, seg, opts, cache)
+            if d is not None and (best is None or d < best):
+                best, best_vs = d, o.run.name
     else:
         notes.append("never inside the scenario segment")
+    twin_d = None
+    if twin is not None and mine.shape[0] >= 2:
+        twin_d = _pair_frechet(p, twin, mine, seg, opts, cache)
     viol = mean_ex = when_out = None
     valid = np.isfinite(p.lateral_c) & np.isfinite(corridor.cmin)
     if valid.sum() >= opts.min_samples:
@@ -422,6 +460,8 @@ def _run_metrics(
         success=success,
         min_frechet_m=best,
         min_frechet_vs=best_vs,
+        twin_frechet_m=twin_d,
+        twin=None if twin_d is None or twin is None else twin.run.name,
         corridor_violation_pct=viol,
         mean_excess_m=mean_ex,
         mean_excess_when_out_m=when_out,
@@ -463,6 +503,7 @@ def _summaries(runs: list[RunMetrics]) -> list[MethodSummary]:
                 completion_min=float(np.min(comp)),
                 completion_max=float(np.max(comp)),
                 avg_min_frechet_m=_mean([r.min_frechet_m for r in ok]),
+                avg_twin_frechet_m=_mean([r.twin_frechet_m for r in ok]),
                 avg_corridor_violation_pct=_mean([r.corridor_violation_pct for r in ok]),
                 avg_mean_excess_m=_mean([r.mean_excess_m for r in ok]),
                 avg_mean_excess_when_out_m=_mean([r.mean_excess_when_out_m for r in ok]),
@@ -568,7 +609,10 @@ def evaluate_drives(
         others = [o for j, o in enumerate(real_p) if j != i]
         loo = _corridor([o.lateral_c for o in others], c, half) if others else corridor
         results.append(_run_metrics(p, others, loo, segment, ref, opts, cache))
-    results += [_run_metrics(p, real_p, corridor, segment, ref, opts, cache) for p in sim_p]
+    results += [
+        _run_metrics(p, real_p, corridor, segment, ref, opts, cache, _twin(p, real_p))
+        for p in sim_p
+    ]
     results += [
         RunMetrics(
             name=r.name,

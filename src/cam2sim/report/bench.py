@@ -42,7 +42,10 @@ _GLOSSARY = (
     "Real: the recorded drive plus DAVE-2's closed-loop runs in the ground-truth world (the "
     "truth camera); splat: DAVE-2 driving on the splat's images; Sim: on the simulator's raster "
     "images. Runs of each method differ by seed (start pose, speed, steering noise); the runs "
-    "of one seed are the same draw for every method (each result.json names its first seed)."
+    "of one seed are the same draw for every method (each result.json names its first seed). "
+    "A run's Min-Fréchet is its distance to the nearest Real run other than itself, so Real's "
+    "is mostly the spread of the drawn starts; 'to Real twin' is a run's distance to the Real "
+    "run of its own seed (the same start): what the camera alone changed."
 )
 _CSS = """
 body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1100px;color:#222}
@@ -96,12 +99,14 @@ def bench_tables(
     )  # fmt: skip
     streets: tuple[list[str], list[list[object]]] = (
         ["street", "tuned", "Real fail", "splat fail", "Sim fail", "splat-Real rate",
-         "Fréchet splat/Real", "its 95% interval", "splat ~ Real", "Sim corridor excess %"],
+         "Fréchet splat/Real", "its 95% interval", "splat to Real twin m", "splat ~ Real",
+         "Sim corridor excess %"],
         [
             [p.label, "yes" if p.tuned else "no", p.real_failures, p.splat_failures,
              p.sim_failures, fmt(p.failure_rate_diff, "+.2f"), fmt(p.frechet_ratio),
              "-" if p.frechet_ratio_low is None or p.frechet_ratio_high is None
              else f"{p.frechet_ratio_low:.2f}-{p.frechet_ratio_high:.2f}",
+             fmt(p.splat_twin_frechet_m),
              {True: "yes", False: "NO", None: "-"}[p.splat_matches_real],
              fmt(p.sim_corridor_excess_pct, "+.1f")]
             for p in agg.pairs
@@ -109,10 +114,13 @@ def bench_tables(
     )  # fmt: skip
     methods: tuple[list[str], list[list[object]]] = (
         ["street", "method", "runs", "failures", "completion", "Min-Fréchet m",
-         "corridor viol. %", "jitter", "failure types"],
+         "to Real twin m", "corridor viol. %", "jitter", "failure types"],
         [
             [w.label, m.method, m.runs, m.failures, fmt(m.completion_mean, ".3f"),
-             fmt(m.min_frechet_m), fmt(m.corridor_violation_pct, ".1f"), fmt(m.jitter, ".3f"),
+             fmt(m.min_frechet_m),
+             fmt(sum(m.twin_frechet_runs_m) / len(m.twin_frechet_runs_m)
+                 if m.twin_frechet_runs_m else None),
+             fmt(m.corridor_violation_pct, ".1f"), fmt(m.jitter, ".3f"),
              ", ".join(f"{k} {v}" for k, v in sorted(m.failure_types.items())) or "-"]
             for w in results
             for m in w.methods
