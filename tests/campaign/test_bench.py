@@ -221,3 +221,25 @@ def test_results_gathered_from_elsewhere_are_reported_without_running_again(
     page = (gathered / "report.html").read_text(encoding="utf-8")
     for label in ("l-street", "street-r0"):
         assert f'id="w-{label}"' in page
+
+
+def test_a_world_rescored_keeps_its_figures_and_gains_the_twin_distances(
+    bench: tuple[Path, object],
+) -> None:
+    """A result made before a measure existed is scored again from its workspace, not rerun."""
+    from cam2sim.campaign.bench import rescore_world
+    from cam2sim.core.errors import StageError
+    from cam2sim.metrics.benchmark import WorldResult
+
+    root, _ = bench
+    world = root / "out" / "worlds" / "l-street"
+    before = WorldResult.load(world / "result.json")
+    stripped = [m.model_copy(update={"twin_frechet_runs_m": []}) for m in before.methods]
+    old = before.model_copy(update={"methods": stripped})  # as a result of an older version
+    old.save(world / "result.json")
+    again = rescore_world(world)
+    assert again.methods == before.methods  # the twin distances back, nothing else moved
+    assert again.model_copy(update={"methods": stripped}) == old  # splat, profile, times kept
+    with pytest.raises(StageError, match="run the world with `cam2sim bench` first"):
+        rescore_world(root / "out" / "worlds" / "fields-r0")  # a world that failed
+    before.save(world / "result.json")

@@ -51,6 +51,7 @@ __all__ = [
     "BenchResult",
     "bench_folder",
     "execute_world",
+    "rescore_world",
     "run_bench",
     "splat_options",
     "world_result",
@@ -278,6 +279,35 @@ def world_result(spec: WorldSpec, done: Experiment, seconds: float) -> WorldResu
         profile=prof,
         **_splat_facts(ws),
     )
+
+
+def rescore_world(world_dir: Path) -> WorldResult:
+    """A finished world's result with its drives scored again by today's drive metrics.
+
+    The drive runs in ``WORLD/ws`` are evaluated again (``ws/report/drive/metrics.json`` is
+    rewritten) and the result's behaviour rows replaced; everything else the world measured
+    (the splat, the profile, the failures' views, the times) is kept. For measures added after
+    a world ran (the distance of each run to its Real twin), without running it again.
+
+    Raises:
+        StageError: The world has no result or no drive runs (it did not finish).
+    """
+    from cam2sim.core.workspace import Workspace  # noqa: PLC0415
+    from cam2sim.stages.evaluate import drive_run_ids, evaluate_workspace_drives  # noqa: PLC0415
+
+    path = Path(world_dir) / RESULT
+    if not path.is_file():
+        msg = f"{world_dir} has no {RESULT}; run the world with `cam2sim bench` first"
+        raise StageError(msg)
+    result = WorldResult.load(path)
+    ws = Workspace.open(Path(world_dir) / "ws")
+    runs = drive_run_ids(ws)
+    if not runs:
+        msg = f"{ws.root} has no drive runs to score again"
+        raise StageError(msg)
+    evaluate_workspace_drives(ws, runs, ws.drive_eval_dir)
+    methods, _ = _method_rows(ws)
+    return result.model_copy(update={"methods": methods})
 
 
 def _run_world(spec: WorldSpec, out: Path) -> str:

@@ -52,6 +52,7 @@ __all__ = [
     "EVALUATE_STAGE",
     "EvaluateOptions",
     "EvaluateResult",
+    "drive_run_ids",
     "evaluate_workspace",
     "evaluate_workspace_drives",
     "lane_margin",
@@ -186,6 +187,11 @@ def evaluate_workspace_drives(
     options = DriveOptions(single_drive_half_width_m=lane_margin(ws))
     write_drive_evaluation(references, runs, out, options=options)
     return out / "metrics.json"
+
+
+def drive_run_ids(ws: Workspace) -> list[str]:
+    """Ids of the workspace's finished drive runs, oldest first (what evaluate scores)."""
+    return _runs_of_kind(ws, "drive")
 
 
 def _runs_of_kind(ws: Workspace, kind: str) -> list[str]:
