@@ -9,7 +9,13 @@ from cam2sim.metrics.drive_io import DriveRun
 
 
 def _run(
-    name: str, method: str, lateral: float, *, end: float = 100.0, real: bool = False
+    name: str,
+    method: str,
+    lateral: float,
+    *,
+    end: float = 100.0,
+    real: bool = False,
+    seed: int | None = None,
 ) -> DriveRun:
     x = np.arange(0.0, end, 0.5)
     y = lateral * np.sin(x / 15.0)
@@ -26,6 +32,7 @@ def _run(
         crs=None,
         steering_t=steer_t,
         steering=0.1 * np.sin(steer_t * (2.0 + lateral)),
+        seed=seed,
     )
 
 
@@ -55,9 +62,9 @@ def test_completed_real_runs_join_the_references_and_failed_ones_count_as_failur
 def test_the_table_has_real_then_splat_then_sim_columns() -> None:
     recorded = _run("real/recorded", "real", 0.0, real=True)
     runs = [
-        _run("sim/a", "drive-raster", 1.2, end=30.0),
-        _run("splat/a", "drive-splat", 0.8),
-        _run("real/a", "real", 0.3),
+        _run("sim/a", "drive-raster", 1.2, end=30.0, seed=4),
+        _run("splat/a", "drive-splat", 0.8, seed=4),
+        _run("real/a", "real", 0.3, seed=4),
     ]
     table = behaviour_table(evaluate_with_real_runs([recorded], runs).metrics)
     assert table.columns == ("Real", "splat", "Sim")
@@ -65,4 +72,6 @@ def test_the_table_has_real_then_splat_then_sim_columns() -> None:
     assert rows["runs"] == ("2", "1", "1")
     assert rows["failure rate"] == ("0/2", "0/1", "1/1")
     assert rows["Min-Fréchet (m)"][2] == "-"  # averages over successful runs only
+    # splat/a's twin is real/a (seed 4): sine amplitudes 0.8 and 0.3, 0.5 m apart at most.
+    assert rows["to Real twin (m)"] == ("-", "0.50", "-")
     assert "| metric | Real | splat | Sim |" in table.markdown()

@@ -160,7 +160,8 @@ def behaviour_table(metrics: DriveMetrics) -> BehaviourTable:
 
     Failure rate and completion count every run of a method; Min-Fréchet, corridor violations
     and the excesses average the successful runs; jitter averages all runs. Failure types are
-    ``OR-CC-OS-US`` counts (out of road, car crash, oversteer, understeer). A method that
+    ``OR-CC-OS-US`` counts (out of road, car crash, oversteer, understeer). "to Real twin" is
+    the mean Fréchet distance of the successful runs to the real run of their seed. A method that
     failed the splat quality gate is labelled ``(unfit)``, with a note giving the reason.
     """
     methods = _order(metrics.methods)
@@ -196,6 +197,7 @@ def behaviour_table(metrics: DriveMetrics) -> BehaviourTable:
         ),
         row("failure types OR-CC-OS-US", [types(s) for s in methods]),
         row("Min-Fréchet (m)", [_fmt(s.avg_min_frechet_m, ".2f") for s in methods]),
+        row("to Real twin (m)", [_fmt(s.avg_twin_frechet_m, ".2f") for s in methods]),
         row(
             "corridor violations (%)", [_fmt(s.avg_corridor_violation_pct, ".1f") for s in methods]
         ),
