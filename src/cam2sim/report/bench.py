@@ -35,7 +35,15 @@ if TYPE_CHECKING:
 
     from cam2sim.metrics.benchmark import Aggregate, WorldResult
 
-__all__ = ["bench_tables", "rates_figure", "write_bench_report"]
+__all__ = [
+    "bench_tables",
+    "gap_figure",
+    "gap_prediction",
+    "rank_correlation",
+    "rates_figure",
+    "steering_gap_mean",
+    "write_bench_report",
+]
 
 COLOURS = METHOD_COLOURS
 _GLOSSARY = (
@@ -140,8 +148,8 @@ def bench_tables(
         ["street", "route m", "device", "steps a chunk", "stopped", "Gaussians a chunk k",
          "held-out PSNR",
          "held-out SSIM", "truth on path", "truth 1 m right", "truth 1 m left",
-         "profile min PSNR", "largest steering gap (at m)", "steering gain splat/truth",
-         "world s"],
+         "profile min PSNR", "mean steering gap", "largest steering gap (at m)",
+         "steering gain splat/truth", "world s"],
         [
             [w.label, fmt(w.route_m, ".0f"), w.splat_device or "-",
              "/".join(str(s) for s in w.splat_steps) or "-",
@@ -149,7 +157,8 @@ def bench_tables(
              fmt(w.splat_held_out_psnr_db, ".1f"), fmt(w.splat_held_out_ssim, ".3f"),
              fmt(w.splat_truth_psnr_db.get("on path"), ".1f"),
              fmt(_truth_at(w, "+1"), ".1f"), fmt(_truth_at(w, "-1"), ".1f"),
-             fmt(_profile_min(w), ".1f"), _gap_text(w), fmt(steering_gain(w), ".3f"),
+             fmt(_profile_min(w), ".1f"), fmt(steering_gap_mean(w), ".3f"), _gap_text(w),
+             fmt(steering_gain(w), ".3f"),
              fmt(w.seconds, ".0f")]
             for w in results
         ],
@@ -188,6 +197,68 @@ def steering_gap_peak(world: WorldResult) -> tuple[float, float] | None:
     """The largest |splat - truth| steering of the drives' policy on the path, and where (m)."""
     gaps = [(abs(b - a), s) for s, a, b in _steering_pairs(world)]
     return max(gaps) if gaps else None
+
+
+def steering_gap_mean(world: WorldResult) -> float | None:
+    """The mean |splat - truth| steering of the drives' policy over the path's stations.
+
+    Measured on the splat alone (no drive): across the streets of 2026-12-07 it ordered the
+    splat runs' Min-Fréchet almost exactly (docs/benchmarks.md, "The steering gap predicts the
+    drive"), where the splat's PSNR did not.
+    """
+    pairs = _steering_pairs(world)
+    return sum(abs(b - a) for _, a, b in pairs) / len(pairs) if pairs else None
+
+
+def rank_correlation(x: Sequence[float], y: Sequence[float]) -> float | None:
+    """Spearman's rank correlation of ``x`` and ``y`` (ties ranked by their mean), or None.
+
+    None with fewer than three pairs or where either has no spread.
+    """
+    import numpy as np  # noqa: PLC0415
+
+    if len(x) != len(y) or len(x) < 3:  # a rank order needs three
+        return None
+
+    def ranks(v: Sequence[float]) -> Any:
+        a = np.asarray(v, dtype=np.float64)
+        _, inverse, counts = np.unique(a, return_inverse=True, return_counts=True)
+        ends = np.cumsum(counts)
+        return ((ends - counts + ends - 1) / 2.0)[inverse]  # each tie gets the mean rank
+
+    rx, ry = ranks(x), ranks(y)
+    if rx.std() == 0 or ry.std() == 0:
+        return None
+    return float(np.corrcoef(rx, ry)[0, 1])
+
+
+def _gap_points(
+    results: Sequence[WorldResult],
+) -> list[tuple[str, float, float, float | None]]:
+    """``(street, mean steering gap, splat Min-Fréchet m, splat to its twin m)`` per street."""
+    points = []
+    for w in results:
+        gap, splat = steering_gap_mean(w), w.method("splat")
+        if gap is None or splat is None or splat.min_frechet_m is None:
+            continue
+        twins = splat.twin_frechet_runs_m
+        points.append(
+            (w.label, gap, splat.min_frechet_m, sum(twins) / len(twins) if twins else None)
+        )
+    return points
+
+
+def gap_prediction(results: Sequence[WorldResult]) -> str | None:
+    """One sentence: how well the steering gap orders the splat runs' Min-Fréchet, or None."""
+    points = _gap_points(results)
+    rho = rank_correlation([p[1] for p in points], [p[2] for p in points])
+    if rho is None:
+        return None
+    return (
+        f"The splat's steering gap (mean |splat - truth| steering of the drives' DAVE-2 on the "
+        f"path's stations, measured without driving) against its runs' Min-Fréchet over "
+        f"{len(points)} streets: Spearman rank correlation {rho:.2f}"
+    )
 
 
 def steering_gain(world: WorldResult) -> float | None:
@@ -257,6 +328,33 @@ def rates_figure(agg: Aggregate, *, title: str = "Failures over all streets") ->
     return fig
 
 
+def gap_figure(results: Sequence[WorldResult]) -> Any | None:
+    """Each street's splat Min-Fréchet (and distance to its twin) against its steering gap."""
+    points = _gap_points(results)
+    if len(points) < 3:  # as rank_correlation
+        return None
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(6.0, 3.6))
+    colour = COLOURS.get("splat", "#2166ac")
+    ax.scatter([p[1] for p in points], [p[2] for p in points], color=colour, s=22,
+               label="splat runs' Min-Fréchet")  # fmt: skip
+    twins = [(p[1], p[3]) for p in points if p[3] is not None]
+    if twins:
+        ax.scatter([t[0] for t in twins], [t[1] for t in twins], facecolors="none",
+                   edgecolors=colour, s=40, label="splat runs to their Real twin")  # fmt: skip
+    for label, gap, frechet, _ in points:
+        ax.annotate(label, (gap, frechet), fontsize=6, xytext=(3, 2), textcoords="offset points")
+    rho = rank_correlation([p[1] for p in points], [p[2] for p in points])
+    ax.set_xlabel("mean steering gap on the path, |splat - truth| (policy units)")
+    ax.set_ylabel("metres")
+    ax.set_xlim(left=0)
+    ax.set_ylim(bottom=0)
+    ax.legend(fontsize=7, loc="upper left")
+    ax.set_title(f"Does the splat's steering gap predict the drive? Spearman {rho:.2f}", fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
 def _profile_plot(world: WorldResult) -> str:
     if not world.profile:
         return '<p class="note">no along-route profile</p>'
@@ -292,6 +390,13 @@ def _profile_plot(world: WorldResult) -> str:
 
 
 # -- the page -------------------------------------------------------------------------------
+
+
+def _gap_section(results: Sequence[WorldResult]) -> str:
+    fig, prediction = gap_figure(results), gap_prediction(results)
+    if fig is None or prediction is None:
+        return ""
+    return f"<p>{esc(prediction)}.</p>{png_img(fig)}"
 
 
 def _world_section(folder: Path, world: WorldResult, tables: Mapping[str, Any]) -> str:
@@ -362,6 +467,9 @@ def write_bench_report(
         md += [f"\n## {title}\n\n", _markdown(*tables[key])]
     md += ["\n## Failure rate per method, streets not used while tuning\n\n",
            _markdown(*untuned_rates)]  # fmt: skip
+    prediction = gap_prediction(results)
+    if prediction is not None:
+        md += ["\n## What predicts the splat's drive\n\n", prediction, ".\n"]
     if missing:
         md += ["\n## Worlds without a result\n\n"] + [f"- {k}: {v}\n" for k, v in missing.items()]
     write_text_atomic(folder / "summary.md", "".join(md))
@@ -377,6 +485,7 @@ def write_bench_report(
         html_table(*untuned_rates, caption="The same, streets not used while tuning"),
         html_table(*tables["streets"], caption=titles["streets"]),
         html_table(*tables["splat"], caption=titles["splat"]),
+        _gap_section(results),
         html_table(*tables["failures"], caption=titles["failures"]),
         "<h2>Streets</h2>",
         *(_world_section(folder, w, tables) for w in results),
