@@ -94,8 +94,7 @@ def main() -> None:
             gap = steering_gap_mean(world)
             if gap is None or splat is None or splat.min_frechet_m is None:
                 continue
-            twins = splat.twin_frechet_runs_m
-            twin = f"{sum(twins) / len(twins):.2f}" if twins else "-"
+            twin = "-" if splat.twin_frechet_m is None else f"{splat.twin_frechet_m:.2f}"
             ratio = (
                 f"{splat.min_frechet_m / real.min_frechet_m:.2f}"
                 if real is not None and real.min_frechet_m

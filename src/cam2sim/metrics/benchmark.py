@@ -88,6 +88,11 @@ class MethodRow(_Model):
     )
 
     @property
+    def twin_frechet_m(self) -> float | None:
+        """The mean of :attr:`twin_frechet_runs_m`, or None where none was measured."""
+        return _mean(self.twin_frechet_runs_m)
+
+    @property
     def closed_loop_runs(self) -> int:
         """Closed-loop runs of the method (the recorded drives left out)."""
         return self.runs - self.recorded
@@ -313,11 +318,7 @@ def _pair(world: WorldResult) -> StreetPair:
         frechet_ratio=ratio,
         frechet_ratio_low=None if interval is None else interval[0],
         frechet_ratio_high=None if interval is None else interval[1],
-        splat_twin_frechet_m=(
-            _mean(splat.twin_frechet_runs_m)
-            if splat is not None and splat.twin_frechet_runs_m
-            else None
-        ),
+        splat_twin_frechet_m=None if splat is None else splat.twin_frechet_m,
         splat_matches_real=matches,
         sim_fails=sim_fails,
         sim_corridor_excess_pct=excess,

@@ -126,8 +126,7 @@ def bench_tables(
         [
             [w.label, m.method, m.runs, m.failures, fmt(m.completion_mean, ".3f"),
              fmt(m.min_frechet_m),
-             fmt(sum(m.twin_frechet_runs_m) / len(m.twin_frechet_runs_m)
-                 if m.twin_frechet_runs_m else None),
+             fmt(m.twin_frechet_m),
              fmt(m.corridor_violation_pct, ".1f"), fmt(m.jitter, ".3f"),
              ", ".join(f"{k} {v}" for k, v in sorted(m.failure_types.items())) or "-"]
             for w in results
@@ -241,10 +240,7 @@ def _gap_points(
         gap, splat = steering_gap_mean(w), w.method("splat")
         if gap is None or splat is None or splat.min_frechet_m is None:
             continue
-        twins = splat.twin_frechet_runs_m
-        points.append(
-            (w.label, gap, splat.min_frechet_m, sum(twins) / len(twins) if twins else None)
-        )
+        points.append((w.label, gap, splat.min_frechet_m, splat.twin_frechet_m))
     return points
 
 
