@@ -52,6 +52,10 @@ RUNS = (
         "issue37-picked/worlds/*/result.json",
         "the GPU preset, routes driven as picked (300-400 m), a world a call, alone on an H100",
     ),
+    (
+        "issue37-ownseeds/worlds/*/result.json",
+        "the GPU preset, the street's own seeds, 2-3 worlds at a time sharing an H100",
+    ),
 )
 
 
