@@ -69,7 +69,13 @@ def dying_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOutcom
 def probe_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOutcome:
     """Instead of a drive: hold the task 1.5 s and log when, in which process and among how
     many processes its GPU is shared; the outcome says where it ran. Policy ``constant:13``:
-    the process exits on the first attempt."""
+    the process exits on the first attempt.
+
+    A probe told it shares its GPU with others first waits (up to 30 s) until as many probes
+    have begun (a ``.begun`` file each beside the logs): runs that share a GPU do run at the
+    same time whatever the machine's load (a worker starting late on a busy machine made the
+    overlap a race); runs that do not share one never meet, so the wait ends at its limit and
+    the times show them apart."""
     import time
     from pathlib import Path
 
@@ -84,9 +90,16 @@ def probe_execute(spec: RunSpec, log: str, timeout_s: float | None) -> RunOutcom
         marker.write_text("the worker exited here\n", encoding="utf-8")
         os._exit(1)
     started = time.time()
+    logs = Path(log).parent
+    logs.mkdir(parents=True, exist_ok=True)
+    sharers = gpu_sharers()
+    if sharers > 1:
+        Path(log).with_suffix(".begun").write_text(f"{started}\n", encoding="utf-8")
+        deadline = time.monotonic() + 30.0
+        while len(list(logs.glob("*.begun"))) < sharers and time.monotonic() < deadline:
+            time.sleep(0.05)
     time.sleep(1.5)
-    Path(log).parent.mkdir(parents=True, exist_ok=True)
-    line = f"{started} {time.time()} {os.getpid()} {gpu_sharers()}\n"
+    line = f"{started} {time.time()} {os.getpid()} {sharers}\n"
     Path(log).write_text(line, encoding="utf-8")
     return RunOutcome(spec.spec_id, "failed", None, 1.5, "a probe, no drive", log, worker_place())
 
