@@ -10,7 +10,8 @@ steering on both, and on views mixed from the two:
 - the splat's upper rows (sky, facades) or its road rows (from ``--horizon`` down) pasted on the
   truth;
 - the truth blurred (Gaussian, 2 px); the splat's structure above 2 px with the truth's finer
-  detail; the truth with the splat's colour statistics.
+  detail; the truth with the splat's colour statistics; the truth without its sensor noise
+  (the world's textures only: what a splat can learn).
 
 Optionally writes the truth, the splat and their difference (x3) side by side (``--image``).
 Run from the repository root::
@@ -79,9 +80,10 @@ def main() -> None:
     rows = []
     print(
         "| s m | truth | splat | truth shifted (m: steering, PSNR vs splat) | splat sky | "
-        "splat road | truth blurred 2 px | splat > 2 px + truth detail | splat colours |"
+        "splat road | truth blurred 2 px | splat > 2 px + truth detail | splat colours | "
+        "truth without sensor noise |"
     )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     with Cameras(ctx, ("splat", TRUTH_CAMERA)) as cams:
         for s in (float(x) for x in args.stations.split(",")):
             splat = cams.render("splat", pose(s, splat=True), camera)
@@ -95,10 +97,13 @@ def main() -> None:
             with_sky[sky], with_road[road] = p[sky], p[road]
             structure = _low(p, 2.0) + (t - _low(t, 2.0))
             colours = (t - t.mean((0, 1))) / t.std((0, 1)) * p.std((0, 1)) + p.mean((0, 1))
+            renderer = cams.renderers[TRUTH_CAMERA]
+            clean = renderer.render(pose(s, splat=False), camera, sensor_noise=False).rgb
             print(
                 f"| {s:.0f} | {steer(truth):+.2f} | {steer(splat):+.2f} | {'; '.join(shifted)} | "
                 f"{steer(with_sky):+.2f} | {steer(with_road):+.2f} | "
-                f"{steer(_low(t, 2.0)):+.2f} | {steer(structure):+.2f} | {steer(colours):+.2f} |"
+                f"{steer(_low(t, 2.0)):+.2f} | {steer(structure):+.2f} | {steer(colours):+.2f} | "
+                f"{steer(clean):+.2f} |"
             )
             diff = np.clip(np.abs(t - p) * 3, 0, 255).astype(np.uint8)
             rows.append(np.concatenate([truth, splat, diff], axis=1))
