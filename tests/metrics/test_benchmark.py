@@ -128,3 +128,22 @@ def test_the_verdict_counts_the_streets_over_the_line_beyond_doubt() -> None:
     assert pairs["old"].frechet_ratio_low is None
     assert (agg.frechet_within, agg.frechet_over_beyond_doubt, agg.frechet_intervals) == (1, 1, 3)
     assert agg.verdict.endswith("; Min-Fréchet over 1.5x beyond its 95 % interval on 1 of 3")
+
+
+def test_the_verdict_gives_the_range_of_the_splat_runs_distance_to_their_twins() -> None:
+    def world(label: str, twins: list[float]) -> WorldResult:
+        w = _world(label, (0, 0.1), (0, 0.12), (3, None))
+        methods = [
+            m.model_copy(update={"twin_frechet_runs_m": twins if m.method == "splat" else []})
+            for m in w.methods
+        ]
+        return w.model_copy(update={"methods": methods})
+
+    agg = aggregate([world("near", [0.02, 0.03, 0.01]), world("far", [0.28, 0.27, 0.29]),
+                     world("old", [])])  # fmt: skip
+    pairs = {p.label: p for p in agg.pairs}
+    assert pairs["near"].splat_twin_frechet_m == pytest.approx(0.02)
+    assert pairs["old"].splat_twin_frechet_m is None
+    assert agg.verdict.endswith("; splat runs 0.02-0.28 m from their Real twins on 2 of 3")
+    # Without any twin distance the verdict ends as before.
+    assert aggregate([world("old", [])]).verdict.endswith("Sim fails on 1 of 1")

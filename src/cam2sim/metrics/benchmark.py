@@ -19,7 +19,10 @@ failures. :func:`aggregate` puts them together:
   :data:`FRECHET_RATIO_MAX` times Real's (or every run of both fails, so neither has one);
   *Sim fails* on a street when one of its runs fails. Where Sim does not fail, its
   corridor violations and Min-Fréchet ratio are what separate it from Real. The verdict also
-  counts the streets whose ratio is over the line beyond doubt (its whole interval above it).
+  counts the streets whose ratio is over the line beyond doubt (its whole interval above it),
+  and gives the range of the streets' splat-to-twin distances (each splat run against the
+  closed-loop Real run of its seed), which the draw of the starts does not move as it moves
+  the ratio's divisor (docs/benchmarks.md, "Seven untuned streets again with their own seeds").
 
 The Real group is what the behaviour table's is (``docs/metrics.md``): the recorded drive plus
 the closed-loop runs in the ground-truth world. Rates count the closed-loop runs alone, so each
@@ -346,6 +349,12 @@ def aggregate(worlds: list[WorldResult]) -> Aggregate:
         verdict += (
             f"; Min-Fréchet over {FRECHET_RATIO_MAX:g}x beyond its 95 % interval on {over} of "
             f"{len(lows)}"
+        )
+    twins = [p.splat_twin_frechet_m for p in pairs if p.splat_twin_frechet_m is not None]
+    if twins:
+        verdict += (
+            f"; splat runs {min(twins):.2f}-{max(twins):.2f} m from their Real twins on "
+            f"{len(twins)} of {len(pairs)}"
         )
     return Aggregate(
         streets=len(worlds),
