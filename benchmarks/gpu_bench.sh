@@ -42,6 +42,8 @@
 # ENTRY=i (start) runs the suite's i-th world entry alone (streets-gpu-equal.yaml: one world a
 # call from one suite); ENTRY=i,j,... keeps those entries (with WORKERS=2, two worlds at a time
 # sharing the GPU and its 16 cores: twice the worlds a session, each world's time then shared).
+# Measured on an H100 (2026-12-07): two worlds a call 345-375 s, three 557 s (too near the
+# 600 s a call: collect may find the last world unfinished; then PHASE=wait and collect again).
 # BENCH (default /tmp/bench) is the benchmark folder on the device: a second suite in the same
 # session gets its own (BENCH=/tmp/bench2 for its start, wait and collect).
 # CAM2SIM_SPLAT_PROFILE=1 on the start call times each training step's phases (host and device,
